@@ -1,0 +1,40 @@
+"""One exception hierarchy for geoface.
+
+Every error that bad *input* can cause is a :class:`GeofaceError`; the CLI turns it
+into one line on stderr and exit code 2.  Programming errors stay ordinary Python
+exceptions.
+"""
+
+from __future__ import annotations
+
+
+class GeofaceError(Exception):
+    """Root of every error geoface raises for bad input or impossible requests."""
+
+
+class MeshFormatError(GeofaceError):
+    """A file could not be read or written as a mesh (missing, empty, corrupt, not a mesh)."""
+
+
+class InvalidMeshError(GeofaceError):
+    """Mesh arrays are malformed: wrong shapes, NaN/inf coordinates, indices out of range."""
+
+
+class MeshTopologyError(GeofaceError):
+    """A mesh does not have (and could not be given) the topology an algorithm needs."""
+
+
+class ParameterizationError(GeofaceError):
+    """A parameterization (Ricci flow, optimal transport) failed or was given bad input."""
+
+
+class InvalidGeometryImageError(GeofaceError):
+    """A geometry image or its metadata is malformed."""
+
+
+class MissingDependencyError(GeofaceError, ImportError):
+    """An optional dependency needed by the requested feature is not installed."""
+
+
+class GeofaceWarning(UserWarning):
+    """Something was changed or could not be kept (e.g. a format that cannot store UVs)."""

@@ -1,0 +1,1 @@
+"""Neural consumers of geometry images (later issues). May import torch."""

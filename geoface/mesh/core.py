@@ -1,0 +1,318 @@
+"""Plain-array mesh primitives: validation, areas, edges, loops, components, vertex fans.
+
+Conventions (DESIGN.md): ``V`` float64 ``(n, 3)``, ``F`` int64 ``(m, 3)``, counter-clockwise.
+Half-edge ``h = 3*f + k`` runs from ``F[f, k]`` to ``F[f, (k+1) % 3]``; corner ``c = 3*f + k``
+is vertex ``F[f, k]`` seen from face ``f``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from ..errors import InvalidMeshError
+from ..tol import tol
+
+
+def check_mesh(V, F, *, allow_empty: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Validate and convert mesh arrays once, at a public entry point.
+
+    Parameters
+    ----------
+    V : array_like, (n, 3) float
+    F : array_like, (m, 3) int
+
+    Returns
+    -------
+    V : (n, 3) float64, F : (m, 3) int64
+
+    Raises
+    ------
+    InvalidMeshError
+        Wrong shapes, non-finite coordinates, negative or out-of-range indices, no faces.
+
+    Examples
+    --------
+    >>> V, F = check_mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    >>> V.dtype, F.dtype
+    (dtype('float64'), dtype('int64'))
+    """
+    try:
+        V = np.asarray(V, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidMeshError(f"V must be a numeric (n, 3) array; {exc}") from None
+    Fa = np.asarray(F)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise InvalidMeshError(f"V must have shape (n, 3); got {V.shape}")
+    if Fa.size == 0 and Fa.ndim <= 2:
+        Fa = Fa.reshape(0, 3)
+    if Fa.ndim != 2 or Fa.shape[1] != 3:
+        raise InvalidMeshError(f"F must have shape (m, 3); got {Fa.shape}")
+    if Fa.size and not np.issubdtype(Fa.dtype, np.integer):
+        if not np.all(np.isfinite(Fa)) or np.any(Fa != np.round(Fa)):
+            raise InvalidMeshError("F must hold integer vertex indices")
+    F = Fa.astype(np.int64, copy=False)
+    if not allow_empty and (len(V) == 0 or len(F) == 0):
+        raise InvalidMeshError(f"mesh is empty: {len(V)} vertices, {len(F)} faces")
+    bad = ~np.isfinite(V).all(axis=1)
+    if bad.any():
+        raise InvalidMeshError(f"V has {int(bad.sum())} vertices with NaN or infinite coordinates (first: {int(np.flatnonzero(bad)[0])})")
+    if len(F):
+        lo, hi = int(F.min()), int(F.max())
+        if lo < 0 or hi >= len(V):
+            raise InvalidMeshError(f"F indexes vertices in [{lo}, {hi}] but V has {len(V)} vertices")
+    return V, F
+
+
+def bbox_diagonal(V: np.ndarray) -> float:
+    """Length of the bounding-box diagonal (1.0 for an empty or single-point set)."""
+    if len(V) == 0:
+        return 1.0
+    d = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    return d if d > 0 else 1.0
+
+
+def face_normals_unnormalized(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Cross products ``(v1 - v0) x (v2 - v0)``: direction = normal, length = 2 * area."""
+    return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+
+
+def face_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Triangle areas, ``(m,)`` float64."""
+    return 0.5 * np.linalg.norm(face_normals_unnormalized(V, F), axis=1)
+
+
+def face_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Unit face normals ``(m, 3)`` (zero for degenerate faces)."""
+    N = face_normals_unnormalized(V, F)
+    L = np.linalg.norm(N, axis=1, keepdims=True)
+    return np.divide(N, L, out=np.zeros_like(N), where=L > 0)
+
+
+def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Barycentric vertex areas: one third of the adjacent face areas, ``(n,)``."""
+    A = face_areas(V, F) / 3.0
+    return np.bincount(F.ravel(), weights=np.repeat(A, 3), minlength=len(V))
+
+
+def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals ``(n, 3)``."""
+    N = face_normals_unnormalized(V, F)
+    out = np.zeros((len(V), 3))
+    for k in range(3):
+        np.add.at(out, F[:, k], N)
+    L = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.divide(out, L, out=np.zeros_like(out), where=L > 0)
+
+
+@dataclass(frozen=True)
+class EdgeTopology:
+    """Undirected edges and their incidence with half-edges.
+
+    Attributes
+    ----------
+    E : (k, 2) int64, sorted vertex pairs (``E[:, 0] < E[:, 1]``)
+    he_edge : (3m,) int64, edge of each half-edge
+    edge_faces : (k,) int64, number of faces on each edge
+    he_src, he_dst : (3m,) int64, start and end vertex of each half-edge
+    """
+
+    E: np.ndarray
+    he_edge: np.ndarray
+    edge_faces: np.ndarray
+    he_src: np.ndarray
+    he_dst: np.ndarray
+
+    @property
+    def boundary_halfedges(self) -> np.ndarray:
+        return np.flatnonzero(self.edge_faces[self.he_edge] == 1)
+
+    @property
+    def nonmanifold_edges(self) -> np.ndarray:
+        return np.flatnonzero(self.edge_faces > 2)
+
+
+def edge_topology(F: np.ndarray) -> EdgeTopology:
+    """Build :class:`EdgeTopology` for faces ``F`` (vectorised)."""
+    src = F.ravel()
+    dst = F[:, [1, 2, 0]].ravel()
+    key = np.stack([np.minimum(src, dst), np.maximum(src, dst)], axis=1)
+    if len(key) == 0:
+        return EdgeTopology(np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), src, dst)
+    E, he_edge = np.unique(key, axis=0, return_inverse=True)
+    he_edge = he_edge.ravel()
+    counts = np.bincount(he_edge, minlength=len(E))
+    return EdgeTopology(E.astype(np.int64), he_edge.astype(np.int64), counts, src, dst)
+
+
+def manifold_halfedge_pairs(et: EdgeTopology) -> np.ndarray:
+    """``(p, 2)`` pairs of half-edges on edges shared by exactly two faces."""
+    order = np.argsort(et.he_edge, kind="stable")
+    e_sorted = et.he_edge[order]
+    two = et.edge_faces[e_sorted] == 2
+    h = order[two]
+    # consecutive entries of the same edge come in pairs after the stable sort
+    return h.reshape(-1, 2)
+
+
+def corner_of(F: np.ndarray, faces: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    """Corner index ``3*f + k`` of vertex ``verts[i]`` in face ``faces[i]``."""
+    k = np.argmax(F[faces] == verts[:, None], axis=1)
+    return 3 * faces + k
+
+
+def vertex_fans(F: np.ndarray, pairs: np.ndarray, n_vertices: int | None = None) -> tuple[int, np.ndarray]:
+    """Group the corners around each vertex into fans connected through paired half-edges.
+
+    Two corners of the same vertex belong to one fan when their faces are linked by a
+    pair in ``pairs`` across an edge incident to that vertex.  A manifold vertex has one
+    fan; a non-manifold ("bow-tie") vertex has several.
+
+    Returns
+    -------
+    n_fans : int
+    labels : (3m,) int64, fan id of each corner
+    """
+    m = len(F)
+    if len(pairs) == 0:
+        return 3 * m, np.arange(3 * m)
+    h1, h2 = pairs[:, 0], pairs[:, 1]
+    f1, f2 = h1 // 3, h2 // 3
+    src = F.ravel()
+    dst = F[:, [1, 2, 0]].ravel()
+    a, b = src[h1], dst[h1]
+    rows = np.concatenate([corner_of(F, f1, a), corner_of(F, f1, b)])
+    cols = np.concatenate([corner_of(F, f2, a), corner_of(F, f2, b)])
+    G = sp.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(3 * m, 3 * m))
+    return connected_components(G, directed=False)
+
+
+def nonmanifold_vertices(F: np.ndarray, n_vertices: int, et: EdgeTopology | None = None) -> np.ndarray:
+    """Vertices whose corners form more than one fan (bow-ties, or touching a >2-face edge)."""
+    et = et if et is not None else edge_topology(F)
+    _, labels = vertex_fans(F, manifold_halfedge_pairs(et))
+    corner_vertex = F.ravel()
+    fan_vertex = np.zeros(labels.max() + 1 if len(labels) else 0, np.int64)
+    fan_vertex[labels] = corner_vertex
+    fans_per_vertex = np.bincount(fan_vertex, minlength=n_vertices)
+    return np.flatnonzero(fans_per_vertex > 1)
+
+
+def boundary_loops(F: np.ndarray, et: EdgeTopology | None = None) -> list[np.ndarray]:
+    """Boundary loops as arrays of vertex indices, in the direction of their half-edges.
+
+    On an oriented mesh each loop ``L`` has half-edges ``L[i] -> L[i+1]`` in ``F`` (the
+    surface lies to the left when walking along it, seen from outside).  On a badly
+    oriented or non-orientable mesh a loop may have to walk some half-edges backwards.
+    Where a vertex has several boundary edges (a non-manifold boundary vertex) the
+    pairing is arbitrary, but every boundary edge is used exactly once.
+    """
+    et = et if et is not None else edge_topology(F)
+    bh = et.boundary_halfedges
+    if len(bh) == 0:
+        return []
+    src, dst = et.he_src[bh], et.he_dst[bh]
+    nb = len(bh)
+    # incidence lists: boundary edge ids leaving (forward) or entering (backward) each vertex
+    out_order = np.argsort(src, kind="stable")
+    in_order = np.argsort(dst, kind="stable")
+    out_sorted, in_sorted = src[out_order], dst[in_order]
+    used = np.zeros(nb, bool)
+
+    def take(v: int, order: np.ndarray, keys: np.ndarray) -> int:
+        lo, hi = np.searchsorted(keys, v, "left"), np.searchsorted(keys, v, "right")
+        for s in range(lo, hi):
+            e = int(order[s])
+            if not used[e]:
+                return e
+        return -1
+
+    loops = []
+    for e0 in range(nb):
+        if used[e0]:
+            continue
+        loop = [int(src[e0])]
+        used[e0] = True
+        v = int(dst[e0])
+        while v != loop[0]:
+            loop.append(v)
+            e = take(v, out_order, out_sorted)
+            if e >= 0:
+                used[e] = True
+                v = int(dst[e])
+                continue
+            e = take(v, in_order, in_sorted)
+            if e < 0:  # open chain (cannot happen on a proper boundary); stop here
+                break
+            used[e] = True
+            v = int(src[e])
+        loops.append(np.asarray(loop, dtype=np.int64))
+    return loops
+
+
+def loop_length(V: np.ndarray, loop: np.ndarray) -> float:
+    """Geometric length of a closed vertex loop."""
+    P = V[loop]
+    return float(np.linalg.norm(P - np.roll(P, -1, axis=0), axis=1).sum())
+
+
+def face_components(F: np.ndarray, n_vertices: int) -> tuple[int, np.ndarray]:
+    """Connected components of faces sharing a vertex.
+
+    Returns ``(count, face_labels)`` with ``face_labels`` of shape ``(m,)``.
+    """
+    m = len(F)
+    if m == 0:
+        return 0, np.zeros(0, np.int64)
+    rows = np.concatenate([F[:, 0], F[:, 1]])
+    cols = np.concatenate([F[:, 1], F[:, 2]])
+    G = sp.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n_vertices, n_vertices))
+    _, vlab = connected_components(G, directed=False)
+    flab = vlab[F[:, 0]]
+    uniq, face_labels = np.unique(flab, return_inverse=True)
+    return len(uniq), face_labels.ravel()
+
+
+def edge_adjacent_components(F: np.ndarray, pairs: np.ndarray) -> tuple[int, np.ndarray]:
+    """Connected components of faces linked by the half-edge ``pairs``."""
+    m = len(F)
+    f1, f2 = pairs[:, 0] // 3, pairs[:, 1] // 3
+    G = sp.coo_matrix((np.ones(len(f1), np.int8), (f1, f2)), shape=(m, m))
+    return connected_components(G, directed=False)
+
+
+def remove_unreferenced(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Drop vertices no face uses. Returns ``(V, F, kept)`` with ``kept`` the old indices."""
+    used = np.zeros(len(V), bool)
+    used[F.ravel()] = True
+    kept = np.flatnonzero(used)
+    remap = -np.ones(len(V), np.int64)
+    remap[kept] = np.arange(len(kept))
+    return V[kept], remap[F], kept
+
+
+def degenerate_faces(V: np.ndarray, F: np.ndarray, diag: float | None = None) -> np.ndarray:
+    """Boolean mask of faces with a repeated vertex index or (relative) zero area."""
+    diag = bbox_diagonal(V) if diag is None else diag
+    rep = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
+    return rep | (face_areas(V, F) <= tol.area_eps * diag * diag)
+
+
+def duplicate_faces(F: np.ndarray) -> np.ndarray:
+    """Boolean mask of faces whose vertex set repeats an earlier face (first one kept)."""
+    if len(F) == 0:
+        return np.zeros(0, bool)
+    key = np.sort(F, axis=1)
+    _, first = np.unique(key, axis=0, return_index=True)
+    dup = np.ones(len(F), bool)
+    dup[first] = False
+    return dup
+
+
+def signed_volume(V: np.ndarray, F: np.ndarray) -> float:
+    """Signed volume enclosed by a closed, consistently oriented mesh (positive = outward)."""
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)

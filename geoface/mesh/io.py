@@ -1,0 +1,319 @@
+"""Load and save meshes (OBJ, PLY, OFF, STL, GLB/GLTF) through trimesh, keeping colours and UVs.
+
+Geometry and attributes travel separately, as in libigl's ``readOBJ``:
+
+* ``V, F`` — the *geometric* mesh.  On load, vertices with bit-identical positions are
+  welded (files split vertices at UV seams, STL stores a triangle soup); tolerance-based
+  merging is a repair step, not a load step.
+* ``UV, FUV`` — texture coordinates per face corner (``UV[FUV[f, k]]`` is the UV of
+  corner ``k`` of face ``f``), so UV seams survive welding.
+* ``colors`` — per-vertex RGBA in ``[0, 1]``; ``texture`` — the texture image (uint8).
+
+>>> m = load_mesh("head.obj")                        # doctest: +SKIP
+>>> save_mesh("copy.ply", m)                           # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from .._io import atomic_path
+from ..errors import GeofaceWarning, InvalidMeshError, MeshFormatError
+from .core import check_mesh
+
+#: file extensions geoface reads and writes
+FORMATS = ("obj", "ply", "off", "stl", "glb", "gltf")
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A triangle mesh with the attributes that travel with it.
+
+    Attributes
+    ----------
+    V : (n, 3) float64
+    F : (m, 3) int64
+    UV : (t, 2) float64 or None, texture coordinates
+    FUV : (m, 3) int64 or None, per-corner indices into ``UV``
+    colors : (n, 4) float64 in [0, 1] or None, per-vertex RGBA
+    texture : (h, w, c) uint8 or None, texture image (row 0 = top, v = 1)
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    UV: np.ndarray | None = None
+    FUV: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    texture: np.ndarray | None = None
+
+    def __post_init__(self):
+        V, F = check_mesh(self.V, self.F)
+        object.__setattr__(self, "V", V)
+        object.__setattr__(self, "F", F)
+        if (self.UV is None) != (self.FUV is None):
+            raise InvalidMeshError("UV and FUV must be given together")
+        if self.UV is not None:
+            UV = np.asarray(self.UV, np.float64)
+            FUV = np.asarray(self.FUV, np.int64)
+            if UV.ndim != 2 or UV.shape[1] != 2:
+                raise InvalidMeshError(f"UV must have shape (t, 2); got {UV.shape}")
+            if FUV.shape != F.shape:
+                raise InvalidMeshError(f"FUV must have the shape of F {F.shape}; got {FUV.shape}")
+            if len(FUV) and (FUV.min() < 0 or FUV.max() >= len(UV)):
+                raise InvalidMeshError("FUV indexes outside UV")
+            if not np.isfinite(UV).all():
+                raise InvalidMeshError("UV has NaN or infinite values")
+            object.__setattr__(self, "UV", UV)
+            object.__setattr__(self, "FUV", FUV)
+        if self.colors is not None:
+            C = np.asarray(self.colors, np.float64)
+            if C.ndim != 2 or C.shape[0] != len(V) or C.shape[1] not in (3, 4):
+                raise InvalidMeshError(f"colors must have shape (n, 3|4) with n={len(V)}; got {C.shape}")
+            if C.shape[1] == 3:
+                C = np.concatenate([C, np.ones((len(C), 1))], 1)
+            object.__setattr__(self, "colors", np.clip(C, 0.0, 1.0))
+        if self.texture is not None:
+            T = np.asarray(self.texture)
+            if T.ndim not in (2, 3) or T.dtype != np.uint8:
+                raise InvalidMeshError(f"texture must be an (h, w[, c]) uint8 image; got {T.shape} {T.dtype}")
+
+    @classmethod
+    def from_vertex_uv(cls, V, F, UV=None, **kw) -> "Mesh":
+        """Build from a per-vertex ``UV (n, 2)`` (``FUV = F``)."""
+        if UV is None:
+            return cls(V, F, **kw)
+        return cls(V, F, UV=UV, FUV=np.asarray(F, np.int64), **kw)
+
+    def with_geometry(self, V, F, vertex_map: np.ndarray, face_map: np.ndarray) -> "Mesh":
+        """Carry attributes over to a repaired mesh.
+
+        ``vertex_map[i]`` is the original vertex of new vertex ``i`` (or -1), ``face_map[f]``
+        the original face of new face ``f`` (or -1).  UVs follow kept faces; new faces get
+        the UV of their corners' original vertices where one exists, else (0, 0).
+        """
+        colors = None
+        if self.colors is not None:
+            colors = np.zeros((len(V), 4))
+            colors[:, 3] = 1.0
+            ok = vertex_map >= 0
+            colors[ok] = self.colors[vertex_map[ok]]
+        UV = FUV = None
+        if self.UV is not None:
+            F = np.asarray(F, np.int64)
+            FUV = np.zeros_like(F)
+            kept = face_map >= 0
+            FUV[kept] = self.FUV[face_map[kept]]
+            # per original vertex: one UV (the first corner that uses it)
+            vert_uv = np.full(len(self.V), -1, np.int64)
+            vert_uv[self.F.ravel()[::-1]] = self.FUV.ravel()[::-1]
+            newc = F[~kept]
+            src = np.where(vertex_map[newc] >= 0, vert_uv[np.maximum(vertex_map[newc], 0)], -1)
+            extra = len(self.UV)
+            UV = np.concatenate([self.UV, np.zeros((1, 2))])
+            FUV[~kept] = np.where(src >= 0, src, extra)
+        return Mesh(V, F, UV=UV, FUV=FUV, colors=colors, texture=self.texture)
+
+
+def _ext(path) -> str:
+    ext = Path(path).suffix.lower().lstrip(".")
+    if ext not in FORMATS:
+        raise MeshFormatError(f"unsupported mesh format '.{ext}' for {path}; use one of: {', '.join(FORMATS)}")
+    return ext
+
+
+def load_mesh(path: str | os.PathLike, *, weld: bool = True) -> Mesh:
+    """Read a mesh file into a :class:`Mesh`.
+
+    Parameters
+    ----------
+    path : file path with extension obj, ply, off, stl, glb or gltf
+    weld : merge vertices with bit-identical positions (default True; see module docs)
+
+    Raises
+    ------
+    MeshFormatError
+        Missing, empty, unreadable or corrupt file; a file without triangles (a point cloud).
+    InvalidMeshError
+        NaN coordinates or face indices out of range.
+    """
+    import trimesh
+
+    path = Path(path)
+    ext = _ext(path)
+    if not path.is_file():
+        raise MeshFormatError(f"no such file: {path}")
+    if path.stat().st_size == 0:
+        raise MeshFormatError(f"file is empty: {path}")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            loaded = trimesh.load(str(path), file_type=ext, process=False, maintain_order=True)
+    except Exception as exc:  # trimesh raises many kinds for corrupt input
+        raise MeshFormatError(f"cannot read {path.name} as {ext.upper()}: {type(exc).__name__}: {exc}") from None
+    if isinstance(loaded, trimesh.Scene):
+        geoms = [g for g in loaded.dump(concatenate=False) if isinstance(g, trimesh.Trimesh)] if loaded.geometry else []
+        if not geoms:
+            raise MeshFormatError(f"{path.name} contains no triangle mesh")
+        if len(geoms) > 1:
+            loaded = trimesh.util.concatenate(geoms)
+        else:
+            loaded = geoms[0]
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise MeshFormatError(f"{path.name} contains no triangles ({type(loaded).__name__}: a point cloud or a path?)")
+    V = np.asarray(loaded.vertices, np.float64)
+    F = np.asarray(loaded.faces, np.int64).reshape(-1, 3) if len(loaded.faces) else np.zeros((0, 3), np.int64)
+    if len(F) == 0:
+        raise MeshFormatError(f"{path.name} has {len(V)} vertices but no faces (a point cloud?)")
+    V, F = check_mesh(V, F)
+    UV = FUV = colors = texture = None
+    vis = loaded.visual
+    kind = getattr(vis, "kind", None)
+    if kind == "texture" and getattr(vis, "uv", None) is not None and len(vis.uv) == len(V):
+        UV = np.asarray(vis.uv, np.float64)
+        FUV = F.copy()
+        texture = _material_image(vis.material)
+    elif kind == "vertex":
+        colors = np.asarray(vis.vertex_colors, np.float64) / 255.0
+    elif kind == "face":
+        warnings.warn(f"{path.name}: per-face colours are not kept (geoface stores vertex colours)", GeofaceWarning, stacklevel=2)
+    if weld:
+        Vw, inv = np.unique(V, axis=0, return_inverse=True)
+        inv = inv.ravel()
+        if len(Vw) < len(V):
+            first = np.full(len(Vw), len(V))
+            np.minimum.at(first, inv, np.arange(len(V)))
+            # keep the first-seen order so files read back in the same order
+            order = np.argsort(first)
+            rank = np.empty_like(order)
+            rank[order] = np.arange(len(order))
+            new_of_old = rank[inv]
+            V = Vw[order]
+            if colors is not None:
+                colors = colors[first[order]]
+            F = new_of_old[F]
+    return Mesh(V, F, UV=UV, FUV=FUV, colors=colors, texture=texture)
+
+
+def _material_image(material) -> np.ndarray | None:
+    img = getattr(material, "image", None)
+    if img is None:
+        img = getattr(material, "baseColorTexture", None)
+    if img is None:
+        return None
+    arr = np.asarray(img)
+    if arr.shape[:2] == (2, 2) and (arr == arr.reshape(4, -1)[0]).all():
+        return None  # trimesh's placeholder for a missing material image
+    return arr.astype(np.uint8) if arr.dtype != np.uint8 else arr
+
+
+def _to_trimesh(mesh: Mesh, ext: str):
+    """Build a trimesh object, splitting vertices at UV seams when UVs are present."""
+    import trimesh
+
+    dropped = []
+    if mesh.UV is not None and ext in ("obj", "ply", "glb", "gltf"):
+        pairs = np.stack([mesh.F.ravel(), mesh.FUV.ravel()], 1)
+        uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
+        V = mesh.V[uniq[:, 0]]
+        F = inv.reshape(-1, 3)
+        uv = mesh.UV[uniq[:, 1]]
+        image = None
+        if mesh.texture is not None:
+            from PIL import Image
+
+            image = Image.fromarray(mesh.texture)
+        visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+        if mesh.colors is not None:
+            dropped.append("vertex colours (the file keeps UVs and texture)")
+        tm = trimesh.Trimesh(V, F, visual=visual, process=False)
+    else:
+        if mesh.UV is not None:
+            dropped.append("UVs")
+        tm = trimesh.Trimesh(mesh.V, mesh.F, process=False)
+        if mesh.colors is not None:
+            if ext in ("ply", "obj", "glb", "gltf", "off"):
+                tm.visual = trimesh.visual.ColorVisuals(tm, vertex_colors=np.round(mesh.colors * 255).astype(np.uint8))
+            else:
+                dropped.append("vertex colours")
+    return tm, dropped
+
+
+def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=None, colors=None, UV=None) -> None:
+    """Write a mesh atomically (temp file + rename); format from the extension.
+
+    Give either a :class:`Mesh` or bare arrays (``V``, ``F`` and optional per-vertex
+    ``colors``/``UV``).  Attributes a format cannot hold (UVs in STL/OFF, colours in
+    STL) are reported with a :class:`GeofaceWarning`, never dropped silently.
+    OBJ files with a texture also get their ``.mtl`` and image beside them.
+    """
+    import trimesh
+
+    path = Path(path)
+    ext = _ext(path)
+    if mesh is None:
+        if V is None or F is None:
+            raise InvalidMeshError("save_mesh needs a Mesh or V and F")
+        mesh = Mesh.from_vertex_uv(V, F, UV, colors=colors)
+    tm, dropped = _to_trimesh(mesh, ext)
+    if dropped:
+        warnings.warn(f"{path.name}: .{ext} cannot store {', '.join(dropped)}; not written", GeofaceWarning, stacklevel=2)
+    if ext == "obj":
+        from trimesh.exchange.obj import export_obj
+
+        mtl = f"{path.stem}.mtl"
+        result = export_obj(tm, include_texture=True, include_normals=False, mtl_name=mtl, return_texture=True)
+        text, files = result if isinstance(result, tuple) else (result, {})
+        with _atomic_group(path, files) as (tmp_main, tmp_files):
+            Path(tmp_main).write_text(text)
+            for name, data in files.items():
+                Path(tmp_files[name]).write_bytes(data)
+        return
+    data = trimesh.exchange.export.export_mesh(tm, file_obj=None, file_type=ext)
+    if isinstance(data, dict):  # gltf returns several files
+        with _atomic_group(path, {k: v for k, v in data.items() if k != "model.gltf"}) as (tmp_main, tmp_files):
+            Path(tmp_main).write_bytes(data["model.gltf"])
+            for name, blob in data.items():
+                if name != "model.gltf":
+                    Path(tmp_files[name]).write_bytes(blob)
+        return
+    with atomic_path(path) as tmp:
+        Path(tmp).write_bytes(data if isinstance(data, bytes) else data.encode())
+
+
+class _atomic_group:
+    """Write a main file and its side files to temporaries, then rename them all."""
+
+    def __init__(self, main: Path, side: dict):
+        self.main = main
+        self.side = {name: main.parent / name for name in side}
+
+    def __enter__(self):
+        import tempfile
+
+        self.main.parent.mkdir(parents=True, exist_ok=True)
+        self.tmps = {}
+        for key, target in [("__main__", self.main), *self.side.items()]:
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+            os.close(fd)
+            self.tmps[key] = Path(tmp)
+        return self.tmps["__main__"], {k: v for k, v in self.tmps.items() if k != "__main__"}
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            for name, target in self.side.items():
+                os.replace(self.tmps[name], target)
+            os.replace(self.tmps["__main__"], self.main)
+        else:
+            for tmp in self.tmps.values():
+                tmp.unlink(missing_ok=True)
+        return False
+
+
+def mesh_with(mesh: Mesh, **changes) -> Mesh:
+    """``dataclasses.replace`` for :class:`Mesh` (re-validates)."""
+    return replace(mesh, **changes)

@@ -1,0 +1,1 @@
+"""Gaussian splatting avatars (later issues). May import torch."""

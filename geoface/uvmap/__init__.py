@@ -1,0 +1,1 @@
+"""UV bake, inpainting and image-to-UV projection (later issues)."""
