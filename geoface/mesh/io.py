@@ -152,7 +152,7 @@ def load_mesh(path: str | os.PathLike, *, weld: bool = True) -> Mesh:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            loaded = trimesh.load(str(path), file_type=ext, process=False, maintain_order=True)
+            loaded = trimesh.load(str(path), file_type=ext, process=False)
     except Exception as exc:  # trimesh raises many kinds for corrupt input
         raise MeshFormatError(f"cannot read {path.name} as {ext.upper()}: {type(exc).__name__}: {exc}") from None
     if isinstance(loaded, trimesh.Scene):
@@ -230,13 +230,15 @@ def _to_trimesh(mesh: Mesh, ext: str):
         visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
         if mesh.colors is not None:
             dropped.append("vertex colours (the file keeps UVs and texture)")
+        if mesh.texture is not None and ext == "ply":
+            dropped.append("the texture image (PLY keeps UVs only; save the image separately or use OBJ/GLB)")
         tm = trimesh.Trimesh(V, F, visual=visual, process=False)
     else:
         if mesh.UV is not None:
             dropped.append("UVs")
         tm = trimesh.Trimesh(mesh.V, mesh.F, process=False)
         if mesh.colors is not None:
-            if ext in ("ply", "obj", "glb", "gltf", "off"):
+            if ext in ("ply", "obj", "glb", "gltf"):
                 tm.visual = trimesh.visual.ColorVisuals(tm, vertex_colors=np.round(mesh.colors * 255).astype(np.uint8))
             else:
                 dropped.append("vertex colours")
@@ -247,8 +249,10 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
     """Write a mesh atomically (temp file + rename); format from the extension.
 
     Give either a :class:`Mesh` or bare arrays (``V``, ``F`` and optional per-vertex
-    ``colors``/``UV``).  Attributes a format cannot hold (UVs in STL/OFF, colours in
-    STL) are reported with a :class:`GeofaceWarning`, never dropped silently.
+    ``colors``/``UV``).  What each format keeps: OBJ and GLB — UVs + texture, or vertex
+    colours; PLY — UVs (no image) or vertex colours; OFF, STL — geometry only.
+    Attributes a format cannot hold are reported with a :class:`GeofaceWarning`, never
+    dropped silently.  PLY, STL and GLB store coordinates as float32.
     OBJ files with a texture also get their ``.mtl`` and image beside them.
     """
     import trimesh

@@ -118,12 +118,12 @@ def topology_report(V, F) -> TopologyReport:
     (True, 0, 1)
     """
     V, F = check_mesh(V, F)
-    diag = bbox_diagonal(V)
     n, m = len(V), len(F)
     et = edge_topology(F)
     used = np.zeros(n, bool)
     used[F.ravel()] = True
     n_used = int(used.sum())
+    diag = bbox_diagonal(V[used])
     pairs = manifold_halfedge_pairs(et)
     sol = solve_orientation(F, pairs)
     nm_edges = int((et.edge_faces > 2).sum())

@@ -17,6 +17,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from ..errors import InvalidMeshError, MeshTopologyError
 from ..mesh.core import check_mesh, edge_topology, face_areas
+from .clean import merge_vertices
 from .step import StepResult, match_provenance, select_faces
 
 AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0), "-x": (-1.0, 0.0, 0.0), "-y": (0.0, -1.0, 0.0), "-z": (0.0, 0.0, -1.0)}
@@ -65,6 +66,8 @@ def open_at_plane(V, F, *, up="y", height: float = 0.02, origin=None) -> StepRes
     if len(F1) == 0:
         raise MeshTopologyError("the cutting plane removes the whole mesh")
     res = match_provenance(V, F, np.asarray(V1, np.float64), np.asarray(F1, np.int64))
+    # trimesh makes one intersection point per cut triangle: weld them along the cut
+    res = res.then(merge_vertices(res.V, res.F))
     area_removed = float(face_areas(V, F).sum() - face_areas(res.V, res.F).sum())
     change = {"step": "open_plane", "origin": [float(x) for x in o], "normal": [float(x) for x in n], "area_removed": area_removed}
     return StepResult(res.V, res.F, res.vertex_map, res.face_map, [change])

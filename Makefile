@@ -1,0 +1,37 @@
+# geoface — `make demo` and `make test` create .venv and install everything themselves.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.geoface-installed
+OUT    := demo_out
+
+.PHONY: install test demo bench clean distclean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml constraints.txt
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --disable-pip-version-check -q -c constraints.txt -e ".[all,dev]"
+	touch $(STAMP)
+
+test: $(STAMP)
+	GEOFACE_QUIET=1 $(PY) -m pytest -q -n 2 tests
+
+demo: $(STAMP)
+	@mkdir -p $(OUT)
+	$(VENV)/bin/geoface synth head -o $(OUT)/head.obj --vertices 20000 --seed 0 --expression smile=0.6 --meta $(OUT)/head.json
+	$(VENV)/bin/geoface inspect $(OUT)/head.obj
+	$(PY) data_tools/make_messy_head.py $(OUT)/messy_head.ply --vertices 20000 --seed 0
+	$(VENV)/bin/geoface inspect $(OUT)/messy_head.ply
+	$(VENV)/bin/geoface repair $(OUT)/messy_head.ply -o $(OUT)/messy_head_disk.ply
+	$(VENV)/bin/geoface synth surface genus2 -o $(OUT)/genus2.obj
+	$(VENV)/bin/geoface repair $(OUT)/genus2.obj -o $(OUT)/genus2_disk.obj --up z
+
+bench: $(STAMP)
+	GEOFACE_QUIET=1 $(PY) bench/bench_repair.py
+
+clean:
+	rm -rf $(OUT) bench_out .pytest_cache
+
+distclean: clean
+	rm -rf $(VENV) *.egg-info

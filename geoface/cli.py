@@ -1,0 +1,238 @@
+"""The ``geoface`` command: thin subcommands that parse, call one library function, report.
+
+Bad input never produces a traceback: every :class:`~geoface.GeofaceError` (and file
+system error) becomes one line on stderr and exit code 2.  Outputs are written
+atomically, and an input file is never overwritten.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import warnings
+from pathlib import Path
+
+from . import __version__
+from .errors import GeofaceError, GeofaceWarning, InvalidMeshError
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit code 2 (argparse's own code for usage errors)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    pa, pb = Path(a), Path(b)
+    try:
+        return pb.exists() and pa.exists() and os.path.samefile(pa, pb)
+    except OSError:
+        return False
+
+
+def _print_json(obj) -> None:
+    print(json.dumps(obj, indent=2, default=float))
+
+
+# --------------------------------------------------------------------------- inspect
+def cmd_inspect(args) -> int:
+    from .mesh.io import load_mesh
+    from .mesh.topology import topology_report
+
+    mesh = load_mesh(args.file)
+    rep = topology_report(mesh.V, mesh.F)
+    attrs = {
+        "uv": mesh.UV is not None,
+        "vertex_colors": mesh.colors is not None,
+        "texture": None if mesh.texture is None else list(mesh.texture.shape),
+    }
+    if args.json:
+        _print_json({"file": str(args.file), **rep.to_dict(), "attributes": attrs})
+    else:
+        print(f"{args.file}")
+        print(rep.format())
+        tex = "none" if attrs["texture"] is None else "x".join(map(str, attrs["texture"]))
+        print(f"attributes          uv={attrs['uv']}, vertex colours={attrs['vertex_colors']}, texture={tex}")
+    return 0
+
+
+# --------------------------------------------------------------------------- repair
+def cmd_repair(args) -> int:
+    from .mesh.io import load_mesh, save_mesh
+    from .progress import log
+    from .repair import RepairOptions, make_disk
+
+    if _same_file(args.input, args.output):
+        raise GeofaceError(f"refusing to overwrite the input file {args.input}; choose another -o")
+    mesh = load_mesh(args.input)
+    opts = RepairOptions(
+        open=args.open,
+        up=args.up,
+        open_height=args.height,
+        cap_area=args.cap_area,
+        target_vertices=args.target_vertices,
+        min_component_area=args.min_component_area,
+    )
+    log(f"repairing {args.input}: {len(mesh.V)} vertices, {len(mesh.F)} faces")
+    res = make_disk(mesh.V, mesh.F, opts)
+    out = mesh.with_geometry(res.V, res.F, res.vertex_map, res.face_map)
+    save_mesh(args.output, out)
+    if args.json:
+        _print_json({"input": str(args.input), "output": str(args.output), **res.to_dict()})
+    else:
+        print(f"{args.input} -> {args.output}")
+        print(res.summary())
+        print(res.report.format())
+    return 0
+
+
+# --------------------------------------------------------------------------- synth
+def _parse_expression(text: str | None) -> dict:
+    if not text:
+        return {}
+    out = {}
+    for item in text.split(","):
+        if not item.strip():
+            continue
+        if "=" not in item:
+            raise InvalidMeshError(f"expression items look like name=value; got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            out[k.strip()] = float(v)
+        except ValueError:
+            raise InvalidMeshError(f"expression value for {k.strip()!r} is not a number: {v!r}") from None
+    return out
+
+
+def cmd_synth_head(args) -> int:
+    from .mesh.io import Mesh, save_mesh
+    from .synth.head import procedural_head
+
+    head = procedural_head(
+        n_vertices=args.vertices, seed=args.seed, expression=_parse_expression(args.expression) or None, texture_size=args.texture_size
+    )
+    ext = Path(args.output).suffix.lower()
+    if ext in (".obj", ".glb", ".gltf"):
+        mesh = Mesh.from_vertex_uv(head.V, head.F, head.UV, texture=head.texture)
+    else:
+        mesh = Mesh(head.V, head.F, colors=head.colors)
+    save_mesh(args.output, mesh)
+    if args.meta:
+        from ._io import atomic_path
+
+        meta = {
+            "seed": head.seed,
+            "identity": head.identity.to_dict(),
+            "expression": head.expression.to_dict(),
+            "eye_line_y": float(head.eye_line_y),
+            "landmarks": {k: int(v) for k, v in head.landmarks.items()},
+            "face_mask": [int(i) for i in head.face_mask.nonzero()[0]],
+        }
+        with atomic_path(args.meta) as tmp:
+            Path(tmp).write_text(json.dumps(meta, indent=1))
+    print(f"wrote {args.output}: {len(head.V)} vertices, {len(head.F)} faces (seed {head.seed})")
+    return 0
+
+
+SURFACES = ("square", "disk", "flat-irregular", "cap", "hemisphere", "sphere", "cylinder", "torus", "genus2", "mobius")
+
+
+def cmd_synth_surface(args) -> int:
+    from .mesh.io import save_mesh
+    from .synth import surfaces as S
+
+    n = args.resolution
+    make = {
+        "square": lambda: S.square_grid(n),
+        "disk": lambda: S.disk_grid(max(n // 2, 1)),
+        "flat-irregular": lambda: S.irregular_flat_patch(n * n, seed=args.seed),
+        "cap": lambda: S.spherical_cap(1.0, 1.0, max(n // 2, 1)),
+        "hemisphere": lambda: S.hemisphere(1.0, max(n // 2, 1)),
+        "sphere": lambda: S.sphere(1.0, max(min(n // 8, 6), 1)),
+        "cylinder": lambda: S.cylinder(1.0, 2.0, 2 * n, n),
+        "torus": lambda: S.torus(1.0, 0.3, 2 * n, n),
+        "genus2": lambda: S.genus2(max(n * 2, 16)),
+        "mobius": lambda: S.mobius_strip(2 * n, max(n // 4, 2)),
+    }[args.name]
+    V, F = make()
+    save_mesh(args.output, V=V, F=F)
+    print(f"wrote {args.output}: {args.name}, {len(V)} vertices, {len(F)} faces")
+    return 0
+
+
+# --------------------------------------------------------------------------- main
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="geoface", description="Geometry processing of head and face meshes.")
+    p.add_argument("--version", action="version", version=f"geoface {__version__}")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+
+    s = sub.add_parser("inspect", help="print a mesh's topology report")
+    s.add_argument("file")
+    s.add_argument("--json", action="store_true", help="machine-readable output")
+    s.set_defaults(func=cmd_inspect)
+
+    s = sub.add_parser("repair", help="turn any mesh into a topological disk")
+    s.add_argument("input")
+    s.add_argument("-o", "--output", required=True, help="output mesh (obj, ply, off, stl, glb)")
+    s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto",
+                   help="how to open a closed surface (default auto: plane cut near the bottom if closed)")
+    s.add_argument("--up", default="y", help="up axis: x, y, z, -x, -y, -z (default y)")
+    s.add_argument("--height", type=float, default=0.02, help="plane cut height as a fraction of the extent along up (0.02)")
+    s.add_argument("--cap-area", type=float, default=0.02, help="area fraction removed by --open cap (0.02)")
+    s.add_argument("--target-vertices", type=int, default=None, help="remesh to about this many vertices")
+    s.add_argument("--min-component-area", type=float, default=None, help="drop components below this area fraction")
+    s.add_argument("--json", action="store_true", help="print the report and changes as JSON")
+    s.set_defaults(func=cmd_repair)
+
+    s = sub.add_parser("synth", help="write procedural test geometry")
+    ss = s.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser)
+    ss.required = True
+    h = ss.add_parser("head", help="the procedural expressive head")
+    h.add_argument("-o", "--output", required=True)
+    h.add_argument("--vertices", type=int, default=20000)
+    h.add_argument("--seed", type=int, default=0)
+    h.add_argument("--expression", default=None, help="e.g. smile=0.8,jaw_open=0.3")
+    h.add_argument("--texture-size", type=int, default=512)
+    h.add_argument("--meta", default=None, help="also write identity, expression, landmarks and face mask as JSON")
+    h.set_defaults(func=cmd_synth_head)
+    a = ss.add_parser("surface", help="an analytic surface")
+    a.add_argument("name", choices=SURFACES)
+    a.add_argument("-o", "--output", required=True)
+    a.add_argument("--resolution", type=int, default=24)
+    a.add_argument("--seed", type=int, default=0)
+    a.set_defaults(func=cmd_synth_surface)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from .progress import set_quiet
+
+    if args.quiet:
+        set_quiet(True)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", GeofaceWarning)
+            warnings.showwarning = _show_warning
+            return int(args.func(args) or 0)
+    except GeofaceError as exc:
+        print(f"geoface: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"geoface: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("geoface: interrupted", file=sys.stderr)
+        return 130
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    print(f"geoface: warning: {message}", file=sys.stderr)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,32 @@
+"""Helpers shared by the tests."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_MESHES = Path(os.environ.get("GEOFACE_SHARED_MESHES", REPO.parent / "shared" / "data" / "meshes"))
+REAL_MESHES = ("beetle.obj", "spot.obj", "ninjaHead_Low.obj")
+
+
+def shared_mesh(name: str) -> Path:
+    path = SHARED_MESHES / name
+    if not path.is_file():
+        pytest.skip(f"shared mesh {path} not available (set GEOFACE_SHARED_MESHES)")
+    return path
+
+
+def angle_defects(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """2*pi minus the angle sum at every vertex (interior vertices only make sense)."""
+    P = V[F]
+    ang = np.zeros(F.shape)
+    for k in range(3):
+        u = P[:, (k + 1) % 3] - P[:, k]
+        w = P[:, (k + 2) % 3] - P[:, k]
+        ang[:, k] = np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), (u * w).sum(1))
+    s = np.bincount(F.ravel(), weights=ang.ravel(), minlength=len(V))
+    return 2 * np.pi - s

@@ -1,0 +1,166 @@
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geoface.errors import GeofaceWarning, InvalidMeshError, MeshFormatError
+from geoface.mesh import topology_report
+from geoface.mesh.io import Mesh, load_mesh, save_mesh
+from geoface.synth import cylinder, square_grid
+from tests.helpers import shared_mesh
+
+
+@pytest.fixture
+def grid_attrs():
+    V, F = square_grid(5)
+    V = V + np.array([0.123456789, -2.0, 0.5])
+    rng = np.random.default_rng(0)
+    return V, F, rng.random((len(V), 3)), V[:, :2] - V[:, :2].min(0), (rng.random((8, 8, 3)) * 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("ext, tol", [("obj", 1e-7), ("ply", 1e-6), ("off", 1e-9), ("stl", 1e-6), ("glb", 1e-6)])
+def test_geometry_round_trip(tmp_path, grid_attrs, ext, tol):
+    V, F, *_ = grid_attrs
+    p = tmp_path / f"m.{ext}"
+    save_mesh(p, V=V, F=F)
+    m = load_mesh(p)
+    assert len(m.V) == len(V) and len(m.F) == len(F)  # STL soups are welded back
+    assert np.abs(m.V[m.F] - V[F]).max() < tol
+    assert topology_report(m.V, m.F).is_disk
+
+
+@pytest.mark.parametrize("ext", ["obj", "ply", "glb"])
+def test_vertex_colours_survive(tmp_path, grid_attrs, ext):
+    V, F, C, *_ = grid_attrs
+    save_mesh(tmp_path / f"c.{ext}", Mesh(V, F, colors=C))
+    m = load_mesh(tmp_path / f"c.{ext}")
+    assert m.colors is not None
+    assert np.abs(m.colors[:, :3][m.F] - C[F]).max() <= 0.5 / 255 + 1e-9  # 8-bit quantisation
+
+
+@pytest.mark.parametrize("ext, texture", [("obj", True), ("glb", True), ("ply", False)])
+def test_uvs_and_texture_survive(tmp_path, grid_attrs, ext, texture):
+    V, F, _, UV, T = grid_attrs
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        save_mesh(tmp_path / f"u.{ext}", Mesh.from_vertex_uv(V, F, UV, texture=T))
+    m = load_mesh(tmp_path / f"u.{ext}")
+    assert np.abs(m.UV[m.FUV] - UV[F]).max() < 1e-6
+    if texture:
+        assert np.array_equal(m.texture[..., :3], T)
+        assert not rec
+    else:  # PLY cannot hold the image: said out loud
+        assert any(issubclass(w.category, GeofaceWarning) and "texture" in str(w.message) for w in rec)
+
+
+@pytest.mark.parametrize("ext", ["stl", "off"])
+def test_dropping_attributes_warns(tmp_path, grid_attrs, ext):
+    V, F, C, UV, _ = grid_attrs
+    with pytest.warns(GeofaceWarning, match="cannot store"):
+        save_mesh(tmp_path / f"w.{ext}", Mesh(V, F, colors=C))
+    with pytest.warns(GeofaceWarning, match="UVs"):
+        save_mesh(tmp_path / f"w2.{ext}", Mesh.from_vertex_uv(V, F, UV))
+
+
+def test_uv_seams_are_kept_while_geometry_is_welded(tmp_path):
+    # a tube with a UV seam: the file splits seam vertices, geoface welds them back
+    V, F = cylinder(1.0, 1.0, 12, 4)
+    n_around, n_high = 12, 4
+    i = np.arange(len(V)) // n_high
+    j = np.arange(len(V)) % n_high
+    UV = np.stack([i / n_around, j / (n_high - 1)], 1)
+    FUV = F.copy()
+    # faces crossing the seam use a second copy of column 0 at u = 1
+    seam_faces = (i[F] == n_around - 1).any(1) & (i[F] == 0).any(1)
+    extra = np.stack([np.ones(n_high), np.arange(n_high) / (n_high - 1)], 1)
+    UV2 = np.vstack([UV, extra])
+    cols = FUV[seam_faces]
+    FUV[seam_faces] = np.where(i[cols] == 0, len(UV) + j[cols], cols)
+    save_mesh(tmp_path / "tube.obj", Mesh(V, F, UV=UV2, FUV=FUV))
+    m = load_mesh(tmp_path / "tube.obj")
+    assert len(m.V) == len(V)  # welded: the seam is not a boundary
+    assert topology_report(m.V, m.F).boundary_loops == 2
+    assert len(np.unique(m.UV[m.FUV].reshape(-1, 2), axis=0)) == len(UV2)
+    assert np.abs(m.UV[m.FUV] - UV2[FUV]).max() < 1e-7
+
+
+def test_real_meshes_keep_uvs():
+    m = load_mesh(shared_mesh("spot.obj"))
+    assert m.UV is not None and len(m.UV) > len(m.V)  # seams: more UVs than vertices
+    r = topology_report(m.V, m.F)
+    assert r.closed and r.genus == 0
+    m = load_mesh(shared_mesh("ninjaHead_Low.obj"))
+    assert m.UV is not None and topology_report(m.V, m.F).is_disk
+
+
+@pytest.mark.parametrize(
+    "content, match",
+    [
+        (b"", "empty"),
+        (b"hello, I am not a mesh\n", "no triangle"),
+        (b"v 0 0 0\nv 1 0 0\nv 0 1 0\n", "point cloud"),
+        (b"v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
+        (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "cannot read|indexes"),
+    ],
+)
+def test_bad_obj_files(tmp_path, content, match):
+    p = tmp_path / "bad.obj"
+    p.write_bytes(content)
+    with pytest.raises((MeshFormatError, InvalidMeshError), match=match):
+        load_mesh(p)
+
+
+def test_bad_paths_and_binary_garbage(tmp_path):
+    with pytest.raises(MeshFormatError, match="no such file"):
+        load_mesh(tmp_path / "missing.obj")
+    with pytest.raises(MeshFormatError, match="unsupported mesh format"):
+        load_mesh(tmp_path / "x.xyz")
+    p = tmp_path / "garbage.ply"
+    p.write_bytes(np.random.default_rng(1).bytes(500))
+    with pytest.raises(MeshFormatError):
+        load_mesh(p)
+    p = tmp_path / "garbage.glb"
+    p.write_bytes(b"glTF" + np.random.default_rng(2).bytes(200))
+    with pytest.raises(MeshFormatError):
+        load_mesh(p)
+
+
+def test_write_is_atomic(tmp_path, grid_attrs, monkeypatch):
+    V, F, *_ = grid_attrs
+    out = tmp_path / "out.ply"
+    out.write_bytes(b"previous contents")
+    import trimesh
+
+    def boom(*a, **k):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(trimesh.exchange.export, "export_mesh", boom)
+    with pytest.raises(RuntimeError):
+        save_mesh(out, V=V, F=F)
+    assert out.read_bytes() == b"previous contents"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.ply"]  # no temp file left behind
+
+
+def test_mesh_validates_attributes():
+    V, F = square_grid(3)
+    with pytest.raises(InvalidMeshError, match="colors"):
+        Mesh(V, F, colors=np.zeros((2, 3)))
+    with pytest.raises(InvalidMeshError, match="together"):
+        Mesh(V, F, UV=np.zeros((9, 2)))
+    with pytest.raises(InvalidMeshError, match="FUV"):
+        Mesh(V, F, UV=np.zeros((9, 2)), FUV=F + 100)
+
+
+@pytest.mark.parametrize("ext", ["obj", "ply", "glb", "off"])
+def test_vertex_order_is_preserved(tmp_path, ext):
+    # landmark and mask indices refer to vertex order: it must survive a round trip
+    from geoface.synth import disk_grid
+
+    V, F = disk_grid(6)
+    perm = np.random.default_rng(0).permutation(len(V))
+    V, F = V[perm], np.argsort(perm)[F]
+    mesh = Mesh.from_vertex_uv(V, F, V[:, :2] * 0.5 + 0.5) if ext != "off" else Mesh(V, F)
+    save_mesh(tmp_path / f"o.{ext}", mesh)
+    m = load_mesh(tmp_path / f"o.{ext}")
+    assert np.allclose(m.V, V, atol=1e-6) and np.array_equal(m.F, F)
