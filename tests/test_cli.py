@@ -1,0 +1,124 @@
+"""The `geoface` command: reports, outputs, and one-line errors with exit code 2."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from geoface.cli import main
+from geoface.mesh import topology_report
+from geoface.mesh.io import load_mesh, save_mesh
+from geoface.synth import torus
+from tests.helpers import shared_mesh
+
+
+def run(*args):
+    """Run the real console entry point in a subprocess (as a user would)."""
+    p = subprocess.run([sys.executable, "-m", "geoface", "--quiet", *map(str, args)], capture_output=True, text=True)
+    return p.returncode, p.stdout, p.stderr
+
+
+def test_inspect_json_and_text(capsys):
+    path = shared_mesh("spot.obj")
+    assert main(["inspect", str(path), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["closed"] and d["genus"] == 0 and d["attributes"]["uv"]
+    assert main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "genus               0" in out and "closed              True" in out
+
+
+def test_repair_writes_a_disk_keeping_uvs(tmp_path, capsys):
+    out = tmp_path / "spot_disk.obj"
+    assert main(["repair", str(shared_mesh("spot.obj")), "-o", str(out), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["report"]["is_disk"]
+    m = load_mesh(out)
+    assert topology_report(m.V, m.F).is_disk
+    assert m.UV is not None  # the texture coordinates came along
+
+
+def test_repair_closed_torus_with_options(tmp_path):
+    V, F = torus(1.0, 0.3, 32, 16)
+    src = tmp_path / "t.ply"
+    save_mesh(src, V=V, F=F)
+    code, out, err = run("repair", src, "-o", tmp_path / "t_disk.ply", "--up", "z", "--open", "cap")
+    assert code == 0, err
+    assert "cut_handle" in out and "open_cap" in out
+    m = load_mesh(tmp_path / "t_disk.ply")
+    assert topology_report(m.V, m.F).is_disk
+
+
+BAD = {
+    "empty.obj": b"",
+    "text.obj": b"this is not a mesh\n",
+    "cloud.obj": b"v 0 0 0\nv 1 0 0\nv 0 1 0\n",
+    "nan.obj": b"v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n",
+    "range.obj": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
+    "garbage.ply": bytes(np.random.default_rng(0).integers(0, 256, 400, dtype=np.uint8)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD))
+@pytest.mark.parametrize("verb", ["inspect", "repair"])
+def test_bad_input_one_line_exit_2_no_output(tmp_path, name, verb):
+    src = tmp_path / name
+    src.write_bytes(BAD[name])
+    out = tmp_path / "out.obj"
+    args = [verb, src] + (["-o", out] if verb == "repair" else [])
+    code, stdout, stderr = run(*args)
+    assert code == 2
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("geoface: error:"), stderr
+    assert "Traceback" not in stderr
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == [src]  # no partial or temporary file left
+
+
+def test_failed_repair_keeps_existing_output(tmp_path):
+    src = tmp_path / "nan.obj"
+    src.write_bytes(BAD["nan.obj"])
+    out = tmp_path / "out.obj"
+    out.write_text("precious")
+    code, _, _ = run("repair", src, "-o", out)
+    assert code == 2 and out.read_text() == "precious"
+
+
+def test_refuses_to_overwrite_input(tmp_path):
+    V, F = torus(1.0, 0.3, 16, 8)
+    src = tmp_path / "t.obj"
+    save_mesh(src, V=V, F=F)
+    before = src.read_bytes()
+    code, _, err = run("repair", src, "-o", src)
+    assert code == 2 and "overwrite the input" in err
+    assert src.read_bytes() == before
+
+
+def test_usage_errors_are_one_line(tmp_path):
+    code, _, err = run("repair", tmp_path / "x.obj")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    code, _, err = run("repair", tmp_path / "x.obj", "-o", tmp_path / "y.obj", "--open", "sideways")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    code, _, err = run("inspect", tmp_path / "x.unknown")
+    assert code == 2 and "unsupported mesh format" in err
+
+
+def test_unwritable_output_is_a_clean_error(tmp_path):
+    V, F = torus(1.0, 0.3, 16, 8)
+    src = tmp_path / "t.ply"
+    save_mesh(src, V=V, F=F)
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code, _, err = run("repair", src, "-o", blocker / "sub" / "out.ply", "--up", "z")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_synth_surface_and_version(tmp_path):
+    code, out, err = run("synth", "surface", "genus2", "-o", tmp_path / "g.obj", "--resolution", "20")
+    assert code == 0, err
+    m = load_mesh(tmp_path / "g.obj")
+    assert topology_report(m.V, m.F).genus == 2
+    code, out, _ = run("--version")
+    assert code == 0 and out.startswith("geoface ")

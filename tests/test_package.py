@@ -1,0 +1,33 @@
+"""Package-level promises: a light import, one error hierarchy, lazy heavy stacks."""
+
+import subprocess
+import sys
+
+import geoface
+
+
+def test_import_is_light():
+    code = (
+        "import sys, geoface, geoface.mesh, geoface.repair, geoface.synth;"
+        "heavy = [m for m in ('torch', 'pyvista', 'vtk', 'pymeshlab', 'open3d', 'dask', 'diffusers') if m in sys.modules];"
+        "print(','.join(heavy))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == ""
+
+
+def test_error_hierarchy():
+    for name in ["MeshFormatError", "InvalidMeshError", "MeshTopologyError", "ParameterizationError", "InvalidGeometryImageError", "MissingDependencyError"]:
+        assert issubclass(getattr(geoface, name), geoface.GeofaceError)
+
+
+def test_missing_dependency_hint():
+    from geoface._lazy import lazy_import
+    from geoface.errors import MissingDependencyError
+
+    try:
+        lazy_import("geoface_no_such_module_xyz", "a test")
+    except MissingDependencyError as exc:
+        assert "pip install" in str(exc) and "a test" in str(exc)
+    else:  # pragma: no cover
+        raise AssertionError("expected MissingDependencyError")
