@@ -136,16 +136,18 @@ class EdgeTopology:
 
 
 def edge_topology(F: np.ndarray) -> EdgeTopology:
-    """Build :class:`EdgeTopology` for faces ``F`` (vectorised)."""
+    """Build :class:`EdgeTopology` for faces ``F`` (vectorised, int64 edge keys)."""
     src = F.ravel()
     dst = F[:, [1, 2, 0]].ravel()
-    key = np.stack([np.minimum(src, dst), np.maximum(src, dst)], axis=1)
-    if len(key) == 0:
+    if len(src) == 0:
         return EdgeTopology(np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), src, dst)
-    E, he_edge = np.unique(key, axis=0, return_inverse=True)
-    he_edge = he_edge.ravel()
+    n = np.int64(src.max()) + 1
+    lo, hi = np.minimum(src, dst), np.maximum(src, dst)
+    keys, he_edge = np.unique(lo * n + hi, return_inverse=True)
+    E = np.stack([keys // n, keys % n], 1)
+    he_edge = he_edge.ravel().astype(np.int64)
     counts = np.bincount(he_edge, minlength=len(E))
-    return EdgeTopology(E.astype(np.int64), he_edge.astype(np.int64), counts, src, dst)
+    return EdgeTopology(E.astype(np.int64), he_edge, counts, src, dst)
 
 
 def manifold_halfedge_pairs(et: EdgeTopology) -> np.ndarray:
@@ -305,8 +307,12 @@ def duplicate_faces(F: np.ndarray) -> np.ndarray:
     """Boolean mask of faces whose vertex set repeats an earlier face (first one kept)."""
     if len(F) == 0:
         return np.zeros(0, bool)
-    key = np.sort(F, axis=1)
-    _, first = np.unique(key, axis=0, return_index=True)
+    key = np.sort(F, axis=1).astype(np.int64)
+    n = np.int64(key.max()) + 1
+    if n < 2_000_000:  # (a*n + b)*n + c fits in int64
+        _, first = np.unique((key[:, 0] * n + key[:, 1]) * n + key[:, 2], return_index=True)
+    else:
+        _, first = np.unique(key, axis=0, return_index=True)
     dup = np.ones(len(F), bool)
     dup[first] = False
     return dup

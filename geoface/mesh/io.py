@@ -182,21 +182,33 @@ def load_mesh(path: str | os.PathLike, *, weld: bool = True) -> Mesh:
     elif kind == "face":
         warnings.warn(f"{path.name}: per-face colours are not kept (geoface stores vertex colours)", GeofaceWarning, stacklevel=2)
     if weld:
-        Vw, inv = np.unique(V, axis=0, return_inverse=True)
-        inv = inv.ravel()
-        if len(Vw) < len(V):
-            first = np.full(len(Vw), len(V))
-            np.minimum.at(first, inv, np.arange(len(V)))
-            # keep the first-seen order so files read back in the same order
-            order = np.argsort(first)
-            rank = np.empty_like(order)
-            rank[order] = np.arange(len(order))
-            new_of_old = rank[inv]
-            V = Vw[order]
-            if colors is not None:
-                colors = colors[first[order]]
-            F = new_of_old[F]
+        V, F, first = _weld_exact(V, F)
+        if colors is not None:
+            colors = colors[first]
     return Mesh(V, F, UV=UV, FUV=FUV, colors=colors, texture=texture)
+
+
+def _weld_exact(V: np.ndarray, F: np.ndarray):
+    """Merge vertices with bit-identical positions, keeping first-seen order.
+
+    Returns ``(V, F, first)`` with ``first[i]`` the input index of output vertex ``i``.
+    """
+    order = np.lexsort((V[:, 2], V[:, 1], V[:, 0]))
+    Vs = V[order]
+    new_group = np.r_[True, (Vs[1:] != Vs[:-1]).any(1)]
+    gid_sorted = np.cumsum(new_group) - 1
+    gid = np.empty(len(V), np.int64)
+    gid[order] = gid_sorted
+    ng = int(gid_sorted[-1]) + 1
+    if ng == len(V):
+        return V, F, np.arange(len(V))
+    first = np.full(ng, len(V))
+    np.minimum.at(first, gid, np.arange(len(V)))
+    rank_order = np.argsort(first)  # groups in first-seen order
+    rank = np.empty(ng, np.int64)
+    rank[rank_order] = np.arange(ng)
+    first = first[rank_order]
+    return V[first], rank[gid][F], first
 
 
 def _material_image(material) -> np.ndarray | None:

@@ -212,6 +212,7 @@ def make_disk(V, F, options: RepairOptions | None = None, **overrides) -> DiskRe
     V, F = check_mesh(V, F)
     area_before = float(face_areas(V, F).sum())
 
+    log(f"make_disk: {len(V)} vertices, {len(F)} faces; cleaning")
     res = clean(V, F, merge_tolerance=opts.merge_tolerance)
     res = res.then(keep_components(res.V, res.F, min_area_fraction=opts.min_component_area))
     _strict(res, "clean")
@@ -225,11 +226,14 @@ def make_disk(V, F, options: RepairOptions | None = None, **overrides) -> DiskRe
     if closed and opts.open == "none":
         raise MeshTopologyError("the mesh is closed (no boundary) and open='none'; use open='auto', 'plane' or 'cap'")
     if loops:
+        log(f"make_disk: {len(loops)} boundary loops; filling all but the kept one")
         res = res.then(fill_holes(res.V, res.F, keep=opts.keep_boundary, refine=opts.refine_holes, fairing=opts.fair_holes))
+    log("make_disk: removing handles")
     res = res.then(remove_handles(res.V, res.F, max_handles=opts.max_handles, seed=opts.seed))
     _strict(res, "handles")
     cut = opts.open in ("plane", "cap") or (opts.open == "auto" and closed)
     if cut:
+        log(f"make_disk: opening the surface ({'cap' if opts.open == 'cap' else 'plane'})")
         if opts.open == "cap":
             res = res.then(open_with_cap(res.V, res.F, up=opts.up, area_fraction=opts.cap_area))
         else:
