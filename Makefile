@@ -19,13 +19,20 @@ test: $(STAMP)
 
 demo: $(STAMP)
 	@mkdir -p $(OUT)
+	@echo "== the procedural head (smiling), 20K vertices"
 	$(VENV)/bin/geoface synth head -o $(OUT)/head.obj --vertices 20000 --seed 0 --expression smile=0.6 --meta $(OUT)/head.json
 	$(VENV)/bin/geoface inspect $(OUT)/head.obj
+	@echo "== a messy scan of it: holes, near-duplicate vertices, debris, a non-manifold fin"
 	$(PY) data_tools/make_messy_head.py $(OUT)/messy_head.ply --vertices 20000 --seed 0
 	$(VENV)/bin/geoface inspect $(OUT)/messy_head.ply
 	$(VENV)/bin/geoface repair $(OUT)/messy_head.ply -o $(OUT)/messy_head_disk.ply
+	@echo "== the same, closed at the neck: cut open at the lowest plane"
+	$(PY) data_tools/make_messy_head.py $(OUT)/closed_head.ply --vertices 20000 --seed 1 --closed
+	$(VENV)/bin/geoface repair $(OUT)/closed_head.ply -o $(OUT)/closed_head_disk.ply --open plane
+	@echo "== a genus-2 surface: handles cut and capped, then opened"
 	$(VENV)/bin/geoface synth surface genus2 -o $(OUT)/genus2.obj
-	$(VENV)/bin/geoface repair $(OUT)/genus2.obj -o $(OUT)/genus2_disk.obj --up z
+	$(VENV)/bin/geoface repair $(OUT)/genus2.obj -o $(OUT)/genus2_disk.obj --up z --open cap
+	@echo "outputs in $(OUT)/"
 
 bench: $(STAMP)
 	GEOFACE_QUIET=1 $(PY) bench/bench_repair.py

@@ -45,8 +45,9 @@ class RepairOptions:
     open : "auto" | "plane" | "cap" | "none"
         How to give a closed surface its boundary.  ``auto`` (default) cuts a closed
         surface at a plane near its bottom along ``up`` (the neck of an upright head) and
-        keeps the longest existing boundary of an open one; ``plane``/``cap`` always cut;
-        ``none`` never cuts (a closed input is then an error).
+        keeps the longest existing boundary of an open one; ``plane``/``cap`` always cut
+        (existing holes are all filled first, the cut becomes the boundary); ``none``
+        never cuts (a closed input is then an error).
     up : "x" | "y" | "z" | "-x" | ... | 3-vector
         Up axis of the model (default "y", as in OBJ/glTF heads).
     open_height : float
@@ -225,13 +226,15 @@ def make_disk(V, F, options: RepairOptions | None = None, **overrides) -> DiskRe
     closed = len(loops) == 0
     if closed and opts.open == "none":
         raise MeshTopologyError("the mesh is closed (no boundary) and open='none'; use open='auto', 'plane' or 'cap'")
+    cut = opts.open in ("plane", "cap") or (opts.open == "auto" and closed)
     if loops:
-        log(f"make_disk: {len(loops)} boundary loops; filling all but the kept one")
-        res = res.then(fill_holes(res.V, res.F, keep=opts.keep_boundary, refine=opts.refine_holes, fairing=opts.fair_holes))
+        # an explicit cut makes the new boundary: then every existing hole is closed
+        keep = "none" if cut else opts.keep_boundary
+        log(f"make_disk: {len(loops)} boundary loops; filling {'all' if cut else 'all but the kept one'}")
+        res = res.then(fill_holes(res.V, res.F, keep=keep, refine=opts.refine_holes, fairing=opts.fair_holes))
     log("make_disk: removing handles")
     res = res.then(remove_handles(res.V, res.F, max_handles=opts.max_handles, seed=opts.seed))
     _strict(res, "handles")
-    cut = opts.open in ("plane", "cap") or (opts.open == "auto" and closed)
     if cut:
         log(f"make_disk: opening the surface ({'cap' if opts.open == 'cap' else 'plane'})")
         if opts.open == "cap":

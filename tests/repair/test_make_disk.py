@@ -127,3 +127,63 @@ def test_options_object_and_remesh():
     assert_disk(res)
     assert 450 < len(res.V) < 800
     assert res.changes[0]["step"] == "remesh"
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_procedural_heads_with_random_holes(seed):
+    from geoface.synth import procedural_head, punch_holes
+
+    head = procedural_head(n_vertices=6000, seed=seed)
+    V, F = punch_holes(head.V, head.F, n_holes=4, radius=0.04, seed=seed)
+    res = make_disk(V, F)
+    r = assert_disk(res)
+    assert_idempotent(res)
+    # the neck (the longest loop) stays the boundary: same length as before
+    neck = topology_report(head.V, head.F).boundary_loop_lengths[0]
+    assert r.boundary_loop_lengths[0] == pytest.approx(neck, rel=1e-12)
+    # the faired patches restore the missing skin closely
+    assert res.area_after == pytest.approx(face_areas(head.V, head.F).sum(), rel=0.02)
+    assert sum(c["step"] == "fill_hole" for c in res.changes) >= 2
+    # untouched vertices are exactly where they were
+    ok = res.vertex_map >= 0
+    assert np.array_equal(res.V[ok], V[res.vertex_map[ok]])
+
+
+def _messy(n, seed, closed):
+    import sys
+
+    from tests.helpers import REPO
+
+    sys.path.insert(0, str(REPO / "data_tools"))
+    from make_messy_head import messy_head
+
+    return messy_head(n, seed=seed, closed=closed)
+
+
+def test_messy_open_head_keeps_its_neck():
+    from geoface.synth import procedural_head
+
+    V, F = _messy(8000, 3, closed=False)
+    before = topology_report(V, F)
+    assert not before.manifold and before.components > 1 and before.boundary_loops > 1
+    res = make_disk(V, F)
+    r = assert_disk(res)
+    assert_idempotent(res)
+    steps = {c["step"] for c in res.changes}
+    assert {"merge_vertices", "split_nonmanifold_edges", "remove_components", "fill_hole"} <= steps
+    head = procedural_head(n_vertices=8000, seed=3)
+    assert r.boundary_loop_lengths[0] == pytest.approx(topology_report(head.V, head.F).boundary_loop_lengths[0], rel=1e-6)
+    assert res.area_after == pytest.approx(face_areas(head.V, head.F).sum(), rel=0.02)
+
+
+def test_messy_closed_head_is_cut_at_the_neck():
+    from geoface.mesh.core import boundary_loops
+
+    V, F = _messy(8000, 4, closed=True)
+    res = make_disk(V, F, open="plane")
+    assert_disk(res)
+    assert_idempotent(res)
+    assert "open_plane" in {c["step"] for c in res.changes}
+    loop_y = res.V[boundary_loops(res.F)[0], 1]
+    assert loop_y.max() - loop_y.min() < 1e-9  # a planar cut ...
+    assert loop_y[0] < np.quantile(res.V[:, 1], 0.02)  # ... at the bottom (the neck)
