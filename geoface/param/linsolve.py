@@ -42,11 +42,17 @@ class SPDSolver:
             from sksparse.cholmod import cholesky
 
             A = sp.csc_matrix(A)
-            if self._factor is None or self._factor_n != A.shape[0]:
-                self._factor = cholesky(A, mode="supernodal")
-                self._factor_n = A.shape[0]
-            else:
+            A.sort_indices()
+            same = (
+                self._factor is not None
+                and np.array_equal(self._indptr, A.indptr)
+                and np.array_equal(self._indices, A.indices)
+            )
+            if same:  # same sparsity pattern: reuse the symbolic analysis
                 self._factor.cholesky_inplace(A)
+            else:
+                self._factor = cholesky(A, mode="supernodal")
+                self._indptr, self._indices = A.indptr.copy(), A.indices.copy()
             return self._factor(b)
         lu = spla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
         return lu.solve(b)

@@ -61,6 +61,9 @@ class RicciFlowResult:
     Attributes
     ----------
     uv : (n, 2) float64 — rectangle layout, corner 0 at the origin, corner 1 on +x
+    F : (m, 3) int64 — the triangulation ``uv`` is valid for: the input's, except that
+        "ears" (boundary vertices with a single triangle, which cannot have a straight
+        boundary angle) had the edge opposite them flipped; ``ears_flipped`` counts them
     u : (n,) float64 — log conformal factors
     corners : (4,) int64 — the corner vertices, counter-clockwise from the origin
     width, height : float — rectangle sides; ``aspect = width / height``
@@ -79,6 +82,8 @@ class RicciFlowResult:
     seconds: float
     history: list = field(default_factory=list)
     degenerate_triangles: int = 0
+    F: np.ndarray | None = None
+    ears_flipped: int = 0
 
     @property
     def aspect(self) -> float:
@@ -134,6 +139,8 @@ class RicciFlowSolver:
         et = edge_topology(F)
         if (et.edge_faces > 2).any():
             raise ParameterizationError("mesh is not manifold; run make_disk first")
+        F, self.ears_flipped = flip_ears(V, F, loops[0])
+        et = edge_topology(F)
         self.V, self.F = V, F
         self.n = len(V)
         self.boundary = loops[0]
@@ -240,6 +247,7 @@ class RicciFlowSolver:
         return RicciFlowResult(
             uv=uv, u=u, corners=corners, width=w, height=h, converged=bool(converged), iterations=it, residual=res,
             seconds=time.perf_counter() - t0, history=history, degenerate_triangles=degenerate,
+            F=self.F, ears_flipped=self.ears_flipped,
         )
 
     def _newton_direction(self, H: sp.csr_matrix, rhs: np.ndarray) -> np.ndarray:
@@ -249,10 +257,10 @@ class RicciFlowSolver:
             d = self.solver.solve(H, rhs)
             if np.isfinite(d).all():
                 return d
-        except RuntimeError:
+        except Exception:  # SuperLU: singular; CHOLMOD: not positive definite
             pass
         eps = 1e-10 * max(float(np.abs(H.diagonal()).max()), 1.0)
-        return self.solver.solve(H + eps * sp.identity(H.shape[0], format="csr"), rhs)
+        return SPDSolver("splu").solve(H + eps * sp.identity(H.shape[0], format="csr"), rhs)
 
     def _check_corners(self, corners) -> np.ndarray:
         c = np.asarray(corners, np.int64).ravel()
@@ -266,6 +274,52 @@ class RicciFlowSolver:
         if ((np.diff(np.r_[p, p[0]]) % len(self.boundary)) == 0).any() or ((p - p[0]) % len(self.boundary)).tolist() != sorted(((p - p[0]) % len(self.boundary)).tolist()):
             raise ParameterizationError("corners must be given in boundary order (counter-clockwise)")
         return c
+
+
+def flip_ears(V: np.ndarray, F: np.ndarray, boundary: np.ndarray) -> tuple[np.ndarray, int]:
+    """Flip the edge opposite every boundary vertex that has a single triangle.
+
+    Such a vertex can never reach a straight boundary angle (pi) without its triangle
+    degenerating, so Newton would crawl along the energy's degenerate extension.  The
+    flip gives it two triangles; it is skipped where it would duplicate an edge or fold
+    the surface (new normals against the old ones).
+    """
+    F = F.copy()
+    count = np.bincount(F.ravel(), minlength=len(V))
+    ears = boundary[count[boundary] == 1]
+    if len(ears) == 0:
+        return F, 0
+    et = edge_topology(F)
+    n = len(V)
+    keys = set((et.E[:, 0] * n + et.E[:, 1]).tolist())
+    he_order = np.argsort(et.he_edge, kind="stable")
+    he_sorted = et.he_edge[he_order]
+    done = 0
+    touched = set()
+    for v in ears.tolist():
+        f = int(np.flatnonzero((F == v).any(1))[0])
+        k = int(np.flatnonzero(F[f] == v)[0])
+        b, c = int(F[f, (k + 1) % 3]), int(F[f, (k + 2) % 3])
+        e = et.he_edge[3 * f + (k + 1) % 3]  # half-edge b -> c
+        hs = he_order[np.searchsorted(he_sorted, e, "left"):np.searchsorted(he_sorted, e, "right")]
+        others = [int(h) for h in hs if h // 3 != f]
+        if len(others) != 1 or f in touched:
+            continue
+        g = others[0] // 3
+        if g in touched:
+            continue
+        d = int(F[g, (others[0] % 3 + 2) % 3])
+        if d == v or (min(v, d) * n + max(v, d)) in keys:
+            continue
+        new1, new2 = (v, b, d), (v, d, c)
+        n_old = np.cross(V[b] - V[v], V[c] - V[v]) + np.cross(V[b] - V[c], V[d] - V[c])
+        if any(np.cross(V[t[1]] - V[t[0]], V[t[2]] - V[t[0]]) @ n_old <= 0 for t in (new1, new2)):
+            continue
+        F[f], F[g] = new1, new2
+        keys.add(min(v, d) * n + max(v, d))
+        touched.update((f, g))
+        done += 1
+    return F, done
 
 
 def _n_degenerate(ang: np.ndarray) -> int:

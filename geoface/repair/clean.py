@@ -134,26 +134,47 @@ def remove_degenerate_faces(V, F, max_rounds: int = 8) -> StepResult:
     return StepResult(res2.V, res2.F, res.vertex_map[res2.vertex_map], face_map[res2.face_map], changes)
 
 
-def _choose_pairs(F: np.ndarray, et) -> tuple[np.ndarray, int]:
-    """Link faces across edges: every 2-face edge, and one consistent pair per >2-face edge."""
+def _choose_pairs(V: np.ndarray, F: np.ndarray, et) -> tuple[np.ndarray, np.ndarray]:
+    """Link faces across edges: every 2-face edge as it is; the faces around an edge with
+    more than two are paired greedily into the smoothest continuations.
+
+    Pair score: the cosine between the two normals, as seen with consistent orientation
+    (faces using the edge in the same direction have one normal flipped), with a small
+    preference for pairs that are already consistent.  A fin on a plane thus leaves the
+    plane joined; two crossing sheets each stay whole.
+
+    Returns ``(pairs, primary)``: ``primary[i]`` marks the best pair of each >2-face edge.
+    """
     order = np.argsort(et.he_edge, kind="stable")
     e_sorted = et.he_edge[order]
     cnt = et.edge_faces[e_sorted]
     two = order[cnt == 2].reshape(-1, 2)
     nm = order[cnt > 2]
-    extra = []
+    extra, primary = [], []
     if len(nm):
+        from ..mesh.core import face_normals
+
+        N = face_normals(V, F)
         starts = np.flatnonzero(np.r_[True, et.he_edge[nm][1:] != et.he_edge[nm][:-1]])
-        groups = np.split(nm, starts[1:])
-        for hs in groups:
-            src = et.he_src[hs]
-            fwd, bwd = hs[src == src[0]], hs[src != src[0]]
-            if len(bwd):
-                extra.append((fwd[0], bwd[0]))  # opposite directions: consistent pair
-            else:
-                extra.append((hs[0], hs[1]))
-    pairs = np.concatenate([two, np.asarray(extra, np.int64).reshape(-1, 2)]) if extra else two
-    return pairs.astype(np.int64), len(nm) and len(extra)
+        for hs in np.split(nm, starts[1:]):
+            fs = hs // 3
+            sgn = np.where(et.he_src[hs] == et.he_src[hs[0]], 1.0, -1.0)
+            cos = N[fs] @ N[fs].T
+            consistent = sgn[:, None] != sgn[None, :]
+            score = np.where(consistent, cos + 1e-3, -cos)
+            np.fill_diagonal(score, -np.inf)
+            left = np.ones(len(hs), bool)
+            first = True
+            while left.sum() >= 2:
+                sc = np.where(left[:, None] & left[None, :], score, -np.inf)
+                i, j = np.unravel_index(np.argmax(sc), sc.shape)
+                extra.append((hs[i], hs[j]))
+                primary.append(first)
+                first = False
+                left[[i, j]] = False
+    pairs = np.concatenate([two, np.asarray(extra, np.int64).reshape(-1, 2)])
+    prim = np.concatenate([np.zeros(len(two), bool), np.asarray(primary, bool)])
+    return pairs.astype(np.int64), prim
 
 
 def split_vertices_by_fans(V: np.ndarray, F: np.ndarray, pairs: np.ndarray, separate: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -196,8 +217,9 @@ def split_vertices_by_fans(V: np.ndarray, F: np.ndarray, pairs: np.ndarray, sepa
 def make_manifold(V, F, max_rounds: int = 4, separate: float = 0.01) -> StepResult:
     """Split non-manifold vertices and edges and orient all faces consistently.
 
-    * An edge with more than two faces keeps one pair of faces joined (a pair that
-      uses it in opposite directions when there is one); the other faces are detached.
+    * The faces around an edge with more than two are paired into the smoothest
+      continuations (see :func:`_choose_pairs`); every pair stays joined, so each sheet
+      through the edge stays whole, and the vertex split below separates the sheets.
     * Faces are flipped so joined faces agree (the majority orientation of each
       component wins).  Where no flips can make a component agree (a non-orientable
       surface such as a Moebius strip), the disagreeing joins are cut.
@@ -215,7 +237,7 @@ def make_manifold(V, F, max_rounds: int = 4, separate: float = 0.01) -> StepResu
     for rnd in range(max_rounds):
         V, F = total.V, total.F
         et = edge_topology(F)
-        pairs, _ = _choose_pairs(F, et)
+        pairs, _ = _choose_pairs(V, F, et)
         sol = solve_orientation(F, pairs)
         changes = []
         nm_edges = int((et.edge_faces > 2).sum())
@@ -237,13 +259,20 @@ def make_manifold(V, F, max_rounds: int = 4, separate: float = 0.01) -> StepResu
         if not (et2.edge_faces > 2).any():
             break
         if rnd == max_rounds - 1:
-            # last resort: on each remaining >2-face edge keep only the joined pair
-            kept_pairs, _ = _choose_pairs(F2, et2)
+            # last resort: on each remaining >2-face edge keep only its best pair
+            kept_pairs, primary = _choose_pairs(V2, F2, et2)
             on_nm = np.isin(et2.he_edge, et2.nonmanifold_edges)
             in_pair = np.zeros(3 * len(F2), bool)
-            in_pair[kept_pairs.ravel()] = True
+            in_pair[kept_pairs[primary | (et2.edge_faces[et2.he_edge[kept_pairs[:, 0]]] == 2)].ravel()] = True
             bad = (on_nm & ~in_pair).reshape(-1, 3).any(1)
             total = total.then(select_faces(V2, F2, ~bad, [{"step": "remove_nonmanifold_faces", "removed": int(bad.sum())}]))
+    # removing faces can leave bow-tie vertices: split them (all edges are manifold now)
+    from ..mesh.core import manifold_halfedge_pairs, nonmanifold_vertices
+
+    if len(nonmanifold_vertices(total.F, len(total.V))):
+        pairs = manifold_halfedge_pairs(edge_topology(total.F))
+        V3, F3, vm3 = split_vertices_by_fans(total.V, total.F, pairs, separate=separate)
+        total = total.then(StepResult(V3, F3, vm3, np.arange(len(F3), dtype=np.int64), [{"step": "split_nonmanifold_vertices", "copies_added": int(len(V3) - len(total.V))}]))
     # drop vertices that no face uses any more
     used = np.zeros(len(total.V), bool)
     used[total.F.ravel()] = True
