@@ -47,6 +47,7 @@ demo: $(STAMP)
 
 bench: $(STAMP)
 	GEOFACE_QUIET=1 $(PY) bench/bench_repair.py
+	GEOFACE_QUIET=1 $(PY) bench/bench_param.py
 
 clean:
 	rm -rf $(OUT) bench_out .pytest_cache

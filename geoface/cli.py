@@ -87,6 +87,86 @@ def cmd_repair(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- param
+def _parse_corners(text: str | None):
+    if not text:
+        return None
+    try:
+        c = [int(x) for x in text.split(",")]
+    except ValueError:
+        raise GeofaceError(f"--corners must be four vertex indices like 12,40,77,103; got {text!r}") from None
+    if len(c) != 4:
+        raise GeofaceError(f"--corners needs exactly four vertex indices; got {len(c)}")
+    return c
+
+
+def cmd_param(args) -> int:
+    import numpy as np
+
+    from .mesh.io import Mesh, load_mesh, save_mesh
+    from .mesh.topology import topology_report
+    from .param import baselines, corners as corner_mod, metrics
+    from .param.ricci import RicciFlowSolver, to_unit_square
+    from .progress import log
+
+    if _same_file(args.input, args.output):
+        raise GeofaceError(f"refusing to overwrite the input file {args.input}; choose another -o")
+    mesh = load_mesh(args.input)
+    V, F = mesh.V, mesh.F
+    if args.repair:
+        from .repair import make_disk
+
+        res = make_disk(V, F, up=args.up)
+        mesh = mesh.with_geometry(res.V, res.F, res.vertex_map, res.face_map)
+        V, F = mesh.V, mesh.F
+    rep = topology_report(V, F)
+    if not rep.is_disk:
+        raise GeofaceError(f"{args.input} is not a topological disk ({rep.components} components, {rep.boundary_loops} boundary loops, genus {rep.genus}); run `geoface repair` first or pass --repair")
+    corners = _parse_corners(args.corners)
+    if corners is None and args.corner_set is not None:
+        sets = corner_mod.corner_sets(V, F, n=8)
+        if not 0 <= args.corner_set < len(sets):
+            raise GeofaceError(f"--corner-set must be in 0..{len(sets) - 1}; got {args.corner_set}")
+        corners = sets[args.corner_set]
+    if corners is None:
+        corners = corner_mod.default_corners(V, F)
+    info = {"input": str(args.input), "output": str(args.output), "method": args.method, "vertices": int(len(V)), "faces": int(len(F))}
+    log(f"param: {args.method} on {len(V)} vertices")
+    if args.method == "ricci":
+        solver = RicciFlowSolver(V, F, tolerance=args.tolerance)
+        r = solver.solve(corners)
+        if not r.converged:
+            raise GeofaceError(f"Ricci flow did not converge (max |K - target| = {r.residual:.3g} after {r.iterations} iterations)")
+        F = r.F
+        uv = to_unit_square(r.uv, r.width, r.height, args.fit)
+        info.update(iterations=r.iterations, residual=r.residual, seconds=r.seconds, aspect=r.aspect, corners=[int(c) for c in r.corners], ears_flipped=r.ears_flipped)
+    elif args.method == "harmonic":
+        uv, t = baselines.timed(baselines.harmonic_rectangle, V, F, corners)
+        info.update(seconds=t, corners=[int(c) for c in corners])
+    else:
+        uv, t = baselines.timed(baselines.lscm, V, F)
+        lo, hi = uv.min(0), uv.max(0)
+        uv = (uv - lo) / (hi - lo).max()
+        info.update(seconds=t)
+    d = metrics.distortion(V, F, uv).summary()
+    info["distortion"] = d
+    out = Mesh(V, F, UV=uv, FUV=F, colors=mesh.colors, texture=None)
+    save_mesh(args.output, out)
+    if args.json:
+        from ._io import atomic_path
+
+        with atomic_path(args.json) as tmp:
+            Path(tmp).write_text(json.dumps(info, indent=2))
+    print(f"{args.input} -> {args.output}  ({args.method}, {info['seconds']:.2f} s)")
+    print(
+        f"  quasi-conformal ratio: mean {d['qc_mean']:.4f}, p95 {d['qc_p95']:.4f}, max {d['qc_max']:.3g}; "
+        f"|log area ratio| mean {d['log_area_abs_mean']:.3f}; flipped triangles {d['flipped']}"
+    )
+    if args.method == "ricci":
+        print(f"  Newton iterations {info['iterations']}, max |K - target| {info['residual']:.2e}, rectangle aspect {info['aspect']:.4f}")
+    return 0
+
+
 # --------------------------------------------------------------------------- synth
 def _parse_expression(text: str | None) -> dict:
     if not text:
@@ -166,8 +246,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="geoface", description="Geometry processing of head and face meshes.")
     p.add_argument("--version", action="version", version=f"geoface {__version__}")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress output")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
+    _add = sub.add_parser
+    sub.add_parser = lambda *a, **k: _add(*a, parents=[common], **k)  # every verb accepts -q
 
     s = sub.add_parser("inspect", help="print a mesh's topology report")
     s.add_argument("file")
@@ -187,9 +271,25 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="print the report and changes as JSON")
     s.set_defaults(func=cmd_repair)
 
+    s = sub.add_parser("param", help="parameterize a disk onto the unit square (writes UVs)")
+    s.add_argument("input")
+    s.add_argument("-o", "--output", required=True, help="output mesh with UVs (obj, ply, glb)")
+    s.add_argument("--method", choices=["ricci", "harmonic", "lscm"], default="ricci",
+                   help="ricci: conformal map to a rectangle (default); harmonic: to the square by arc length; lscm: free boundary")
+    s.add_argument("--corners", default=None, help="four boundary vertex indices I,J,K,L in boundary order")
+    s.add_argument("--corner-set", type=int, default=None, help="one of the 8 augmentation corner sets (0..7)")
+    s.add_argument("--fit", choices=["stretch", "uniform"], default="stretch", help="rectangle into the unit square (ricci)")
+    s.add_argument("--tolerance", type=float, default=1e-9, help="curvature tolerance of the flow (radians)")
+    s.add_argument("--repair", action="store_true", help="run make_disk first")
+    s.add_argument("--up", default="y", help="up axis for --repair")
+    s.add_argument("--json", default=None, metavar="M.json", help="write the metrics as JSON")
+    s.set_defaults(func=cmd_param)
+
     s = sub.add_parser("synth", help="write procedural test geometry")
     ss = s.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser)
     ss.required = True
+    _add2 = ss.add_parser
+    ss.add_parser = lambda *a, **k: _add2(*a, parents=[common], **k)
     h = ss.add_parser("head", help="the procedural expressive head")
     h.add_argument("-o", "--output", required=True)
     h.add_argument("--vertices", type=int, default=20000)

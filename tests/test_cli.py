@@ -122,3 +122,30 @@ def test_synth_surface_and_version(tmp_path):
     assert topology_report(m.V, m.F).genus == 2
     code, out, _ = run("--version")
     assert code == 0 and out.startswith("geoface ")
+
+
+@pytest.mark.parametrize("method", ["ricci", "harmonic", "lscm"])
+def test_param_writes_uvs_and_metrics(tmp_path, method):
+    from geoface.synth import procedural_head
+
+    h = procedural_head(n_vertices=3000, seed=1)
+    src = tmp_path / "h.ply"
+    save_mesh(src, V=h.V, F=h.F)
+    out, js = tmp_path / "h_uv.obj", tmp_path / "m.json"
+    code, stdout, err = run("param", src, "-o", out, "--method", method, "--json", js)
+    assert code == 0, err
+    assert "quasi-conformal ratio" in stdout
+    m = load_mesh(out)
+    assert m.UV is not None and m.UV.min() >= 0 and m.UV.max() <= 1 + 1e-9
+    d = json.loads(js.read_text())
+    assert d["distortion"]["flipped"] == 0 and d["method"] == method
+
+
+def test_param_refuses_a_closed_mesh_unless_repaired(tmp_path):
+    src = shared_mesh("spot.obj")
+    code, _, err = run("param", src, "-o", tmp_path / "s.obj")
+    assert code == 2 and "not a topological disk" in err and len(err.strip().splitlines()) == 1
+    code, _, err = run("param", src, "-o", tmp_path / "s.obj", "--repair", "--corner-set", "3")
+    assert code == 0, err
+    code, _, err = run("param", src, "-o", tmp_path / "s.obj", "--repair", "--corners", "1,2")
+    assert code == 2 and "four" in err

@@ -33,7 +33,7 @@ class Distortion:
     area_3d: np.ndarray
 
     def summary(self) -> dict:
-        ok = ~self.flipped
+        ok = ~self.flipped & np.isfinite(self.qc)
         qc = self.qc[ok] if ok.any() else np.array([np.inf])
         la = np.abs(self.log_area[ok]) if ok.any() else np.array([np.inf])
         w = self.area_3d[ok] / max(self.area_3d[ok].sum(), 1e-300) if ok.any() else np.array([1.0])

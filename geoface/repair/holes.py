@@ -23,35 +23,76 @@ from .step import StepResult
 Keep = Literal["longest", "none"]
 
 
-def minimal_area_triangulation(P: np.ndarray, forbid: np.ndarray | None = None) -> np.ndarray | None:
-    """Triangulate a closed polygon ``P (n, 3)`` minimising total area (dynamic programming).
+def minimal_area_triangulation(P: np.ndarray, forbid: np.ndarray | None = None, edge_normals: np.ndarray | None = None) -> np.ndarray | None:
+    """Triangulate a closed polygon ``P (n, 3)`` by dynamic programming (Liepa 2003).
+
+    Minimises, lexicographically, the largest dihedral angle between adjacent patch
+    triangles (and between patch and mesh, given ``edge_normals``), then the total area.
+    The dihedral term keeps the patch from folding over a non-planar hole, which a pure
+    minimal-area fill does.
+
+    Parameters
+    ----------
+    P : (n, 3) polygon vertices in boundary order
+    forbid : (n, n) bool, optional — chords that must not be used (edges the mesh already
+        has); returns None when every triangulation would need one
+    edge_normals : (n, 3), optional — unit normal of the mesh face on polygon edge
+        ``(i, i+1)`` (row ``n-1``: edge ``(n-1, 0)``); zero rows impose nothing
 
     Returns ``(n - 2, 3)`` local indices; triangles ``(i, k, j)`` with ``i < k < j`` follow
-    the polygon's own direction.  O(n^3) work, vectorised over one dimension.
-    ``forbid`` (n, n) bool marks chords that must not be used (edges the mesh already
-    has); returns None when every triangulation would need one.
+    the polygon's own direction (the fill uses them reversed).  O(n^3) work, vectorised
+    over one dimension.
     """
     n = len(P)
     if n < 3:
         raise InvalidMeshError(f"a polygon needs at least 3 vertices; got {n}")
-    W = np.full((n, n), np.inf)
+    EN = np.zeros((n, 3)) if edge_normals is None else np.asarray(edge_normals, np.float64)
+    A = np.full((n, n), np.inf)  # total area of the best triangulation of i..j
+    D = np.full((n, n), np.inf)  # its largest dihedral angle
+    TN = np.zeros((n, n, 3))  # unit normal (fill orientation) of its top triangle
     idx = np.arange(n - 1)
-    W[idx, idx + 1] = 0.0
+    A[idx, idx + 1] = 0.0
+    D[idx, idx + 1] = 0.0
+    TN[idx, idx + 1] = EN[idx]  # "top triangle" of a boundary edge: the mesh face there
     K = np.zeros((n, n), np.int64)
+
+    def dihedral(n1, n2):
+        # angle between normals; zero normals (no constraint) count as flat
+        c = np.clip((n1 * n2).sum(-1), -1.0, 1.0)
+        known = ((n1 * n1).sum(-1) > 0.5) & ((n2 * n2).sum(-1) > 0.5)
+        return np.where(known, np.arccos(c), 0.0)
+
     for L in range(2, n):
         i = np.arange(n - L)
         j = i + L
         t = np.arange(1, L)
         k = i[:, None] + t[None, :]
         a = P[i][:, None, :]
-        area = 0.5 * np.linalg.norm(np.cross(P[k] - a, P[j][:, None, :] - a), axis=2)
-        cost = W[i[:, None], k] + W[k, j[:, None]] + area
-        best = np.argmin(cost, axis=1)
-        W[i, j] = cost[np.arange(len(i)), best]
-        K[i, j] = k[np.arange(len(i)), best]
+        cr = np.cross(P[k] - a, P[j][:, None, :] - a)
+        area2 = np.linalg.norm(cr, axis=2)
+        area = 0.5 * area2
+        nt = -cr / np.maximum(area2, 1e-300)[..., None]  # fill orientation is reversed
+        nt = np.where((area2 > 0)[..., None], nt, 0.0)
+        ii = np.broadcast_to(i[:, None], k.shape)
+        jj = np.broadcast_to(j[:, None], k.shape)
+        dmax = np.maximum.reduce([D[ii, k], D[k, jj], dihedral(nt, TN[ii, k]), dihedral(nt, TN[k, jj])])
+        dmax = np.where(area2 > 0, dmax, np.pi)  # a degenerate triangle is the worst fold
+        if L == n - 1:  # the closing edge (n-1, 0) borders the mesh too
+            dmax = np.maximum(dmax, dihedral(nt, EN[n - 1][None, None, :]))
+        tot = A[ii, k] + A[k, jj] + area
+        dbest = dmax.min(axis=1, keepdims=True)
+        key = np.where(dmax <= dbest + 1e-3, tot, np.inf)
+        best = np.argmin(key, axis=1)
+        r = np.arange(len(i))
+        A[i, j] = tot[r, best]
+        D[i, j] = dmax[r, best]
+        K[i, j] = k[r, best]
+        TN[i, j] = nt[r, best]
         if forbid is not None and L < n - 1:
-            W[i, j] = np.where(forbid[i, j], np.inf, W[i, j])
-    if not np.isfinite(W[0, n - 1]):
+            bad = forbid[i, j]
+            A[i, j] = np.where(bad, np.inf, A[i, j])
+            D[i, j] = np.where(bad, np.inf, D[i, j])
+    if not np.isfinite(A[0, n - 1]):
         return None
     tris = []
     stack = [(0, n - 1)]
@@ -83,7 +124,9 @@ def _has_edge(keys: np.ndarray, a, b) -> np.ndarray:
     return (keys[pos] == k) if len(keys) else np.zeros(k.shape, bool)
 
 
-def triangulate_loop(V: np.ndarray, loop: np.ndarray, edge_keys: np.ndarray | None = None, max_dp: int = 200) -> tuple[np.ndarray, np.ndarray]:
+def triangulate_loop(
+    V: np.ndarray, loop: np.ndarray, edge_keys: np.ndarray | None = None, max_dp: int = 200, edge_normals: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Triangles closing boundary ``loop``, oriented to match the surface.
 
     ``loop`` runs along the boundary half-edges, so the patch uses them reversed.
@@ -92,6 +135,9 @@ def triangulate_loop(V: np.ndarray, loop: np.ndarray, edge_keys: np.ndarray | No
     longer than ``max_dp`` are first split recursively along their shortest chord
     between vertices far apart along the loop.  When no chord-free triangulation
     exists, the loop is fanned from a new centre vertex.
+
+    ``edge_normals`` (len(loop), 3): normal of the mesh face on each loop edge (see
+    :func:`minimal_area_triangulation`).
 
     Returns ``(faces, new_points)``: faces index ``V`` extended by ``new_points``.
     """
@@ -102,7 +148,7 @@ def triangulate_loop(V: np.ndarray, loop: np.ndarray, edge_keys: np.ndarray | No
     if n <= max_dp:
         I, J = np.meshgrid(loop, loop, indexing="ij")
         forbid = _has_edge(keys, I, J)
-        local = minimal_area_triangulation(V[loop], forbid)
+        local = minimal_area_triangulation(V[loop], forbid, edge_normals)
         if local is not None:
             return loop[local][:, ::-1], np.zeros((0, 3))
         c = nv
@@ -123,8 +169,12 @@ def triangulate_loop(V: np.ndarray, loop: np.ndarray, edge_keys: np.ndarray | No
     first = loop[i : j + 1]
     second = np.concatenate([loop[j:], loop[: i + 1]])
     keys2 = np.union1d(keys, [min(loop[i], loop[j]) * _KEY + max(loop[i], loop[j])])
-    t1, p1 = triangulate_loop(V, first, keys2, max_dp)
-    t2, p2 = triangulate_loop(V, second, keys2, max_dp)
+    EN = np.zeros((n, 3)) if edge_normals is None else edge_normals
+    # the chord closing each half has no known neighbour yet: a zero normal
+    en1 = np.concatenate([EN[i:j], np.zeros((1, 3))])
+    en2 = np.concatenate([EN[j:], EN[:i], np.zeros((1, 3))])
+    t1, p1 = triangulate_loop(V, first, keys2, max_dp, en1)
+    t2, p2 = triangulate_loop(V, second, keys2, max_dp, en2)
     # re-index the second half's new points after the first half's
     t2 = np.where(t2 >= nv, t2 + len(p1), t2)
     return np.concatenate([t1, t2]), np.concatenate([p1, p2])
@@ -266,6 +316,22 @@ def fair(V: np.ndarray, F: np.ndarray, free: np.ndarray) -> np.ndarray:
     return out
 
 
+def _loop_edge_normals(V: np.ndarray, F: np.ndarray, loop: np.ndarray) -> np.ndarray:
+    """Unit normal of the mesh face on each boundary edge ``loop[i] -> loop[i+1]``."""
+    from ..mesh.core import face_normals
+
+    src = F.ravel()
+    dst = F[:, [1, 2, 0]].ravel()
+    key = src * _KEY + dst
+    order = np.argsort(key)
+    want = loop * _KEY + np.roll(loop, -1)
+    pos = np.clip(np.searchsorted(key[order], want), 0, len(order) - 1)
+    hit = key[order][pos] == want
+    N = np.zeros((len(loop), 3))
+    N[hit] = face_normals(V, F)[order[pos[hit]] // 3]
+    return N
+
+
 def fill_loops(V, F, loops: list[np.ndarray], *, refine: bool = True, fairing: bool = True) -> StepResult:
     """Fill the given boundary loops with refined, faired patches.
 
@@ -285,7 +351,7 @@ def fill_loops(V, F, loops: list[np.ndarray], *, refine: bool = True, fairing: b
         before = len(Vl)
         Vcur = np.asarray(Vl, np.float64).reshape(-1, 3)
         keys = _edge_keys(np.concatenate([F, np.asarray(new_faces, np.int64).reshape(-1, 3)]))
-        tris, pts = triangulate_loop(Vcur, loop, keys)
+        tris, pts = triangulate_loop(Vcur, loop, keys, edge_normals=_loop_edge_normals(V, F, loop))
         tris = tris.tolist()
         Vl.extend(pts)
         if refine and len(tris) > 1:

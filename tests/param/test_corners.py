@@ -1,0 +1,48 @@
+import numpy as np
+import pytest
+
+from geoface.errors import ParameterizationError
+from geoface.mesh.core import boundary_loops
+from geoface.param.corners import boundary_arclength, corner_sets, default_corners
+from geoface.synth import disk_grid, sphere
+
+
+def arc_positions(V, F, corners):
+    loop = boundary_loops(F)[0]
+    s, L = boundary_arclength(V, loop)
+    pos = {int(v): s[i] for i, v in enumerate(loop)}
+    return np.array([pos[int(c)] for c in corners]), L
+
+
+def test_default_corners_split_the_boundary_in_quarters():
+    V, F = disk_grid(12)  # 72 boundary vertices on a circle
+    c = default_corners(V, F, front=(1, 0, 0))
+    assert np.argmax(V[boundary_loops(F)[0]] @ [1, 0, 0]) is not None
+    assert V[c[0], 0] == pytest.approx(V[:, 0].max())  # the reference: furthest along front
+    s, L = arc_positions(V, F, c)
+    gaps = np.diff(np.r_[s, s[0] + L]) % L
+    assert np.allclose(gaps, L / 4, atol=L / 72)
+
+
+def test_reference_vertex_and_errors():
+    V, F = disk_grid(6)
+    loop = boundary_loops(F)[0]
+    assert default_corners(V, F, reference=int(loop[5]))[0] == loop[5]
+    with pytest.raises(ParameterizationError, match="not on the boundary"):
+        default_corners(V, F, reference=0)
+    with pytest.raises(ParameterizationError, match="one boundary loop"):
+        default_corners(*sphere(1.0, 1))
+
+
+def test_eight_augmentation_sets():
+    V, F = disk_grid(12)
+    sets = corner_sets(V, F, n=8)
+    assert len(sets) == 8
+    _, L = arc_positions(V, F, sets[0])
+    firsts = np.array([arc_positions(V, F, c)[0][0] for c in sets])
+    # each set starts one eighth of the boundary further along
+    steps = np.diff(firsts) % L
+    assert np.allclose(steps, L / 8, atol=L / 72)
+    for c in sets:
+        s, _ = arc_positions(V, F, c)
+        assert np.allclose(np.diff(np.r_[s, s[0] + L]) % L, L / 4, atol=L / 72)
