@@ -5,7 +5,11 @@ its own plane) to its UV triangle; with singular values ``s1 >= s2``:
 
 * quasi-conformal ratio ``qc = s1 / s2`` (1 = conformal, angles preserved);
 * log area ratio ``log((A_uv / sum A_uv) / (A_3d / sum A_3d))`` (0 = area preserving);
-* flipped: ``det J <= 0`` (the UV triangle is reversed or degenerate).
+* flipped: ``det J < 0`` (the UV triangle is reversed);
+* degenerate: UV area at most 1e-9 of the mean UV triangle area (a sliver).
+
+Summaries leave flipped and degenerate triangles out of the QC and area statistics and
+count them separately.
 
 >>> from geoface.synth import square_grid
 >>> V, F = square_grid(4)
@@ -31,9 +35,15 @@ class Distortion:
     log_area: np.ndarray
     flipped: np.ndarray
     area_3d: np.ndarray
+    degenerate: np.ndarray | None = None
 
     def summary(self) -> dict:
-        ok = ~self.flipped & np.isfinite(self.qc)
+        deg = np.zeros_like(self.flipped) if self.degenerate is None else self.degenerate
+        ok = ~self.flipped & ~deg & np.isfinite(self.qc)
+        if not ok.any():
+            inf = float("inf")
+            return {"qc_mean": inf, "qc_area_weighted": inf, "qc_p95": inf, "qc_max": inf, "log_area_abs_mean": inf,
+                    "log_area_abs_p95": inf, "area_ratio_max": inf, "flipped": int(self.flipped.sum()), "degenerate": int(deg.sum())}
         qc = self.qc[ok] if ok.any() else np.array([np.inf])
         la = np.abs(self.log_area[ok]) if ok.any() else np.array([np.inf])
         w = self.area_3d[ok] / max(self.area_3d[ok].sum(), 1e-300) if ok.any() else np.array([1.0])
@@ -46,6 +56,7 @@ class Distortion:
             "log_area_abs_p95": float(np.quantile(la, 0.95)),
             "area_ratio_max": float(np.exp(la.max())),
             "flipped": int(self.flipped.sum()),
+            "degenerate": int(deg.sum()),
         }
 
 
@@ -82,4 +93,5 @@ def distortion(V, F, UV) -> Distortion:
     auv = 0.5 * np.abs(q1[:, 0] * q2[:, 1] - q1[:, 1] * q2[:, 0])
     with np.errstate(divide="ignore", invalid="ignore"):
         log_area = np.log((auv / auv.sum()) / (a3 / a3.sum()))
-    return Distortion(qc=qc, log_area=log_area, flipped=det <= 0, area_3d=a3)
+    sliver = auv <= 1e-9 * max(float(auv.mean()), 1e-300)
+    return Distortion(qc=qc, log_area=log_area, flipped=(det < 0) | ((det == 0) & ~sliver), area_3d=a3, degenerate=sliver & (det >= 0))

@@ -50,6 +50,7 @@ from ..mesh.core import boundary_loops, check_mesh, edge_topology, manifold_half
 from ..progress import log
 from ..tol import tol
 from .corners import default_corners
+from .delaunay import IntrinsicTriangulation, flip_flat_degenerate
 from .intrinsic import corner_angles, cotan_laplacian, edge_lengths, lobachevsky
 from .linsolve import SPDSolver
 
@@ -84,6 +85,7 @@ class RicciFlowResult:
     degenerate_triangles: int = 0
     F: np.ndarray | None = None
     ears_flipped: int = 0
+    intrinsic_flips: int = 0
 
     @property
     def aspect(self) -> float:
@@ -124,10 +126,15 @@ class RicciFlowSolver:
     V : (n, 3) float64, F : (m, 3) int64 — a topological disk (see ``geoface.repair.make_disk``)
     tolerance : float — stop when max |target - angle sum| <= tolerance (default 1e-9 rad)
     max_iterations : int — Newton iterations (default 100)
-    linear_solver : "auto" | "cholmod" | "splu" | "amg" — see :class:`geoface.param.linsolve.SPDSolver`
+    linear_solver : "auto" | "cholmod" | "splu" — see :class:`geoface.param.linsolve.SPDSolver`
+    flips : "auto" | "never" | "always" — intrinsic Delaunay (Ptolemy) flips: only when the
+        fixed triangulation fails (default), never, or always
     """
 
-    def __init__(self, V, F, *, tolerance: float = 1e-9, max_iterations: int = 100, linear_solver: str = "auto"):
+    def __init__(self, V, F, *, tolerance: float = 1e-9, max_iterations: int = 100, linear_solver: str = "auto", flips: str = "auto"):
+        if flips not in ("auto", "never", "always"):
+            raise InvalidMeshError(f"flips must be 'auto', 'never' or 'always'; got {flips!r}")
+        self.flips = flips
         V, F = check_mesh(V, F)
         loops = boundary_loops(F)
         if len(loops) != 1:
@@ -163,15 +170,19 @@ class RicciFlowSolver:
         th[corners] = np.pi / 2
         return th
 
-    def _lam(self, u: np.ndarray) -> np.ndarray:
-        F = self.F
+    def _lam(self, u: np.ndarray, F: np.ndarray | None = None, tri: "IntrinsicTriangulation | None" = None) -> np.ndarray:
+        """``2 log`` of the scaled lengths, per face corner (opposite edge)."""
+        if tri is not None:
+            return 2.0 * np.log(tri.corner_lengths(u))
+        F = self.F if F is None else F
         # edge opposite corner k joins F[:, k+1] and F[:, k+2]
         return self.lam0 + u[F[:, [1, 2, 0]]] + u[F[:, [2, 0, 1]]]
 
-    def energy(self, u: np.ndarray, theta: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    def energy(self, u: np.ndarray, theta: np.ndarray, F: np.ndarray | None = None, tri=None) -> tuple[float, np.ndarray, np.ndarray]:
         """``E(u)``, its gradient ``target - angle sum`` and the corner angles."""
-        e, ang = _energy_terms(self._lam(u))
-        sums = np.bincount(self.F.ravel(), weights=ang.ravel(), minlength=self.n)
+        F = self.F if F is None else F
+        e, ang = _energy_terms(self._lam(u, F, tri))
+        sums = np.bincount(F.ravel(), weights=ang.ravel(), minlength=self.n)
         return float(e.sum() + theta @ u), theta - sums, ang
 
     def hessian(self, u: np.ndarray) -> sp.csr_matrix:
@@ -184,6 +195,12 @@ class RicciFlowSolver:
         ``corners``: four boundary vertices in boundary order (default:
         :func:`geoface.param.corners.default_corners`).  ``u0``: warm start (default: the
         previous solution of this solver, else zeros).
+
+        With ``flips="auto"`` (the default) the flow first keeps the mesh's triangulation;
+        if that does not converge to a non-degenerate metric (pleated or needle-shaped
+        regions can make that impossible), it is re-run on an intrinsic Delaunay
+        triangulation maintained by Ptolemy flips, which always has a solution; the
+        result's ``F`` is then that triangulation (``intrinsic_flips`` > 0).
         """
         t0 = time.perf_counter()
         corners = self._check_corners(default_corners(self.V, self.F) if corners is None else corners)
@@ -191,18 +208,60 @@ class RicciFlowSolver:
         if abs(theta.sum() - np.pi * len(self.F)) > 1e-6:
             raise ParameterizationError("targets violate Gauss-Bonnet (is the mesh a disk?)")
         u = np.zeros(self.n) if u0 is None and self._u_warm is None else np.array(self._u_warm if u0 is None else u0, np.float64)
+        tri = None
+        if self.flips == "always":
+            tri = IntrinsicTriangulation(self.F, self.l0)
+        # in "auto" mode a fixed triangulation that has not converged after 30 Newton
+        # iterations (they converge in ~5 when a solution exists) is given up for flips
+        cap = min(self.max_iterations, 30) if self.flips == "auto" else self.max_iterations
+        u, ang, F, it, res, history, converged = self._newton(corners, theta, u, tri, quiet, cap)
+        if self.flips == "auto" and (not converged or _n_degenerate(ang) > 0):
+            log(f"ricci: fixed triangulation failed (residual {res:.2e}); retrying with intrinsic Delaunay flips", quiet=quiet)
+            tri = IntrinsicTriangulation(self.F, self.l0)
+            u, ang, F, it2, res, h2, converged = self._newton(corners, theta, np.zeros(self.n), tri, quiet, self.max_iterations)
+            it += it2
+            history += h2
+        if tri is not None and converged and _n_degenerate(ang) > 0:
+            flip_flat_degenerate(tri, u)
+            F = tri.F
+            _, _, ang = self.energy(u, theta, F, tri)
+        self._u_warm = u.copy()
+        lengths = np.exp(0.5 * self._lam(u, F, tri))
+        degenerate = _n_degenerate(ang)
+        uv = layout(lengths, F, ang, None if tri is None else tri.twin)
+        uv, w, h = _align_rectangle(uv, corners)
+        if tol.strict and converged:
+            k = np.where(self.is_boundary, np.pi, 2 * np.pi) - np.bincount(F.ravel(), weights=ang.ravel(), minlength=self.n)
+            if abs(k.sum() - 2 * np.pi) > 1e-8:
+                raise ParameterizationError("strict: Gauss-Bonnet violated after the flow")
+        return RicciFlowResult(
+            uv=uv, u=u, corners=corners, width=w, height=h, converged=bool(converged), iterations=it, residual=res,
+            seconds=time.perf_counter() - t0, history=history, degenerate_triangles=degenerate,
+            F=F.copy(), ears_flipped=self.ears_flipped, intrinsic_flips=0 if tri is None else tri.flips,
+        )
+
+    def _newton(self, corners, theta, u, tri, quiet, max_iterations):
+        """Damped Newton on E; with ``tri`` the triangulation is kept Delaunay (Ptolemy flips)."""
         gauge = int(corners[0])
-        u -= u[gauge]
+        u = u - u[gauge]
         free = np.ones(self.n, bool)
         free[gauge] = False
-        E, g, ang = self.energy(u, theta)
+
+        def evaluate(uu):
+            if tri is not None:
+                tri.make_delaunay(uu)
+            F = self.F if tri is None else tri.F
+            E, g, ang = self.energy(uu, theta, F, tri)
+            return E, g, ang, F
+
+        E, g, ang, F = evaluate(u)
         res = float(np.abs(g).max())
         history = [res]
         it = 0
         converged = res <= self.tolerance
-        while not converged and it < self.max_iterations:
+        while not converged and it < max_iterations:
             it += 1
-            H = self.hessian(u)[free][:, free]
+            H = cotan_laplacian(np.exp(0.5 * self._lam(u, F, tri)), F, self.n)[free][:, free]
             d = np.zeros(self.n)
             d[free] = self._newton_direction(H, -g[free])  # Newton: H d = -grad E, grad E = g
             slope = g @ d  # directional derivative of E along d (negative for descent)
@@ -216,7 +275,7 @@ class RicciFlowSolver:
             t = 1.0
             while True:
                 un = u + t * d
-                En, gn, angn = self.energy(un, theta)
+                En, gn, angn, Fn = evaluate(un)
                 armijo = np.isfinite(En) and En <= E + 1e-4 * t * slope
                 # near the solution the decrease (~ residual^2) is below the rounding of E:
                 # then a step that reduces the residual is accepted instead
@@ -228,27 +287,14 @@ class RicciFlowSolver:
                 t *= 0.5
                 if t < 1e-12:
                     break
-            u, E, g, ang = un, En, gn, angn
+            u, E, g, ang, F = un, En, gn, angn, Fn
             res = float(np.abs(g).max())
             history.append(res)
             log(f"ricci: iteration {it}: max |K - target| = {res:.3e}, step {t:g}", quiet=quiet)
             converged = res <= self.tolerance
             if t < 1e-12:
                 break
-        self._u_warm = u.copy()
-        lengths = np.exp(0.5 * self._lam(u))
-        degenerate = _n_degenerate(ang)
-        uv = layout(lengths, self.F, ang)
-        uv, w, h = _align_rectangle(uv, corners)
-        if tol.strict and converged:
-            k = np.where(self.is_boundary, np.pi, 2 * np.pi) - np.bincount(self.F.ravel(), weights=ang.ravel(), minlength=self.n)
-            if abs(k.sum() - 2 * np.pi) > 1e-8:
-                raise ParameterizationError("strict: Gauss-Bonnet violated after the flow")
-        return RicciFlowResult(
-            uv=uv, u=u, corners=corners, width=w, height=h, converged=bool(converged), iterations=it, residual=res,
-            seconds=time.perf_counter() - t0, history=history, degenerate_triangles=degenerate,
-            F=self.F, ears_flipped=self.ears_flipped,
-        )
+        return u, ang, F, it, res, history, converged
 
     def _newton_direction(self, H: sp.csr_matrix, rhs: np.ndarray) -> np.ndarray:
         """Solve ``H d = rhs``; a Hessian made singular by degenerate triangles (vertices
@@ -348,7 +394,7 @@ def _corner_offsets(ang: np.ndarray) -> np.ndarray:
     return off
 
 
-def layout(l: np.ndarray, F: np.ndarray, ang: np.ndarray | None = None) -> np.ndarray:
+def layout(l: np.ndarray, F: np.ndarray, ang: np.ndarray | None = None, twin: np.ndarray | None = None) -> np.ndarray:
     """Unfold a flat metric (lengths ``l``, ``(m, 3)``) into the plane, counter-clockwise.
 
     Breadth-first over faces, one BFS level at a time (vectorised).  The absolute
@@ -356,20 +402,28 @@ def layout(l: np.ndarray, F: np.ndarray, ang: np.ndarray | None = None) -> np.nd
     each new vertex is placed from an already placed one along that direction, so
     rounding errors only add up along the tree instead of being amplified (unfolding
     from the positions of the shared edge is unstable on long chains).
+
+    ``twin`` (3m,) gives face adjacency by half-edges (needed for intrinsic
+    triangulations with multi-edges); by default it is derived from ``F``.
     """
+    from .delaunay import halfedge_twins
+
     m = len(F)
     n = int(F.max()) + 1
     ang = corner_angles(l) if ang is None else ang
-    et = edge_topology(F)
-    pairs = manifold_halfedge_pairs(et)
-    f1, f2 = pairs[:, 0] // 3, pairs[:, 1] // 3
-    G = sp.coo_matrix((np.ones(len(f1)), (f1, f2)), shape=(m, m)).tocsr()
+    twin = halfedge_twins(F) if twin is None else twin
+    h = np.flatnonzero(twin >= 0)
+    G = sp.coo_matrix((np.ones(len(h)), (h // 3, twin[h] // 3)), shape=(m, m)).tocsr()
     order, pred = breadth_first_order(G, 0, directed=False, return_predecessors=True)
     if len(order) != m:
         raise ParameterizationError("faces are not edge-connected; cannot lay out")
+    # for each non-root face, one of its half-edges whose twin lies in the BFS parent
+    hf, tf = h // 3, twin[h] // 3
+    link = np.full(m, -1, np.int64)
+    sel = pred[hf] == tf
+    link[hf[sel]] = h[sel]
     parent = np.where(pred < 0, np.arange(m), pred).astype(np.int64)
-    # depth of each face in the BFS tree (pointer jumping)
-    acc = (pred >= 0).astype(np.int64)
+    acc = (pred >= 0).astype(np.int64)  # BFS depth by pointer jumping
     Q = parent.copy()
     while True:
         nxt = Q[Q]
@@ -390,25 +444,23 @@ def layout(l: np.ndarray, F: np.ndarray, ang: np.ndarray | None = None) -> np.nd
     bounds = np.searchsorted(depth[levels], np.arange(1, int(depth.max()) + 2))
     for d in range(1, int(depth.max()) + 1):
         fs = levels[bounds[d - 1] : bounds[d]]
-        Ff = F[fs]
-        pf = parent[fs]
-        par = F[pf]
+        hg = link[fs]
+        mm = hg % 3  # the shared half-edge runs from corner mm to corner mm+1 of the child
+        ht = twin[hg]
+        pf, pp = ht // 3, ht % 3  # ... and from corner pp+1 to corner pp of the parent
         r = np.arange(len(fs))
-        # corner k of the child not shared with the parent; p, q = the shared corners
-        k = np.argmin((Ff[:, :, None] == par[:, None, :]).any(2), axis=1)
-        p, q = (k + 1) % 3, (k + 2) % 3
-        i, j = Ff[r, p], Ff[r, q]
-        pp = np.argmax(par == i[:, None], axis=1)  # the same vertices as corners of the parent
-        pq = np.argmax(par == j[:, None], axis=1)
-        D = psi[pf] + off[pf, pp, pq]  # direction of i -> j, known from the parent
-        psi[fs] = D - off[fs, p, q]
-        dir_ik = psi[fs] + off[fs, p, k]
-        lik = l[fs, q]  # edge between corners p and k is opposite corner q
-        newv = Ff[r, k]
+        D = psi[pf] + off[pf, (pp + 1) % 3, pp]  # its direction, known from the parent
+        psi[fs] = D - off[fs, mm, (mm + 1) % 3]
+        k = (mm + 2) % 3  # the corner to place
+        dir_mk = psi[fs] + off[fs, mm, k]
+        lmk = l[fs, (mm + 1) % 3]  # edge corner mm - corner k is opposite corner mm+1
+        i = F[fs, mm]
+        newv = F[fs, k]
         todo = ~placed[newv]
-        pos = uv[i] + lik[:, None] * np.stack([np.cos(dir_ik), np.sin(dir_ik)], 1)
+        pos = uv[i] + lmk[:, None] * np.stack([np.cos(dir_mk), np.sin(dir_mk)], 1)
         uv[newv[todo]] = pos[todo]
         placed[newv[todo]] = True
+        del r
     return uv
 
 

@@ -40,3 +40,26 @@ def test_shared_meshes_after_make_disk(name):
     assert ricci["flipped"] == 0
     assert ricci["qc_mean"] < harm["qc_mean"]
     assert ricci["qc_p95"] < harm["qc_p95"]
+
+
+def test_beetle_needs_and_gets_intrinsic_flips():
+    # the repaired beetle has pleated vertices (angle sums near 4 pi): with its own
+    # triangulation no flat metric without degenerate triangles exists; the solver
+    # falls back to an intrinsic Delaunay triangulation kept by Ptolemy flips
+    m = load_mesh(shared_mesh("beetle.obj"))
+    d = make_disk(m.V, m.F)
+    r, ricci, harm, lscm = compare(d.V, d.F)
+    assert r.intrinsic_flips > 0
+    assert ricci["flipped"] == 0 and ricci["degenerate"] <= 1
+    assert harm["flipped"] > 0 and lscm["flipped"] > 0  # the baselines fold here
+    assert ricci["qc_p95"] < harm["qc_p95"]
+
+
+def test_flip_fallback_keeps_good_meshes_untouched():
+    h = procedural_head(n_vertices=5000, seed=2)
+    r = ricci_flow_rectangle(h.V, h.F)
+    assert r.intrinsic_flips == 0 and np.array_equal(r.F, h.F)
+    r2 = ricci_flow_rectangle(h.V, h.F, flips="always")
+    assert r2.converged and metrics.distortion(h.V, r2.F, r2.uv).summary()["flipped"] == 0
+    # the conformal factors do not depend on the triangulation used (same conformal class)
+    assert np.abs((r2.u - r2.u.mean()) - (r.u - r.u.mean())).max() < 0.05
