@@ -101,7 +101,6 @@ def _parse_corners(text: str | None):
 
 
 def cmd_param(args) -> int:
-    import numpy as np
 
     from .mesh.io import Mesh, load_mesh, save_mesh
     from .mesh.topology import topology_report

@@ -166,7 +166,7 @@ def corner_of(F: np.ndarray, faces: np.ndarray, verts: np.ndarray) -> np.ndarray
     return 3 * faces + k
 
 
-def vertex_fans(F: np.ndarray, pairs: np.ndarray, n_vertices: int | None = None) -> tuple[int, np.ndarray]:
+def vertex_fans(F: np.ndarray, pairs: np.ndarray) -> tuple[int, np.ndarray]:
     """Group the corners around each vertex into fans connected through paired half-edges.
 
     Two corners of the same vertex belong to one fan when their faces are linked by a

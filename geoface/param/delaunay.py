@@ -170,9 +170,6 @@ def flip_flat_degenerate(tri: IntrinsicTriangulation, u: np.ndarray, tol: float 
                 continue
             g, m = divmod(t, 3)
             # quad: f = (A, B, C) with h = A -> B, apex C (on segment AB); g = (B, A, D)
-            A = int(tri.F[f, (kk + 1) % 3])
-            C = int(tri.F[f, kk])
-            D = int(tri.F[g, (m + 2) % 3])
             l_ab = Ls[h]
             l_ac = Ls[3 * f + kk]  # half-edge C -> A
             l_ad = Ls[3 * g + (m + 1) % 3]  # A -> D

@@ -46,7 +46,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order
 
 from ..errors import InvalidMeshError, ParameterizationError
-from ..mesh.core import boundary_loops, check_mesh, edge_topology, manifold_halfedge_pairs
+from ..mesh.core import boundary_loops, check_mesh, edge_topology
 from ..progress import log
 from ..tol import tol
 from .corners import default_corners
@@ -448,7 +448,6 @@ def layout(l: np.ndarray, F: np.ndarray, ang: np.ndarray | None = None, twin: np
         mm = hg % 3  # the shared half-edge runs from corner mm to corner mm+1 of the child
         ht = twin[hg]
         pf, pp = ht // 3, ht % 3  # ... and from corner pp+1 to corner pp of the parent
-        r = np.arange(len(fs))
         D = psi[pf] + off[pf, (pp + 1) % 3, pp]  # its direction, known from the parent
         psi[fs] = D - off[fs, mm, (mm + 1) % 3]
         k = (mm + 2) % 3  # the corner to place
@@ -460,7 +459,6 @@ def layout(l: np.ndarray, F: np.ndarray, ang: np.ndarray | None = None, twin: np
         pos = uv[i] + lmk[:, None] * np.stack([np.cos(dir_mk), np.sin(dir_mk)], 1)
         uv[newv[todo]] = pos[todo]
         placed[newv[todo]] = True
-        del r
     return uv
 
 
