@@ -160,6 +160,23 @@ def manifold_halfedge_pairs(et: EdgeTopology) -> np.ndarray:
     return h.reshape(-1, 2)
 
 
+def accumulate_to_root(parent: np.ndarray, values: np.ndarray, combine=np.add) -> np.ndarray:
+    """Combine ``values`` along every node's path to the root of a forest, vectorised.
+
+    ``parent[i]`` is the parent of node ``i`` (roots are their own parent, with the
+    identity value).  Pointer jumping: O(log depth) rounds of whole-array operations.
+    ``combine=np.add`` gives depths (values 1 off the roots); ``np.bitwise_xor`` parities.
+    """
+    acc = np.array(values, copy=True)
+    P = np.asarray(parent).copy()
+    while True:
+        nxt = P[P]
+        if np.array_equal(nxt, P):
+            return acc
+        acc = combine(acc, acc[P])
+        P = nxt
+
+
 def corner_of(F: np.ndarray, faces: np.ndarray, verts: np.ndarray) -> np.ndarray:
     """Corner index ``3*f + k`` of vertex ``verts[i]`` in face ``faces[i]``."""
     k = np.argmax(F[faces] == verts[:, None], axis=1)

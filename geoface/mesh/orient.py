@@ -8,6 +8,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 
+from .core import accumulate_to_root
+
 
 @dataclass(frozen=True)
 class OrientationSolution:
@@ -62,14 +64,7 @@ def solve_orientation(F: np.ndarray, pairs: np.ndarray) -> OrientationSolution:
     nonroot = parent != np.arange(m)
     if len(skey):
         acc[nonroot] = same[order[pos[nonroot]]]
-    P = parent.copy()
-    while True:  # pointer jumping: O(log depth) vectorised rounds
-        nxt = P[P]
-        if np.array_equal(nxt, P):
-            break
-        acc = acc ^ acc[P]
-        P = nxt
-    flip = acc
+    flip = accumulate_to_root(parent, acc, np.bitwise_xor)
     # keep the majority orientation of each component
     frac = np.bincount(comp, weights=flip.astype(float), minlength=ncomp) / np.maximum(np.bincount(comp, minlength=ncomp), 1)
     flip = flip ^ (frac > 0.5)[comp]

@@ -46,7 +46,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order
 
 from ..errors import InvalidMeshError, ParameterizationError
-from ..mesh.core import boundary_loops, check_mesh, edge_topology
+from ..mesh.core import accumulate_to_root, boundary_loops, check_mesh, edge_topology
 from ..progress import log
 from ..tol import tol
 from .corners import default_corners
@@ -423,15 +423,7 @@ def layout(l: np.ndarray, F: np.ndarray, ang: np.ndarray | None = None, twin: np
     sel = pred[hf] == tf
     link[hf[sel]] = h[sel]
     parent = np.where(pred < 0, np.arange(m), pred).astype(np.int64)
-    acc = (pred >= 0).astype(np.int64)  # BFS depth by pointer jumping
-    Q = parent.copy()
-    while True:
-        nxt = Q[Q]
-        if np.array_equal(nxt, Q):
-            break
-        acc = acc + acc[Q]
-        Q = nxt
-    depth = acc
+    depth = accumulate_to_root(parent, (pred >= 0).astype(np.int64))  # BFS depth
     off = _corner_offsets(ang)
     psi = np.zeros(m)  # absolute direction of edge corner0 -> corner1 of each face
     uv = np.zeros((n, 2))
