@@ -42,7 +42,8 @@ def run(name, V, F):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[10000, 50000, 200000])
-    ap.add_argument("--meshes", default=str(REPO.parent / "shared" / "data" / "meshes"))
+    default_meshes = REPO.parent / "shared" / "data" / "meshes"
+    ap.add_argument("--meshes", default=str(default_meshes if default_meshes.is_dir() else REPO / "tests" / "data" / "meshes"))
     args = ap.parse_args()
     from geoface.mesh.io import load_mesh
     from geoface.repair import make_disk

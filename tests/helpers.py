@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_MESHES = Path(os.environ.get("GEOFACE_SHARED_MESHES", REPO.parent / "shared" / "data" / "meshes"))
+_CANDIDATES = [
+    os.environ.get("GEOFACE_SHARED_MESHES"),
+    REPO.parent / "shared" / "data" / "meshes",  # the workplace's shared data
+    REPO / "tests" / "data" / "meshes",  # vendored copies (see CREDITS.md there)
+]
+SHARED_MESHES = next(Path(p) for p in _CANDIDATES if p and (Path(p) / "spot.obj").is_file())
 REAL_MESHES = ("beetle.obj", "spot.obj", "ninjaHead_Low.obj")
 
 
