@@ -150,6 +150,25 @@ def edge_topology(F: np.ndarray) -> EdgeTopology:
     return EdgeTopology(E.astype(np.int64), he_edge, counts, src, dst)
 
 
+#: undirected edge key ``min * EDGE_KEY + max`` (vertex counts below 2^31)
+EDGE_KEY = np.int64(1) << 31
+
+
+def edge_keys(F: np.ndarray) -> np.ndarray:
+    """Sorted undirected edge keys of faces ``F`` (for :func:`has_edge`)."""
+    a = F.ravel()
+    b = F[:, [1, 2, 0]].ravel()
+    return np.unique(np.minimum(a, b) * EDGE_KEY + np.maximum(a, b))
+
+
+def has_edge(keys: np.ndarray, a, b) -> np.ndarray:
+    """Whether the undirected edges ``a``-``b`` are among ``keys`` (from :func:`edge_keys`)."""
+    a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
+    k = np.minimum(a, b) * EDGE_KEY + np.maximum(a, b)
+    pos = np.clip(np.searchsorted(keys, k), 0, max(len(keys) - 1, 0))
+    return (keys[pos] == k) if len(keys) else np.zeros(k.shape, bool)
+
+
 def manifold_halfedge_pairs(et: EdgeTopology) -> np.ndarray:
     """``(p, 2)`` pairs of half-edges on edges shared by exactly two faces."""
     order = np.argsort(et.he_edge, kind="stable")
@@ -175,6 +194,15 @@ def accumulate_to_root(parent: np.ndarray, values: np.ndarray, combine=np.add) -
             return acc
         acc = combine(acc, acc[P])
         P = nxt
+
+
+def halfedge_twins(F: np.ndarray) -> np.ndarray:
+    """``(3m,)`` twin of every half-edge on an edge with exactly two faces, else -1."""
+    pairs = manifold_halfedge_pairs(edge_topology(F))
+    twin = -np.ones(3 * len(F), np.int64)
+    twin[pairs[:, 0]] = pairs[:, 1]
+    twin[pairs[:, 1]] = pairs[:, 0]
+    return twin
 
 
 def corner_of(F: np.ndarray, faces: np.ndarray, verts: np.ndarray) -> np.ndarray:

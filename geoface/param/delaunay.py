@@ -25,17 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ParameterizationError
-from ..mesh.core import edge_topology, manifold_halfedge_pairs
-
-
-def halfedge_twins(F: np.ndarray) -> np.ndarray:
-    """``(3m,)`` twin of every half-edge (-1 on the boundary) of a manifold mesh."""
-    et = edge_topology(F)
-    pairs = manifold_halfedge_pairs(et)
-    twin = -np.ones(3 * len(F), np.int64)
-    twin[pairs[:, 0]] = pairs[:, 1]
-    twin[pairs[:, 1]] = pairs[:, 0]
-    return twin
+from ..mesh.core import halfedge_twins
 
 
 class IntrinsicTriangulation:

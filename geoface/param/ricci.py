@@ -46,7 +46,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order
 
 from ..errors import InvalidMeshError, ParameterizationError
-from ..mesh.core import accumulate_to_root, boundary_loops, check_mesh, edge_topology
+from ..mesh.core import accumulate_to_root, boundary_loops, check_mesh, edge_keys, edge_topology, halfedge_twins, has_edge
 from ..progress import log
 from ..tol import tol
 from .corners import default_corners
@@ -335,34 +335,30 @@ def flip_ears(V: np.ndarray, F: np.ndarray, boundary: np.ndarray) -> tuple[np.nd
     ears = boundary[count[boundary] == 1]
     if len(ears) == 0:
         return F, 0
-    et = edge_topology(F)
-    n = len(V)
-    keys = set((et.E[:, 0] * n + et.E[:, 1]).tolist())
-    he_order = np.argsort(et.he_edge, kind="stable")
-    he_sorted = et.he_edge[he_order]
+    keys = edge_keys(F)
+    twin = halfedge_twins(F)
     done = 0
     touched = set()
     for v in ears.tolist():
         f = int(np.flatnonzero((F == v).any(1))[0])
         k = int(np.flatnonzero(F[f] == v)[0])
         b, c = int(F[f, (k + 1) % 3]), int(F[f, (k + 2) % 3])
-        e = et.he_edge[3 * f + (k + 1) % 3]  # half-edge b -> c
-        hs = he_order[np.searchsorted(he_sorted, e, "left"):np.searchsorted(he_sorted, e, "right")]
-        others = [int(h) for h in hs if h // 3 != f]
-        if len(others) != 1 or f in touched:
+        h = int(twin[3 * f + (k + 1) % 3])  # twin of half-edge b -> c
+        if h < 0 or f in touched:
             continue
-        g = others[0] // 3
+        g = h // 3
         if g in touched:
             continue
-        d = int(F[g, (others[0] % 3 + 2) % 3])
-        if d == v or (min(v, d) * n + max(v, d)) in keys:
+        d = int(F[g, (h % 3 + 2) % 3])
+        # (a flip can never re-create another flip's new edge: both faces of each
+        # flip are marked touched, and every ear has only one face)
+        if d == v or has_edge(keys, v, d):
             continue
         new1, new2 = (v, b, d), (v, d, c)
         n_old = np.cross(V[b] - V[v], V[c] - V[v]) + np.cross(V[b] - V[c], V[d] - V[c])
         if any(np.cross(V[t[1]] - V[t[0]], V[t[2]] - V[t[0]]) @ n_old <= 0 for t in (new1, new2)):
             continue
         F[f], F[g] = new1, new2
-        keys.add(min(v, d) * n + max(v, d))
         touched.update((f, g))
         done += 1
     return F, done
@@ -406,8 +402,6 @@ def layout(l: np.ndarray, F: np.ndarray, ang: np.ndarray | None = None, twin: np
     ``twin`` (3m,) gives face adjacency by half-edges (needed for intrinsic
     triangulations with multi-edges); by default it is derived from ``F``.
     """
-    from .delaunay import halfedge_twins
-
     m = len(F)
     n = int(F.max()) + 1
     ang = corner_angles(l) if ang is None else ang

@@ -20,7 +20,9 @@ from ..mesh.core import (
     bbox_diagonal,
     check_mesh,
     duplicate_faces,
+    edge_keys,
     edge_topology,
+    has_edge,
     face_areas,
     vertex_fans,
 )
@@ -92,8 +94,7 @@ def remove_degenerate_faces(V, F, max_rounds: int = 8) -> StepResult:
         if len(deg) == 0:
             break
         et = edge_topology(F)
-        n = len(V)
-        edge_key = et.E[:, 0] * n + et.E[:, 1]  # sorted, since np.unique sorts E
+        keys = edge_keys(F)
         he_order = np.argsort(et.he_edge, kind="stable")
         he_sorted = et.he_edge[he_order]
         touched = np.zeros(len(F), bool)
@@ -111,10 +112,7 @@ def remove_degenerate_faces(V, F, max_rounds: int = 8) -> StepResult:
                 h = others[0]
                 g = h // 3
                 d = int(F[g, (h % 3 + 2) % 3])
-                key = min(c, d) * n + max(c, d)
-                pos = np.searchsorted(edge_key, key)
-                exists = pos < len(edge_key) and edge_key[pos] == key
-                ok = not touched[g] and et.he_src[h] == b and et.he_dst[h] == a and c != d and not exists
+                ok = not touched[g] and et.he_src[h] == b and et.he_dst[h] == a and c != d and not has_edge(keys, c, d)
             if ok:
                 F[f] = (a, d, c)  # flip the longest edge a-b to c-d
                 F[g] = (d, b, c)

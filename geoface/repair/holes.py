@@ -17,7 +17,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import InvalidMeshError, MeshTopologyError
-from ..mesh.core import boundary_loops, check_mesh, loop_length
+from ..mesh.core import EDGE_KEY, boundary_loops, check_mesh, edge_keys, has_edge, loop_length
 from .step import StepResult
 
 Keep = Literal["longest", "none"]
@@ -107,32 +107,15 @@ def minimal_area_triangulation(P: np.ndarray, forbid: np.ndarray | None = None, 
     return np.asarray(tris, np.int64)
 
 
-_KEY = np.int64(1) << 31  # undirected edge key: min * _KEY + max (vertex counts < 2^31)
-
-
-def _edge_keys(F: np.ndarray) -> np.ndarray:
-    """Sorted undirected edge keys of faces ``F``."""
-    a = F.ravel()
-    b = F[:, [1, 2, 0]].ravel()
-    return np.unique(np.minimum(a, b) * _KEY + np.maximum(a, b))
-
-
-def _has_edge(keys: np.ndarray, a, b) -> np.ndarray:
-    a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
-    k = np.minimum(a, b) * _KEY + np.maximum(a, b)
-    pos = np.clip(np.searchsorted(keys, k), 0, max(len(keys) - 1, 0))
-    return (keys[pos] == k) if len(keys) else np.zeros(k.shape, bool)
-
-
 def triangulate_loop(
     V: np.ndarray, loop: np.ndarray, edge_keys: np.ndarray | None = None, max_dp: int = 200, edge_normals: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Triangles closing boundary ``loop``, oriented to match the surface.
 
     ``loop`` runs along the boundary half-edges, so the patch uses them reversed.
-    Chords that already exist as mesh edges (``edge_keys``, from :func:`_edge_keys` with
-    ``n = len(V)``) are never created, as they would make the mesh non-manifold.  Loops
-    longer than ``max_dp`` are first split recursively along their shortest chord
+    Chords that already exist as mesh edges (``edge_keys``, from
+    :func:`geoface.mesh.core.edge_keys`) are never created, as they would make the mesh
+    non-manifold.  Loops longer than ``max_dp`` are first split recursively along their shortest chord
     between vertices far apart along the loop.  When no chord-free triangulation
     exists, the loop is fanned from a new centre vertex.
 
@@ -147,7 +130,7 @@ def triangulate_loop(
     keys = edge_keys if edge_keys is not None else np.zeros(0, np.int64)
     if n <= max_dp:
         I, J = np.meshgrid(loop, loop, indexing="ij")
-        forbid = _has_edge(keys, I, J)
+        forbid = has_edge(keys, I, J)
         local = minimal_area_triangulation(V[loop], forbid, edge_normals)
         if local is not None:
             return loop[local][:, ::-1], np.zeros((0, 3))
@@ -161,14 +144,14 @@ def triangulate_loop(
     I = cand_i[:, None]
     J = (I + offs[None, :]) % n
     d = np.linalg.norm(P[I] - P[J], axis=2)
-    d = np.where(_has_edge(keys, loop[I], loop[J]), np.inf, d)
+    d = np.where(has_edge(keys, loop[I], loop[J]), np.inf, d)
     a, b = np.unravel_index(np.argmin(d), d.shape)
     i, j = int(cand_i[a]), int((cand_i[a] + offs[b]) % n)
     if i > j:
         i, j = j, i
     first = loop[i : j + 1]
     second = np.concatenate([loop[j:], loop[: i + 1]])
-    keys2 = np.union1d(keys, [min(loop[i], loop[j]) * _KEY + max(loop[i], loop[j])])
+    keys2 = np.union1d(keys, [min(loop[i], loop[j]) * EDGE_KEY + max(loop[i], loop[j])])
     EN = np.zeros((n, 3)) if edge_normals is None else edge_normals
     # the chord closing each half has no known neighbour yet: a zero normal
     en1 = np.concatenate([EN[i:j], np.zeros((1, 3))])
@@ -231,7 +214,7 @@ def refine_patch(V: list, faces: list, target: float, mesh_edge_keys: np.ndarray
         n1 = np.cross(Pd - Pu, Pc - Pu)
         n2 = np.cross(Pv - Pd, Pc - Pd)
         ok = (ang(Pc, Pu, Pv) + ang(Pd, Pu, Pv) > np.pi + 1e-9) & ((n1 * n_old).sum(1) > 0) & ((n2 * n_old).sum(1) > 0)
-        ok &= (C[:, 2] != C[:, 3]) & ~_has_edge(mesh_keys, C[:, 2], C[:, 3])
+        ok &= (C[:, 2] != C[:, 3]) & ~has_edge(mesh_keys, C[:, 2], C[:, 3])
         touched = set()
         flipped = 0
         for u, v, c, d, f1, f2 in C[ok].tolist():
@@ -322,9 +305,9 @@ def _loop_edge_normals(V: np.ndarray, F: np.ndarray, loop: np.ndarray) -> np.nda
 
     src = F.ravel()
     dst = F[:, [1, 2, 0]].ravel()
-    key = src * _KEY + dst
+    key = src * EDGE_KEY + dst
     order = np.argsort(key)
-    want = loop * _KEY + np.roll(loop, -1)
+    want = loop * EDGE_KEY + np.roll(loop, -1)
     pos = np.clip(np.searchsorted(key[order], want), 0, len(order) - 1)
     hit = key[order][pos] == want
     N = np.zeros((len(loop), 3))
@@ -350,7 +333,7 @@ def fill_loops(V, F, loops: list[np.ndarray], *, refine: bool = True, fairing: b
             raise MeshTopologyError(f"boundary loop with {len(loop)} edges cannot be filled (mesh not cleaned?)")
         before = len(Vl)
         Vcur = np.asarray(Vl, np.float64).reshape(-1, 3)
-        keys = _edge_keys(np.concatenate([F, np.asarray(new_faces, np.int64).reshape(-1, 3)]))
+        keys = edge_keys(np.concatenate([F, np.asarray(new_faces, np.int64).reshape(-1, 3)]))
         tris, pts = triangulate_loop(Vcur, loop, keys, edge_normals=_loop_edge_normals(V, F, loop))
         tris = tris.tolist()
         Vl.extend(pts)

@@ -26,9 +26,9 @@ def test_minimal_area_triangulation_of_planar_polygons():
 def test_existing_edges_are_never_duplicated():
     # loop 0-1-2-3 where chord 0-2 already exists elsewhere in the mesh
     V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
-    from geoface.repair.holes import _edge_keys
+    from geoface.mesh.core import edge_keys
 
-    keys = _edge_keys(np.array([[0, 2, 1]]))
+    keys = edge_keys(np.array([[0, 2, 1]]))
     tris, pts = triangulate_loop(V, np.array([0, 1, 2, 3]), keys)
     used = {tuple(sorted(e)) for t in tris for e in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))}
     assert (0, 2) not in used
