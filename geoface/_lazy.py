@@ -17,6 +17,8 @@ _EXTRA_OF = {
     "skimage": "extra",
     "pyvista": "viz",
 }
+#: import name -> pip name where they differ (core dependencies)
+_PIP_NAME = {"cv2": "opencv-python-headless"}
 
 
 def lazy_import(name: str, feature: str = "") -> ModuleType:
@@ -26,6 +28,6 @@ def lazy_import(name: str, feature: str = "") -> ModuleType:
     except ImportError as exc:  # pragma: no cover - depends on the environment
         top = name.split(".")[0]
         extra = _EXTRA_OF.get(top)
-        hint = f"pip install 'geoface[{extra}]'" if extra else f"pip install {top}"
+        hint = f"pip install 'geoface[{extra}]'" if extra else f"pip install {_PIP_NAME.get(top, top)}"
         what = f" (needed for {feature})" if feature else ""
         raise MissingDependencyError(f"optional dependency '{top}' is not installed{what}; try: {hint}") from exc

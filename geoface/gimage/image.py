@@ -1,0 +1,282 @@
+"""Geometry images: position, normal and texture of a parameterized disk on an N×N grid.
+
+In memory a :class:`GeometryImage` is a ``(C, N, N)`` float32 array in [0, 1], a coverage
+mask and a metadata dict.  Channels, in order: ``position`` (x, y, z normalised by the
+bounding box in ``meta``), ``normal`` ((n + 1) / 2 of the unit normal), ``texture`` (RGB).
+
+On disk (a folder): one 16-bit PNG per modality — ``position.png``, ``normal.png``,
+``texture.png`` — an 8-bit ``mask.png`` and ``meta.json``.  Values are quantised to
+``round(x · 65535)``, so a round trip changes a value by at most half a step (7.6e-6).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InvalidGeometryImageError
+from ..mesh.core import check_mesh, vertex_normals
+from .raster import interpolate, interpolate_corners, rasterize_faces, sample_texture
+
+__all__ = ["GeometryImage", "geometry_image", "save_gimage", "load_gimage", "MODALITIES", "FORMAT_VERSION"]
+
+FORMAT_VERSION = 1
+MODALITIES = {"position": ("px", "py", "pz"), "normal": ("nx", "ny", "nz"), "texture": ("r", "g", "b")}
+Q = 65535.0
+
+
+@dataclass
+class GeometryImage:
+    """image : (C, N, N) float32 in [0, 1]; mask : (N, N) bool coverage; meta : dict with
+    ``bbox_min``, ``bbox_max``, ``channels``, ``resolution``, ``version`` and whatever the
+    producer adds (``param`` statistics, ``corners``, ``uv_orientation``)."""
+
+    image: np.ndarray
+    mask: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def resolution(self) -> int:
+        return int(self.image.shape[-1])
+
+    @property
+    def channels(self) -> list:
+        return list(self.meta["channels"])
+
+    def modality(self, name: str) -> np.ndarray:
+        """``(3, N, N)`` slice of one modality."""
+        if name not in MODALITIES:
+            raise InvalidGeometryImageError(f"unknown modality {name!r}; use one of {', '.join(MODALITIES)}")
+        ch = self.channels
+        try:
+            idx = [ch.index(c) for c in MODALITIES[name]]
+        except ValueError:
+            raise InvalidGeometryImageError(f"this geometry image has no {name} channels") from None
+        return self.image[idx]
+
+    def has(self, name: str) -> bool:
+        return all(c in self.meta["channels"] for c in MODALITIES[name])
+
+    def positions(self) -> np.ndarray:
+        """``(N, N, 3)`` positions in the mesh's units."""
+        lo = np.asarray(self.meta["bbox_min"], np.float64)
+        hi = np.asarray(self.meta["bbox_max"], np.float64)
+        p = self.modality("position").astype(np.float64).transpose(1, 2, 0)
+        return lo + p * (hi - lo)
+
+    def normals(self) -> np.ndarray:
+        """``(N, N, 3)`` unit normals (zero where uncovered)."""
+        n = self.modality("normal").astype(np.float64).transpose(1, 2, 0) * 2.0 - 1.0
+        L = np.linalg.norm(n, axis=2, keepdims=True)
+        return np.where(L > 0, n / np.maximum(L, 1e-300), 0.0)
+
+
+def _bbox(V, bbox):
+    if bbox is None:
+        lo, hi = V.min(0), V.max(0)
+    else:
+        lo, hi = (np.asarray(b, np.float64) for b in bbox)
+        if lo.shape != (3,) or hi.shape != (3,):
+            raise InvalidGeometryImageError("bbox must be (min xyz, max xyz)")
+        if (V < lo - 1e-12).any() or (V > hi + 1e-12).any():
+            raise InvalidGeometryImageError("the mesh does not fit in the given bbox")
+    hi = np.where(hi - lo > 0, hi, lo + 1e-12)
+    return lo, hi
+
+
+def geometry_image(
+    V,
+    F,
+    uv,
+    N: int = 512,
+    *,
+    normals: np.ndarray | None = None,
+    colors: np.ndarray | None = None,
+    texture: np.ndarray | None = None,
+    tex_uv: np.ndarray | None = None,
+    tex_fuv: np.ndarray | None = None,
+    bbox=None,
+    meta: dict | None = None,
+) -> GeometryImage:
+    """Rasterize a mesh with a map ``uv (n, 2)`` into the unit square at ``N × N``.
+
+    Parameters
+    ----------
+    normals : (n, 3) per-vertex normals (default: area-weighted vertex normals)
+    colors : (n, 3|4) per-vertex colours in [0, 1] → ``texture`` channels, or
+    texture, tex_uv, tex_fuv : a texture image with its own UVs (``tex_uv (t, 2)`` and per-face
+        corners ``tex_fuv (m, 3)`` for the faces ``F``) → the texture is sampled through them
+    bbox : (min, max) for the position normalisation (default: the mesh's own bounding box;
+        give a fixed one to make a dataset share one scale)
+    """
+    V, F = check_mesh(V, F)
+    uv = np.asarray(uv, np.float64)
+    if uv.shape != (len(V), 2) or not np.isfinite(uv).all():
+        raise InvalidGeometryImageError(f"uv must be a finite ({len(V)}, 2) array")
+    face, bary = rasterize_faces(F, uv, N)
+    lo, hi = _bbox(V, bbox)
+    mask = face >= 0
+    pos = interpolate(face, bary, F, (V - lo) / (hi - lo))
+    nrm = vertex_normals(V, F) if normals is None else np.asarray(normals, np.float64)
+    if nrm.shape != V.shape:
+        raise InvalidGeometryImageError(f"normals must have shape {V.shape}")
+    nimg = interpolate(face, bary, F, nrm)
+    L = np.linalg.norm(nimg, axis=0, keepdims=True)
+    nimg = np.where(L > 0, nimg / np.maximum(L, 1e-300), 0.0)
+    chans = [pos, (nimg + 1.0) * 0.5 * mask]
+    names = [*MODALITIES["position"], *MODALITIES["normal"]]
+    tex = None
+    if texture is not None:
+        if tex_uv is None or tex_fuv is None:
+            raise InvalidGeometryImageError("a texture image needs tex_uv and tex_fuv")
+        tex_fuv = np.asarray(tex_fuv, np.int64)
+        if tex_fuv.shape != F.shape:
+            raise InvalidGeometryImageError(f"tex_fuv must have the shape of F {F.shape}")
+        tuv = interpolate_corners(face, bary, np.asarray(tex_uv, np.float64)[tex_fuv])
+        rgb = sample_texture(texture, tuv.transpose(1, 2, 0))[..., :3]
+        if rgb.shape[-1] == 1:
+            rgb = np.repeat(rgb, 3, axis=-1)
+        scale = 255.0 if np.asarray(texture).dtype == np.uint8 else 1.0
+        tex = (rgb / scale).transpose(2, 0, 1) * mask
+    elif colors is not None:
+        C = np.asarray(colors, np.float64)
+        if C.ndim != 2 or C.shape[0] != len(V) or C.shape[1] not in (3, 4):
+            raise InvalidGeometryImageError(f"colors must have shape ({len(V)}, 3|4)")
+        tex = interpolate(face, bary, F, C[:, :3])
+    if tex is not None:
+        chans.append(tex)
+        names += list(MODALITIES["texture"])
+    img = np.clip(np.concatenate(chans, 0), 0.0, 1.0).astype(np.float32)
+    sa = uv[F[:, 1]] - uv[F[:, 0]]
+    sb = uv[F[:, 2]] - uv[F[:, 0]]
+    orient = 1 if (sa[:, 0] * sb[:, 1] - sa[:, 1] * sb[:, 0]).sum() >= 0 else -1
+    m = {
+        "version": FORMAT_VERSION,
+        "resolution": int(N),
+        "channels": names,
+        "bbox_min": lo.tolist(),
+        "bbox_max": hi.tolist(),
+        "uv_orientation": orient,
+        "coverage": float(mask.mean()),
+    }
+    if meta:
+        m.update(meta)
+    return GeometryImage(img, mask, m)
+
+
+# --------------------------------------------------------------------------- disk format
+def _cv2():
+    from .._lazy import lazy_import
+
+    return lazy_import("cv2", "16-bit PNG geometry images")
+
+
+def _write_png16(path: Path, rgb: np.ndarray) -> None:
+    cv2 = _cv2()
+    q = np.round(np.clip(rgb, 0.0, 1.0) * Q).astype(np.uint16)
+    if not cv2.imwrite(str(path), np.ascontiguousarray(q[:, :, ::-1])):
+        raise InvalidGeometryImageError(f"could not write {path}")
+
+
+def _read_png(path: Path) -> np.ndarray:
+    cv2 = _cv2()
+    if not path.is_file():
+        raise InvalidGeometryImageError(f"missing {path.name} in {path.parent}")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InvalidGeometryImageError(f"{path} is not a readable PNG")
+    if img.ndim == 3:
+        img = img[:, :, ::-1][:, :, -3:] if img.shape[2] >= 3 else img
+    return img
+
+
+def save_gimage(folder: str | os.PathLike, gi: GeometryImage, *, overwrite: bool = True) -> Path:
+    """Write ``gi`` into ``folder`` (created; replaced as a whole, never left half-written)."""
+    folder = Path(folder)
+    if folder.exists() and not overwrite:
+        raise InvalidGeometryImageError(f"{folder} exists")
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    try:
+        write_gimage_files(tmp, gi)
+        replace_dir(tmp, folder)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return folder
+
+
+def write_gimage_files(folder: Path, gi: GeometryImage) -> None:
+    """The files of ``gi`` into an existing folder (no atomicity; see :func:`save_gimage`)."""
+    for name in MODALITIES:
+        if gi.has(name):
+            _write_png16(folder / f"{name}.png", gi.modality(name).transpose(1, 2, 0))
+    cv2 = _cv2()
+    cv2.imwrite(str(folder / "mask.png"), gi.mask.astype(np.uint8) * 255)
+    (folder / "meta.json").write_text(json.dumps(gi.meta, indent=2))
+
+
+def replace_dir(tmp: Path, folder: Path) -> None:
+    """Move the finished folder ``tmp`` onto ``folder``, replacing an old one."""
+    old = None
+    if folder.exists():
+        old = folder.with_name(f".{folder.name}.old-{os.getpid()}")
+        os.replace(folder, old)
+    os.replace(tmp, folder)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def load_gimage(folder: str | os.PathLike) -> GeometryImage:
+    """Read a geometry-image folder, validating sizes, bit depth and metadata."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InvalidGeometryImageError(f"{folder} is not a geometry-image folder")
+    mp = folder / "meta.json"
+    if not mp.is_file():
+        raise InvalidGeometryImageError(f"{folder} has no meta.json")
+    try:
+        meta = json.loads(mp.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InvalidGeometryImageError(f"{mp} is not valid JSON ({e})") from None
+    for key in ("version", "resolution", "channels", "bbox_min", "bbox_max"):
+        if key not in meta:
+            raise InvalidGeometryImageError(f"{mp} lacks '{key}'")
+    if meta["version"] > FORMAT_VERSION:
+        raise InvalidGeometryImageError(f"{mp}: format version {meta['version']} is newer than this geoface ({FORMAT_VERSION})")
+    N = meta["resolution"]
+    if not isinstance(N, int) or N < 2:
+        raise InvalidGeometryImageError(f"{mp}: bad resolution {N!r}")
+    lo, hi = np.asarray(meta["bbox_min"], float), np.asarray(meta["bbox_max"], float)
+    if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()) or (hi <= lo).any():
+        raise InvalidGeometryImageError(f"{mp}: bad bounding box")
+    chans = []
+    names = []
+    for name, cn in MODALITIES.items():
+        if not all(c in meta["channels"] for c in cn):
+            continue
+        img = _read_png(folder / f"{name}.png")
+        if img.dtype != np.uint16:
+            raise InvalidGeometryImageError(f"{name}.png must be 16-bit; got {img.dtype}")
+        if img.shape != (N, N, 3):
+            raise InvalidGeometryImageError(f"{name}.png must be {N}x{N} RGB; got {img.shape}")
+        chans.append(img.transpose(2, 0, 1).astype(np.float32) / np.float32(Q))
+        names += list(cn)
+    if "px" not in names:
+        raise InvalidGeometryImageError(f"{folder} has no position image")
+    mpng = folder / "mask.png"
+    if mpng.is_file():
+        m = _read_png(mpng)
+        if m.ndim != 2 or m.shape != (N, N):
+            raise InvalidGeometryImageError(f"mask.png must be {N}x{N} grey; got {m.shape}")
+        mask = m > 0
+    else:
+        mask = np.ones((N, N), bool)
+    meta["channels"] = names
+    return GeometryImage(np.concatenate(chans, 0), mask, meta)

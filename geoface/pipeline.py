@@ -1,0 +1,319 @@
+"""The whole conversion, mesh → geometry images → mesh, as one call (``geoface convert``).
+
+Stages: repair to a disk → corners → Ricci flow (conformal, rectangle) → optimal-transport
+measure-preserving map (or stay conformal) → geometry images → reconstruction → preview and
+metrics.  ``augment = K`` repeats the parameterization for the first K of the 8 corner sets
+(the paper's augmentation), writing one image set per corner set.
+
+>>> # convert(load_mesh("head.obj"), "out/", ConvertOptions(res=256))   # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import GeofaceError, InvalidMeshError
+from .mesh.core import bbox_diagonal, check_mesh
+from .mesh.io import Mesh
+from .progress import log
+
+__all__ = ["ConvertOptions", "convert", "face_region", "load_roi", "reconstruction_error", "corner_uvs_for"]
+
+METHODS = ("ot", "conformal")
+
+
+@dataclass(frozen=True)
+class ConvertOptions:
+    """Options of :func:`convert` (the CLI flags of ``geoface convert``).
+
+    res : image resolution N; roi : "face" (a frontal cone, see :func:`face_region`),
+    "none", or a per-input-vertex boolean mask; lam : mass factor on the ROI (2.5 in the
+    paper; 1 = area-preserving); augment : number of corner sets (1..8); method : "ot" or
+    "conformal"; ot_tol : OT tolerance; smooth : Laplacian smoothing iterations of the
+    reconstruction; up / open : how :func:`geoface.repair.make_disk` cuts closed heads;
+    front : the face direction for the default corners and the face cone.
+    """
+
+    res: int = 512
+    roi: object = "face"
+    lam: float = 2.5
+    augment: int = 1
+    method: str = "ot"
+    ot_tol: float = 1e-3
+    smooth: int = 0
+    up: str = "y"
+    open: str = "auto"
+    front: tuple = (0.0, 0.0, 1.0)
+    reconstruct: bool = True
+    preview: bool = True
+
+    def validate(self) -> "ConvertOptions":
+        from .gimage.raster import MAX_RES
+
+        if int(self.res) != self.res or not 4 <= self.res <= MAX_RES:
+            raise GeofaceError(f"res must be an integer in [4, {MAX_RES}]; got {self.res!r}")
+        if self.method not in METHODS:
+            raise GeofaceError(f"method must be one of {', '.join(METHODS)}; got {self.method!r}")
+        if not (np.isfinite(self.lam) and self.lam > 0):
+            raise GeofaceError(f"lam must be positive; got {self.lam!r}")
+        if int(self.augment) != self.augment or not 1 <= self.augment <= 8:
+            raise GeofaceError(f"augment must be an integer in 1..8; got {self.augment!r}")
+        if not (0 < self.ot_tol < 1):
+            raise GeofaceError(f"ot_tol must be in (0, 1); got {self.ot_tol!r}")
+        if isinstance(self.roi, str) and self.roi not in ("face", "none"):
+            raise GeofaceError(f"roi must be 'face', 'none' or a vertex mask; got {self.roi!r}")
+        return self
+
+
+def face_region(V: np.ndarray, front=(0.0, 0.0, 1.0), half_angle: float = 50.0) -> np.ndarray:
+    """A heuristic face mask for an upright head with no mask of its own: vertices within a
+    cone of ``half_angle`` degrees around ``front`` seen from the bounding-box centre."""
+    V = np.asarray(V, np.float64)
+    f = np.asarray(front, np.float64)
+    f = f / np.linalg.norm(f)
+    d = V - 0.5 * (V.min(0) + V.max(0))
+    L = np.linalg.norm(d, axis=1)
+    return (d @ f) >= np.cos(np.radians(half_angle)) * np.maximum(L, 1e-300)
+
+
+def load_roi(path: str | os.PathLike, n_vertices: int) -> np.ndarray:
+    """A vertex mask from a file: ``.npy`` (bool mask or indices), ``.txt`` (indices, one per
+    line or whitespace separated) or ``.json`` (a list of indices, or an object with
+    ``face_mask``, as written by ``geoface synth head --meta``)."""
+    p = Path(path)
+    if not p.is_file():
+        raise GeofaceError(f"ROI mask file not found: {p}")
+    try:
+        if p.suffix == ".npy":
+            a = np.load(p, allow_pickle=False)
+        elif p.suffix == ".json":
+            obj = json.loads(p.read_text())
+            a = np.asarray(obj["face_mask"] if isinstance(obj, dict) else obj)
+        else:
+            a = np.loadtxt(p, dtype=np.int64, ndmin=1)
+    except (ValueError, KeyError, OSError, json.JSONDecodeError) as e:
+        raise GeofaceError(f"cannot read the ROI mask {p}: {e}") from None
+    if a.dtype == bool:
+        if a.shape != (n_vertices,):
+            raise GeofaceError(f"ROI mask {p} has {a.size} entries; the mesh has {n_vertices} vertices")
+        return a
+    a = np.asarray(a)
+    if a.ndim != 1 or (a.size and (not np.issubdtype(a.dtype, np.integer) or a.min() < 0 or a.max() >= n_vertices)):
+        raise GeofaceError(f"ROI mask {p} must hold vertex indices in [0, {n_vertices})")
+    m = np.zeros(n_vertices, bool)
+    m[a.astype(np.int64)] = True
+    return m
+
+
+def corner_uvs_for(F_new: np.ndarray, F_old: np.ndarray, UV: np.ndarray, FUV: np.ndarray):
+    """Texture coordinates for the faces ``F_new`` of a re-triangulated mesh: faces that
+    exist in ``F_old`` keep their corner UVs (seams survive); others use one UV per vertex.
+    Returns ``(UV_ext, FUV_new)``."""
+    n = int(max(F_new.max(), F_old.max())) + 1
+
+    def keys(F):
+        r = np.argmin(F, axis=1)  # rotate so the smallest index is first (orientation kept)
+        G = np.stack([F[np.arange(len(F)), (r + k) % 3] for k in range(3)], 1)
+        return (G[:, 0] * n + G[:, 1]) * n + G[:, 2], r
+
+    ko, ro = keys(F_old)
+    kn, rn = keys(F_new)
+    order = np.argsort(ko)
+    pos = np.searchsorted(ko[order], kn)
+    pos = np.minimum(pos, len(ko) - 1)
+    hit = ko[order][pos] == kn
+    src = order[pos]
+    vert_uv = np.full(n, -1, np.int64)
+    vert_uv[F_old.ravel()[::-1]] = FUV.ravel()[::-1]
+    UV_ext = np.concatenate([UV, np.zeros((1, 2))])
+    fallback = np.where(vert_uv[F_new] >= 0, vert_uv[F_new], len(UV))
+    FUV_new = fallback.copy()
+    # matching faces: corner k of F_new[f] is corner (k + rn - ro) of F_old[src]
+    f = np.flatnonzero(hit)
+    for k in range(3):
+        FUV_new[f, k] = FUV[src[f], (k + rn[f] - ro[src[f]]) % 3]
+    return UV_ext, FUV_new
+
+
+def reconstruction_error(V_ref, F_ref, V_rec, F_rec, *, ref_mask=None, rec_mask=None) -> dict:
+    """Two-sided vertex-to-surface distances between two meshes, divided by the reference's
+    bounding-box diagonal: Hausdorff (max of both sides) and mean (of both sides).  With
+    masks, also the same restricted to masked vertices (``face_*``)."""
+    igl = __import__("geoface._lazy", fromlist=["lazy_import"]).lazy_import("igl", "reconstruction error")
+    V_ref, F_ref = check_mesh(V_ref, F_ref)
+    V_rec, F_rec = check_mesh(V_rec, F_rec)
+    diag = bbox_diagonal(V_ref)
+    d_rec = np.sqrt(igl.point_mesh_squared_distance(V_rec, V_ref, F_ref)[0]) / diag
+    d_ref = np.sqrt(igl.point_mesh_squared_distance(V_ref, V_rec, F_rec)[0]) / diag
+    out = {
+        "hausdorff": float(max(d_rec.max(), d_ref.max())),
+        "mean": float(0.5 * (d_rec.mean() + d_ref.mean())),
+        "rec_to_ref_max": float(d_rec.max()),
+        "ref_to_rec_max": float(d_ref.max()),
+    }
+    if ref_mask is not None and rec_mask is not None and ref_mask.any() and rec_mask.any():
+        a, b = d_rec[rec_mask], d_ref[ref_mask]
+        out["face_hausdorff"] = float(max(a.max(), b.max()))
+        out["face_mean"] = float(0.5 * (a.mean() + b.mean()))
+    return out
+
+
+def _preview(gi, path: Path) -> None:
+    from .gimage.image import MODALITIES, _cv2
+
+    cv2 = _cv2()
+    N = gi.resolution
+    size = min(N, 384)
+    tiles = []
+    for name in MODALITIES:
+        if gi.has(name):
+            t = np.round(gi.modality(name).transpose(1, 2, 0) * 255).astype(np.uint8)[:, :, ::-1]
+            tiles.append(cv2.resize(t, (size, size), interpolation=cv2.INTER_AREA))
+    m = np.repeat((gi.mask.astype(np.uint8) * 255)[:, :, None], 3, 2)
+    tiles.append(cv2.resize(m, (size, size), interpolation=cv2.INTER_NEAREST))
+    gap = np.full((size, 4, 3), 255, np.uint8)
+    row = tiles[0]
+    for t in tiles[1:]:
+        row = np.concatenate([row, gap, t], 1)
+    if not cv2.imwrite(str(path), row):
+        raise GeofaceError(f"could not write {path}")
+
+
+def _roi_mask(opts: ConvertOptions, V0: np.ndarray) -> np.ndarray | None:
+    if isinstance(opts.roi, str):
+        return None if opts.roi == "none" else face_region(V0, opts.front)
+    m = np.asarray(opts.roi)
+    if m.shape != (len(V0),) or m.dtype != bool:
+        raise GeofaceError(f"roi mask must be a ({len(V0)},) bool array over the input's vertices")
+    return m
+
+
+def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | None = None, *, quiet: bool | None = None) -> dict:
+    """Convert ``mesh`` into geometry images in ``out_dir`` (see module docs).
+
+    Writes (per corner set ``k``; directly in ``out_dir`` when ``augment == 1``, else in
+    ``out_dir/aug{k}``): ``position.png``, ``normal.png``, ``texture.png``, ``mask.png``,
+    ``meta.json``, ``reconstruction.obj`` (+ ``.mtl``, texture, normal map) and
+    ``preview.png``; and ``metrics.json`` in ``out_dir``.  The folder appears complete or
+    not at all.  Returns the metrics dict.
+    """
+    from .gimage import geometry_image, reconstruct, save_reconstruction
+    from .gimage.image import replace_dir, write_gimage_files
+    from .gimage.raster import interpolate, rasterize_faces
+    from .param.corners import corner_sets
+    from .param.measure import measure_preserving_map
+    from .param.metrics import distortion
+    from .param.ricci import RicciFlowSolver
+    from .repair import make_disk
+
+    opts = (options or ConvertOptions()).validate()
+    if not isinstance(mesh, Mesh):
+        raise InvalidMeshError("convert needs a geoface.mesh.Mesh")
+    out_dir = Path(out_dir)
+    times: dict = {}
+    t_all = time.perf_counter()
+    roi0 = _roi_mask(opts, mesh.V)
+
+    t = time.perf_counter()
+    log(f"convert: repairing {len(mesh.V)} vertices to a disk", quiet=quiet)
+    disk = make_disk(mesh.V, mesh.F, up=opts.up, open=opts.open)
+    dm = mesh.with_geometry(disk.V, disk.F, disk.vertex_map, disk.face_map)
+    V = dm.V
+    roi = None
+    if roi0 is not None:
+        roi = np.zeros(len(V), bool)
+        ok = disk.vertex_map >= 0
+        roi[ok] = roi0[disk.vertex_map[ok]]
+    times["repair"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    sets = corner_sets(V, dm.F, n=8, front=np.asarray(opts.front, float))[: opts.augment]
+    times["corners"] = time.perf_counter() - t
+
+    metrics: dict = {
+        "input_vertices": int(len(mesh.V)), "input_faces": int(len(mesh.F)),
+        "disk_vertices": int(len(V)), "disk_faces": int(len(dm.F)),
+        "repair": {"area_before": disk.area_before, "area_after": disk.area_after, "changes": len(disk.changes)},
+        "options": {k: (v if not isinstance(v, np.ndarray) else "mask") for k, v in asdict(opts).items()},
+        "roi_vertices": int(roi.sum()) if roi is not None else 0,
+        "sets": [],
+    }
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp_root = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        solver = RicciFlowSolver(V, dm.F)
+        for k, corners in enumerate(sets):
+            st: dict = {"corner_set": k, "corners": [int(c) for c in corners]}
+            folder = tmp_root if opts.augment == 1 else tmp_root / f"aug{k}"
+            folder.mkdir(exist_ok=True)
+            t = time.perf_counter()
+            log(f"convert [{k + 1}/{len(sets)}]: Ricci flow", quiet=quiet)
+            r = solver.solve(corners, quiet=quiet)
+            if not r.converged:
+                raise GeofaceError(f"Ricci flow did not converge (max |K - target| {r.residual:.3g})")
+            F = r.F
+            uv = r.unit_square()
+            st["ricci"] = {"seconds": time.perf_counter() - t, "iterations": r.iterations, "residual": r.residual, "aspect": r.aspect}
+            st["conformal_distortion"] = distortion(V, F, uv).summary()
+            if opts.method == "ot":
+                t = time.perf_counter()
+                log(f"convert [{k + 1}/{len(sets)}]: optimal transport (lam {opts.lam:g})", quiet=quiet)
+                mp = measure_preserving_map(V, F, uv, roi=roi, lam=opts.lam, tol=opts.ot_tol, quiet=quiet)
+                uv = mp.uv
+                st["ot"] = {
+                    "seconds": time.perf_counter() - t, "iterations": mp.ot.iterations, "halvings": mp.ot.halvings,
+                    "stages": mp.ot.stages, "residual": mp.ot.residual, "flipped_before": mp.flipped_before,
+                    "flipped_after": mp.flipped_after, "untangled_vertices": mp.untangled_vertices,
+                }
+            st["distortion"] = distortion(V, F, uv).summary()
+            t = time.perf_counter()
+            log(f"convert [{k + 1}/{len(sets)}]: geometry images {opts.res}x{opts.res}", quiet=quiet)
+            kw: dict = {}
+            if dm.texture is not None and dm.UV is not None:
+                UVx, FUVx = corner_uvs_for(F, dm.F, dm.UV, dm.FUV)
+                kw = {"texture": dm.texture, "tex_uv": UVx, "tex_fuv": FUVx}
+            elif dm.colors is not None:
+                kw = {"colors": dm.colors}
+            meta = {"corners": st["corners"], "method": opts.method, "lam": opts.lam if opts.method == "ot" else None,
+                    "param": st["distortion"]}
+            gi = geometry_image(V, F, uv, opts.res, meta=meta, **kw)
+            face_img = None
+            if roi is not None:
+                fid, bary = rasterize_faces(F, uv, opts.res)
+                face_img = interpolate(fid, bary, F, roi.astype(float))[0] > 0.5
+                st["roi_pixel_share"] = float(face_img[gi.mask].mean())
+            st["coverage"] = float(gi.mask.mean())
+            write_gimage_files(folder, gi)
+            st["images_seconds"] = time.perf_counter() - t
+            if opts.reconstruct:
+                t = time.perf_counter()
+                log(f"convert [{k + 1}/{len(sets)}]: reconstruction", quiet=quiet)
+                rec = reconstruct(gi, smooth=opts.smooth)
+                save_reconstruction(folder / "reconstruction.obj", rec, gi)
+                rec_mask = None
+                if face_img is not None:  # each reconstructed vertex sits at a pixel centre
+                    N = opts.res
+                    jj = np.clip(np.round(rec.UV[:, 0] * N - 0.5).astype(int), 0, N - 1)
+                    ii = np.clip(np.round((1.0 - rec.UV[:, 1]) * N - 0.5).astype(int), 0, N - 1)
+                    rec_mask = face_img[ii, jj]
+                st["reconstruction"] = {"vertices": int(len(rec.V)), "faces": int(len(rec.F))}
+                st["reconstruction"].update(reconstruction_error(V, F, rec.V, rec.F, ref_mask=roi, rec_mask=rec_mask))
+                st["reconstruction"]["seconds"] = time.perf_counter() - t
+            if opts.preview:
+                _preview(gi, folder / "preview.png")
+            metrics["sets"].append(st)
+        metrics["seconds"] = {"repair": times["repair"], "corners": times["corners"], "total": time.perf_counter() - t_all}
+        (tmp_root / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        replace_dir(tmp_root, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp_root, ignore_errors=True)
+        raise
+    return metrics
