@@ -240,6 +240,46 @@ def cmd_synth_surface(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- convert / reconstruct
+def cmd_convert(args) -> int:
+    from .mesh.io import load_mesh
+    from .pipeline import ConvertOptions, convert, load_roi
+
+    out = Path(args.out_dir)
+    inp = Path(args.input)
+    if out.exists() and inp.resolve().is_relative_to(out.resolve()):
+        raise GeofaceError(f"the output folder {out} contains the input; choose another")
+    if out.exists() and not out.is_dir():
+        raise GeofaceError(f"{out} exists and is not a folder")
+    mesh = load_mesh(inp)
+    roi = args.roi
+    if roi not in ("face", "none"):
+        roi = load_roi(roi, len(mesh.V))
+    opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, augment=args.augment, method=args.method,
+                          ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open)
+    m = convert(mesh, out, opts)
+    print(f"{args.input} -> {out}/  ({len(m['sets'])} image set(s) at {args.res}x{args.res}, {m['seconds']['total']:.1f} s)")
+    for st in m["sets"]:
+        d = st["distortion"]
+        line = f"  set {st['corner_set']}: |log area| mean {d['log_area_abs_mean']:.3f}, QC mean {d['qc_mean']:.2f}, flipped {d['flipped']}"
+        if "roi_pixel_share" in st:
+            line += f", ROI pixels {100 * st['roi_pixel_share']:.1f}%"
+        if "reconstruction" in st:
+            line += f", Hausdorff {100 * st['reconstruction']['hausdorff']:.3f}% of the diagonal"
+        print(line)
+    return 0
+
+
+def cmd_reconstruct(args) -> int:
+    from .gimage import load_gimage, reconstruct, save_reconstruction
+
+    gi = load_gimage(args.dir)
+    mesh = reconstruct(gi, smooth=args.smooth)
+    save_reconstruction(args.output, mesh, gi)
+    print(f"{args.dir} -> {args.output}: {len(mesh.V)} vertices, {len(mesh.F)} faces")
+    return 0
+
+
 # --------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="geoface", description="Geometry processing of head and face meshes.")
@@ -283,6 +323,26 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--up", default="y", help="up axis for --repair")
     s.add_argument("--json", default=None, metavar="M.json", help="write the metrics as JSON")
     s.set_defaults(func=cmd_param)
+
+    s = sub.add_parser("convert", help="mesh -> geometry images (+ reconstruction, preview, metrics)")
+    s.add_argument("input")
+    s.add_argument("out_dir")
+    s.add_argument("--res", type=int, default=512, help="image resolution N (default 512)")
+    s.add_argument("--roi", default="face", help="region magnified by --lam: face (a frontal cone), none, or a mask file (.npy, .txt, .json)")
+    s.add_argument("--lam", type=float, default=2.5, help="mass factor on the ROI (paper: 2.5; 1 = area-preserving)")
+    s.add_argument("--augment", type=int, default=1, help="number of corner sets, 1..8 (one image set each)")
+    s.add_argument("--method", choices=["ot", "conformal"], default="ot", help="measure-preserving (ot, default) or conformal")
+    s.add_argument("--ot-tol", type=float, default=1e-3, help="OT tolerance: max relative cell-area error (1e-3)")
+    s.add_argument("--smooth", type=int, default=0, help="Laplacian smoothing iterations of the reconstruction")
+    s.add_argument("--up", default="y", help="up axis (for cutting closed heads open)")
+    s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto", help="how to open a closed surface")
+    s.set_defaults(func=cmd_convert)
+
+    s = sub.add_parser("reconstruct", help="geometry-image folder -> textured mesh")
+    s.add_argument("dir")
+    s.add_argument("-o", "--output", required=True, help="output mesh (obj writes .mtl, texture and normal map too)")
+    s.add_argument("--smooth", type=int, default=0, help="Laplacian smoothing iterations")
+    s.set_defaults(func=cmd_reconstruct)
 
     s = sub.add_parser("synth", help="write procedural test geometry")
     ss = s.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser)

@@ -14,7 +14,8 @@ Two details make the result usable as a parameterization:
 * Centroid maps can fold a few triangles where the density changes fast.  ``untangle``
   repairs them locally: each vertex of a folded triangle moves to the centre of the kernel
   of its one-ring (the point where its triangles' smallest height is largest: a 3-variable
-  linear program), growing the set by a ring when that is not enough.  Every other vertex
+  linear program; boundary vertices slide along their side, corners stay), growing the set
+  by a ring when that is not enough.  Every other vertex
   keeps its centroid, so cell areas change only there (the count is reported).
 """
 
@@ -73,7 +74,7 @@ def _snap(uv_new: np.ndarray, bnd: np.ndarray, sides: np.ndarray) -> np.ndarray:
     return out
 
 
-def _kernel_centre(v, ring_faces, F, uv, orientation):
+def _kernel_centre(v, ring_faces, F, uv, orientation, lock=-1):
     """The point deepest inside the kernel of vertex ``v``'s one-ring (a small LP), i.e.
     where every incident triangle has the largest smallest height; None if the kernel is empty."""
     from scipy.optimize import linprog
@@ -91,20 +92,25 @@ def _kernel_centre(v, ring_faces, F, uv, orientation):
     A_ub = np.column_stack([-nrm, np.ones(len(nrm))])
     b_ub = -(nrm * a).sum(1)
     scale = float(L.max())
-    res = linprog(c=[0, 0, -1], A_ub=A_ub, b_ub=b_ub, bounds=[(None, None), (None, None), (None, scale)], method="highs")
+    bounds = [(None, None), (None, None), (None, scale)]
+    if lock in (0, 1):  # a boundary vertex slides along its side of the square
+        bounds[lock] = (uv[v, lock], uv[v, lock])
+    res = linprog(c=[0, 0, -1], A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
     if res.status != 0 or res.x[2] <= 0:
         return None
     return res.x[:2]
 
 
-def untangle(F: np.ndarray, uv: np.ndarray, fixed: np.ndarray, *, max_rounds: int = 60, orientation: float = 1.0):
+def untangle(F: np.ndarray, uv: np.ndarray, lock: np.ndarray, *, max_rounds: int = 80, orientation: float = 1.0):
     """Remove folded triangles by moving the vertices around them, one at a time, to the
     centre of their one-ring's kernel (a point where all their triangles are positive).
 
-    ``fixed`` (n,) bool marks vertices that must not move (the square's boundary).  The set
-    of vertices tried grows by one ring every few rounds when folds remain.  Returns
-    ``(uv, moved_vertex_count)``; raises :class:`ParameterizationError` if folds remain.
+    ``lock`` (n,) int: -1 free, 0 keep x (slide along a vertical side), 1 keep y, 2 fixed
+    (corners).  The set of vertices tried grows by one ring every few rounds when folds
+    remain.  Returns ``(uv, moved_vertex_count)``; raises :class:`ParameterizationError` if
+    folds remain.
     """
+    fixed = lock == 2
     from ..mesh.core import vertex_fans
 
     uv = uv.copy()
@@ -127,9 +133,9 @@ def untangle(F: np.ndarray, uv: np.ndarray, fixed: np.ndarray, *, max_rounds: in
         cand = (cand | grow) & ~fixed
         for v in np.flatnonzero(cand):
             faces = vf.indices[vf.indptr[v]:vf.indptr[v + 1]]
-            if (orientation * signed_uv_areas(F[faces], uv) > 0).all():
-                continue
-            c = _kernel_centre(v, faces, F, uv, orientation)
+            if not grow[v] and (orientation * signed_uv_areas(F[faces], uv) > 0).all():
+                continue  # grown vertices move even when fine, to widen their neighbours' kernels
+            c = _kernel_centre(v, faces, F, uv, orientation, int(lock[v]))
             if c is not None:
                 uv[v] = c
                 moved[v] = True
@@ -196,9 +202,13 @@ def measure_preserving_map(
     flipped_before = int((orient * signed_uv_areas(F, new) <= 0).sum())
     moved = 0
     if untangle_folds and flipped_before:
-        fixed = np.zeros(n, bool)
-        fixed[bnd] = True
-        new, moved = untangle(F, new, fixed, orientation=orient)
+        lock = np.full(n, -1)
+        on_x = sides[:, 0] | sides[:, 1]
+        on_y = sides[:, 2] | sides[:, 3]
+        lock[bnd[on_x]] = 0
+        lock[bnd[on_y]] = 1
+        lock[bnd[on_x & on_y]] = 2
+        new, moved = untangle(F, new, lock, orientation=orient)
     flipped_after = int((orient * signed_uv_areas(F, new) <= 0).sum())
     share = None
     if roi is not None:

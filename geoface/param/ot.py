@@ -180,8 +180,12 @@ def semi_discrete_ot(
                     break
                 tau *= 0.5
                 halvings += 1
-                if tau < 1e-12:
-                    raise ParameterizationError("optimal transport: the Newton step could not be damped to a valid diagram")
+                if tau < 1e-9:
+                    empty = int((pdn.area <= 0).sum())
+                    why = (f"{empty} sites lose their cells even for tiny steps: they are closer together than "
+                           "Qhull can resolve (spacing below ~1e-5 of the square); spread the input map or "
+                           "remesh the surface more evenly") if empty else "the Newton step could not be damped"
+                    raise ParameterizationError(f"optimal transport failed: {why}")
             iterations += 1
             hr, pd, g = hn, pdn, gnew
             res = _rel_residual(pd.area, target)

@@ -1,0 +1,182 @@
+"""Power diagrams, semi-discrete OT and the measure-preserving map."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from geoface.errors import ParameterizationError
+from geoface.param.measure import measure_preserving_map, signed_uv_areas
+from geoface.param.ot import semi_discrete_ot, transport_hessian
+from geoface.param.power import power_diagram
+
+
+def brute_force_cells(P, w, res=700):
+    """Areas and centroids by assigning a fine grid of sample points to the lowest power."""
+    g = (np.arange(res) + 0.5) / res
+    S = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    own = np.empty(len(S), np.int64)
+    for i in range(0, len(S), 50_000):
+        s = S[i:i + 50_000]
+        own[i:i + 50_000] = np.argmin(((s[:, None, :] - P[None]) ** 2).sum(-1) - w[None], 1)
+    cnt = np.bincount(own, minlength=len(P))
+    cx = np.bincount(own, S[:, 0], len(P)) / np.maximum(cnt, 1)
+    cy = np.bincount(own, S[:, 1], len(P)) / np.maximum(cnt, 1)
+    return cnt / len(S), np.column_stack([cx, cy])
+
+
+def grid_points(k):
+    g = (np.arange(k) + 0.5) / k
+    return np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+
+
+def test_uniform_grid_equal_cells_centroids_at_points():
+    P = grid_points(9)
+    pd = power_diagram(P)
+    assert np.allclose(pd.area, 1 / 81, rtol=1e-12)
+    assert np.abs(pd.centroid - P).max() < 1e-12
+    # every interior site has 4 neighbours with shared edge 1/9
+    assert np.allclose(pd.edge_length, 1 / 9)
+    assert len(pd.edges) == 2 * 9 * 8
+    ot = semi_discrete_ot(P)
+    assert ot.converged and ot.iterations == 0
+    assert np.abs(ot.h).max() < 1e-12
+    assert np.abs(ot.centroid - P).max() < 1e-12
+
+
+def test_power_cells_match_brute_force():
+    rng = np.random.default_rng(3)
+    P = rng.random((60, 2))
+    w = rng.random(60) * 0.004
+    pd = power_diagram(P, w)
+    a, c = brute_force_cells(P, w)
+    assert abs(pd.area.sum() - 1) < 1e-12
+    assert np.abs(pd.area - a).max() < 2e-3  # sampling error of a 700^2 grid
+    big = pd.area > 5e-3
+    assert np.abs(pd.centroid[big] - c[big]).max() < 3e-3
+    assert ((pd.area == 0) == (a == 0)).mean() > 0.95
+
+
+def test_hessian_matches_finite_differences():
+    rng = np.random.default_rng(1)
+    P = rng.random((40, 2))
+    h = rng.random(40) * 1e-3
+    pd = power_diagram(P, h)
+    H = transport_hessian(P, pd).toarray()
+    eps = 1e-7
+    for j in (0, 7, 21):
+        hp = h.copy(); hp[j] += eps
+        hm = h.copy(); hm[j] -= eps
+        col = (power_diagram(P, hp).area - power_diagram(P, hm).area) / (2 * eps)
+        assert np.abs(col - H[:, j]).max() < 1e-4 * max(1.0, np.abs(H[:, j]).max())
+    assert np.allclose(H.sum(1), 0, atol=1e-9)
+
+
+def test_nonuniform_target_met():
+    rng = np.random.default_rng(0)
+    P = rng.random((3000, 2))
+    nu = rng.uniform(0.2, 5.0, 3000)
+    ot = semi_discrete_ot(P, nu, tol=1e-3)
+    assert ot.converged
+    nu = nu / nu.sum()
+    assert np.max(np.abs(ot.area - nu) / nu) <= 1e-3
+    # independent check of the final diagram
+    a, _ = brute_force_cells(P, ot.h, res=600)
+    assert np.abs(a - nu).sum() < 0.02
+    assert abs(ot.h.sum()) < 1e-9
+
+
+def test_clustered_points_with_huge_mass_ratio():
+    """A cluster 1e-3 wide (1e-6 of the area) must grow to hold half the square, as the
+    face does in conformal maps of heads."""
+    rng = np.random.default_rng(2)
+    P = np.concatenate([rng.random((400, 2)), 0.5 + 1e-3 * rng.random((100, 2))])
+    nu = np.concatenate([np.full(400, 1.0), np.full(100, 4.0)])
+    ot = semi_discrete_ot(P, nu, tol=1e-3)
+    assert ot.converged and ot.residual <= 1e-3
+    assert (ot.area > 0).all() and ot.stages > 1
+
+
+def test_sites_below_qhull_resolution_share_cells():
+    """Sites 1e-7 apart are beyond Qhull's resolution: they are merged with the site that
+    owns their position, the merged masses are met, and merged sites share a centroid."""
+    rng = np.random.default_rng(2)
+    P = np.concatenate([rng.random((400, 2)), 0.5 + 1e-7 * rng.random((100, 2))])
+    nu = np.r_[np.ones(400), np.full(100, 4.0)]
+    ot = semi_discrete_ot(P, nu, max_iterations=50)
+    assert ot.converged and ot.merged > 0
+    cluster = ot.centroid[400:]
+    assert len(np.unique(cluster, axis=0)) == 100 - ot.merged
+    assert abs(ot.area[400:].sum() - nu[400:].sum() / nu.sum()) < 1e-3 * nu[400:].sum() / nu.sum()
+
+
+def test_duplicates_and_edge_points_do_not_crash():
+    P = np.array([[0, 0], [0, 0], [1, 1], [0.5, 0], [0.5, 0.5], [0.5, 0.5], [1, 0.3], [0.2, 1.0], [0.7, 0.7]], float)
+    pd = power_diagram(P)
+    assert abs(pd.area.sum() - 1) < 1e-12 and (pd.area >= 0).all()
+    assert (pd.area == 0).sum() == 2  # one of each coincident pair
+    ot = semi_discrete_ot(P)
+    assert ot.converged and ot.merged == 2
+    # coincident sites share a cell: their masses add up and their centroids agree
+    assert np.allclose(ot.centroid[0], ot.centroid[1]) and np.allclose(ot.centroid[4], ot.centroid[5])
+    assert abs(ot.area[0] + ot.area[1] - 2 / 9) < 1e-3 * 2 / 9
+
+
+@pytest.mark.parametrize("bad", [np.full((5, 2), np.nan), np.zeros((5, 3)), np.array([[0.1, 0.1], [5.0, 0.2]])])
+def test_bad_points_raise(bad):
+    with pytest.raises(ParameterizationError):
+        power_diagram(bad)
+
+
+def test_bad_masses_raise():
+    P = grid_points(3)
+    with pytest.raises(ParameterizationError):
+        semi_discrete_ot(P, np.r_[np.ones(8), -1.0])
+    with pytest.raises(ParameterizationError):
+        semi_discrete_ot(P, np.ones(4))
+
+
+def test_measure_preserving_map_on_flat_square_is_identity():
+    from geoface.synth import square_grid
+
+    V, F = square_grid(12)
+    uv = V[:, :2]
+    # interior vertices: 1/3 of adjacent areas are equal -> cells centred on the vertices
+    m = measure_preserving_map(V, F, uv, roi=None)
+    assert m.flipped_after == 0
+    inner = (uv > 0).all(1) & (uv < 1).all(1)
+    # boundary cells are half-size, so the map moves the vertices next to them a little;
+    # the map stays close to the identity and exactly on the boundary
+    assert np.abs(m.uv - uv).max() < 0.05
+    b = ~inner
+    assert np.allclose(np.minimum(np.minimum(m.uv[b], 1 - m.uv[b]).min(1), 1), 0, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def head_map():
+    from geoface.param.ricci import ricci_flow_rectangle
+    from geoface.synth.head import procedural_head
+
+    h = procedural_head(6000, seed=1)
+    r = ricci_flow_rectangle(h.V, h.F)
+    return h, r
+
+
+@pytest.mark.parametrize("lam", [1.0, 2.5])
+def test_measure_preserving_head(head_map, lam):
+    from geoface.param.metrics import distortion
+
+    h, r = head_map
+    m = measure_preserving_map(h.V, r.F, r.unit_square(), roi=h.face_mask, lam=lam)
+    assert m.ot.converged and m.ot.residual <= 1e-3
+    assert m.flipped_after == 0
+    assert (signed_uv_areas(r.F, m.uv) > 0).all() or (signed_uv_areas(r.F, m.uv) < 0).all()
+    d = distortion(h.V, r.F, m.uv).summary()
+    assert d["flipped"] == 0
+    face_share_3d = (np.abs(np.cross(*(h.V[r.F][:, 1:] - h.V[r.F][:, :1]).transpose(1, 0, 2))) ** 2).sum(1) ** 0.5
+    in_roi = h.face_mask[r.F].all(1)
+    a = face_share_3d[in_roi].sum() / face_share_3d.sum()
+    expect = lam * a / (1 + (lam - 1) * a)
+    assert abs(m.roi_share - expect) < 0.03
+    if lam == 1.0:
+        assert d["log_area_abs_mean"] <= 0.1
