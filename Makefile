@@ -43,11 +43,16 @@ demo: $(STAMP)
 	@echo "== a genus-2 surface: handles cut and capped, then opened"
 	$(VENV)/bin/geoface synth surface genus2 -o $(OUT)/genus2.obj
 	$(VENV)/bin/geoface repair $(OUT)/genus2.obj -o $(OUT)/genus2_disk.obj --up z --open cap
-	@echo "outputs in $(OUT)/"
+	@echo "== the head to geometry images (Ricci flow, OT with the face magnified 2.5x) and back"
+	$(VENV)/bin/geoface convert $(OUT)/head.obj $(OUT)/head_gim --res 256 --roi $(OUT)/head.json --lam 2.5
+	$(VENV)/bin/geoface reconstruct $(OUT)/head_gim -o $(OUT)/head_reconstructed.obj
+	@echo "outputs in $(OUT)/ (see $(OUT)/head_gim/preview.png)"
 
 bench: $(STAMP)
 	GEOFACE_QUIET=1 $(PY) bench/bench_repair.py
 	GEOFACE_QUIET=1 $(PY) bench/bench_param.py
+	-@$(PY) -m pip install --disable-pip-version-check -q pysdot==0.2.16 >/dev/null 2>&1 || echo "pysdot not installable: OT comparison skipped"
+	GEOFACE_QUIET=1 $(PY) bench/bench_convert.py
 
 clean:
 	rm -rf $(OUT) bench_out .pytest_cache

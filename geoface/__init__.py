@@ -34,7 +34,7 @@ __version__ = "0.1.0"
 def __getattr__(name):  # lazy subpackages: geoface.mesh, geoface.repair, geoface.synth, ...
     import importlib
 
-    if name in {"mesh", "repair", "synth", "param", "gimage", "uvmap", "learn", "splat", "cli"}:
+    if name in {"mesh", "repair", "synth", "param", "gimage", "uvmap", "learn", "splat", "cli", "pipeline"}:
         return importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'geoface' has no attribute {name!r}")
 
