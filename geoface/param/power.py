@@ -210,8 +210,10 @@ def power_diagram(points, weights=None) -> PowerDiagram:
         r = X[cell]
         ra, rb = pa - r, pb - r
         cr = ra[:, 0] * rb[:, 1] - ra[:, 1] * rb[:, 0]
-        np.add.at(area, cell, 0.5 * cr)
-        np.add.at(mom, cell, cr[:, None] * (ra + rb) / 6.0)
+        area[:] += np.bincount(cell, 0.5 * cr, minlength=n)
+        s = cr / 6.0
+        mom[:, 0] += np.bincount(cell, s * (ra[:, 0] + rb[:, 0]), minlength=n)
+        mom[:, 1] += np.bincount(cell, s * (ra[:, 1] + rb[:, 1]), minlength=n)
 
     add(vi, qa2, qb2)
     add(vj, qb2, qa2)
