@@ -143,6 +143,19 @@ def _lower_envelope(slope, icept):
     return owners, np.concatenate([lo[keep], hi[keep][-1:]])
 
 
+def _morton_order(X: np.ndarray) -> np.ndarray:
+    """Z-order of 2D points (16 bits per axis): Qhull runs faster on spatially coherent input."""
+    lo = X.min(0)
+    q = ((X - lo) / max(float(np.ptp(X, 0).max()), 1e-300) * 65535).astype(np.uint64)
+
+    def spread(x):
+        for shift, mask in ((8, 0x00FF00FF), (4, 0x0F0F0F0F), (2, 0x33333333), (1, 0x55555555)):
+            x = (x | (x << np.uint64(shift))) & np.uint64(mask)
+        return x
+
+    return np.argsort(spread(q[:, 0]) | (spread(q[:, 1]) << np.uint64(1)), kind="stable")
+
+
 def power_diagram(points, weights=None) -> PowerDiagram:
     """Power diagram of ``points (n, 2)`` with ``weights (n,)`` clipped to ``[0, 1]^2``.
 
@@ -165,13 +178,14 @@ def power_diagram(points, weights=None) -> PowerDiagram:
     Xa = np.concatenate([X, G])
     wa = np.concatenate([w, np.full(4, w_guard)])
     lift = np.column_stack([Xa, (Xa * Xa).sum(1) - wa])
+    order = np.concatenate([_morton_order(X), np.arange(n, n + 4)])
     try:
-        hull = ConvexHull(lift, qhull_options="Qt")
+        hull = ConvexHull(lift[order], qhull_options="Qt")
     except QhullError as e:  # all points collinear etc.
         raise ParameterizationError(f"power diagram failed in Qhull: {str(e).splitlines()[0]}") from None
     eq = hull.equations
     lower = eq[:, 2] < -1e-12
-    simp = hull.simplices
+    simp = order[hull.simplices]
     # power centres from the facet planes: z = 2 c.x + k  =>  c = -(nx, ny) / (2 nz)
     cen = np.full((len(simp), 2), np.nan)
     cen[lower] = -eq[lower, :2] / (2.0 * eq[lower, 2:3])
