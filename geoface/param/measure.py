@@ -192,6 +192,13 @@ def measure_preserving_map(
     ot = semi_discrete_ot(uv, nu, tol=tol, h0=h0, linear_solver=linear_solver, quiet=quiet)
     if not ot.converged:
         raise ParameterizationError(f"optimal transport did not converge (max relative cell-area error {ot.residual:.3g} after {ot.iterations} iterations)")
+    if ot.merged:
+        import warnings
+
+        from ..errors import GeofaceWarning
+
+        warnings.warn(f"{ot.merged} vertices lie closer together in the input map than the power diagram can "
+                      "resolve; they share a cell (and a UV before untangling)", GeofaceWarning, stacklevel=2)
     loops = boundary_loops(F)
     bnd = np.concatenate(loops) if loops else np.zeros(0, np.int64)
     sides = _sides(uv, bnd)
