@@ -143,6 +143,9 @@ def semi_discrete_ot(
     if (pd.area <= 0).any():
         raise ParameterizationError(f"{int((pd.area <= 0).sum())} sites have empty cells at the start (sites closer than Qhull can resolve)")
     solver = SPDSolver(linear_solver)
+    # gauge: pin the site with the largest starting cell (re-centred after every step)
+    free = np.ones(len(Pr), bool)
+    free[int(np.argmax(pd.area))] = False
     history: list = []
     iterations = halvings = 0
     # stages: targets between the starting areas and nu, geometric in log space
@@ -162,10 +165,6 @@ def semi_discrete_ot(
         res = _rel_residual(pd.area, target)
         while res > stol and iterations < max_iterations:
             H = transport_hessian(Pr, pd)
-            # gauge: pin the site with the largest cell, then re-centre
-            pin = int(np.argmax(pd.area))
-            free = np.ones(len(Pr), bool)
-            free[pin] = False
             d = np.zeros(len(Pr))
             Hf = H[free][:, free]
             d[free] = solver.solve(Hf, -g[free])
