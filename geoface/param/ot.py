@@ -37,8 +37,8 @@ __all__ = ["OTResult", "semi_discrete_ot", "transport_hessian"]
 
 #: continuation: the largest change of log target mass per stage, and the tolerance of a
 #: stage before the last
-STAGE_LOG_STEP = 3.0
-STAGE_TOL = 0.25
+STAGE_LOG_STEP = 1.0
+STAGE_TOL = 1.0
 
 
 @dataclass
