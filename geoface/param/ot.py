@@ -142,7 +142,7 @@ def semi_discrete_ot(
         pd = power_diagram(Pr, hr)
     if (pd.area <= 0).any():
         raise ParameterizationError(f"{int((pd.area <= 0).sum())} sites have empty cells at the start (sites closer than Qhull can resolve)")
-    solver = SPDSolver(linear_solver)
+    solver = SPDSolver(linear_solver, ordering="amd")
     # gauge: pin the site with the largest starting cell (re-centred after every step)
     free = np.ones(len(Pr), bool)
     free[int(np.argmax(pd.area))] = False
