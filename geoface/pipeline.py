@@ -15,14 +15,14 @@ import os
 import shutil
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .errors import GeofaceError, InvalidMeshError
 from .mesh.core import bbox_diagonal, check_mesh
-from .mesh.io import Mesh
+from .mesh.io import Mesh, first_corner_uv
 from .progress import log
 
 __all__ = ["ConvertOptions", "convert", "face_region", "load_roi", "reconstruction_error", "corner_uvs_for"]
@@ -131,8 +131,7 @@ def corner_uvs_for(F_new: np.ndarray, F_old: np.ndarray, UV: np.ndarray, FUV: np
     pos = np.minimum(pos, len(ko) - 1)
     hit = ko[order][pos] == kn
     src = order[pos]
-    vert_uv = np.full(n, -1, np.int64)
-    vert_uv[F_old.ravel()[::-1]] = FUV.ravel()[::-1]
+    vert_uv = first_corner_uv(F_old, FUV, n)
     UV_ext = np.concatenate([UV, np.zeros((1, 2))])
     fallback = np.where(vert_uv[F_new] >= 0, vert_uv[F_new], len(UV))
     FUV_new = fallback.copy()
@@ -147,7 +146,9 @@ def reconstruction_error(V_ref, F_ref, V_rec, F_rec, *, ref_mask=None, rec_mask=
     """Two-sided vertex-to-surface distances between two meshes, divided by the reference's
     bounding-box diagonal: Hausdorff (max of both sides) and mean (of both sides).  With
     masks, also the same restricted to masked vertices (``face_*``)."""
-    igl = __import__("geoface._lazy", fromlist=["lazy_import"]).lazy_import("igl", "reconstruction error")
+    from ._lazy import lazy_import
+
+    igl = lazy_import("igl", "reconstruction error")
     V_ref, F_ref = check_mesh(V_ref, F_ref)
     V_rec, F_rec = check_mesh(V_rec, F_rec)
     diag = bbox_diagonal(V_ref)
@@ -284,10 +285,10 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
                 kw = {"colors": dm.colors}
             meta = {"corners": st["corners"], "method": opts.method, "lam": opts.lam if opts.method == "ot" else None,
                     "param": st["distortion"]}
-            gi = geometry_image(V, F, uv, opts.res, meta=meta, **kw)
+            fid, bary = rasterize_faces(F, uv, opts.res)
+            gi = geometry_image(V, F, uv, opts.res, meta=meta, raster=(fid, bary), **kw)
             face_img = None
             if roi is not None:
-                fid, bary = rasterize_faces(F, uv, opts.res)
                 face_img = interpolate(fid, bary, F, roi.astype(float))[0] > 0.5
                 st["roi_pixel_share"] = float(face_img[gi.mask].mean())
             st["coverage"] = float(gi.mask.mean())

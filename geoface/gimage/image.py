@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidGeometryImageError
-from ..mesh.core import check_mesh, vertex_normals
+from ..mesh.core import check_mesh, signed_uv_areas, vertex_normals
 from .raster import interpolate, interpolate_corners, rasterize_faces, sample_texture
 
 __all__ = ["GeometryImage", "geometry_image", "save_gimage", "load_gimage", "MODALITIES", "FORMAT_VERSION"]
@@ -103,6 +103,7 @@ def geometry_image(
     tex_fuv: np.ndarray | None = None,
     bbox=None,
     meta: dict | None = None,
+    raster: tuple | None = None,
 ) -> GeometryImage:
     """Rasterize a mesh with a map ``uv (n, 2)`` into the unit square at ``N × N``.
 
@@ -114,12 +115,16 @@ def geometry_image(
         corners ``tex_fuv (m, 3)`` for the faces ``F``) → the texture is sampled through them
     bbox : (min, max) for the position normalisation (default: the mesh's own bounding box;
         give a fixed one to make a dataset share one scale)
+    raster : ``rasterize_faces(F, uv, N)`` when the caller already has it (to interpolate
+        more attributes over the same pixels without rasterizing twice)
     """
     V, F = check_mesh(V, F)
     uv = np.asarray(uv, np.float64)
     if uv.shape != (len(V), 2) or not np.isfinite(uv).all():
         raise InvalidGeometryImageError(f"uv must be a finite ({len(V)}, 2) array")
-    face, bary = rasterize_faces(F, uv, N)
+    face, bary = rasterize_faces(F, uv, N) if raster is None else raster
+    if face.shape != (N, N):
+        raise InvalidGeometryImageError(f"raster must be {N}x{N}; got {face.shape}")
     lo, hi = _bbox(V, bbox)
     mask = face >= 0
     pos = interpolate(face, bary, F, (V - lo) / (hi - lo))
@@ -153,9 +158,7 @@ def geometry_image(
         chans.append(tex)
         names += list(MODALITIES["texture"])
     img = np.clip(np.concatenate(chans, 0), 0.0, 1.0).astype(np.float32)
-    sa = uv[F[:, 1]] - uv[F[:, 0]]
-    sb = uv[F[:, 2]] - uv[F[:, 0]]
-    orient = 1 if (sa[:, 0] * sb[:, 1] - sa[:, 1] * sb[:, 0]).sum() >= 0 else -1
+    orient = 1 if signed_uv_areas(F, uv).sum() >= 0 else -1
     m = {
         "version": FORMAT_VERSION,
         "resolution": int(N),

@@ -28,12 +28,9 @@ def pixel_uv(N: int) -> np.ndarray:
 
 
 def _laplacian_smooth(V, F, iterations, fixed):
-    import scipy.sparse as sp
+    from ..mesh.core import vertex_adjacency
 
-    n = len(V)
-    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    A = sp.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n)).tocsr()
-    A = ((A + A.T) > 0).astype(np.float64)
+    A = vertex_adjacency(F, len(V))
     deg = np.asarray(A.sum(1)).ravel()
     V = V.copy()
     for _ in range(iterations):

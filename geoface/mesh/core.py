@@ -98,6 +98,27 @@ def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.bincount(F.ravel(), weights=np.repeat(A, 3), minlength=len(V))
 
 
+def vertex_adjacency(F: np.ndarray, n_vertices: int) -> sp.csr_matrix:
+    """Symmetric 0/1 vertex adjacency ``(n, n)`` float64 (vertices sharing an edge)."""
+    i = np.concatenate([F[:, 0], F[:, 1], F[:, 2], F[:, 1], F[:, 2], F[:, 0]])
+    j = np.concatenate([F[:, 1], F[:, 2], F[:, 0], F[:, 0], F[:, 1], F[:, 2]])
+    A = sp.csr_matrix((np.ones(len(i)), (i, j)), shape=(n_vertices, n_vertices))
+    A.data[:] = 1.0
+    return A
+
+
+def vertex_face_incidence(F: np.ndarray, n_vertices: int) -> sp.csr_matrix:
+    """``(n, m)`` 0/1 matrix: row ``v`` lists the faces around vertex ``v`` (``.indices``)."""
+    return sp.csr_matrix((np.ones(F.size), (F.ravel(), np.repeat(np.arange(len(F)), 3))), shape=(n_vertices, len(F)))
+
+
+def signed_uv_areas(F: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Signed areas ``(m,)`` of the triangles ``F`` in 2D coordinates ``uv`` (> 0: counter-clockwise)."""
+    a = uv[F[:, 1]] - uv[F[:, 0]]
+    b = uv[F[:, 2]] - uv[F[:, 0]]
+    return 0.5 * (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+
+
 def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """Area-weighted unit vertex normals ``(n, 3)``."""
     N = face_normals_unnormalized(V, F)

@@ -30,6 +30,14 @@ from .core import check_mesh
 FORMATS = ("obj", "ply", "off", "stl", "glb", "gltf")
 
 
+def first_corner_uv(F: np.ndarray, FUV: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Per vertex, the UV index of the first face corner that uses it (-1 if none): one UV
+    per vertex where seams give several."""
+    vert_uv = np.full(n_vertices, -1, np.int64)
+    vert_uv[F.ravel()[::-1]] = FUV.ravel()[::-1]
+    return vert_uv
+
+
 @dataclass(frozen=True)
 class Mesh:
     """A triangle mesh with the attributes that travel with it.
@@ -108,9 +116,7 @@ class Mesh:
             FUV = np.zeros_like(F)
             kept = face_map >= 0
             FUV[kept] = self.FUV[face_map[kept]]
-            # per original vertex: one UV (the first corner that uses it)
-            vert_uv = np.full(len(self.V), -1, np.int64)
-            vert_uv[self.F.ravel()[::-1]] = self.FUV.ravel()[::-1]
+            vert_uv = first_corner_uv(self.F, self.FUV, len(self.V))
             newc = F[~kept]
             src = np.where(vertex_map[newc] >= 0, vert_uv[np.maximum(vertex_map[newc], 0)], -1)
             extra = len(self.UV)

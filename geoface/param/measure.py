@@ -25,10 +25,9 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..errors import ParameterizationError
-from ..mesh.core import boundary_loops, check_mesh, vertex_areas
+from ..mesh.core import boundary_loops, check_mesh, signed_uv_areas, vertex_adjacency, vertex_areas, vertex_face_incidence
 from .ot import OTResult, semi_discrete_ot
 
 __all__ = ["MeasureMapResult", "measure_preserving_map", "signed_uv_areas", "untangle"]
@@ -48,12 +47,6 @@ class MeasureMapResult:
     seconds: float
     roi_share: float | None = None
     info: dict = field(default_factory=dict)
-
-
-def signed_uv_areas(F: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    a = uv[F[:, 1]] - uv[F[:, 0]]
-    b = uv[F[:, 2]] - uv[F[:, 0]]
-    return 0.5 * (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
 
 
 def _sides(uv: np.ndarray, bnd: np.ndarray, eps: float = 1e-9):
@@ -111,14 +104,10 @@ def untangle(F: np.ndarray, uv: np.ndarray, lock: np.ndarray, *, max_rounds: int
     folds remain.
     """
     fixed = lock == 2
-    from ..mesh.core import vertex_fans
-
     uv = uv.copy()
     n = len(uv)
-    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    A = sp.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n)).tocsr()
-    A = ((A + A.T) > 0).astype(np.float64).tocsr()
-    vf = sp.coo_matrix((np.ones(F.size), (F.ravel(), np.repeat(np.arange(len(F)), 3))), shape=(n, len(F))).tocsr()
+    A = vertex_adjacency(F, n)
+    vf = vertex_face_incidence(F, n)
     moved = np.zeros(n, bool)
     grow = np.zeros(n, bool)
     for rnd in range(max_rounds):

@@ -45,11 +45,11 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
-import scipy.sparse as sp
 from scipy import ndimage
 from scipy.interpolate import PchipInterpolator
 
 from ..errors import InvalidMeshError
+from ..mesh.core import signed_uv_areas, vertex_adjacency, vertex_face_incidence
 
 __all__ = [
     "EXPRESSION_NAMES",
@@ -1034,19 +1034,6 @@ def _stitch(phi, n_k, start):
     return np.concatenate([FA, FB], axis=0).astype(np.int64)
 
 
-def _adjacency(F, n):
-    i = np.concatenate([F[:, 0], F[:, 1], F[:, 2], F[:, 1], F[:, 2], F[:, 0]])
-    j = np.concatenate([F[:, 1], F[:, 2], F[:, 0], F[:, 0], F[:, 1], F[:, 2]])
-    A = sp.csr_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
-    A.data[:] = 1.0
-    return A
-
-
-def _p_areas(p, F):
-    a, b, c = p[F[:, 0]], p[F[:, 1]], p[F[:, 2]]
-    return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
-
-
 def _vertex_normals(X, F):
     N = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
     out = np.stack([sum(np.bincount(F[:, k], weights=N[:, c], minlength=len(X)) for k in range(3))
@@ -1073,7 +1060,7 @@ def _snap_landmarks(par, p, F, fixed, dirs, candidates=8):
     Xt = par.X_of_p(tp)
     X = par.X_of_p(p)
     n = len(p)
-    fan = sp.csr_matrix((np.ones(F.size), (F.ravel(), np.repeat(np.arange(len(F)), 3))), shape=(n, len(F)))
+    fan = vertex_face_incidence(F, n)
     out = {}
     for k, name in enumerate(names):
         dist = np.hypot(p[:, 0] - tp[k, 0], p[:, 1] - tp[k, 1])
@@ -1085,7 +1072,7 @@ def _snap_landmarks(par, p, F, fixed, dirs, candidates=8):
             faces = F[fan[v].indices]
             pp, XX = p.copy(), X
             pp[v] = tp[k]
-            if (_p_areas(pp, faces) <= 1e-14).any():
+            if (signed_uv_areas(faces, pp) <= 1e-14).any():
                 continue
             XX = X.copy()
             XX[v] = Xt[k]
@@ -1101,7 +1088,7 @@ def _snap_landmarks(par, p, F, fixed, dirs, candidates=8):
 
 def _relax(par, p, F, fixed, iters, lam=0.6, eps=1e-5):
     """Tangential umbrella smoothing in 3D, pulled back to the parameter disk (no flips)."""
-    A = _adjacency(F, len(p))
+    A = vertex_adjacency(F, len(p))
     deg = np.asarray(A.sum(1)).ravel()
     for _ in range(iters):
         X = par.X_of_p(p)
@@ -1117,7 +1104,7 @@ def _relax(par, p, F, fixed, iters, lam=0.6, eps=1e-5):
         dp[fixed] = 0.0
         new = p + lam * dp
         for _k in range(10):
-            bad = _p_areas(new, F) <= 1e-14
+            bad = signed_uv_areas(F, new) <= 1e-14
             if not bad.any():
                 break
             vb = F[bad].ravel()
