@@ -22,7 +22,7 @@ Two details make the result usable as a parameterization:
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -46,7 +46,6 @@ class MeasureMapResult:
     untangled_vertices: int
     seconds: float
     roi_share: float | None = None
-    info: dict = field(default_factory=dict)
 
 
 def _sides(uv: np.ndarray, bnd: np.ndarray, eps: float = 1e-9):
