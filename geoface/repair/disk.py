@@ -183,7 +183,7 @@ def _disk_problems(rep: TopologyReport) -> list[str]:
     return probs
 
 
-def make_disk(V, F, options: RepairOptions | None = None, **overrides) -> DiskResult:
+def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None = None, **overrides) -> DiskResult:
     """Turn a triangle mesh into a topological disk.
 
     Steps: clean (merge, degenerate/duplicate faces, non-manifold splits, orientation)
@@ -196,6 +196,8 @@ def make_disk(V, F, options: RepairOptions | None = None, **overrides) -> DiskRe
     V : (n, 3) float64
     F : (m, 3) int64
     options : RepairOptions, optional; keyword overrides of its fields are accepted too
+    quiet : bool, optional
+        silence the progress lines (default: the global switch, ``geoface --quiet``)
 
     Returns
     -------
@@ -213,12 +215,12 @@ def make_disk(V, F, options: RepairOptions | None = None, **overrides) -> DiskRe
     V, F = check_mesh(V, F)
     area_before = float(face_areas(V, F).sum())
 
-    log(f"make_disk: {len(V)} vertices, {len(F)} faces; cleaning")
+    log(f"make_disk: {len(V)} vertices, {len(F)} faces; cleaning", quiet=quiet)
     res = clean(V, F, merge_tolerance=opts.merge_tolerance)
     res = res.then(keep_components(res.V, res.F, min_area_fraction=opts.min_component_area))
     _strict(res, "clean")
     if opts.target_vertices is not None:
-        log(f"remeshing to ~{opts.target_vertices} vertices")
+        log(f"remeshing to ~{opts.target_vertices} vertices", quiet=quiet)
         res = res.then(remesh(res.V, res.F, int(opts.target_vertices), method=opts.remesh_method))
         res = res.then(clean(res.V, res.F))
         res = res.then(keep_components(res.V, res.F))
@@ -230,13 +232,13 @@ def make_disk(V, F, options: RepairOptions | None = None, **overrides) -> DiskRe
     if loops:
         # an explicit cut makes the new boundary: then every existing hole is closed
         keep = "none" if cut else opts.keep_boundary
-        log(f"make_disk: {len(loops)} boundary loops; filling {'all' if cut else 'all but the kept one'}")
+        log(f"make_disk: {len(loops)} boundary loops; filling {'all' if cut else 'all but the kept one'}", quiet=quiet)
         res = res.then(fill_holes(res.V, res.F, keep=keep, refine=opts.refine_holes, fairing=opts.fair_holes))
-    log("make_disk: removing handles")
+    log("make_disk: removing handles", quiet=quiet)
     res = res.then(remove_handles(res.V, res.F, max_handles=opts.max_handles, seed=opts.seed))
     _strict(res, "handles")
     if cut:
-        log(f"make_disk: opening the surface ({'cap' if opts.open == 'cap' else 'plane'})")
+        log(f"make_disk: opening the surface ({'cap' if opts.open == 'cap' else 'plane'})", quiet=quiet)
         if opts.open == "cap":
             res = res.then(open_with_cap(res.V, res.F, up=opts.up, area_fraction=opts.cap_area))
         else:

@@ -184,3 +184,14 @@ def test_messy_closed_head_is_cut_at_the_neck():
     loop_y = res.V[boundary_loops(res.F)[0], 1]
     assert loop_y.max() - loop_y.min() < 1e-9  # a planar cut ...
     assert loop_y[0] < np.quantile(res.V[:, 1], 0.02)  # ... at the bottom (the neck)
+
+
+def test_quiet_argument_overrides_the_global_switch(capsys, monkeypatch):
+    from geoface import progress
+
+    monkeypatch.setattr(progress, "QUIET", False)
+    V, F = sphere(500)
+    make_disk(V, F, quiet=True)
+    assert capsys.readouterr().err == ""
+    make_disk(V, F)
+    assert "make_disk:" in capsys.readouterr().err
