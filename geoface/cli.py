@@ -280,6 +280,60 @@ def cmd_reconstruct(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- view
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().replace("x", ",").split(","))
+    except ValueError:
+        raise GeofaceError(f"--size must look like 1024,768; got {text!r}") from None
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        raise GeofaceError(f"--size must be between 16 and 8192 pixels per side; got {text!r}")
+    return w, h
+
+
+def cmd_view(args) -> int:
+    from . import viz
+
+    size = _parse_size(args.size)
+    shot = args.screenshot
+    if shot is None and not viz.has_display():
+        raise GeofaceError("no display to open a window on; pass --screenshot OUT.png to render off-screen")
+    if shot is not None and _same_file(args.file, shot):
+        raise GeofaceError(f"refusing to overwrite the input file {args.file}; choose another --screenshot")
+    path = Path(args.file)
+    if path.is_dir() and not (path / "meta.json").exists() and (path / "aug0" / "meta.json").exists():
+        path = path / "aug0"  # `geoface convert --augment K` writes one image set per corner set
+    if path.is_dir():
+        from .gimage import load_gimage
+
+        gi = load_gimage(path)
+        if args.uv_distortion:
+            raise GeofaceError("--uv-distortion needs a mesh with UVs; a geometry-image folder has none to measure")
+        img = viz.gimage_montage(gi, surface=True, screenshot=shot, tile=size[1])
+        if shot is None:  # show the surface interactively
+            from .gimage import reconstruct
+
+            viz.plot_mesh(reconstruct(gi), window_size=size)
+        what = f"geometry image {gi.resolution}x{gi.resolution}: position | normal | texture | mask | surface"
+        size = (img.shape[1], img.shape[0])
+    else:
+        from .mesh.io import load_mesh
+
+        mesh = load_mesh(path)
+        if args.uv_distortion:
+            if mesh.UV is None:
+                raise GeofaceError(f"{args.file} has no UVs; --uv-distortion needs a parameterized mesh (see `geoface param`)")
+            V2, F2, uv2, _ = viz.split_corner_uvs(mesh.V, mesh.F, mesh.UV, mesh.FUV)  # seams: one vertex per UV
+            viz.plot_uv_distortion(V2, F2, uv2, metric=args.metric, screenshot=shot, window_size=size)
+            what = f"UV {args.metric} distortion"
+        else:
+            viz.plot_mesh(mesh, screenshot=shot, window_size=size)
+            what = "textured mesh" if mesh.texture is not None and mesh.UV is not None else "mesh"
+    if shot is not None:
+        print(f"{args.file} -> {shot}  ({what}, {size[0]}x{size[1]})")
+    return 0
+
+
 # --------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="geoface", description="Geometry processing of head and face meshes.")
@@ -343,6 +397,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, help="output mesh (obj writes .mtl, texture and normal map too)")
     s.add_argument("--smooth", type=int, default=0, help="Laplacian smoothing iterations")
     s.set_defaults(func=cmd_reconstruct)
+
+    s = sub.add_parser("view", help="show a mesh or geometry-image folder (or render it to a PNG)")
+    s.add_argument("file", help="a mesh file, or a geometry-image folder written by `geoface convert`")
+    s.add_argument("--screenshot", default=None, metavar="OUT.png", help="render off-screen to this PNG and exit")
+    s.add_argument("--uv-distortion", action="store_true", help="show the UV layout coloured by distortion (mesh with UVs)")
+    s.add_argument("--metric", choices=["qc", "area"], default="qc", help="distortion measure for --uv-distortion (qc)")
+    s.add_argument("--size", default="1024,768", metavar="W,H",
+                   help="window / picture size in pixels (1024,768); for a geometry-image montage H is the tile size")
+    s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("synth", help="write procedural test geometry")
     ss = s.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser)
