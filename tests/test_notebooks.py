@@ -1,0 +1,66 @@
+"""The tutorial notebooks run top to bottom (small sizes) and show their pictures."""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+nbformat = pytest.importorskip("nbformat", reason="notebook execution needs nbformat (pip install 'geoface[notebook]')")
+nbclient = pytest.importorskip("nbclient", reason="notebook execution needs nbclient")
+pytest.importorskip("ipykernel", reason="notebook execution needs ipykernel")
+pytest.importorskip("pyvista", reason="the notebook renders with geoface[viz] (pyvista)")
+pytest.importorskip("matplotlib", reason="the notebook plots with matplotlib")
+
+NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
+KERNEL = "geoface-test-python"
+SMALL = {"N_VERTICES": "3000", "RES": "64", "TEXTURE_SIZE": "128", "WINDOW": "(240, 240)"}
+
+
+@pytest.fixture
+def this_python_kernel(tmp_path, monkeypatch):
+    """A kernelspec that runs *this* interpreter (the venv), found first via JUPYTER_PATH,
+    under a name no installed kernel uses, so a user's own "python3" kernel cannot stand in."""
+    spec = tmp_path / "jupyter" / "kernels" / KERNEL
+    spec.mkdir(parents=True)
+    (spec / "kernel.json").write_text(json.dumps({
+        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
+        "display_name": "geoface tests", "language": "python",
+    }))
+    monkeypatch.setenv("JUPYTER_PATH", str(tmp_path / "jupyter"))
+    monkeypatch.setenv("GEOFACE_QUIET", "1")
+    return KERNEL
+
+
+def _set_parameters(nb, values: dict) -> None:
+    cell = next(c for c in nb.cells if c.cell_type == "code" and c.source.lstrip().startswith("# parameters"))
+    src = cell.source
+    for name, value in values.items():
+        src, n = re.subn(rf"^{name}\s*=\s*[^#\n]*", f"{name} = {value}  ", src, flags=re.M)
+        assert n == 1, f"parameter {name} not found in the parameters cell"
+    cell.source = src
+
+
+def test_notebook_stored_without_outputs():
+    nb = nbformat.read(NOTEBOOKS / "01_mesh_to_geometry_image.ipynb", as_version=4)
+    assert all(not c.get("outputs") and c.get("execution_count") is None for c in nb.cells if c.cell_type == "code")
+    assert (NOTEBOOKS / "01_mesh_to_geometry_image.ipynb").stat().st_size < 50_000
+
+
+def test_mesh_to_geometry_image_notebook_runs(this_python_kernel, tmp_path):
+    nb = nbformat.read(NOTEBOOKS / "01_mesh_to_geometry_image.ipynb", as_version=4)
+    _set_parameters(nb, SMALL)
+    nb.cells.append(nbformat.v4.new_code_cell("import sys; print('KERNEL-PYTHON', sys.executable)"))
+    client = nbclient.NotebookClient(nb, kernel_name=this_python_kernel, timeout=300,
+                                     resources={"metadata": {"path": str(tmp_path)}})
+    client.execute()  # raises CellExecutionError (with the traceback) on any error
+    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
+    assert not [o for o in outputs if o.output_type == "error"]
+    images = [o for o in outputs if o.output_type in ("display_data", "execute_result") and "image/png" in o.get("data", {})]
+    assert len(images) >= 7  # head, QC map, area maps, matplotlib montage, viz montage, two comparisons
+    text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
+    assert f"KERNEL-PYTHON {sys.executable}" in text  # ran in this interpreter, not some other "python3"
+    assert "is disk: True" in text and "Hausdorff" in text
