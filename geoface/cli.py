@@ -309,13 +309,14 @@ def cmd_view(args) -> int:
         gi = load_gimage(path)
         if args.uv_distortion:
             raise GeofaceError("--uv-distortion needs a mesh with UVs; a geometry-image folder has none to measure")
-        img = viz.gimage_montage(gi, surface=True, screenshot=shot, tile=size[1])
-        if shot is None:  # show the surface interactively
+        what = f"geometry image {gi.resolution}x{gi.resolution}: position | normal | texture | mask | surface"
+        if shot is None:  # interactive: the surface the images encode, textured
             from .gimage import reconstruct
 
             viz.plot_mesh(reconstruct(gi), window_size=size)
-        what = f"geometry image {gi.resolution}x{gi.resolution}: position | normal | texture | mask | surface"
-        size = (img.shape[1], img.shape[0])
+        else:
+            img = viz.gimage_montage(gi, surface=True, screenshot=shot, tile=size[1])
+            size = (img.shape[1], img.shape[0])
     else:
         from .mesh.io import load_mesh
 

@@ -163,11 +163,14 @@ def _finish(pl, screenshot, off_screen: bool) -> np.ndarray:
     if off_screen:
         img = pl.screenshot(return_img=True)
         pl.close()
-    else:
-        pl.show(auto_close=False)
-        img = pl.screenshot(return_img=True)
-        pl.close()
+    else:  # blocks until the user closes the window; pyvista keeps the last frame
+        pl.show()
+        img = getattr(pl, "last_image", None)
+        if img is None:
+            img = np.zeros((0, 0, 3), np.uint8)
     img = np.ascontiguousarray(np.asarray(img)[..., :3], dtype=np.uint8)
+    if screenshot is not None and img.size == 0:
+        raise GeofaceError(f"no picture to write to {screenshot}: the window gave none back")
     if screenshot is not None:
         save_png(screenshot, img)
     return img
@@ -230,7 +233,7 @@ def plot_mesh(mesh_or_VF, texture=None, *, colors=None, color=None, screenshot=N
 
     Returns
     -------
-    (H, W, 3) uint8 — the rendered picture.
+    (H, W, 3) uint8 — the rendered picture (after an interactive window: its last frame).
     """
     off = _off_screen(off_screen, screenshot)
     pl = _plotter(off, window_size)

@@ -266,3 +266,30 @@ def test_cli_view_bad_input_one_line_exit_2(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(sys, "platform", "linux")
     assert main(["view", str(bad)]) == 2
     assert "--screenshot" in capsys.readouterr().err
+
+
+def test_off_screen_is_automatic(monkeypatch, tmp_path):
+    from geoface import viz
+
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setenv("DISPLAY", ":0")
+    assert viz.has_display() and not viz._off_screen(None, None)
+    assert viz._off_screen(None, tmp_path / "a.png")  # a screenshot is always rendered off-screen
+    assert viz._off_screen(True, None) and not viz._off_screen(False, tmp_path / "a.png")
+    monkeypatch.delenv("DISPLAY")
+    assert not viz.has_display() and viz._off_screen(None, None)
+    with pytest.raises(Exception, match="screenshot"):
+        viz.plot_mesh(_rect()[:2], off_screen=False)  # no window without a display: a clear error
+
+
+def test_interactive_window_gives_back_its_last_frame(tmp_path):
+    from geoface import viz
+
+    class Window:  # stands in for a pyvista Plotter whose window the user closed
+        def show(self):
+            self.last_image = np.full((10, 12, 4), 7, np.uint8)
+
+    img = viz._finish(Window(), tmp_path / "w.png", off_screen=False)
+    assert img.shape == (10, 12, 3) and (img == 7).all()
+    assert np.array_equal(viz_read(tmp_path / "w.png"), img)
