@@ -255,7 +255,7 @@ def plot_uv_distortion(V, F, uv, metric: str = "qc", *, screenshot=None, window_
     """The UV layout, flat in the plane, coloured per triangle by distortion.
 
     ``metric="qc"``: quasi-conformal ratio (1 = conformal); ``"area"``: log area ratio
-    (0 = area preserving).  Flipped triangles are drawn red-hatched (as NaN → magenta).
+    (0 = area preserving).  Flipped (orientation-reversed) triangles are drawn magenta.
     """
     from .param.metrics import distortion
 
