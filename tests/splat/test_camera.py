@@ -1,0 +1,58 @@
+import numpy as np
+import pytest
+
+from geoface.errors import GeofaceError
+from geoface.splat.camera import Camera, look_at, orbit
+
+
+def test_look_at_centres_target_and_up_is_image_up():
+    cam = look_at([1.0, 2.0, 5.0], [0.2, 0.1, -0.3], up=[0, 1, 0], width=64, height=48)
+    uv, z = cam.project(np.array([[0.2, 0.1, -0.3]]))
+    np.testing.assert_allclose(uv[0], [32, 24], atol=1e-9)
+    assert z[0] == pytest.approx(np.linalg.norm([0.8, 1.9, 5.3]))
+    np.testing.assert_allclose(cam.center, [1, 2, 5], atol=1e-12)
+    # a point above the target appears higher in the image (smaller v)
+    uv2, _ = cam.project(np.array([[0.2, 0.6, -0.3]]))
+    assert uv2[0, 1] < 24
+    np.testing.assert_allclose(cam.R @ cam.R.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(cam.R) == pytest.approx(1.0)
+
+
+def test_look_at_right_is_image_right():
+    cam = look_at([0, 0, 3], [0, 0, 0])
+    uv, _ = cam.project(np.array([[0.5, 0, 0]]))  # camera on +z looking at -z: world +x is right
+    assert uv[0, 0] > 128
+
+
+def test_orbit_distance_elevation_and_targets():
+    cams = orbit(8, 2.5, elevation=20.0, target=(0.1, 0.0, 0.2), width=32, height=32)
+    assert len(cams) == 8
+    for c in cams:
+        d = c.center - np.array([0.1, 0.0, 0.2])
+        assert np.linalg.norm(d) == pytest.approx(2.5)
+        assert np.degrees(np.arcsin(d[1] / 2.5)) == pytest.approx(20.0)
+        uv, z = c.project(np.array([[0.1, 0.0, 0.2]]))
+        np.testing.assert_allclose(uv[0], [16, 16], atol=1e-9)
+    az = [np.arctan2(c.center[0] - 0.1, c.center[2] - 0.2) for c in cams]
+    np.testing.assert_allclose(np.diff(np.unwrap(az)), 2 * np.pi / 8, atol=1e-12)
+
+
+def test_project_torch_matches_numpy():
+    torch = pytest.importorskip("torch")
+    cam = look_at([0.3, 0.2, 2.0], [0, 0, 0])
+    X = np.random.default_rng(0).normal(size=(5, 3)) * 0.3
+    uv, z = cam.project(X)
+    uvt, zt = cam.project(torch.tensor(X))
+    np.testing.assert_allclose(uvt.numpy(), uv, atol=1e-12)
+    np.testing.assert_allclose(zt.numpy(), z, atol=1e-12)
+
+
+def test_bad_cameras_raise():
+    with pytest.raises(GeofaceError, match="eye and target"):
+        look_at([0, 0, 0], [0, 0, 0])
+    with pytest.raises(GeofaceError, match="parallel"):
+        look_at([0, 1, 0], [0, 0, 0], up=[0, 1, 0])
+    with pytest.raises(GeofaceError, match="rotation"):
+        Camera(10, 10, 5, 5, 10, 10, np.diag([1, 1, -1.0]), np.zeros(3))
+    with pytest.raises(GeofaceError, match="n must be"):
+        orbit(0, 1.0)
