@@ -16,6 +16,8 @@ _EXTRA_OF = {
     "PIL": "extra",
     "skimage": "extra",
     "pyvista": "viz",
+    "dask": "dist",
+    "threadpoolctl": "dist",
 }
 #: import name -> pip name where they differ (core dependencies)
 _PIP_NAME = {"cv2": "opencv-python-headless"}

@@ -39,7 +39,11 @@ class ConvertOptions:
     paper; 1 = area-preserving); augment : number of corner sets (1..8); method : "ot" or
     "conformal"; ot_tol : OT tolerance; smooth : Laplacian smoothing iterations of the
     reconstruction; up / open : how :func:`geoface.repair.make_disk` cuts closed heads;
-    front : the face direction for the default corners and the face cone.
+    front : the face direction for the default corners and the face cone;
+    corner_set : convert only corner set ``k`` (0..7) of the 8, written directly in the
+    output folder (used by the dataset builder: one item per mesh × corner set); ``augment``
+    is then ignored; metrics : write ``metrics.json`` (it holds timings, so a folder without
+    it is byte-identical across runs).
     """
 
     res: int = 512
@@ -54,6 +58,8 @@ class ConvertOptions:
     front: tuple = (0.0, 0.0, 1.0)
     reconstruct: bool = True
     preview: bool = True
+    corner_set: int | None = None
+    metrics: bool = True
 
     def validate(self) -> "ConvertOptions":
         from .gimage.raster import MAX_RES
@@ -68,6 +74,8 @@ class ConvertOptions:
             raise GeofaceError(f"augment must be an integer in 1..8; got {self.augment!r}")
         if not (0 < self.ot_tol < 1):
             raise GeofaceError(f"ot_tol must be in (0, 1); got {self.ot_tol!r}")
+        if self.corner_set is not None and (int(self.corner_set) != self.corner_set or not 0 <= self.corner_set <= 7):
+            raise GeofaceError(f"corner_set must be an integer in 0..7; got {self.corner_set!r}")
         if isinstance(self.roi, str) and self.roi not in ("face", "none"):
             raise GeofaceError(f"roi must be 'face', 'none' or a vertex mask; got {self.roi!r}")
         return self
@@ -225,7 +233,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
 
     t = time.perf_counter()
     log(f"convert: repairing {len(mesh.V)} vertices to a disk", quiet=quiet)
-    disk = make_disk(mesh.V, mesh.F, up=opts.up, open=opts.open)
+    disk = make_disk(mesh.V, mesh.F, up=opts.up, open=opts.open, quiet=quiet)
     dm = mesh.with_geometry(disk.V, disk.F, disk.vertex_map, disk.face_map)
     V = dm.V
     roi = None
@@ -236,7 +244,9 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     times["repair"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    sets = corner_sets(V, dm.F, n=8, front=np.asarray(opts.front, float))[: opts.augment]
+    all_sets = corner_sets(V, dm.F, n=8, front=np.asarray(opts.front, float))
+    indices = [opts.corner_set] if opts.corner_set is not None else list(range(opts.augment))
+    sets = [all_sets[i] for i in indices]
     times["corners"] = time.perf_counter() - t
 
     metrics: dict = {
@@ -251,12 +261,12 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     tmp_root = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
         solver = RicciFlowSolver(V, dm.F)
-        for k, corners in enumerate(sets):
+        for pos, (k, corners) in enumerate(zip(indices, sets)):
             st: dict = {"corner_set": k, "corners": [int(c) for c in corners]}
-            folder = tmp_root if opts.augment == 1 else tmp_root / f"aug{k}"
+            folder = tmp_root if len(sets) == 1 else tmp_root / f"aug{k}"
             folder.mkdir(exist_ok=True)
             t = time.perf_counter()
-            log(f"convert [{k + 1}/{len(sets)}]: Ricci flow", quiet=quiet)
+            log(f"convert [{pos + 1}/{len(sets)}]: Ricci flow", quiet=quiet)
             r = solver.solve(corners, quiet=quiet)
             if not r.converged:
                 raise GeofaceError(f"Ricci flow did not converge (max |K - target| {r.residual:.3g})")
@@ -266,7 +276,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             st["conformal_distortion"] = distortion(V, F, uv).summary()
             if opts.method == "ot":
                 t = time.perf_counter()
-                log(f"convert [{k + 1}/{len(sets)}]: optimal transport (lam {opts.lam:g})", quiet=quiet)
+                log(f"convert [{pos + 1}/{len(sets)}]: optimal transport (lam {opts.lam:g})", quiet=quiet)
                 mp = measure_preserving_map(V, F, uv, roi=roi, lam=opts.lam, tol=opts.ot_tol, quiet=quiet)
                 uv = mp.uv
                 st["ot"] = {
@@ -276,7 +286,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
                 }
             st["distortion"] = distortion(V, F, uv).summary()
             t = time.perf_counter()
-            log(f"convert [{k + 1}/{len(sets)}]: geometry images {opts.res}x{opts.res}", quiet=quiet)
+            log(f"convert [{pos + 1}/{len(sets)}]: geometry images {opts.res}x{opts.res}", quiet=quiet)
             kw: dict = {}
             if dm.texture is not None and dm.UV is not None:
                 UVx, FUVx = corner_uvs_for(F, dm.F, dm.UV, dm.FUV)
@@ -296,7 +306,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             st["images_seconds"] = time.perf_counter() - t
             if opts.reconstruct:
                 t = time.perf_counter()
-                log(f"convert [{k + 1}/{len(sets)}]: reconstruction", quiet=quiet)
+                log(f"convert [{pos + 1}/{len(sets)}]: reconstruction", quiet=quiet)
                 rec = reconstruct(gi, smooth=opts.smooth)
                 save_reconstruction(folder / "reconstruction.obj", rec, gi)
                 rec_mask = None
@@ -312,7 +322,8 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
                 _preview(gi, folder / "preview.png")
             metrics["sets"].append(st)
         metrics["seconds"] = {"repair": times["repair"], "corners": times["corners"], "total": time.perf_counter() - t_all}
-        (tmp_root / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        if opts.metrics:
+            (tmp_root / "metrics.json").write_text(json.dumps(metrics, indent=2))
         replace_dir(tmp_root, out_dir)
     except BaseException:
         shutil.rmtree(tmp_root, ignore_errors=True)

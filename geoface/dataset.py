@@ -1,0 +1,334 @@
+"""Build a geometry-image dataset from a folder of meshes, on a process pool or a Dask cluster.
+
+One **item** per mesh × corner set (the paper's augmentation: ``augment = K`` takes the first
+K of the 8 corner sets).  Item ``k`` of ``head_007.obj`` is written to
+``OUT_DIR/head_007/aug{k}/`` (``position.png``, ``normal.png``, ``texture.png``, ``mask.png``,
+``meta.json``, ``preview.png``; ``reconstruction.obj`` with ``reconstruct=True``) by
+:func:`geoface.pipeline.convert`, atomically: a folder is complete or absent.
+
+``OUT_DIR/manifest.jsonl`` gets one line per item processed, written by the driver only:
+``item``, ``mesh``, ``corner_set``, ``status`` (``ok`` / ``failed``), ``error``, ``seconds``,
+``metrics`` (distortion, OT iterations, coverage, face pixel share, reconstruction error) and,
+when labels are given, ``labels`` and ``prompt``.  The last line of an item wins.
+
+* A failing mesh (corrupt file, impossible topology, a solver failure) is logged and recorded
+  as ``failed``; the run goes on.
+* Resumable: an item whose last status is ``ok`` and whose folder is complete is skipped; so
+  is one that failed before (``retry_failed=True`` tries those again).  A second run over the
+  same input does no work.
+* Deterministic: each item runs with single-threaded BLAS, so its files are byte-identical
+  whichever scheduler or worker count produced them (``meta.json`` holds no timings).
+
+Schedulers: ``workers=1`` runs in this process; ``workers=N`` a local process pool (spawned
+processes); ``scheduler="tcp://host:8786"`` a Dask distributed cluster (every worker needs
+geoface installed and the input/output folders mounted at the same paths).
+
+>>> # build_dataset("meshes/", "dataset/", DatasetOptions(res=128, augment=8), workers=2)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import traceback
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from .errors import GeofaceError
+from .progress import log
+
+__all__ = ["DatasetOptions", "build_dataset", "find_meshes", "load_labels", "read_manifest", "MESH_SUFFIXES"]
+
+MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
+MANIFEST = "manifest.jsonl"
+#: files that make an item folder complete
+ITEM_FILES = ("position.png", "normal.png", "texture.png", "mask.png", "meta.json")
+
+
+@dataclass(frozen=True)
+class DatasetOptions:
+    """Options of :func:`build_dataset` (the flags of ``geoface dataset build``).
+
+    res : image resolution N (default 512); augment : corner sets per mesh, 1..8 (default 8);
+    roi : ``"auto"`` (the face mask in ``<stem>.json`` beside the mesh, as written by
+    ``geoface synth head --meta`` or ``data_tools/make_synthetic_heads.py``, else the frontal
+    face cone), ``"face"`` (always the cone) or ``"none"``; lam : mass factor on the ROI (2.5);
+    method : ``"ot"`` or ``"conformal"``; ot_tol : OT tolerance; reconstruct : also write
+    ``reconstruction.obj`` and its error; preview : write ``preview.png``; up / open : how
+    closed meshes are cut open (see :func:`geoface.repair.make_disk`).
+    """
+
+    res: int = 512
+    augment: int = 8
+    roi: str = "auto"
+    lam: float = 2.5
+    method: str = "ot"
+    ot_tol: float = 1e-3
+    reconstruct: bool = False
+    preview: bool = True
+    up: str = "y"
+    open: str = "auto"
+
+    def validate(self) -> "DatasetOptions":
+        if self.roi not in ("auto", "face", "none"):
+            raise GeofaceError(f"roi must be one of auto, face, none; got {self.roi!r}")
+        self.convert_options(0, None)  # the rest is checked by ConvertOptions
+        return self
+
+    def convert_options(self, corner_set: int, roi):
+        from .pipeline import ConvertOptions
+
+        return ConvertOptions(
+            res=self.res, roi="none" if roi is None else roi, lam=self.lam, augment=self.augment,
+            method=self.method, ot_tol=self.ot_tol, reconstruct=self.reconstruct, preview=self.preview,
+            up=self.up, open=self.open, corner_set=corner_set, metrics=False,
+        ).validate()
+
+
+def find_meshes(in_dir: str | os.PathLike) -> list[Path]:
+    """The mesh files directly inside ``in_dir`` (by suffix), sorted by name."""
+    d = Path(in_dir)
+    if not d.is_dir():
+        raise GeofaceError(f"input folder not found: {d}")
+    files = sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES)
+    if not files:
+        raise GeofaceError(f"no mesh files ({', '.join(MESH_SUFFIXES)}) in {d}")
+    stems: dict = {}
+    for p in files:
+        if p.stem in stems:
+            raise GeofaceError(f"two meshes share the name {p.stem!r} ({stems[p.stem].name}, {p.name}); item folders are named by stem")
+        stems[p.stem] = p
+    return files
+
+
+def load_labels(path: str | os.PathLike) -> dict:
+    """Labels per mesh stem from ``.jsonl`` (one object per line with ``name`` or ``mesh``,
+    e.g. ``{"name": "head_000", "prompt": "a smiling female", ...}``) or ``.json`` (an object
+    mapping stem → labels, or a list of such lines)."""
+    p = Path(path)
+    if not p.is_file():
+        raise GeofaceError(f"labels file not found: {p}")
+    try:
+        text = p.read_text()
+        rows = [json.loads(line) for line in text.splitlines() if line.strip()] if p.suffix == ".jsonl" else json.loads(text)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise GeofaceError(f"cannot read the labels file {p}: {e}") from None
+    if isinstance(rows, dict):
+        return {str(k): dict(v) for k, v in rows.items()}
+    out = {}
+    for i, r in enumerate(rows):
+        key = r.get("name", r.get("mesh")) if isinstance(r, dict) else None
+        if key is None:
+            raise GeofaceError(f"labels file {p}: entry {i + 1} has no 'name' (the mesh's file stem)")
+        out[Path(str(key)).stem] = dict(r)
+    return out
+
+
+def read_manifest(out_dir: str | os.PathLike) -> dict:
+    """The last manifest line of every item, keyed by item name (``stem/aug{k}``)."""
+    p = Path(out_dir) / MANIFEST
+    last: dict = {}
+    if p.is_file():
+        for line in p.read_text().splitlines():
+            try:
+                row = json.loads(line)
+                last[row["item"]] = row
+            except (json.JSONDecodeError, KeyError, TypeError):
+                continue  # a line cut short by a killed run
+    return last
+
+
+def _complete(folder: Path) -> bool:
+    return all((folder / f).is_file() for f in ITEM_FILES)
+
+
+def _item_roi(mesh_path: Path, n_vertices: int, roi: str):
+    if roi == "none":
+        return None
+    if roi == "auto":
+        side = mesh_path.with_suffix(".json")
+        if side.is_file():
+            from .pipeline import load_roi
+
+            return load_roi(side, n_vertices)
+    return "face"
+
+
+def _summary_metrics(m: dict) -> dict:
+    st = m["sets"][0]
+    out = {
+        "disk_vertices": m["disk_vertices"], "roi_vertices": m["roi_vertices"], "coverage": st["coverage"],
+        "distortion": st["distortion"], "ricci_iterations": st["ricci"]["iterations"], "aspect": st["ricci"]["aspect"],
+    }
+    for key in ("roi_pixel_share",):
+        if key in st:
+            out[key] = st[key]
+    if "ot" in st:
+        out["ot_iterations"] = st["ot"]["iterations"]
+        out["ot_residual"] = st["ot"]["residual"]
+        out["flipped_before_untangle"] = st["ot"]["flipped_before"]
+    if "reconstruction" in st:
+        out["reconstruction"] = {k: v for k, v in st["reconstruction"].items() if k != "seconds"}
+    return out
+
+
+def run_item(mesh_path: str, out_folder: str, corner_set: int, options: DatasetOptions) -> dict:
+    """Convert one mesh × corner set into ``out_folder``; never raises: returns a status dict.
+
+    Runs with single-threaded BLAS so the output does not depend on the worker it ran on.
+    """
+    t0 = time.perf_counter()
+    row: dict = {"status": "ok", "error": None}
+    try:
+        from ._lazy import lazy_import
+
+        threadpool_limits = lazy_import("threadpoolctl", "dataset building").threadpool_limits
+        from .mesh.io import load_mesh
+        from .pipeline import convert
+
+        with threadpool_limits(limits=1):
+            mesh = load_mesh(mesh_path)
+            roi = _item_roi(Path(mesh_path), len(mesh.V), options.roi)
+            m = convert(mesh, out_folder, options.convert_options(corner_set, roi), quiet=True)
+        row["metrics"] = _summary_metrics(m)
+    except GeofaceError as e:
+        row.update(status="failed", error=f"{type(e).__name__}: {e}")
+    except Exception as e:  # a bug or an unexpected library error: record it, keep going
+        tb = traceback.format_exception_only(type(e), e)[-1].strip()
+        row.update(status="failed", error=f"unexpected {tb}")
+    row["seconds"] = time.perf_counter() - t0
+    return row
+
+
+def _plan(files, out_dir: Path, options: DatasetOptions, done: dict, retry_failed: bool):
+    todo, skipped = [], []
+    for p in files:
+        for k in range(options.augment):
+            item = f"{p.stem}/aug{k}"
+            prev = done.get(item)
+            folder = out_dir / p.stem / f"aug{k}"
+            if prev is not None and prev.get("status") == "ok" and _complete(folder):
+                skipped.append(item)
+            elif prev is not None and prev.get("status") == "failed" and not retry_failed:
+                skipped.append(item)
+            else:
+                todo.append((item, p, k, folder))
+    return todo, skipped
+
+
+class _Deferred:
+    """A future for the serial backend: runs its call when its result is asked for."""
+
+    def __init__(self, fn, *args):
+        self.fn, self.args = fn, args
+
+    def result(self):
+        return self.fn(*self.args)
+
+
+def _executor(workers: int, scheduler: str | None):
+    """Yields ``submit(fn, *args) -> future`` and ``as_completed(futures)`` for the chosen backend."""
+    if scheduler:
+        from ._lazy import lazy_import
+
+        distributed = lazy_import("dask.distributed", "dataset building on a Dask cluster")
+        try:
+            client = distributed.Client(scheduler, timeout="20s", set_as_default=False)
+        except (OSError, TimeoutError, ValueError) as e:
+            raise GeofaceError(f"cannot connect to the Dask scheduler {scheduler}: {e}") from None
+        return client, (lambda fn, *a: client.submit(fn, *a, pure=False)), distributed.as_completed, client.close
+    if workers == 1:  # in this process, one item at a time as the driver asks for results
+        return None, _Deferred, iter, lambda: None
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
+    return pool, pool.submit, as_completed, lambda: pool.shutdown(wait=True, cancel_futures=True)
+
+
+def build_dataset(
+    in_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    options: DatasetOptions | None = None,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    labels: str | os.PathLike | dict | None = None,
+    retry_failed: bool = False,
+    quiet: bool | None = None,
+) -> dict:
+    """Convert every mesh in ``in_dir`` × corner set into ``out_dir`` (see module docs).
+
+    Parameters
+    ----------
+    in_dir : folder of meshes (``.obj .ply .off .stl .glb``), optionally with ``<stem>.json``
+        face masks and a ``labels.jsonl``
+    out_dir : output folder (created; existing finished items are kept and skipped)
+    options : :class:`DatasetOptions`
+    workers : local processes (default: the number of cores; 1 = in this process)
+    scheduler : a Dask scheduler address (``tcp://host:port``); overrides ``workers``
+    labels : labels per mesh stem (a dict, or a ``.jsonl``/``.json`` file); default
+        ``in_dir/labels.jsonl`` when present
+    retry_failed : try items that failed in an earlier run again
+
+    Returns
+    -------
+    dict with ``items`` (planned), ``done``, ``failed``, ``skipped``, ``seconds``,
+    ``items_per_minute`` (done items per minute of this run) and ``failures`` (item → error).
+    """
+    opts = (options or DatasetOptions()).validate()
+    files = find_meshes(in_dir)
+    if workers is None:
+        workers = max(1, os.cpu_count() or 1)
+    if int(workers) != workers or workers < 1:
+        raise GeofaceError(f"workers must be a positive integer; got {workers!r}")
+    if labels is None and (Path(in_dir) / "labels.jsonl").is_file():
+        labels = Path(in_dir) / "labels.jsonl"
+    lab = labels if isinstance(labels, dict) or labels is None else load_labels(labels)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise GeofaceError(f"output path exists and is not a folder: {out}")
+    out.mkdir(parents=True, exist_ok=True)
+    todo, skipped = _plan(files, out, opts, read_manifest(out), retry_failed)
+    total = len(todo) + len(skipped)
+    where = f"Dask scheduler {scheduler}" if scheduler else ("this process" if workers == 1 else f"{workers} processes")
+    log(f"dataset: {len(files)} meshes x {opts.augment} corner sets = {total} items; {len(skipped)} already done; "
+        f"{len(todo)} to build on {where}", quiet=quiet)
+    t0 = time.perf_counter()
+    done = failed = 0
+    failures: dict = {}
+    if todo:
+        handle, submit, as_completed, close = _executor(int(workers), scheduler)
+        try:
+            futures = {}
+            for item, p, k, folder in todo:
+                futures[submit(run_item, str(p), str(folder), k, opts)] = (item, p, k)
+            with open(out / MANIFEST, "a", encoding="utf-8") as manifest:
+                for n, fut in enumerate(as_completed(list(futures)), 1):
+                    item, p, k = futures[fut]
+                    row = {"item": item, "mesh": p.name, "corner_set": k}
+                    row.update(fut.result())
+                    row["options"] = asdict(opts)
+                    if lab is not None and p.stem in lab:
+                        row["labels"] = lab[p.stem]
+                        if "prompt" in lab[p.stem]:
+                            row["prompt"] = lab[p.stem]["prompt"]
+                    manifest.write(json.dumps(row) + "\n")
+                    manifest.flush()
+                    if row["status"] == "ok":
+                        done += 1
+                    else:
+                        failed += 1
+                        failures[item] = row["error"]
+                    log(f"dataset [{n}/{len(todo)}] {item}: {row['status']} ({row['seconds']:.1f} s)"
+                        + (f" - {row['error']}" if row["error"] else ""), quiet=quiet)
+        finally:
+            close()
+    seconds = time.perf_counter() - t0
+    summary = {
+        "items": total, "done": done, "failed": failed, "skipped": len(skipped), "seconds": seconds,
+        "items_per_minute": (60.0 * done / seconds) if done and seconds > 0 else 0.0, "failures": failures,
+    }
+    log(f"dataset: {done} built, {failed} failed, {len(skipped)} skipped in {seconds:.1f} s", quiet=quiet)
+    return summary
