@@ -336,6 +336,23 @@ def cmd_view(args) -> int:
 
 
 # --------------------------------------------------------------------------- main
+def cmd_dataset_build(args) -> int:
+    from .dataset import DatasetOptions, build_dataset
+
+    out, inp = Path(args.out_dir), Path(args.in_dir)
+    if inp.is_dir() and out.resolve() == inp.resolve():
+        raise GeofaceError("the output folder must differ from the input folder")
+    opts = DatasetOptions(res=args.res, augment=args.augment, roi=args.roi, lam=args.lam, method=args.method,
+                          ot_tol=args.ot_tol, reconstruct=args.reconstruct, up=args.up, open=args.open)
+    s = build_dataset(inp, out, opts, workers=args.workers, scheduler=args.scheduler, labels=args.labels,
+                      retry_failed=args.retry_failed)
+    print(f"{out}/: {s['done']} items built, {s['failed']} failed, {s['skipped']} skipped "
+          f"({s['seconds']:.1f} s, {s['items_per_minute']:.1f} items/min); manifest {out / 'manifest.jsonl'}")
+    for item, err in s["failures"].items():
+        print(f"  failed {item}: {err}")
+    return 1 if (args.strict and s["failed"]) else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="geoface", description="Geometry processing of head and face meshes.")
     p.add_argument("--version", action="version", version=f"geoface {__version__}")
@@ -407,6 +424,30 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--size", default="1024,768", metavar="W,H",
                    help="window / picture size in pixels (1024,768); for a geometry-image montage H is the tile size")
     s.set_defaults(func=cmd_view)
+
+    s = sub.add_parser("dataset", help="build geometry-image datasets from folders of meshes")
+    sd = s.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser)
+    sd.required = True
+    _add3 = sd.add_parser
+    sd.add_parser = lambda *a, **k: _add3(*a, parents=[common], **k)
+    b = sd.add_parser("build", help="every mesh x corner set -> a geometry-image folder (resumable, parallel)")
+    b.add_argument("in_dir", help="folder of meshes (optional <stem>.json face masks, labels.jsonl)")
+    b.add_argument("out_dir")
+    b.add_argument("--res", type=int, default=512, help="image resolution N (default 512)")
+    b.add_argument("--augment", type=int, default=8, help="corner sets per mesh, 1..8 (default 8)")
+    b.add_argument("--workers", type=int, default=None, help="local worker processes (default: the number of cores; 1 = serial)")
+    b.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a Dask scheduler (tcp://host:port) instead of the local pool")
+    b.add_argument("--labels", default=None, help="labels/prompts per mesh stem (.jsonl or .json; default IN_DIR/labels.jsonl)")
+    b.add_argument("--roi", choices=["auto", "face", "none"], default="auto", help="auto: <stem>.json face mask when present, else the face cone")
+    b.add_argument("--lam", type=float, default=2.5, help="mass factor on the ROI (2.5)")
+    b.add_argument("--method", choices=["ot", "conformal"], default="ot")
+    b.add_argument("--ot-tol", type=float, default=1e-3)
+    b.add_argument("--reconstruct", action="store_true", help="also write reconstruction.obj and its error")
+    b.add_argument("--retry-failed", action="store_true", help="try items that failed in an earlier run again")
+    b.add_argument("--strict", action="store_true", help="exit code 1 when any item failed")
+    b.add_argument("--up", default="y")
+    b.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto")
+    b.set_defaults(func=cmd_dataset_build)
 
     s = sub.add_parser("synth", help="write procedural test geometry")
     ss = s.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser)

@@ -234,7 +234,7 @@ def _executor(workers: int, scheduler: str | None):
 
         distributed = lazy_import("dask.distributed", "dataset building on a Dask cluster")
         try:
-            client = distributed.Client(scheduler, timeout="20s", set_as_default=False)
+            client = distributed.Client(scheduler, timeout="20s")
         except (OSError, TimeoutError, ValueError) as e:
             raise GeofaceError(f"cannot connect to the Dask scheduler {scheduler}: {e}") from None
         return client, (lambda fn, *a: client.submit(fn, *a, pure=False)), distributed.as_completed, client.close

@@ -293,8 +293,10 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
                 kw = {"texture": dm.texture, "tex_uv": UVx, "tex_fuv": FUVx}
             elif dm.colors is not None:
                 kw = {"colors": dm.colors}
+            # statistics to 6 significant digits: floating-point noise (~1e-12, from memory
+            # alignment in vectorised sums) must not change the file's bytes between runs
             meta = {"corners": st["corners"], "method": opts.method, "lam": opts.lam if opts.method == "ot" else None,
-                    "param": st["distortion"]}
+                    "param": {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in st["distortion"].items()}}
             fid, bary = rasterize_faces(F, uv, opts.res)
             gi = geometry_image(V, F, uv, opts.res, meta=meta, raster=(fid, bary), **kw)
             face_img = None
