@@ -50,7 +50,11 @@ def closest_points(P, V, F) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     igl = lazy_import("igl", "closest-point baking")
     V = np.ascontiguousarray(V, np.float64)
     F = np.ascontiguousarray(F, np.int64)
-    d2, face, C = igl.point_mesh_squared_distance(P, V, F)
+    # an explicit AABB tree: same answer as igl.point_mesh_squared_distance, measurably faster
+    # on 1e6-vertex sources (see bench/bench_bake.py)
+    tree = igl.AABB()
+    tree.init(V, F)
+    d2, face, C = tree.squared_distance(V, F, P)
     face = np.asarray(face, np.int64).ravel()
     return np.sqrt(np.maximum(d2, 0.0)).ravel(), face, _barycentric(np.asarray(C, np.float64), V[F[face]])
 
