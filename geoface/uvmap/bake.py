@@ -24,7 +24,7 @@ import numpy as np
 from .._lazy import lazy_import
 from ..errors import GeofaceError, InvalidGeometryImageError, InvalidMeshError
 from ..gimage.image import MODALITIES, GeometryImage
-from ..gimage.raster import interpolate, interpolate_corners, rasterize_faces, sample_texture
+from ..gimage.raster import interpolate, rasterize_faces, sample_texture
 from ..mesh.core import vertex_normals
 from ..mesh.io import Mesh
 
