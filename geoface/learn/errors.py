@@ -1,0 +1,14 @@
+"""Errors of the neural add-ons (rooted at :class:`geoface.GeofaceError`)."""
+from __future__ import annotations
+
+from geoface.errors import GeofaceError
+
+__all__ = ["CheckpointError", "TextEncoderError"]
+
+
+class CheckpointError(GeofaceError):
+    """A training run / checkpoint folder is missing, truncated or inconsistent."""
+
+
+class TextEncoderError(GeofaceError):
+    """A text encoder could not be built or loaded (bad name, missing local weights)."""
