@@ -98,7 +98,47 @@ def rgb_to_sh0(rgb):
     return (rgb - 0.5) / SH_C0
 
 
-class Gaussians(nn.Module):
+class _GaussianOps:
+    """Derived quantities shared by :class:`Gaussians` and :class:`GaussianTensors`."""
+
+    def __len__(self):
+        return self.means.shape[0]
+
+    @property
+    def is_sh(self) -> bool:
+        return self.colors.ndim == 3
+
+    @property
+    def sh_degree(self) -> int:
+        return sh_degree_from_k(self.colors.shape[1]) if self.is_sh else -1
+
+    def opacities(self) -> Tensor:  # [N]
+        return torch.sigmoid(self.opacity_logits)
+
+    def covariances(self) -> Tensor:  # [N, 3, 3]
+        return covariance(self.log_scales, self.quats)
+
+    def rgb(self, cam_center=None) -> Tensor:  # [N, 3]
+        """View-dependent colour seen from ``cam_center`` (3,) (ignored for plain RGB)."""
+        if not self.is_sh:
+            return self.colors
+        c = torch.as_tensor(np.zeros(3) if cam_center is None else cam_center,
+                            dtype=self.means.dtype, device=self.means.device)
+        d = self.means - c
+        d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        return torch.clamp_min(eval_sh(self.colors, d) + 0.5, 0.0)
+
+
+class GaussianTensors(_GaussianOps):
+    """Plain (non-Module) bundle of Gaussian tensors, e.g. outputs of a network or for gradcheck.
+    Same fields and methods as :class:`Gaussians`; tensors keep their autograd graph."""
+
+    def __init__(self, means, log_scales, quats, opacity_logits, colors, parent=None):
+        self.means, self.log_scales, self.quats = means, log_scales, quats
+        self.opacity_logits, self.colors, self.parent = opacity_logits, colors, parent
+
+
+class Gaussians(_GaussianOps, nn.Module):
     """A set of N 3D Gaussians with learnable parameters.
 
     Parameters
@@ -130,33 +170,6 @@ class Gaussians(nn.Module):
         self.opacity_logits = nn.Parameter(opacity_logits)
         self.colors = nn.Parameter(colors)
         self.register_buffer("parent", None if parent is None else torch.as_tensor(parent, dtype=torch.int64))
-
-    def __len__(self):
-        return self.means.shape[0]
-
-    @property
-    def is_sh(self) -> bool:
-        return self.colors.ndim == 3
-
-    @property
-    def sh_degree(self) -> int:
-        return sh_degree_from_k(self.colors.shape[1]) if self.is_sh else -1
-
-    def opacities(self) -> Tensor:  # [N]
-        return torch.sigmoid(self.opacity_logits)
-
-    def covariances(self) -> Tensor:  # [N, 3, 3]
-        return covariance(self.log_scales, self.quats)
-
-    def rgb(self, cam_center=None) -> Tensor:  # [N, 3]
-        """View-dependent colour seen from ``cam_center`` (3,) (ignored for plain RGB)."""
-        if not self.is_sh:
-            return self.colors
-        c = torch.as_tensor(np.zeros(3) if cam_center is None else cam_center,
-                            dtype=self.means.dtype)
-        d = self.means - c
-        d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        return torch.clamp_min(eval_sh(self.colors, d) + 0.5, 0.0)
 
     # ---------------------------------------------------------------- construction
     @classmethod

@@ -1,0 +1,37 @@
+"""Optional gsplat (CUDA) backend behind :func:`geoface.splat.rasterize.rasterize` (lazy import)."""
+from __future__ import annotations
+
+from geoface.errors import MissingDependencyError
+
+
+def gsplat_available() -> bool:
+    try:
+        import gsplat  # noqa: F401
+        import torch
+        return torch.cuda.is_available()
+    except ImportError:
+        return False
+
+
+def rasterize_gsplat(gaussians, camera, background=None, near=0.01):
+    """Same interface as :func:`rasterize`; rgb [H,W,3], alpha [H,W], depth [H,W] (expected)."""
+    try:
+        from gsplat import rasterization
+    except ImportError as e:
+        raise MissingDependencyError("backend 'gsplat' needs gsplat: pip install gsplat") from e
+    import torch
+    dev, dt = gaussians.means.device, gaussians.means.dtype
+    view = torch.eye(4, device=dev, dtype=dt)
+    view[:3, :3] = torch.as_tensor(camera.R, device=dev, dtype=dt)
+    view[:3, 3] = torch.as_tensor(camera.t, device=dev, dtype=dt)
+    K = torch.as_tensor(camera.K, device=dev, dtype=dt)
+    q = gaussians.quats / gaussians.quats.norm(dim=-1, keepdim=True)
+    colors, deg = gaussians.colors, None
+    if gaussians.is_sh:
+        deg = gaussians.sh_degree
+    bg = None if background is None else torch.as_tensor(background, device=dev, dtype=dt)[None]
+    img, alpha, _ = rasterization(gaussians.means, q, gaussians.log_scales.exp(), gaussians.opacities(),
+                                  colors, view[None], K[None], camera.width, camera.height,
+                                  near_plane=near, sh_degree=deg, render_mode="RGB+ED",
+                                  backgrounds=bg, eps2d=0.3)
+    return img[0, ..., :3], alpha[0, ..., 0], img[0, ..., 3]
