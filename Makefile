@@ -46,13 +46,22 @@ demo: $(STAMP)
 	@echo "== the head to geometry images (Ricci flow, OT with the face magnified 2.5x) and back"
 	$(VENV)/bin/geoface convert $(OUT)/head.obj $(OUT)/head_gim --res 256 --roi $(OUT)/head.json --lam 2.5
 	$(VENV)/bin/geoface reconstruct $(OUT)/head_gim -o $(OUT)/head_reconstructed.obj
-	@echo "outputs in $(OUT)/ (see $(OUT)/head_gim/preview.png)"
+	@echo "== look at it (off-screen pyvista): the head, its UV distortion, the geometry images"
+	$(VENV)/bin/geoface view $(OUT)/head.obj --screenshot $(OUT)/head.png
+	$(VENV)/bin/geoface view $(OUT)/head_reconstructed.obj --screenshot $(OUT)/head_reconstructed.png
+	$(VENV)/bin/geoface view $(OUT)/head_gim --screenshot $(OUT)/head_gim_montage.png
+	@echo "== a small labelled dataset: 6 synthetic heads x 2 corner sets, 2 worker processes"
+	$(PY) data_tools/make_synthetic_heads.py $(OUT)/heads --count 6 --vertices 3000 --seed 0
+	$(VENV)/bin/geoface dataset build $(OUT)/heads $(OUT)/dataset --res 128 --augment 2 --workers 2
+	@echo "outputs in $(OUT)/ (see $(OUT)/head_gim/preview.png, $(OUT)/*.png, $(OUT)/dataset/manifest.jsonl)"
 
 bench: $(STAMP)
 	GEOFACE_QUIET=1 $(PY) bench/bench_repair.py
 	GEOFACE_QUIET=1 $(PY) bench/bench_param.py
 	-@$(PY) -m pip install --disable-pip-version-check -q pysdot==0.2.16 >/dev/null 2>&1 || echo "pysdot not installable: OT comparison skipped"
 	GEOFACE_QUIET=1 $(PY) bench/bench_convert.py
+	GEOFACE_QUIET=1 $(PY) bench/bench_bake.py
+	GEOFACE_QUIET=1 $(PY) bench/bench_dataset.py
 
 clean:
 	rm -rf $(OUT) bench_out .pytest_cache
