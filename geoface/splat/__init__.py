@@ -1,1 +1,25 @@
-"""Gaussian splatting avatars (later issues). May import torch."""
+"""Gaussian splatting on CPU (and gsplat on CUDA): cameras, Gaussians, a differentiable rasterizer.
+
+Light on purpose: torch is imported only when a torch-backed name is first used.
+
+>>> from geoface.splat import look_at, Gaussians, rasterize   # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import importlib
+
+_NAMES = {
+    "Camera": "camera", "look_at": "camera", "orbit": "camera",
+    "Gaussians": "gaussians", "GaussianTensors": "gaussians", "eval_sh": "gaussians",
+    "covariance": "gaussians",
+    "save_ply": "ply", "load_ply": "ply",
+    "rasterize": "rasterizer", "rasterize_reference": "rasterizer",
+    "SplatError": "errors", "CameraError": "errors", "GaussianPlyError": "errors",
+}
+__all__ = sorted(_NAMES)
+
+
+def __getattr__(name):
+    if name in _NAMES:
+        return getattr(importlib.import_module(f"geoface.splat.{_NAMES[name]}"), name)
+    raise AttributeError(f"module 'geoface.splat' has no attribute {name!r}")

@@ -1,4 +1,4 @@
-"""Optional gsplat (CUDA) backend behind :func:`geoface.splat.rasterize.rasterize` (lazy import)."""
+"""Optional gsplat (CUDA) backend behind :func:`geoface.splat.rasterizer.rasterize` (lazy import)."""
 from __future__ import annotations
 
 from geoface.errors import MissingDependencyError

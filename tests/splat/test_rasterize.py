@@ -5,7 +5,7 @@ import torch
 from geoface.errors import GeofaceError
 from geoface.splat.camera import Camera, look_at
 from geoface.splat.gaussians import Gaussians, GaussianTensors
-from geoface.splat.rasterize import ALPHA_MIN, rasterize, rasterize_reference
+from geoface.splat.rasterizer import ALPHA_MIN, rasterize, rasterize_reference
 
 
 def _cam(W=24, H=20, f=30.0):
