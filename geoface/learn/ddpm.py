@@ -1,0 +1,366 @@
+"""Text-guided DDPM on channel-stacked geometry images (position + normal + texture, 9 channels).
+
+Model: diffusers ``UNet2DConditionModel`` with cross-attention in the down, middle and up blocks
+(``CrossAttnDownBlock2D`` / ``UNetMidBlock2DCrossAttn`` / ``CrossAttnUpBlock2D``) attending to the
+text encoder's token embeddings; ``DDPMScheduler(beta_schedule="squaredcos_cap_v2",
+prediction_type="epsilon", clip_sample=False)``.  Geometry is not a photo: samples are **not**
+clipped to [-1, 1] during denoising (clipping the x0 estimate would flatten heads whose
+normalised coordinates touch the box); they are clamped once, at the very end, to [0, 1] when
+turned into a geometry image.
+
+Loss (eq. 12): ``L = sum_m mean |eps_m - eps_theta_m|`` over the modality groups m =
+position (0-2), normal (3-5), texture (6-8).  **Unmasked**: the background is part of the image
+(zeros), so the model also learns the coverage; at sampling the mask is ``|normal| > 0.5``.
+
+Classifier-free guidance (beyond the paper, optional): with probability ``cfg_dropout`` a
+training prompt is replaced by ``""``; sampling mixes ``eps_u + w (eps_c - eps_u)``.
+
+Checkpoints (``RUN_DIR/checkpoint/``): ``config.json``, ``model.safetensors``,
+``ema.safetensors``, ``optimizer.safetensors`` + ``state.json`` (step, optimizer param groups,
+RNG seed, data bbox).  No pickle anywhere.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from .errors import CheckpointError
+
+__all__ = ["DDPMConfig", "build_unet", "build_scheduler", "ddpm_loss", "EMA", "DiffusionRun",
+           "train", "load_run", "sample", "MODALITY_SLICES"]
+
+MODALITY_SLICES = {"position": slice(0, 3), "normal": slice(3, 6), "texture": slice(6, 9)}
+
+
+@dataclass
+class DDPMConfig:
+    """All hyper-parameters of a run; saved as ``config.json``."""
+    res: int = 64
+    channels: int = 9
+    block_out_channels: tuple = (64, 128, 256)
+    layers_per_block: int = 2
+    attention_head_dim: int = 8
+    norm_num_groups: int = 32
+    text_encoder: str = "minilm"       # minilm | clip:PATH | hash[:DIM]
+    text_max_length: int = 32
+    cross_attention_dim: int = 384     # = text encoder dim (filled in at train time)
+    num_train_timesteps: int = 1000
+    cfg_dropout: float = 0.1
+    lr: float = 1e-4
+    weight_decay: float = 1e-2
+    ema_decay: float = 0.999
+    batch_size: int = 8
+    steps: int = 10000
+    checkpoint_every: int = 500
+    augment: bool = True
+    seed: int = 0
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "DDPMConfig":
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise CheckpointError(f"config.json has unknown keys {unknown}")
+        d = dict(d)
+        if "block_out_channels" in d:
+            d["block_out_channels"] = tuple(d["block_out_channels"])
+        return cls(**d)
+
+    def save(self, path: str | os.PathLike) -> None:
+        _atomic_write_text(Path(path), self.to_json())
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "DDPMConfig":
+        path = Path(path)
+        if not path.is_file():
+            raise CheckpointError(f"missing {path.name} in {path.parent}")
+        try:
+            return cls.from_dict(json.loads(path.read_text(encoding="utf-8")))
+        except (json.JSONDecodeError, TypeError) as e:
+            raise CheckpointError(f"{path} is not a valid config ({e})") from None
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def build_unet(cfg: DDPMConfig):
+    from diffusers import UNet2DConditionModel
+    n = len(cfg.block_out_channels)
+    return UNet2DConditionModel(
+        sample_size=cfg.res, in_channels=cfg.channels, out_channels=cfg.channels,
+        down_block_types=("CrossAttnDownBlock2D",) * (n - 1) + ("DownBlock2D",),
+        mid_block_type="UNetMidBlock2DCrossAttn",
+        up_block_types=("UpBlock2D",) + ("CrossAttnUpBlock2D",) * (n - 1),
+        block_out_channels=tuple(cfg.block_out_channels), layers_per_block=cfg.layers_per_block,
+        cross_attention_dim=cfg.cross_attention_dim, attention_head_dim=cfg.attention_head_dim,
+        norm_num_groups=cfg.norm_num_groups)
+
+
+def build_scheduler(cfg: DDPMConfig, kind: str = "ddpm"):
+    from diffusers import DDIMScheduler, DDPMScheduler
+    s = DDPMScheduler(num_train_timesteps=cfg.num_train_timesteps, beta_schedule="squaredcos_cap_v2",
+                      prediction_type="epsilon", clip_sample=False)
+    if kind == "ddpm":
+        return s
+    if kind == "ddim":
+        return DDIMScheduler.from_config(s.config)
+    raise CheckpointError(f"scheduler must be 'ddpm' or 'ddim'; got {kind!r}")
+
+
+def ddpm_loss(eps_pred: torch.Tensor,  # [B, 9, N, N]
+              eps: torch.Tensor,       # [B, 9, N, N]
+              ) -> tuple[torch.Tensor, dict]:
+    """Eq. (12): sum over modalities of the L1 error on epsilon."""
+    parts = {m: (eps_pred[:, s] - eps[:, s]).abs().mean() for m, s in MODALITY_SLICES.items()}
+    return sum(parts.values()), {m: float(v.detach()) for m, v in parts.items()}
+
+
+class EMA:
+    """Exponential moving average of a module's parameters (shadow copy, float32)."""
+
+    def __init__(self, model: torch.nn.Module, decay: float):
+        self.decay = float(decay)
+        self.shadow = {k: v.detach().clone().float() for k, v in model.state_dict().items()}
+
+    @torch.no_grad()
+    def update(self, model: torch.nn.Module, step: int) -> None:
+        d = min(self.decay, (1 + step) / (10 + step))  # warm-up as in diffusers' EMAModel
+        for k, v in model.state_dict().items():
+            if v.dtype.is_floating_point:
+                self.shadow[k].mul_(d).add_(v.detach().float(), alpha=1 - d)
+            else:
+                self.shadow[k].copy_(v)
+
+
+# ---------------------------------------------------------------- checkpoints
+def _optim_to_tensors(opt: torch.optim.Optimizer) -> tuple[dict, list]:
+    sd = opt.state_dict()
+    tensors = {}
+    for pid, st in sd["state"].items():
+        for k, v in st.items():
+            tensors[f"{pid}.{k}"] = (v if torch.is_tensor(v) else torch.tensor(v)).contiguous()
+    return tensors, sd["param_groups"]
+
+
+def _optim_from_tensors(tensors: dict, groups: list) -> dict:
+    state: dict = {}
+    for name, v in tensors.items():
+        pid, k = name.split(".", 1)
+        state.setdefault(int(pid), {})[k] = v
+    return {"state": state, "param_groups": groups}
+
+
+def save_checkpoint(ckpt: Path, cfg: DDPMConfig, model, ema: EMA, opt, step: int, extra: dict) -> None:
+    """Write a complete checkpoint folder atomically (temp folder + rename)."""
+    from safetensors.torch import save_file
+    ckpt = Path(ckpt)
+    tmp = ckpt.with_name(f".{ckpt.name}.tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    cfg.save(tmp / "config.json")
+    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp / "model.safetensors"))
+    save_file(ema.shadow, str(tmp / "ema.safetensors"))
+    ot, groups = _optim_to_tensors(opt)
+    save_file(ot, str(tmp / "optimizer.safetensors"))
+    (tmp / "state.json").write_text(json.dumps({"step": step, "param_groups": groups, **extra}), encoding="utf-8")
+    old = ckpt.with_name(f".{ckpt.name}.old")
+    shutil.rmtree(old, ignore_errors=True)
+    if ckpt.exists():
+        os.replace(ckpt, old)
+    os.replace(tmp, ckpt)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _load_st(path: Path) -> dict:
+    from safetensors.torch import load_file
+    if not path.is_file():
+        raise CheckpointError(f"missing {path.name} in {path.parent}")
+    try:
+        return load_file(str(path))
+    except Exception as e:
+        raise CheckpointError(f"{path} is corrupt or truncated ({type(e).__name__}: {e})") from None
+
+
+@dataclass
+class DiffusionRun:
+    """A loaded run: config, UNet (EMA weights when ``use_ema``), text encoder, data stats."""
+    config: DDPMConfig
+    unet: torch.nn.Module
+    text: object
+    state: dict = field(default_factory=dict)
+
+
+def _load_state_dict(model, sd: dict, path: Path) -> None:
+    try:
+        model.load_state_dict(sd, strict=True)
+    except RuntimeError as e:
+        raise CheckpointError(f"{path} does not match config.json: {str(e).splitlines()[0]}") from None
+
+
+def load_run(run_dir: str | os.PathLike, use_ema: bool = True, text_encoder=None) -> DiffusionRun:
+    """Load ``RUN_DIR/checkpoint`` (or a checkpoint folder itself) for sampling."""
+    run_dir = Path(run_dir)
+    ckpt = run_dir / "checkpoint" if (run_dir / "checkpoint").is_dir() else run_dir
+    if not ckpt.is_dir():
+        raise CheckpointError(f"no checkpoint folder in {run_dir}")
+    cfg = DDPMConfig.load(ckpt / "config.json")
+    unet = build_unet(cfg)
+    f = ckpt / ("ema.safetensors" if use_ema else "model.safetensors")
+    _load_state_dict(unet, _load_st(f), f)
+    unet.eval()
+    try:
+        state = json.loads((ckpt / "state.json").read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as e:
+        raise CheckpointError(f"{ckpt / 'state.json'} is missing or corrupt ({e})") from None
+    if text_encoder is None:
+        from .text import make_text_encoder
+        text_encoder = make_text_encoder(cfg.text_encoder, max_length=cfg.text_max_length)
+    return DiffusionRun(cfg, unet, text_encoder, state)
+
+
+# ---------------------------------------------------------------- training
+def _embed(text, prompts: list[str]) -> torch.Tensor:
+    return text.encode(prompts)  # [B, L, D]
+
+
+def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConfig, *,
+          resume: bool = False, device: str | None = None, quiet: bool | None = None,
+          text_encoder=None) -> dict:
+    """Train (or resume) a run; returns ``{"step", "loss", "losses"}`` of the last step.
+
+    ``resume=True`` continues from ``RUN_DIR/checkpoint`` (its config wins over ``cfg`` except
+    ``steps``, the new total).  Progress goes through :func:`geoface.progress.progress`.
+    """
+    from accelerate import Accelerator
+    from safetensors.torch import load_file  # noqa: F401  (fail early if missing)
+
+    from geoface.progress import progress
+
+    from .data import GImageDataset
+    from .text import make_text_encoder
+
+    run_dir = Path(run_dir)
+    ckpt = run_dir / "checkpoint"
+    start = 0
+    state: dict = {}
+    if resume and ckpt.is_dir():
+        total = cfg.steps
+        cfg = DDPMConfig.load(ckpt / "config.json")
+        cfg.steps = total
+    accel = Accelerator(cpu=(device in (None, "cpu")) and not torch.cuda.is_available() or device == "cpu")
+    text = text_encoder or make_text_encoder(cfg.text_encoder, cache_dir=run_dir / "text_cache",
+                                             max_length=cfg.text_max_length)
+    cfg.cross_attention_dim = int(text.dim)
+    ds = GImageDataset(data_dir, res=cfg.res, augment=cfg.augment, seed=cfg.seed)
+    torch.manual_seed(cfg.seed)
+    unet = build_unet(cfg)
+    opt = torch.optim.AdamW(unet.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    ema = EMA(unet, cfg.ema_decay)
+    if resume and ckpt.is_dir():
+        _load_state_dict(unet, _load_st(ckpt / "model.safetensors"), ckpt / "model.safetensors")
+        ema.shadow = _load_st(ckpt / "ema.safetensors")
+        try:
+            state = json.loads((ckpt / "state.json").read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as e:
+            raise CheckpointError(f"{ckpt / 'state.json'} is missing or corrupt ({e})") from None
+        opt.load_state_dict(_optim_from_tensors(_load_st(ckpt / "optimizer.safetensors"), state["param_groups"]))
+        start = int(state["step"])
+    sched = build_scheduler(cfg)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    extra = {"data_dir": str(data_dir), **ds.bbox_stats(), "prompts": sorted(set(ds.prompts))}
+    unet, opt = accel.prepare(unet, opt)
+    dev = accel.device
+    g = torch.Generator().manual_seed(cfg.seed * 7_777 + start)
+    empty = _embed(text, [""])
+    last = {"step": start, "loss": float("nan"), "losses": {}}
+    n = len(ds)
+    for step in progress(range(start, cfg.steps), "ddpm train", total=cfg.steps - start, quiet=quiet):
+        ds.epoch = (step * cfg.batch_size) // n
+        idx = torch.randint(0, n, (cfg.batch_size,), generator=g).tolist()
+        items = [ds[i] for i in idx]
+        x0 = torch.stack([it["image"] for it in items]).to(dev)
+        prompts = [it["prompt"] for it in items]
+        cond = _embed(text, prompts)
+        drop = torch.rand(len(prompts), generator=g) < cfg.cfg_dropout  # CFG: drop the prompt
+        cond = torch.where(drop[:, None, None], empty.expand_as(cond), cond).to(dev)
+        eps = torch.randn(x0.shape, generator=g).to(dev)
+        t = torch.randint(0, cfg.num_train_timesteps, (x0.shape[0],), generator=g).to(dev)
+        xt = sched.add_noise(x0, eps, t)  # q(x_t | x_0)
+        unet.train()
+        pred = unet(xt, t, encoder_hidden_states=cond).sample
+        loss, parts = ddpm_loss(pred, eps)
+        opt.zero_grad(set_to_none=True)
+        accel.backward(loss)
+        opt.step()
+        ema.update(accel.unwrap_model(unet), step)
+        last = {"step": step + 1, "loss": float(loss.detach()), "losses": parts}
+        if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == cfg.steps:
+            if accel.is_main_process:
+                save_checkpoint(ckpt, cfg, accel.unwrap_model(unet), ema, opt, step + 1, extra)
+    if start >= cfg.steps and not ckpt.is_dir():
+        save_checkpoint(ckpt, cfg, accel.unwrap_model(unet), ema, opt, start, extra)
+    return last
+
+
+# ---------------------------------------------------------------- sampling
+@torch.no_grad()
+def sample(run: DiffusionRun, prompt: str, n: int = 4, steps: int = 50, scheduler: str = "ddim",
+           guidance: float = 3.0, seed: int = 0, device: str = "cpu", quiet: bool | None = None) -> torch.Tensor:
+    """Draw ``n`` samples ``[n, 9, R, R]`` in [-1, 1]-space (unclipped) for ``prompt``.
+
+    Deterministic for a seed (a CPU ``torch.Generator`` drives all noise).  ``guidance`` is the
+    classifier-free guidance weight (1 = plain conditional; <= 0 = unconditional).
+    """
+    from geoface.progress import progress
+    cfg = run.config
+    sched = build_scheduler(cfg, scheduler)
+    sched.set_timesteps(int(steps))
+    unet = run.unet.to(device).eval()
+    g = torch.Generator().manual_seed(int(seed))
+    x = torch.randn((n, cfg.channels, cfg.res, cfg.res), generator=g).to(device)
+    cond = _embed(run.text, [prompt] * n).to(device)
+    unc = _embed(run.text, [""] * n).to(device)
+    for t in progress(sched.timesteps, "ddpm sample", quiet=quiet):
+        if guidance == 1.0:
+            eps = unet(x, t, encoder_hidden_states=cond).sample
+        elif guidance <= 0:
+            eps = unet(x, t, encoder_hidden_states=unc).sample
+        else:
+            e = unet(torch.cat([x, x]), t, encoder_hidden_states=torch.cat([unc, cond])).sample
+            eu, ec = e.chunk(2)
+            eps = eu + guidance * (ec - eu)
+        kw = {"generator": g} if scheduler == "ddpm" else {}
+        x = sched.step(eps.cpu(), t, x.cpu(), **kw).prev_sample.to(device)
+    return x.cpu()
+
+
+def to_geometry_images(x: torch.Tensor, state: dict) -> list:
+    """Samples ``[n, 9, R, R]`` → :class:`geoface.gimage.GeometryImage` (clamped to [0, 1] here)."""
+    import numpy as np
+
+    from geoface.gimage import GeometryImage
+    from geoface.gimage.image import FORMAT_VERSION, MODALITIES
+    out = []
+    for s in x:
+        img = ((s.float() + 1) / 2).clamp(0, 1).numpy().astype(np.float32)
+        nrm = s[3:6].float()
+        mask = (nrm.norm(dim=0) > 0.5).numpy()
+        img = img * mask[None]
+        meta = {"bbox_min": list(state["bbox_min"]), "bbox_max": list(state["bbox_max"]),
+                "channels": [c for m in ("position", "normal", "texture") for c in MODALITIES[m]],
+                "resolution": int(img.shape[-1]), "version": FORMAT_VERSION, "source": "geoface.learn.ddpm"}
+        out.append(GeometryImage(img, mask, meta))
+    return out

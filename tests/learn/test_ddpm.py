@@ -1,0 +1,89 @@
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("diffusers")
+pytest.importorskip("accelerate")
+
+from geoface import GeofaceError
+from geoface.learn.ddpm import (DDPMConfig, build_unet, ddpm_loss, load_run, sample,
+                                to_geometry_images, train)
+from geoface.learn.errors import CheckpointError
+
+
+def tiny(**kw):
+    d = dict(res=8, block_out_channels=(8, 16), layers_per_block=1, attention_head_dim=4,
+             norm_num_groups=4, text_encoder="hash:8", text_max_length=4, cross_attention_dim=8,
+             num_train_timesteps=50, lr=3e-3, ema_decay=0.9, batch_size=4, steps=4,
+             checkpoint_every=2, augment=True, seed=0)
+    d.update(kw)
+    return DDPMConfig(**d)
+
+
+def test_shapes_and_config_roundtrip(tmp_path):
+    torch.manual_seed(0)
+    cfg = tiny()
+    unet = build_unet(cfg)
+    x = torch.randn(2, 9, 8, 8)
+    out = unet(x, torch.tensor([3, 7]), encoder_hidden_states=torch.randn(2, 4, 8)).sample
+    assert out.shape == x.shape
+    cfg.save(tmp_path / "config.json")
+    assert DDPMConfig.load(tmp_path / "config.json") == cfg
+
+
+def test_few_steps_lower_loss_on_fixed_batch():
+    torch.manual_seed(0)
+    cfg = tiny()
+    unet = build_unet(cfg)
+    opt = torch.optim.AdamW(unet.parameters(), lr=3e-3)
+    g = torch.Generator().manual_seed(1)
+    x, eps = torch.randn(4, 9, 8, 8, generator=g), torch.randn(4, 9, 8, 8, generator=g)
+    t, cond = torch.tensor([5, 10, 20, 40]), torch.randn(4, 4, 8, generator=g)
+    losses = []
+    for _ in range(15):
+        loss, parts = ddpm_loss(unet(x + eps, t, encoder_hidden_states=cond).sample, eps)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+    assert set(parts) == {"position", "normal", "texture"}
+    assert losses[-1] < 0.8 * losses[0]
+
+
+def test_train_save_load_sample_deterministic(gimage_dataset, tmp_path):
+    run = tmp_path / "run"
+    last = train(gimage_dataset, run, tiny(), quiet=True)
+    assert last["step"] == 4
+    for f in ("config.json", "model.safetensors", "ema.safetensors", "optimizer.safetensors", "state.json"):
+        assert (run / "checkpoint" / f).is_file()
+    r1, r2 = load_run(run), load_run(run)
+    x = torch.randn(1, 9, 8, 8)
+    c = r1.text.encode(["a smiling female"])
+    torch.testing.assert_close(r1.unet(x, 3, encoder_hidden_states=c).sample,
+                               r2.unet(x, 3, encoder_hidden_states=c).sample, rtol=0, atol=0)
+    for sch in ("ddpm", "ddim"):
+        a = sample(r1, "a smiling female", n=2, steps=3, scheduler=sch, guidance=2.0, seed=7, quiet=True)
+        b = sample(r2, "a smiling female", n=2, steps=3, scheduler=sch, guidance=2.0, seed=7, quiet=True)
+        assert a.shape == (2, 9, 8, 8)
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    c8 = sample(r1, "a smiling female", n=2, steps=3, seed=8, quiet=True)
+    assert not torch.equal(a, c8)
+    gis = to_geometry_images(a, r1.state)
+    assert gis[0].image.shape == (9, 8, 8) and 0 <= gis[0].image.min() and gis[0].image.max() <= 1
+    # resume continues to the new total
+    last = train(gimage_dataset, run, tiny(steps=6), resume=True, quiet=True)
+    assert last["step"] == 6 and load_run(run).state["step"] == 6
+
+
+def test_corrupt_checkpoint_errors(gimage_dataset, tmp_path):
+    run = tmp_path / "run"
+    train(gimage_dataset, run, tiny(steps=2), quiet=True)
+    ck = run / "checkpoint"
+    data = (ck / "ema.safetensors").read_bytes()
+    (ck / "ema.safetensors").write_bytes(data[: len(data) // 2])
+    with pytest.raises(CheckpointError, match="corrupt or truncated"):
+        load_run(run)
+    (ck / "config.json").unlink()
+    with pytest.raises(GeofaceError, match="missing config.json"):
+        load_run(run)
+    with pytest.raises(GeofaceError, match="no checkpoint"):
+        load_run(tmp_path / "nothing")
