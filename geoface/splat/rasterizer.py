@@ -144,7 +144,7 @@ def _bin(uv, radius, z, W, H, tile):
     return gid[order], torch.cumsum(counts, 0) - counts, counts, tx, ty
 
 
-def rasterize(gaussians, camera: Camera, background=None, tile: int = 16, chunk: int = 64,
+def rasterize(gaussians, camera: Camera, background=None, tile: int = 16, chunk: int = 256,
               near: float = 0.01, backend: str = "auto"):
     """Render ``gaussians`` seen by ``camera`` → (rgb [H,W,3], alpha [H,W], depth [H,W]).
 
