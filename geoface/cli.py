@@ -449,6 +449,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto")
     b.set_defaults(func=cmd_dataset_build)
 
+    from .learn.cli import register as register_ddpm  # argparse only: torch loads inside the commands
+
+    register_ddpm(sub, common)
+
     s = sub.add_parser("synth", help="write procedural test geometry")
     ss = s.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser)
     ss.required = True
