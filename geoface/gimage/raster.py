@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import InvalidGeometryImageError
 
-__all__ = ["rasterize_faces", "interpolate", "interpolate_corners", "sample_texture", "MAX_RES"]
+__all__ = ["rasterize_faces", "bbox_pixels", "interpolate", "interpolate_corners", "sample_texture", "MAX_RES"]
 
 MAX_RES = 8192
 
@@ -51,13 +51,31 @@ def rasterize_faces(F: np.ndarray, uv: np.ndarray, N: int, *, chunk: int = 4_000
     count = np.where((det != 0) & (x.max(1) >= -0.5) & (x.min(1) <= N - 0.5) & (y.max(1) >= -0.5) & (y.min(1) <= N - 0.5), nj * ni, 0)
     face = np.full(N * N, -1, np.int64)
     bary = np.zeros((N * N, 3))
+    for tt, ii, jj, b0, b1, b2 in bbox_pixels(x, y, det, j0, i0, nj, count, chunk):
+        eps = -1e-10
+        inside = (b0 >= eps) & (b1 >= eps) & (b2 >= eps)
+        pix = ii[inside] * N + jj[inside]
+        face[pix] = tt[inside]
+        bb = np.clip(np.column_stack([b0[inside], b1[inside], b2[inside]]), 0.0, 1.0)
+        bary[pix] = bb / bb.sum(1, keepdims=True)
+    return face.reshape(N, N), bary.reshape(N, N, 3)
+
+
+def bbox_pixels(x, y, det, j0, i0, nj, count, chunk: int):
+    """Enumerate the pixel centres in triangles' bounding boxes, in chunks of about ``chunk``.
+
+    ``x, y (m, 3)``: vertex pixel coordinates (centres at integers); ``det (m,)``: twice the
+    signed area; ``j0, i0 (m,)``: first column/row of each box; ``nj (m,)``: box width;
+    ``count (m,)``: pixels in the box (0 skips the triangle).  Yields
+    ``(tt, ii, jj, b0, b1, b2)``: triangle, row, column and barycentric coordinates of every
+    enumerated pixel (inside or not: the caller tests the signs).
+    """
     tri = np.flatnonzero(count)
     csum = np.cumsum(count[tri])
     start = 0
     while start < len(tri):
         base = csum[start - 1] if start else 0
-        stop = int(np.searchsorted(csum, base + chunk, side="right"))
-        stop = max(stop, start + 1)
+        stop = max(int(np.searchsorted(csum, base + chunk, side="right")), start + 1)
         t = tri[start:stop]
         c = count[t]
         rep = np.repeat(np.arange(len(t)), c)
@@ -71,15 +89,8 @@ def rasterize_faces(F: np.ndarray, uv: np.ndarray, N: int, *, chunk: int = 4_000
         d = det[tt]
         b1 = ((px - xa[:, 0]) * (ya[:, 2] - ya[:, 0]) - (xa[:, 2] - xa[:, 0]) * (py - ya[:, 0])) / d
         b2 = ((xa[:, 1] - xa[:, 0]) * (py - ya[:, 0]) - (px - xa[:, 0]) * (ya[:, 1] - ya[:, 0])) / d
-        b0 = 1.0 - b1 - b2
-        eps = -1e-10
-        inside = (b0 >= eps) & (b1 >= eps) & (b2 >= eps)
-        pix = ii[inside] * N + jj[inside]
-        face[pix] = tt[inside]
-        bb = np.clip(np.column_stack([b0[inside], b1[inside], b2[inside]]), 0.0, 1.0)
-        bary[pix] = bb / bb.sum(1, keepdims=True)
+        yield tt, ii, jj, 1.0 - b1 - b2, b1, b2
         start = stop
-    return face.reshape(N, N), bary.reshape(N, N, 3)
 
 
 def interpolate(face: np.ndarray, bary: np.ndarray, F: np.ndarray, attr: np.ndarray, fill: float = 0.0) -> np.ndarray:

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from geoface.splat.errors import GaussianPlyError, SplatError
+from geoface.splat.errors import SplatError
 
 # standard 3DGS real spherical-harmonics constants (degrees 0..3)
 SH_C0 = 0.28209479177387814

@@ -20,7 +20,6 @@ from __future__ import annotations
 import math
 
 import torch
-from torch import Tensor
 
 from geoface.splat.camera import Camera
 from geoface.splat.errors import SplatError

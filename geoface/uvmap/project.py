@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import GeofaceError
+from ..gimage.raster import bbox_pixels
 from ..mesh.core import bbox_diagonal
 from ..mesh.io import Mesh
 from .bake import texel_geometry
@@ -85,28 +86,11 @@ def depth_buffer(V, F, camera: Camera, shape: tuple[int, int], *, chunk: int = 2
     count = np.where(on, np.maximum(j1 - j0 + 1, 0) * np.maximum(i1 - i0 + 1, 0), 0)
     nj = np.maximum(j1 - j0 + 1, 1)
     zbuf = np.full(H * W, np.inf)
-    tri = np.flatnonzero(count)
-    csum = np.cumsum(count[tri])
-    start = 0
-    while start < len(tri):
-        base = csum[start - 1] if start else 0
-        stop = max(int(np.searchsorted(csum, base + chunk, side="right")), start + 1)
-        t = tri[start:stop]
-        c = count[t]
-        rep = np.repeat(np.arange(len(t)), c)
-        local = np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c)
-        tt = t[rep]
-        jj = j0[tt] + local % nj[tt]
-        ii = i0[tt] + local // nj[tt]
-        xa, ya, d = x[tt], y[tt], det[tt]
-        b1 = ((jj - xa[:, 0]) * (ya[:, 2] - ya[:, 0]) - (xa[:, 2] - xa[:, 0]) * (ii - ya[:, 0])) / d
-        b2 = ((xa[:, 1] - xa[:, 0]) * (ii - ya[:, 0]) - (jj - xa[:, 0]) * (ya[:, 1] - ya[:, 0])) / d
-        b0 = 1.0 - b1 - b2
+    for tt, ii, jj, b0, b1, b2 in bbox_pixels(x, y, det, j0, i0, nj, count, chunk):
         inside = (b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9)
         za = zf[tt[inside]]
         inv = b0[inside] / za[:, 0] + b1[inside] / za[:, 1] + b2[inside] / za[:, 2]
         np.minimum.at(zbuf, ii[inside] * W + jj[inside], 1.0 / inv)
-        start = stop
     return zbuf.reshape(H, W)
 
 
