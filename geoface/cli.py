@@ -353,6 +353,15 @@ def cmd_dataset_build(args) -> int:
     return 1 if (args.strict and s["failed"]) else 0
 
 
+def _verbs(parser, common):
+    """Second-level subcommands (``geoface synth head``); each accepts the common flags (-q)."""
+    sp = parser.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser)
+    sp.required = True
+    add = sp.add_parser
+    sp.add_parser = lambda *a, **k: add(*a, parents=[common], **k)
+    return sp
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="geoface", description="Geometry processing of head and face meshes.")
     p.add_argument("--version", action="version", version=f"geoface {__version__}")
@@ -426,11 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("dataset", help="build geometry-image datasets from folders of meshes")
-    sd = s.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser)
-    sd.required = True
-    _add3 = sd.add_parser
-    sd.add_parser = lambda *a, **k: _add3(*a, parents=[common], **k)
-    b = sd.add_parser("build", help="every mesh x corner set -> a geometry-image folder (resumable, parallel)")
+    b = _verbs(s, common).add_parser("build", help="every mesh x corner set -> a geometry-image folder (resumable, parallel)")
     b.add_argument("in_dir", help="folder of meshes (optional <stem>.json face masks, labels.jsonl)")
     b.add_argument("out_dir")
     b.add_argument("--res", type=int, default=512, help="image resolution N (default 512)")
@@ -454,10 +459,7 @@ def build_parser() -> argparse.ArgumentParser:
     register_ddpm(sub, common)
 
     s = sub.add_parser("synth", help="write procedural test geometry")
-    ss = s.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser)
-    ss.required = True
-    _add2 = ss.add_parser
-    ss.add_parser = lambda *a, **k: _add2(*a, parents=[common], **k)
+    ss = _verbs(s, common)
     h = ss.add_parser("head", help="the procedural expressive head")
     h.add_argument("-o", "--output", required=True)
     h.add_argument("--vertices", type=int, default=20000)
