@@ -161,9 +161,8 @@ def _summary_metrics(m: dict) -> dict:
         "disk_vertices": m["disk_vertices"], "roi_vertices": m["roi_vertices"], "coverage": st["coverage"],
         "distortion": st["distortion"], "ricci_iterations": st["ricci"]["iterations"], "aspect": st["ricci"]["aspect"],
     }
-    for key in ("roi_pixel_share",):
-        if key in st:
-            out[key] = st[key]
+    if "roi_pixel_share" in st:
+        out["roi_pixel_share"] = st["roi_pixel_share"]
     if "ot" in st:
         out["ot_iterations"] = st["ot"]["iterations"]
         out["ot_residual"] = st["ot"]["residual"]
@@ -228,7 +227,7 @@ class _Deferred:
 
 
 def _executor(workers: int, scheduler: str | None):
-    """Yields ``submit(fn, *args) -> future`` and ``as_completed(futures)`` for the chosen backend."""
+    """``(submit(fn, *args) -> future, as_completed(futures), close())`` for the chosen backend."""
     if scheduler:
         from ._lazy import lazy_import
 
@@ -237,14 +236,14 @@ def _executor(workers: int, scheduler: str | None):
             client = distributed.Client(scheduler, timeout="20s")
         except (OSError, TimeoutError, ValueError) as e:
             raise GeofaceError(f"cannot connect to the Dask scheduler {scheduler}: {e}") from None
-        return client, (lambda fn, *a: client.submit(fn, *a, pure=False)), distributed.as_completed, client.close
+        return (lambda fn, *a: client.submit(fn, *a, pure=False)), distributed.as_completed, client.close
     if workers == 1:  # in this process, one item at a time as the driver asks for results
-        return None, _Deferred, iter, lambda: None
+        return _Deferred, iter, lambda: None
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
-    return pool, pool.submit, as_completed, lambda: pool.shutdown(wait=True, cancel_futures=True)
+    return pool.submit, as_completed, lambda: pool.shutdown(wait=True, cancel_futures=True)
 
 
 def build_dataset(
@@ -299,7 +298,7 @@ def build_dataset(
     done = failed = 0
     failures: dict = {}
     if todo:
-        handle, submit, as_completed, close = _executor(int(workers), scheduler)
+        submit, as_completed, close = _executor(int(workers), scheduler)
         try:
             futures = {}
             for item, p, k, folder in todo:
