@@ -138,6 +138,8 @@ class EMA:
     def update(self, model: torch.nn.Module, step: int) -> None:
         d = min(self.decay, (1 + step) / (10 + step))  # warm-up as in diffusers' EMAModel
         for k, v in model.state_dict().items():
+            if self.shadow[k].device != v.device:  # the model moved (accelerate, resume on a GPU)
+                self.shadow[k] = self.shadow[k].to(v.device)
             if v.dtype.is_floating_point:
                 self.shadow[k].mul_(d).add_(v.detach().float(), alpha=1 - d)
             else:
@@ -170,10 +172,11 @@ def save_checkpoint(ckpt: Path, cfg: DDPMConfig, model, ema: EMA, opt, step: int
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     cfg.save(tmp / "config.json")
-    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp / "model.safetensors"))
-    save_file(ema.shadow, str(tmp / "ema.safetensors"))
+    cpu = lambda d: {k: v.detach().cpu().contiguous() for k, v in d.items()}  # noqa: E731
+    save_file(cpu(model.state_dict()), str(tmp / "model.safetensors"))
+    save_file(cpu(ema.shadow), str(tmp / "ema.safetensors"))
     ot, groups = _optim_to_tensors(opt)
-    save_file(ot, str(tmp / "optimizer.safetensors"))
+    save_file(cpu(ot), str(tmp / "optimizer.safetensors"))
     (tmp / "state.json").write_text(json.dumps({"step": step, "param_groups": groups, **extra}), encoding="utf-8")
     old = ckpt.with_name(f".{ckpt.name}.old")
     shutil.rmtree(old, ignore_errors=True)
