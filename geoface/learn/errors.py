@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from geoface.errors import GeofaceError
 
-__all__ = ["CheckpointError", "TextEncoderError"]
+__all__ = ["CheckpointError", "LearnError", "TextEncoderError"]
 
 
 class CheckpointError(GeofaceError):
@@ -12,3 +12,7 @@ class CheckpointError(GeofaceError):
 
 class TextEncoderError(GeofaceError):
     """A text encoder could not be built or loaded (bad name, missing local weights)."""
+
+
+class LearnError(GeofaceError):
+    """An invalid argument or input to a neural component (shapes, sizes, options)."""
