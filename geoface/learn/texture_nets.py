@@ -1,0 +1,173 @@
+"""Networks of the ultra-high-resolution facial texture model (4K-texture paper).
+
+Three UNet-like networks, all working in image space ([B, C, H, W], values in [0, 1]):
+
+* :class:`NormalUVPredictor` — RGB → UV (2, in [0, 1]) + normal (3, unit length).
+* :class:`GDE` (Global Distribution Extractor, run at 1024² in the paper) — image ⊕ UV ⊕
+  normal ⊕ hash features of the UV → albedo 3 + micronormal 3 + specular 1.
+* :class:`HFDR` (High-Frequency Detail Refiner, on full-resolution patches) — patch ⊕
+  upsampled UV and normal crops → the same 7 maps, with the upsampled GDE guidance
+  concatenated to its last hidden features before the output head.
+
+Outputs are packed as :data:`MAPS` (albedo 0:3 in [0, 1], micronormal 3:6 as a unit vector
+encoded to [0, 1] by n/2 + ½, specular 6:7 in [0, 1]).  Losses (paper): GDE = L1 + 1·Laplacian,
+HFDR = L1 + 2·Laplacian (:func:`map_loss`).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import torch
+import torch.nn.functional as Fnn
+from torch import Tensor, nn
+
+from .errors import LearnError
+from .hashenc import HashEncoding
+from .losses import laplacian_loss
+
+MAPS = {"albedo": slice(0, 3), "micronormal": slice(3, 6), "specular": slice(6, 7)}
+N_MAPS = 7
+
+
+def _groups(c: int) -> int:
+    for g in (8, 4, 2, 1):
+        if c % g == 0:
+            return g
+    return 1
+
+
+class ConvBlock(nn.Module):
+    """(conv3×3 → GroupNorm → SiLU) × 2."""
+
+    def __init__(self, cin: int, cout: int):
+        super().__init__()
+        self.net = nn.Sequential(
+            nn.Conv2d(cin, cout, 3, padding=1), nn.GroupNorm(_groups(cout), cout), nn.SiLU(),
+            nn.Conv2d(cout, cout, 3, padding=1), nn.GroupNorm(_groups(cout), cout), nn.SiLU())
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.net(x)
+
+
+class UNet(nn.Module):
+    """Plain UNet: ``widths`` channels per level, stride-2 conv down, bilinear up + skip.
+
+    ``late_channels`` extra channels (e.g. guidance) are concatenated to the last hidden
+    features, just before the 1×1 output head.  Input sides must be divisible by
+    2^(len(widths) − 1).
+    """
+
+    def __init__(self, cin: int, cout: int, widths=(32, 64, 128), late_channels: int = 0):
+        super().__init__()
+        w = list(widths)
+        if not w or min(w) < 1:
+            raise LearnError(f"widths must be a non-empty list of positive ints; got {widths}")
+        self.depth = len(w) - 1
+        self.inc = ConvBlock(cin, w[0])
+        self.down = nn.ModuleList(nn.Conv2d(w[i], w[i], 3, stride=2, padding=1) for i in range(self.depth))
+        self.enc = nn.ModuleList(ConvBlock(w[i], w[i + 1]) for i in range(self.depth))
+        self.dec = nn.ModuleList(ConvBlock(w[i + 1] + w[i], w[i]) for i in reversed(range(self.depth)))
+        self.late = late_channels
+        self.head = nn.Sequential(nn.Conv2d(w[0] + late_channels, w[0], 3, padding=1), nn.SiLU(),
+                                  nn.Conv2d(w[0], cout, 1))
+
+    def forward(self, x: Tensor, late: Tensor | None = None) -> Tensor:
+        m = 2 ** self.depth
+        if x.shape[-1] % m or x.shape[-2] % m:
+            raise LearnError(f"input size {tuple(x.shape[-2:])} must be divisible by {m}")
+        skips = [self.inc(x)]
+        h = skips[0]
+        for down, enc in zip(self.down, self.enc):
+            h = enc(down(h))
+            skips.append(h)
+        for dec, skip in zip(self.dec, reversed(skips[:-1])):
+            h = Fnn.interpolate(h, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            h = dec(torch.cat([h, skip], 1))
+        if self.late:
+            if late is None or late.shape[1] != self.late:
+                raise LearnError(f"this network needs {self.late} guidance channels")
+            h = torch.cat([h, late], 1)
+        return self.head(h)
+
+
+def pack_maps(raw: Tensor) -> Tensor:  # [B, 7, H, W] logits -> [B, 7, H, W] maps in [0, 1]
+    albedo = torch.sigmoid(raw[:, 0:3])
+    n = Fnn.normalize(raw[:, 3:6] + torch.tensor([0.0, 0.0, 1.0], device=raw.device,
+                                                  dtype=raw.dtype)[None, :, None, None], dim=1)
+    spec = torch.sigmoid(raw[:, 6:7])
+    return torch.cat([albedo, n * 0.5 + 0.5, spec], 1)
+
+
+def map_loss(pred: Tensor, target: Tensor, lap_weight: float = 1.0) -> tuple[Tensor, dict]:
+    """L1 + ``lap_weight``·Laplacian over the 7 maps; parts per map for logging."""
+    l1 = (pred - target).abs().mean()
+    lap = laplacian_loss(pred, target)
+    parts = {k: float((pred[:, s] - target[:, s]).abs().mean().detach()) for k, s in MAPS.items()}
+    parts.update(l1=float(l1.detach()), laplacian=float(lap.detach()))
+    return l1 + lap_weight * lap, parts
+
+
+@dataclass
+class TextureNetConfig:
+    """Sizes of the three networks and the UV hash encoding (defaults: CPU-trainable)."""
+    predictor_widths: list = field(default_factory=lambda: [16, 32, 64])
+    gde_widths: list = field(default_factory=lambda: [32, 64, 128])
+    hfdr_widths: list = field(default_factory=lambda: [16, 32, 64])
+    hash_levels: int = 4
+    hash_features: int = 2
+    hash_log2_table: int = 16
+    hash_base_res: int = 16
+    hash_max_res: int = 1024
+    use_hash: bool = True
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TextureNetConfig":
+        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
+        return cls(**known)
+
+
+class NormalUVPredictor(nn.Module):
+    """RGB [B,3,H,W] → (uv [B,2,H,W] in [0,1], normal [B,3,H,W] unit)."""
+
+    def __init__(self, widths=(16, 32, 64)):
+        super().__init__()
+        self.net = UNet(3, 5, widths)
+
+    def forward(self, rgb: Tensor) -> tuple[Tensor, Tensor]:
+        out = self.net(rgb)
+        return torch.sigmoid(out[:, :2]), Fnn.normalize(out[:, 2:5], dim=1, eps=1e-6)
+
+
+class GDE(nn.Module):
+    """Image ⊕ UV ⊕ normal ⊕ hash(UV) → 7 maps (coarse global distribution)."""
+
+    def __init__(self, cfg: TextureNetConfig):
+        super().__init__()
+        self.hash = (HashEncoding(2, cfg.hash_levels, cfg.hash_features, cfg.hash_log2_table,
+                                  cfg.hash_base_res, cfg.hash_max_res, seed=0) if cfg.use_hash else None)
+        extra = self.hash.out_dim if self.hash is not None else 0
+        self.net = UNet(3 + 2 + 3 + extra, N_MAPS, cfg.gde_widths)
+
+    def forward(self, rgb: Tensor, uv: Tensor, normal: Tensor) -> Tensor:
+        x = [rgb, uv, normal]
+        if self.hash is not None:
+            x.append(self.hash(uv.permute(0, 2, 3, 1)).permute(0, 3, 1, 2))
+        return pack_maps(self.net(torch.cat(x, 1)))
+
+
+class HFDR(nn.Module):
+    """Full-resolution patch ⊕ UV, normal crops → 7 maps; GDE guidance joins the last features."""
+
+    def __init__(self, cfg: TextureNetConfig):
+        super().__init__()
+        self.net = UNet(3 + 2 + 3, N_MAPS, cfg.hfdr_widths, late_channels=N_MAPS)
+
+    def forward(self, patch: Tensor, uv: Tensor, normal: Tensor, guidance: Tensor) -> Tensor:
+        raw = self.net(torch.cat([patch, uv, normal], 1), late=guidance)
+        # residual on the guidance: refine, not re-predict, the coarse maps
+        out = (guidance + torch.tanh(raw) * 0.5).clamp(0, 1)
+        n = Fnn.normalize(out[:, 3:6] * 2 - 1, dim=1, eps=1e-6)  # keep micronormals unit length
+        return torch.cat([out[:, 0:3], n * 0.5 + 0.5, out[:, 6:7]], 1)

@@ -1,0 +1,92 @@
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from geoface.learn.errors import LearnError  # noqa: E402
+from geoface.learn.texture_nets import (GDE, HFDR, NormalUVPredictor, TextureNetConfig,  # noqa: E402
+                                        UNet, map_loss, pack_maps)
+
+CFG = TextureNetConfig(predictor_widths=[8, 16], gde_widths=[8, 16], hfdr_widths=[8, 16],
+                       hash_log2_table=10, hash_max_res=64)
+
+
+def _batch(seed=0, B=2, S=32):
+    g = torch.Generator().manual_seed(seed)
+    rgb = torch.rand(B, 3, S, S, generator=g)
+    uv = torch.rand(B, 2, S, S, generator=g)
+    n = torch.nn.functional.normalize(torch.randn(B, 3, S, S, generator=g), dim=1)
+    # targets with structure the nets can pick up from the inputs
+    target = torch.cat([rgb.flip(1), n * 0.5 + 0.5, uv[:, :1]], 1)
+    return rgb, uv, n, target
+
+
+def test_shapes_ranges_and_unit_normals():
+    rgb, uv, n, _ = _batch()
+    with torch.no_grad():
+        puv, pn = NormalUVPredictor(CFG.predictor_widths)(rgb)
+        maps = GDE(CFG)(rgb, uv, n)
+        out = HFDR(CFG)(rgb, uv, n, maps)
+    assert puv.shape == (2, 2, 32, 32) and pn.shape == (2, 3, 32, 32)
+    assert float(puv.min()) >= 0 and float(puv.max()) <= 1
+    torch.testing.assert_close(pn.norm(dim=1), torch.ones(2, 32, 32))
+    assert maps.shape == (2, 7, 32, 32) and float(maps.min()) >= 0 and float(maps.max()) <= 1
+    torch.testing.assert_close((maps[:, 3:6] * 2 - 1).norm(dim=1), torch.ones(2, 32, 32))
+    assert out.shape == (2, 7, 32, 32)
+    torch.testing.assert_close((out[:, 3:6] * 2 - 1).norm(dim=1), torch.ones(2, 32, 32))
+
+
+def test_errors():
+    with pytest.raises(LearnError, match="divisible"):
+        UNet(3, 3, [4, 8, 16])(torch.zeros(1, 3, 30, 30))
+    with pytest.raises(LearnError, match="guidance"):
+        UNet(3, 3, [4, 8], late_channels=7)(torch.zeros(1, 3, 16, 16))
+
+
+def test_pack_maps_zero_logits_is_flat_normal():
+    m = pack_maps(torch.zeros(1, 7, 4, 4))
+    torch.testing.assert_close(m[:, 3:6], torch.tensor([0.5, 0.5, 1.0])[None, :, None, None].expand(1, 3, 4, 4))
+
+
+def test_hash_encoding_can_be_switched_off():
+    off = GDE(TextureNetConfig(**{**CFG.to_dict(), "use_hash": False}))
+    assert off.hash is None and off.net.inc.net[0].in_channels == 8
+    assert GDE(CFG).net.inc.net[0].in_channels == 16
+    assert TextureNetConfig.from_dict({**CFG.to_dict(), "unknown": 1}) == CFG
+
+
+@pytest.mark.parametrize("which", ["predictor", "gde", "hfdr"])
+def test_a_few_steps_lower_each_loss(which):
+    torch.manual_seed(0)
+    rgb, uv, n, target = _batch()
+    if which == "predictor":
+        net = NormalUVPredictor(CFG.predictor_widths)
+
+        def loss_fn():
+            puv, pn = net(rgb)
+            return (puv - uv).abs().mean() + (pn - n).abs().mean()
+    elif which == "gde":
+        net = GDE(CFG)
+
+        def loss_fn():
+            return map_loss(net(rgb, uv, n), target, 1.0)[0]
+    else:
+        net = HFDR(CFG)
+        guide = torch.nn.functional.avg_pool2d(target, 4)
+        guide = torch.nn.functional.interpolate(guide, scale_factor=4, mode="bilinear")
+
+        def loss_fn():
+            return map_loss(net(rgb, uv, n, guide), target, 2.0)[0]
+    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
+    first = float(loss_fn())
+    for _ in range(25):
+        loss = loss_fn()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(loss_fn()) < 0.8 * first
+
+
+def test_map_loss_parts():
+    _, _, _, t = _batch()
+    loss, parts = map_loss(t, t)
+    assert float(loss) == 0 and parts["albedo"] == 0 and set(parts) >= {"micronormal", "specular", "laplacian"}
