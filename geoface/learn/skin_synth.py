@@ -1,0 +1,156 @@
+"""Procedural skin PBR maps and their shading (synthetic data for the 4K-texture model).
+
+:func:`skin_maps` draws UV-space maps at any resolution from a seed — the same seed gives the
+same skin at every resolution (features are placed in UV units and noise is drawn on grids
+that do not depend on the resolution; a lower resolution sees fine features averaged):
+
+* albedo [R, R, 3] in [0, 1] — a skin tone, low-frequency redness patches, freckles (sparse
+  brown spots in a few regions), pores (dense small dark dots) and fine mottling;
+* height [R, R] — pore pits and fine wrinkles; **micronormal** [R, R, 3] = tangent-space
+  normal of the height field, encoded n/2 + ½ (so flat skin is (0.5, 0.5, 1));
+* specular [R, R, 1] in [0, 1] — an oily T-zone-like low-frequency field, less in pores.
+
+:func:`shade` renders per-pixel maps under a few directional lights (an environment
+approximation) with Lambert diffuse plus a GGX microfacet specular lobe, using the
+micronormal through a per-pixel tangent frame; output is display-referred RGB in [0, 1]
+(gamma 2.2).  All numpy, vectorised.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from .errors import LearnError
+
+#: skin tones (linear-ish sRGB albedo), light to dark
+TONES = np.array([[0.85, 0.66, 0.55], [0.78, 0.57, 0.45], [0.68, 0.47, 0.36],
+                  [0.55, 0.37, 0.27], [0.40, 0.26, 0.19], [0.28, 0.18, 0.13]])
+
+
+def _noise(rng, R: int, scale_uv: float) -> np.ndarray:
+    """Smooth periodic noise with features of about ``scale_uv`` (UV units), zero mean, unit std.
+
+    Drawn on a grid of fixed size (4 cells per feature, whatever ``R``) and resampled, so the
+    same generator state gives the same field at every resolution."""
+    G = max(int(np.ceil(4.0 / scale_uv)), 4)
+    z = ndimage.gaussian_filter(rng.standard_normal((G, G)), 4.0, mode="wrap")
+    z = ndimage.zoom(z, R / G, order=1, mode="grid-wrap", grid_mode=True)
+    z = z[:R, :R] if z.shape[0] >= R else np.pad(z, ((0, R - z.shape[0]), (0, R - z.shape[1])), mode="wrap")
+    z = z - z.mean()
+    return z / (z.std() + 1e-12)
+
+
+def _spots(rng, R: int, count: int, sigma_uv: float, amp: tuple[float, float]) -> np.ndarray:
+    """Sum of ``count`` Gaussian spots of width ``sigma_uv`` at random UV positions.
+
+    Positions are drawn in UV units and the image integral is kept (each spot adds
+    amplitude·2πσ² in UV area), so lower resolutions see the same spots, averaged."""
+    img = np.zeros((R, R))
+    if count:
+        uv = rng.random((count, 2))
+        a = rng.uniform(*amp, count)
+        ij = np.minimum((uv * R).astype(np.int64), R - 1)
+        np.add.at(img, (ij[:, 0], ij[:, 1]), a)
+        s = sigma_uv * R
+        img = ndimage.gaussian_filter(img, s, mode="wrap") * (2 * np.pi * s * s) if s >= 0.5 \
+            else img * (2 * np.pi * s * s)  # sub-pixel spots: area-weighted impulses
+    return img
+
+
+@dataclass
+class SkinMaps:
+    albedo: np.ndarray  # [R, R, 3]
+    height: np.ndarray  # [R, R]
+    micronormal: np.ndarray  # [R, R, 3] encoded n/2 + 1/2
+    specular: np.ndarray  # [R, R, 1]
+
+    def stack(self) -> np.ndarray:  # [R, R, 7] in the model's map order
+        return np.concatenate([self.albedo, self.micronormal, self.specular], -1).astype(np.float32)
+
+
+def height_to_normal(height: np.ndarray, strength: float) -> np.ndarray:
+    """Tangent-space normal of a height field given in UV units (h per unit UV), encoded to [0, 1]."""
+    R = height.shape[0]
+    hu = (np.roll(height, -1, 1) - np.roll(height, 1, 1)) * (R / 2)  # ∂h/∂u
+    hv = (np.roll(height, -1, 0) - np.roll(height, 1, 0)) * (R / 2)  # ∂h/∂v
+    n = np.stack([-strength * hu, -strength * hv, np.ones_like(height)], -1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return n * 0.5 + 0.5
+
+
+def skin_maps(res: int = 1024, seed: int = 0, *, pore_density: float = 3e5, freckles: float | None = None,
+              redness: float | None = None, tone: int | None = None) -> SkinMaps:
+    """Random skin at ``res``² (see the module docstring).  ``pore_density`` = pores per unit UV area."""
+    if not 16 <= res <= 8192:
+        raise LearnError(f"res must be in 16..8192; got {res}")
+    rng = np.random.default_rng(seed)
+    p = {"tone": int(rng.integers(len(TONES))) if tone is None else int(tone),
+         "freckles": float(rng.uniform(0, 1)) if freckles is None else float(freckles),
+         "redness": float(rng.uniform(0.1, 0.6)) if redness is None else float(redness)}
+    # every feature draws from its own stream, so counts do not shift the others
+    sub = [np.random.default_rng([seed, k]) for k in range(8)]
+    base = TONES[p["tone"]] * (1 + 0.04 * rng.standard_normal(3))
+    albedo = np.broadcast_to(base, (res, res, 3)).copy()
+    mott = _noise(sub[0], res, 0.01)
+    albedo *= (1 + 0.025 * mott)[..., None]
+    red = np.clip(_noise(sub[1], res, 0.08), 0, None) * p["redness"]
+    albedo += red[..., None] * np.array([0.10, -0.05, -0.04])
+    region = np.clip(_noise(sub[2], res, 0.15) - 0.3, 0, None)  # where freckles gather
+    n_freck = int(2000 * p["freckles"])
+    freck = _spots(sub[3], res, n_freck, 1.5e-3, (0.4, 1.0)) * np.minimum(region, 1.0)
+    albedo *= 1 - 0.45 * np.clip(freck, 0, 1)[..., None] * np.array([0.6, 0.8, 1.0])
+    pores = _spots(sub[4], res, int(pore_density), 2.5e-4, (0.5, 1.0))
+    pores = np.clip(pores, 0, 1.5)
+    albedo *= 1 - 0.12 * pores[..., None]
+    wrinkles = _noise(sub[5], res, 0.002) * 0.3
+    height = (-pores + wrinkles) * 2e-4  # UV units (1 = the UV square's side)
+    micronormal = height_to_normal(height, strength=1.0)
+    spec = 0.35 + 0.15 * _noise(sub[6], res, 0.1) - 0.15 * pores
+    return SkinMaps(np.clip(albedo, 0, 1), height, micronormal, np.clip(spec, 0, 1)[..., None])
+
+
+def random_lights(rng, n: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(directions [n, 3] towards the lights, colours [n, 3], ambient [3]) around a frontal hemisphere."""
+    d = rng.standard_normal((n, 3))
+    d[:, 2] = np.abs(d[:, 2]) + 0.5  # mostly from the camera side (+z towards the viewer)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    warm = rng.uniform(0.85, 1.15, (n, 3))
+    col = warm * rng.uniform(0.4, 1.2, (n, 1))
+    amb = np.full(3, rng.uniform(0.05, 0.2))
+    return d, col, amb
+
+
+def shade(albedo, micronormal, specular, normal, view, lights, *, roughness: float = 0.35,
+          f0: float = 0.028, gamma: float = 2.2) -> np.ndarray:
+    """Per-pixel shading.  All image inputs are [..., C] arrays over the same pixels:
+    albedo 3, micronormal 3 (encoded, tangent space), specular 1, normal 3 (geometric, world,
+    unit), view 3 (unit, surface → eye).  ``lights`` = (dirs [n,3], colours [n,3], ambient [3]).
+    Returns RGB in [0, 1]."""
+    N = np.asarray(normal, np.float64)
+    up = np.where(np.abs(N[..., 1:2]) < 0.99, np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0]))
+    T = np.cross(up, N)
+    T /= np.linalg.norm(T, axis=-1, keepdims=True)
+    B = np.cross(N, T)
+    m = np.asarray(micronormal, np.float64) * 2 - 1
+    n = T * m[..., :1] + B * m[..., 1:2] + N * m[..., 2:3]
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    V = np.asarray(view, np.float64)
+    nv = np.clip((n * V).sum(-1, keepdims=True), 1e-4, 1)
+    a2 = roughness ** 4  # α = roughness², GGX uses α²
+    k = (roughness + 1) ** 2 / 8
+    dirs, cols, amb = lights
+    out = np.asarray(albedo, np.float64) * amb
+    for L, c in zip(dirs, cols):
+        nl = np.clip((n * L).sum(-1, keepdims=True), 0, 1)
+        H = L + V
+        H /= np.linalg.norm(H, axis=-1, keepdims=True)
+        nh = np.clip((n * H).sum(-1, keepdims=True), 0, 1)
+        vh = np.clip((V * H).sum(-1, keepdims=True), 0, 1)
+        D = a2 / (np.pi * (nh * nh * (a2 - 1) + 1) ** 2)
+        G = (nv / (nv * (1 - k) + k)) * (nl / (nl * (1 - k) + k))
+        F = f0 + (1 - f0) * (1 - vh) ** 5
+        spec = D * G * F / (4 * nv * np.clip(nl, 1e-4, 1))
+        out = out + c * nl * (np.asarray(albedo) + np.asarray(specular) * spec * np.pi)
+    return np.clip(out, 0, 1) ** (1 / gamma)

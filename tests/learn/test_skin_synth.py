@@ -1,0 +1,62 @@
+import numpy as np
+import pytest
+
+from geoface.learn.errors import LearnError
+from geoface.learn.skin_synth import height_to_normal, random_lights, shade, skin_maps
+
+
+def test_deterministic_ranges_and_layout():
+    a, b = skin_maps(128, seed=5), skin_maps(128, seed=5)
+    assert np.array_equal(a.stack(), b.stack())
+    assert not np.array_equal(a.albedo, skin_maps(128, seed=6).albedo)
+    s = a.stack()
+    assert s.shape == (128, 128, 7) and s.dtype == np.float32
+    assert s.min() >= 0 and s.max() <= 1
+    n = a.micronormal * 2 - 1
+    np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1, atol=1e-6)
+    assert (n[..., 2] > 0.3).all()
+    with pytest.raises(LearnError):
+        skin_maps(8)
+
+
+def test_same_skin_at_two_resolutions():
+    lo, hi = skin_maps(128, seed=2).albedo, skin_maps(512, seed=2).albedo
+    down = hi.reshape(128, 4, 128, 4, 3).mean((1, 3))
+    # low-frequency content agrees (8x8-texel blocks), far below the variation between seeds
+    blk = lambda x: x.reshape(16, 8, 16, 8, 3).mean((1, 3))  # noqa: E731
+    err = np.abs(blk(lo) - blk(down)).mean()
+    other = np.abs(blk(lo) - blk(skin_maps(128, seed=3).albedo)).mean()
+    assert err < 0.05 * other
+
+
+def test_height_to_normal_of_a_ramp():
+    R = 64
+    u = np.arange(R)[None, :] / R
+    h = np.broadcast_to(0.1 * u, (R, R)).copy()
+    n = height_to_normal(h, 1.0) * 2 - 1
+    expect = np.array([-0.1, 0.0, 1.0]) / np.hypot(0.1, 1.0)
+    np.testing.assert_allclose(n[:, 1:-1], np.broadcast_to(expect, (R, R - 2, 3)), atol=1e-9)
+
+
+def test_shade_lambert_closed_form():
+    alb = np.array([[0.5, 0.4, 0.3]])
+    flat = np.array([[0.5, 0.5, 1.0]])
+    N = np.array([[0.0, 0.0, 1.0]])
+    lights = (np.array([[0.0, 0.6, 0.8]]), np.array([[1.0, 1.0, 1.0]]), np.array([0.1, 0.1, 0.1]))
+    out = shade(alb, flat, np.zeros((1, 1)), N, N, lights, gamma=1.0)
+    np.testing.assert_allclose(out, alb * (0.1 + 0.8), atol=1e-12)
+    # a specular map adds light, most along the mirror direction
+    lights = (np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 1.0, 1.0]]), np.zeros(3))
+    s0 = shade(alb, flat, np.zeros((1, 1)), N, N, lights, gamma=1.0)
+    s1 = shade(alb, flat, np.ones((1, 1)), N, N, lights, gamma=1.0)
+    assert (s1 > s0).all()
+    # a tilted micronormal changes diffuse shading
+    tilt = np.array([[0.5 + 0.3, 0.5, 0.5 + 0.5 * np.sqrt(1 - 0.36)]])
+    s2 = shade(alb, tilt, np.zeros((1, 1)), N, N, lights, gamma=1.0)
+    np.testing.assert_allclose(s2, alb * np.sqrt(1 - 0.36), atol=1e-9)
+
+
+def test_random_lights_face_the_camera():
+    d, c, amb = random_lights(np.random.default_rng(0), 5)
+    assert d.shape == (5, 3) and (d[:, 2] > 0).all() and np.allclose(np.linalg.norm(d, axis=1), 1)
+    assert (c > 0).all() and amb.shape == (3,)
