@@ -1,0 +1,275 @@
+"""Training and streaming inference of the 4K-texture model (predictor → GDE → HFDR).
+
+Data: a folder of ``*.npz`` samples, each with ``photo`` [H, W, 3], ``maps`` [H, W, 7]
+(albedo, micronormal encoded, specular; see :mod:`geoface.learn.texture_nets`), ``uv``
+[H, W, 2], ``normal`` [H, W, 3] (encoded n/2 + ½) and ``mask`` [H, W] (face pixels), stored
+as uint16 (values × 65535) so UVs keep 1/65535 precision at 4K.  H = W, divisible by ``k``.
+
+Training (paper): the Normal&UV predictor first, at ``gde_res``; then the GDE with the UV hash
+encoding jointly, on the predictor's (frozen) outputs; then, with both frozen, the HFDR on
+random full-resolution patches with the upsampled GDE guidance.  Adam, ReduceLROnPlateau
+(patience 5, on the loss of each epoch).  Losses are masked to face pixels.
+
+Inference (:func:`reconstruct`): the photo is downsampled to ``gde_res`` for the predictor and
+GDE; the HFDR then runs patch by patch over the full-resolution photo
+(:func:`geoface.learn.patches.stream_patches`), each patch with its own guidance crops, and the
+seams are smoothed.  Peak memory: the photo, the output maps and one patch of activations.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as Fnn
+
+from .errors import CheckpointError, LearnError
+from .patches import guidance_crop, smooth_seams, stream_patches
+from .texture_nets import GDE, HFDR, N_MAPS, NormalUVPredictor, TextureNetConfig, map_loss
+
+KEYS = {"photo": 3, "maps": N_MAPS, "uv": 2, "normal": 3}
+
+
+def save_sample(path, photo, maps, uv, normal, mask) -> None:
+    """Write one training sample (float arrays in [0, 1]) as uint16 npz, atomically."""
+    arrs = {"photo": photo, "maps": maps, "uv": uv, "normal": normal}
+    out = {k: np.round(np.clip(np.asarray(v, np.float64), 0, 1) * 65535).astype(np.uint16) for k, v in arrs.items()}
+    out["mask"] = np.asarray(mask, bool)
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    np.savez_compressed(tmp, **out)
+    os.replace(tmp, path)
+
+
+def load_sample(path) -> dict:
+    """→ dict of float32 arrays (photo, maps, uv, normal) and the bool mask; checks shapes."""
+    try:
+        with np.load(path) as z:
+            d = {k: z[k].astype(np.float32) / 65535.0 for k in KEYS}
+            d["mask"] = z["mask"].astype(bool)
+    except (OSError, ValueError, KeyError) as e:
+        raise LearnError(f"{path} is not a texture sample ({type(e).__name__}: {e})") from None
+    H, W = d["mask"].shape
+    for k, c in KEYS.items():
+        if d[k].shape != (H, W, c):
+            raise LearnError(f"{path}: {k} has shape {d[k].shape}; expected {(H, W, c)}")
+    return d
+
+
+def _t(a: np.ndarray) -> torch.Tensor:  # [H, W, C] -> [1, C, H, W]
+    return torch.from_numpy(np.ascontiguousarray(a)).permute(2, 0, 1)[None].float()
+
+
+def _down(x: torch.Tensor, res: int) -> torch.Tensor:
+    return x if x.shape[-1] == res else Fnn.interpolate(x, size=(res, res), mode="area")
+
+
+@dataclass
+class TextureTrainConfig:
+    nets: TextureNetConfig = field(default_factory=TextureNetConfig)
+    gde_res: int = 256  # the paper uses 1024; CPU-sized default
+    k: int = 4  # patches per side at full resolution
+    epochs: tuple = (20, 20, 20)  # predictor, GDE, HFDR
+    lr: float = 1e-3
+    batch: int = 4
+    hfdr_patches: int = 4  # random patches per sample and step
+    seed: int = 0
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["nets"] = self.nets.to_dict()
+        d["epochs"] = list(self.epochs)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TextureTrainConfig":
+        d = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
+        d["nets"] = TextureNetConfig.from_dict(d.get("nets", {}))
+        d["epochs"] = tuple(d.get("epochs", (20, 20, 20)))
+        return cls(**d)
+
+
+class TextureModel(torch.nn.Module):
+    def __init__(self, cfg: TextureTrainConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.predictor = NormalUVPredictor(cfg.nets.predictor_widths)
+        self.gde = GDE(cfg.nets)
+        self.hfdr = HFDR(cfg.nets)
+
+    # ------------------------------------------------------------ inference pieces
+    def coarse(self, photo_lo: torch.Tensor):  # [B,3,r,r] -> uv, normal (unit), GDE maps at r
+        uv, n = self.predictor(photo_lo)
+        return uv, n, self.gde(photo_lo, uv, n)
+
+    def save(self, out_dir) -> None:
+        from safetensors.torch import save_file
+        out_dir = Path(out_dir)
+        tmp = out_dir.with_name(f".{out_dir.name}.tmp")
+        tmp.mkdir(parents=True, exist_ok=True)
+        (tmp / "config.json").write_text(json.dumps(self.cfg.to_dict(), indent=2), encoding="utf-8")
+        save_file({k: v.detach().cpu().contiguous() for k, v in self.state_dict().items()},
+                  str(tmp / "model.safetensors"))
+        if out_dir.exists():
+            import shutil
+            shutil.rmtree(out_dir)
+        os.replace(tmp, out_dir)
+
+    @classmethod
+    def load(cls, model_dir) -> "TextureModel":
+        from safetensors.torch import load_file
+        model_dir = Path(model_dir)
+        try:
+            cfg = TextureTrainConfig.from_dict(json.loads((model_dir / "config.json").read_text(encoding="utf-8")))
+        except (OSError, json.JSONDecodeError, TypeError) as e:
+            raise CheckpointError(f"{model_dir}/config.json is missing or corrupt ({e})") from None
+        m = cls(cfg)
+        try:
+            m.load_state_dict(load_file(str(model_dir / "model.safetensors")), strict=True)
+        except Exception as e:  # safetensors raises its own error types on truncation
+            raise CheckpointError(f"{model_dir}/model.safetensors is missing, corrupt or does not match "
+                                  f"config.json ({type(e).__name__})") from None
+        return m.eval()
+
+
+def _check_sizes(H: int, cfg: TextureTrainConfig) -> None:
+    nets = cfg.nets
+    m_gde = 2 ** (max(len(nets.gde_widths), len(nets.predictor_widths)) - 1)
+    m_hfdr = 2 ** (len(nets.hfdr_widths) - 1)
+    if H % cfg.k or (H // cfg.k) % m_hfdr:
+        raise LearnError(f"image size {H} must split into k={cfg.k} patches per side whose size is "
+                         f"divisible by {m_hfdr}")
+    if cfg.gde_res > H or cfg.gde_res % m_gde:
+        raise LearnError(f"gde_res={cfg.gde_res} must be <= the image size {H} and divisible by {m_gde}")
+
+
+def _masked_l1(a, b, m):
+    return ((a - b).abs() * m).sum() / (m.sum() * a.shape[1]).clamp_min(1)
+
+
+def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, quiet: bool | None = None,
+                  log=None) -> dict:
+    """Train the three stages on ``data_dir``/*.npz; writes ``out_dir`` (config + safetensors)
+    and returns the per-stage loss history."""
+    from geoface.progress import progress
+    cfg = cfg or TextureTrainConfig()
+    files = sorted(Path(data_dir).glob("*.npz"))
+    if not files:
+        raise LearnError(f"no *.npz texture samples in {data_dir}")
+    data = [load_sample(f) for f in files]
+    H = data[0]["mask"].shape[0]
+    _check_sizes(H, cfg)
+    torch.manual_seed(cfg.seed)
+    g = torch.Generator().manual_seed(cfg.seed)
+    model = TextureModel(cfg)
+    full = {k: torch.cat([_t(d[k]) for d in data]) for k in KEYS}
+    mask = torch.cat([torch.from_numpy(d["mask"])[None, None].float() for d in data])
+    lo = {k: _down(v, cfg.gde_res) for k, v in full.items()}
+    mlo = (_down(mask, cfg.gde_res) > 0.5).float()
+    n = len(data)
+    hist: dict = {"predictor": [], "gde": [], "hfdr": []}
+    t0 = time.time()
+
+    def run_stage(name, params, step_fn, epochs):
+        opt = torch.optim.Adam(params, lr=cfg.lr)
+        sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, patience=5)
+        for _ in progress(range(epochs), f"texture {name}", quiet=quiet):
+            perm = torch.randperm(n, generator=g)
+            tot = 0.0
+            for s in range(0, n, cfg.batch):
+                idx = perm[s:s + cfg.batch]
+                loss = step_fn(idx)
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                tot += float(loss.detach()) * len(idx)
+            sched.step(tot / n)
+            hist[name].append(tot / n)
+            if log:
+                log(name, tot / n)
+
+    def pred_step(idx):
+        uv, nrm = model.predictor(lo["photo"][idx])
+        m = mlo[idx]
+        return _masked_l1(uv, lo["uv"][idx], m) + _masked_l1(nrm, lo["normal"][idx] * 2 - 1, m)
+
+    run_stage("predictor", model.predictor.parameters(), pred_step, cfg.epochs[0])
+    model.predictor.requires_grad_(False)
+    with torch.no_grad():
+        p_uv, p_n = model.predictor(lo["photo"])
+
+    def gde_step(idx):
+        out = model.gde(lo["photo"][idx], p_uv[idx], p_n[idx])
+        m = mlo[idx]
+        loss, _ = map_loss(out * m, lo["maps"][idx] * m, 1.0)  # eq.: L1 + 1·Laplacian
+        return loss
+
+    run_stage("gde", model.gde.parameters(), gde_step, cfg.epochs[1])
+    model.gde.requires_grad_(False)
+    with torch.no_grad():
+        guide = model.gde(lo["photo"], p_uv, p_n)
+    P = H // cfg.k
+
+    def hfdr_step(idx):
+        xs, ts, ms, uvs, ns, gs = [], [], [], [], [], []
+        for i in idx.tolist():
+            for _ in range(cfg.hfdr_patches):
+                y0, x0 = (torch.randint(0, cfg.k, (2,), generator=g) * P).tolist()
+                box = (slice(y0, y0 + P), slice(x0, x0 + P))
+                xs.append(full["photo"][i:i + 1, :, box[0], box[1]])
+                ts.append(full["maps"][i:i + 1, :, box[0], box[1]])
+                ms.append(mask[i:i + 1, :, box[0], box[1]])
+                uvs.append(guidance_crop(p_uv[i:i + 1], (H, H), box))
+                ns.append(guidance_crop(p_n[i:i + 1], (H, H), box))
+                gs.append(guidance_crop(guide[i:i + 1], (H, H), box))
+        cat = lambda a: torch.cat(a)  # noqa: E731
+        out = model.hfdr(cat(xs), cat(uvs), cat(ns), cat(gs))
+        m = cat(ms)
+        loss, _ = map_loss(out * m, cat(ts) * m, 2.0)  # L1 + 2·Laplacian
+        return loss
+
+    run_stage("hfdr", model.hfdr.parameters(), hfdr_step, cfg.epochs[2])
+    model.requires_grad_(True)
+    model.save(out_dir)
+    return {"history": hist, "seconds": time.time() - t0, "samples": n, "size": H}
+
+
+@torch.no_grad()
+def reconstruct(model: TextureModel, photo: np.ndarray, *, k: int | None = None, refine: bool = True,
+                smooth: bool = True) -> dict:
+    """Photo [H, W, 3] in [0, 1] (H = W, divisible by k) → dict of full-resolution maps
+    ``albedo`` [H,W,3], ``micronormal`` [H,W,3] (encoded), ``specular`` [H,W,1], and the
+    predicted ``uv`` [H,W,2] and ``normal`` [H,W,3] (encoded), all float32.
+
+    ``refine=False`` gives the baseline: GDE maps bilinearly upsampled to H×W."""
+    model.eval()
+    photo = np.asarray(photo, np.float32)
+    if photo.ndim != 3 or photo.shape[2] != 3 or photo.shape[0] != photo.shape[1]:
+        raise LearnError(f"photo must be a square RGB image (H, H, 3); got shape {photo.shape}")
+    if not np.isfinite(photo).all():
+        raise LearnError("photo contains NaN or infinite values")
+    k = k or model.cfg.k
+    H = photo.shape[0]
+    _check_sizes(H, TextureTrainConfig(**{**model.cfg.__dict__, "k": k}))
+    x = _t(photo)
+    r = model.cfg.gde_res
+    uv, nrm, guide = model.coarse(_down(x, r))
+    if refine:
+        def patch(i, j, ys, xs):
+            box = (ys, xs)
+            out = model.hfdr(x[:, :, ys, xs], guidance_crop(uv, (H, H), box),
+                             guidance_crop(nrm, (H, H), box), guidance_crop(guide, (H, H), box))
+            return out[0].numpy()
+        maps = stream_patches(patch, (H, H), k, N_MAPS)
+        if smooth:
+            maps = smooth_seams(torch.from_numpy(maps)[None], k)[0].numpy()
+    else:
+        maps = Fnn.interpolate(guide, size=(H, H), mode="bilinear", align_corners=False)[0].numpy()
+    up = lambda t: Fnn.interpolate(t, size=(H, H), mode="bilinear", align_corners=False)[0].numpy()  # noqa: E731
+    hwc = lambda a: np.ascontiguousarray(np.moveaxis(a, 0, -1)).astype(np.float32)  # noqa: E731
+    return {"albedo": hwc(maps[0:3]), "micronormal": hwc(maps[3:6]), "specular": hwc(maps[6:7]),
+            "uv": hwc(up(uv)), "normal": hwc(up(nrm) * 0.5 + 0.5)}

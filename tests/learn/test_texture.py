@@ -1,0 +1,95 @@
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from geoface.learn.errors import CheckpointError, LearnError  # noqa: E402
+from geoface.learn.texture import (TextureModel, TextureTrainConfig, load_sample,  # noqa: E402
+                                   reconstruct, save_sample, train_texture)
+from geoface.learn.texture_nets import TextureNetConfig  # noqa: E402
+
+NETS = TextureNetConfig(predictor_widths=[8, 16], gde_widths=[8, 16], hfdr_widths=[8, 16],
+                        hash_log2_table=10, hash_max_res=64)
+
+
+def _make_data(root, n=4, H=64, seed=0):
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:H, 0:H] / H
+    for i in range(n):
+        uv = np.stack([xx, yy], -1)
+        nrm = np.stack([0.5 + 0.2 * (xx - 0.5), 0.5 + 0.2 * (yy - 0.5), np.full_like(xx, 0.95)], -1)
+        tone = rng.uniform(0.3, 0.8, 3)
+        fine = 0.1 * np.sin(2 * np.pi * 16 * xx) * np.sin(2 * np.pi * 16 * yy)
+        albedo = np.clip(tone * (1 + fine[..., None]), 0, 1)
+        micro = np.stack([0.5 + fine, 0.5 - fine, np.full_like(xx, 0.97)], -1)
+        spec = (0.3 + 0.5 * yy)[..., None]
+        photo = np.clip(albedo * (0.6 + 0.4 * nrm[..., 2:3]) + 0.2 * spec, 0, 1)
+        mask = np.ones((H, H), bool)
+        save_sample(root / f"s{i}.npz", photo, np.concatenate([albedo, micro, spec], -1), uv, nrm, mask)
+    return root
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    root = _make_data(tmp_path_factory.mktemp("tex_data"))
+    cfg = TextureTrainConfig(nets=NETS, gde_res=32, k=2, epochs=(6, 6, 6), lr=3e-3, batch=2, hfdr_patches=2)
+    out = tmp_path_factory.mktemp("tex_model") / "model"
+    info = train_texture(root, out, cfg, quiet=True)
+    return root, out, info
+
+
+def test_sample_round_trip(tmp_path):
+    _make_data(tmp_path, n=1, H=32)
+    d = load_sample(tmp_path / "s0.npz")
+    assert d["photo"].shape == (32, 32, 3) and d["maps"].shape == (32, 32, 7) and d["mask"].all()
+    # uint16 storage: UV error below 1e-5
+    assert np.abs(d["uv"][0, :, 0] - np.arange(32) / 32).max() < 1e-5
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(LearnError):
+        load_sample(tmp_path / "bad.npz")
+
+
+def test_each_stage_lowers_its_loss(trained):
+    _, _, info = trained
+    for stage, h in info["history"].items():
+        assert len(h) == 6
+        assert h[-1] < h[0], (stage, h)
+
+
+def test_reconstruct_shapes_save_load_and_baseline(trained):
+    root, out, _ = trained
+    m = TextureModel.load(out)
+    photo = load_sample(root / "s0.npz")["photo"]
+    r = reconstruct(m, photo)
+    assert r["albedo"].shape == (64, 64, 3) and r["specular"].shape == (64, 64, 1)
+    assert r["uv"].shape == (64, 64, 2) and np.isfinite(r["albedo"]).all()
+    r2 = reconstruct(TextureModel.load(out), photo)
+    np.testing.assert_array_equal(r["albedo"], r2["albedo"])
+    base = reconstruct(m, photo, refine=False)
+    assert base["albedo"].shape == (64, 64, 3) and not np.array_equal(base["albedo"], r["albedo"])
+    with pytest.raises(LearnError, match="square RGB"):
+        reconstruct(m, photo[:, :32])
+    with pytest.raises(LearnError):
+        reconstruct(m, np.zeros((66, 66, 3), np.float32))
+    bad = photo.copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(LearnError, match="NaN"):
+        reconstruct(m, bad)
+
+
+def test_corrupt_model_dir(trained, tmp_path):
+    _, out, _ = trained
+    import shutil
+    broken = tmp_path / "broken"
+    shutil.copytree(out, broken)
+    data = (broken / "model.safetensors").read_bytes()
+    (broken / "model.safetensors").write_bytes(data[: len(data) // 2])
+    with pytest.raises(CheckpointError):
+        TextureModel.load(broken)
+    with pytest.raises(CheckpointError):
+        TextureModel.load(tmp_path / "nothing")
+
+
+def test_bad_data_dir(tmp_path):
+    with pytest.raises(LearnError, match="no \\*.npz"):
+        train_texture(tmp_path, tmp_path / "m", TextureTrainConfig(nets=NETS))
