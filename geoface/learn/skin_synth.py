@@ -117,7 +117,7 @@ def random_lights(rng, n: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     d[:, 2] = np.abs(d[:, 2]) + 0.5  # mostly from the camera side (+z towards the viewer)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     warm = rng.uniform(0.85, 1.15, (n, 3))
-    col = warm * rng.uniform(0.4, 1.2, (n, 1))
+    col = warm * rng.uniform(0.25, 0.6, (n, 1))
     amb = np.full(3, rng.uniform(0.05, 0.2))
     return d, col, amb
 
@@ -154,3 +154,58 @@ def shade(albedo, micronormal, specular, normal, view, lights, *, roughness: flo
         spec = D * G * F / (4 * nv * np.clip(nl, 1e-4, 1))
         out = out + c * nl * (np.asarray(albedo) + np.asarray(specular) * spec * np.pi)
     return np.clip(out, 0, 1) ** (1 / gamma)
+
+
+def _sample_uv_map(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a UV-space map [R, R, C] (row 0 is v = 1, as geoface textures) at
+    ``uv`` [k, 2] in [0, 1]."""
+    R = img.shape[0]
+    x = np.clip(uv[:, 0] * R - 0.5, 0, R - 1)
+    y = np.clip((1 - uv[:, 1]) * R - 0.5, 0, R - 1)
+    x0, y0 = np.minimum(x.astype(np.int64), R - 2), np.minimum(y.astype(np.int64), R - 2)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    return ((img[y0, x0] * (1 - fx) + img[y0, x0 + 1] * fx) * (1 - fy)
+            + (img[y0 + 1, x0] * (1 - fx) + img[y0 + 1, x0 + 1] * fx) * fy)
+
+
+def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None,
+                       background: float = 0.0) -> dict:
+    """Render one training tuple of the texture model from a mesh with UVs.
+
+    Returns float32 image-space arrays in [0, 1]: ``photo`` [H,W,3] (shaded, see :func:`shade`),
+    ``maps`` [H,W,7] (albedo, micronormal, specular looked up through the pixel's UV),
+    ``uv`` [H,W,2], ``normal`` [H,W,3] (camera-space geometric normal, encoded n/2 + ½),
+    and ``mask`` [H,W] bool (pixels the mesh covers)."""
+    from geoface.splat.render_mesh import rasterize_mesh
+
+    V, F, UV = np.asarray(V, np.float64), np.asarray(F, np.int64), np.asarray(UV, np.float64)
+    if normals is None:
+        fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+        normals = np.zeros_like(V)
+        for c in range(3):
+            np.add.at(normals, F[:, c], fn)
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+    face, bary, _ = rasterize_mesh(V, F, camera)
+    H, W = face.shape
+    m = face >= 0
+    fi, b = face[m], bary[m]
+    tri = F[fi]
+    interp = lambda A: (A[tri] * b[..., None]).sum(1)  # noqa: E731
+    uv = np.clip(interp(UV), 0, 1)
+    P = interp(V)
+    N = interp(normals)
+    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-30)
+    view = np.asarray(camera.center, np.float64)[None] - P
+    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    N = np.where((N * view).sum(1, keepdims=True) < 0, -N, N)  # back-facing interpolation at silhouettes
+    stack = maps.stack()
+    px = _sample_uv_map(stack, uv)
+    rgb = shade(px[:, 0:3], px[:, 3:6], px[:, 6:7], N, view, lights)
+    Ncam = N @ np.asarray(camera.R, np.float64).T
+    out = {"photo": np.full((H, W, 3), background, np.float32), "maps": np.zeros((H, W, 7), np.float32),
+           "uv": np.zeros((H, W, 2), np.float32), "normal": np.zeros((H, W, 3), np.float32), "mask": m}
+    out["photo"][m] = rgb
+    out["maps"][m] = px
+    out["uv"][m] = uv
+    out["normal"][m] = Ncam * 0.5 + 0.5
+    return out

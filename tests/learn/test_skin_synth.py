@@ -60,3 +60,33 @@ def test_random_lights_face_the_camera():
     d, c, amb = random_lights(np.random.default_rng(0), 5)
     assert d.shape == (5, 3) and (d[:, 2] > 0).all() and np.allclose(np.linalg.norm(d, axis=1), 1)
     assert (c > 0).all() and amb.shape == (3,)
+
+
+def test_render_sample_of_a_uv_square():
+    from geoface.learn.skin_synth import render_skin_sample
+    from geoface.splat import look_at
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    UV = V[:, :2].copy()
+    maps = skin_maps(64, seed=0)
+    cam = look_at((0.5, 0.5, 2.0), (0.5, 0.5, 0.0), width=48, height=48, fov_y_deg=40)
+    lights = (np.array([[0.0, 0.0, 1.0]]), np.ones((1, 3)), np.zeros(3))
+    s = render_skin_sample(V, F, UV, maps, cam, lights)
+    m = s["mask"]
+    assert 0.2 < m.mean() < 0.9 and s["photo"].shape == (48, 48, 3)
+    # UV of a covered pixel = the world point its ray hits (the square is the UV square)
+    i, j = 24, 30
+    assert m[i, j]
+    ray_uv, _ = cam.project(np.array([[s["uv"][i, j, 0], s["uv"][i, j, 1], 0.0]]))
+    np.testing.assert_allclose(ray_uv[0], [j + 0.5, i + 0.5], atol=1e-6)
+    # a surface facing the camera: camera-space normal −z, encoded (0.5, 0.5, 0)
+    np.testing.assert_allclose(s["normal"][m], np.broadcast_to([0.5, 0.5, 0.0], (m.sum(), 3)), atol=1e-6)
+    assert s["maps"][m].min() >= 0 and s["maps"][m].max() <= 1
+    assert (s["photo"][~m] == 0).all() and (s["maps"][~m] == 0).all()
+    # flat skin, no specular, light along the normal: photo = albedo^(1/2.2) exactly
+    from geoface.learn.skin_synth import SkinMaps
+    R = 64
+    alb = np.stack([*np.meshgrid(np.linspace(0.1, 0.9, R), np.linspace(0.2, 0.6, R)), np.full((R, R), 0.5)], -1)
+    flat = SkinMaps(alb, np.zeros((R, R)), np.broadcast_to([0.5, 0.5, 1.0], (R, R, 3)).copy(), np.zeros((R, R, 1)))
+    s = render_skin_sample(V, F, UV, flat, cam, lights)
+    np.testing.assert_allclose(s["photo"][m], s["maps"][m][:, :3] ** (1 / 2.2), atol=1e-5)
