@@ -14,6 +14,7 @@ _NAMES = {
     "covariance": "gaussians",
     "save_ply": "ply", "load_ply": "ply",
     "rasterize": "rasterizer", "rasterize_reference": "rasterizer",
+    "DensityConfig": "density", "DensityStrategy": "density", "make_optimizer": "density",
     "SplatError": "errors", "CameraError": "errors", "GaussianPlyError": "errors",
 }
 __all__ = sorted(_NAMES)

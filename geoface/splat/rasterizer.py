@@ -28,12 +28,14 @@ LOWPASS = 0.3
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
+BATCH_ELEMS_CPU = 1 << 22  # tiles × pixels × chunk per compositing step (CPU)
+BATCH_ELEMS_GPU = 1 << 25
 
 
 def project_gaussians(means, covs, camera: Camera, near=0.01):
     """EWA projection. means [N,3], covs [N,3,3] → uv [N,2], depth [N], conic [N,2,2],
     radius [N] (int, 0 = culled)."""
-    W = torch.as_tensor(camera.R, dtype=means.dtype)
+    W = torch.as_tensor(camera.R, dtype=means.dtype, device=means.device)
     Xc = camera.world_to_camera(means)  # [N, 3]
     x, y, z = Xc.unbind(-1)
     valid = z > near
@@ -43,7 +45,7 @@ def project_gaussians(means, covs, camera: Camera, near=0.01):
     zero = torch.zeros_like(zs)
     J = torch.stack([fx / zs, zero, -fx * x / zs**2, zero, fy / zs, -fy * y / zs**2], -1).reshape(-1, 2, 3)
     M = J @ W  # [N, 2, 3]
-    cov2 = M @ covs @ M.transpose(-1, -2) + LOWPASS * torch.eye(2, dtype=means.dtype)
+    cov2 = M @ covs @ M.transpose(-1, -2) + LOWPASS * torch.eye(2, dtype=means.dtype, device=means.device)
     a, b, c = cov2[:, 0, 0], cov2[:, 0, 1], cov2[:, 1, 1]
     det = a * c - b * b
     conic = torch.stack([c, -b, -b, a], -1).reshape(-1, 2, 2) / det[:, None, None]
@@ -56,20 +58,22 @@ def project_gaussians(means, covs, camera: Camera, near=0.01):
 
 
 def _alpha(pix, uv, conic, opac, radius):
-    """pix [P,2], per-Gaussian uv [G,2], conic [G,2,2], opac [G], radius [G] → α [P,G]."""
-    d = pix[:, None, :] - uv[None]  # [P, G, 2]
-    power = -0.5 * (conic[None, :, 0, 0] * d[..., 0] ** 2 + conic[None, :, 1, 1] * d[..., 1] ** 2
-                    + 2 * conic[None, :, 0, 1] * d[..., 0] * d[..., 1])
-    alpha = torch.clamp_max(opac[None] * torch.exp(power), ALPHA_MAX)
+    """pix [...,P,2], per-Gaussian uv [...,G,2], conic [...,G,2,2], opac [...,G], radius [...,G]
+    → α [...,P,G] (leading dims: none for one tile, [tiles] for the batched path)."""
+    d = pix[..., :, None, :] - uv[..., None, :, :]  # [..., P, G, 2]
+    dx, dy = d[..., 0], d[..., 1]
+    power = -0.5 * (conic[..., None, :, 0, 0] * dx ** 2 + conic[..., None, :, 1, 1] * dy ** 2
+                    + 2 * conic[..., None, :, 0, 1] * dx * dy)
+    alpha = torch.clamp_max(opac[..., None, :] * torch.exp(power), ALPHA_MAX)
     with torch.no_grad():
-        r = radius.to(pix.dtype)[None]
-        keep = (d[..., 0].abs() <= r) & (d[..., 1].abs() <= r) & (alpha >= ALPHA_MIN) & (power <= 0)
+        r = radius.to(pix.dtype)[..., None, :]
+        keep = (dx.abs() <= r) & (dy.abs() <= r) & (alpha >= ALPHA_MIN) & (power <= 0)
     return torch.where(keep, alpha, torch.zeros_like(alpha))
 
 
-def _pixels(x0, x1, y0, y1, dtype):
-    ys, xs = torch.meshgrid(torch.arange(y0, y1, dtype=dtype), torch.arange(x0, x1, dtype=dtype),
-                            indexing="ij")
+def _pixels(x0, x1, y0, y1, dtype, device=None):
+    ys, xs = torch.meshgrid(torch.arange(y0, y1, dtype=dtype, device=device),
+                            torch.arange(x0, x1, dtype=dtype, device=device), indexing="ij")
     return torch.stack([xs.reshape(-1) + 0.5, ys.reshape(-1) + 0.5], -1)
 
 
@@ -85,7 +89,7 @@ def _finish(C, D, T, background, H, W):
     alpha = 1 - T
     rgb = C
     if background is not None:
-        bg = torch.as_tensor(background, dtype=C.dtype)
+        bg = torch.as_tensor(background, dtype=C.dtype, device=C.device)
         rgb = C + T[:, None] * bg
     depth = torch.where(alpha > 0, D / torch.where(alpha > 0, alpha, torch.ones_like(alpha)),
                         torch.zeros_like(D))
@@ -93,33 +97,50 @@ def _finish(C, D, T, background, H, W):
 
 
 def _composite(alpha, T0, colors, z):
-    """alpha [P,G] (depth order), T0 [P] → (C [P,3], D [P], T [P]) with early termination."""
-    incl = T0[:, None] * torch.cumprod(1 - alpha, 1)  # T after each Gaussian
-    with torch.no_grad():
-        used = incl >= T_MIN
+    """alpha [...,P,G] (depth order), T0 [...,P], colors [...,G,3], z [...,G]
+    → (C [...,P,3], D [...,P], T [...,P]) with early termination."""
+    with torch.no_grad():  # T after each Gaussian decides which ones are used
+        used = T0[..., None] * torch.cumprod(1 - alpha, -1) >= T_MIN
     a = torch.where(used, alpha, torch.zeros_like(alpha))
-    Tin = T0[:, None] * torch.cumprod(torch.cat([torch.ones_like(a[:, :1]), 1 - a[:, :-1]], 1), 1)
+    one = torch.ones_like(a[..., :1])
+    Tin = T0[..., None] * torch.cumprod(torch.cat([one, 1 - a[..., :-1]], -1), -1)  # T before each
     w = Tin * a
-    return w @ colors, w @ z, Tin[:, -1] * (1 - a[:, -1])
+    return w @ colors, (w @ z[..., None])[..., 0], Tin[..., -1] * (1 - a[..., -1])
 
 
-def rasterize_reference(gaussians, camera: Camera, background=None, near=0.01):
+def _info(uv, radius, W, H):
+    """The 4th return value of ``return_info=True``: 2D means (in the graph, pixels) and radii
+    (0 for Gaussians culled or whose 3σ box misses the image)."""
+    with torch.no_grad():
+        u, v, r = uv[:, 0], uv[:, 1], radius.to(uv.dtype)
+        on = (u + r >= 0) & (u - r <= W) & (v + r >= 0) & (v - r <= H)
+        radii = torch.where(on, radius, torch.zeros_like(radius))
+    return {"means2d": uv, "radii": radii, "width": W, "height": H}
+
+
+def rasterize_reference(gaussians, camera: Camera, background=None, near=0.01,
+                        return_info: bool = False):
     """Slow, obvious rasterizer: all Gaussians × all pixels, one global depth sort."""
     uv, z, conic, radius, opac, colors = _prepare(gaussians, camera, near)
     H, W = camera.height, camera.width
+    dt, dev = uv.dtype, uv.device
     live = torch.nonzero(radius > 0).reshape(-1)
     live = live[torch.argsort(z[live].detach(), stable=True)]
-    pix = _pixels(0, W, 0, H, uv.dtype)
+    pix = _pixels(0, W, 0, H, dt, dev)
     if len(live) == 0:
-        T = torch.ones(H * W, dtype=uv.dtype)
-        return _finish(torch.zeros(H * W, 3, dtype=uv.dtype), torch.zeros(H * W, dtype=uv.dtype), T, background, H, W)
-    alpha = _alpha(pix, uv[live], conic[live], opac[live], radius[live])
-    C, D, T = _composite(alpha, torch.ones(H * W, dtype=uv.dtype), colors[live], z[live])
-    return _finish(C, D, T, background, H, W)
+        T = torch.ones(H * W, dtype=dt, device=dev)
+        out = _finish(torch.zeros(H * W, 3, dtype=dt, device=dev), torch.zeros(H * W, dtype=dt, device=dev),
+                      T, background, H, W)
+    else:
+        alpha = _alpha(pix, uv[live], conic[live], opac[live], radius[live])
+        C, D, T = _composite(alpha, torch.ones(H * W, dtype=dt, device=dev), colors[live], z[live])
+        out = _finish(C, D, T, background, H, W)
+    return (*out, _info(uv, radius, W, H)) if return_info else out
 
 
 def _bin(uv, radius, z, W, H, tile):
-    """(tile id, Gaussian id) pairs sorted by tile then depth; returns ids, tile offsets."""
+    """(tile id, Gaussian id) pairs sorted by tile then depth; returns ids, tile offsets, counts."""
+    dev = uv.device
     tx, ty = math.ceil(W / tile), math.ceil(H / tile)
     u, v = uv.detach()[:, 0], uv.detach()[:, 1]
     r = radius.to(u.dtype)
@@ -129,27 +150,101 @@ def _bin(uv, radius, z, W, H, tile):
     y1 = torch.clamp(torch.floor((v + r) / tile), -1, ty - 1).to(torch.int64)
     nx, ny = torch.clamp_min(x1 - x0 + 1, 0), torch.clamp_min(y1 - y0 + 1, 0)
     cnt = torch.where(radius > 0, nx * ny, torch.zeros_like(nx))
-    gid = torch.repeat_interleave(torch.arange(len(uv)), cnt)
+    gid = torch.repeat_interleave(torch.arange(len(uv), device=dev), cnt)
     start = torch.cumsum(cnt, 0) - cnt
-    k = torch.arange(len(gid)) - start[gid]
+    k = torch.arange(len(gid), device=dev) - start[gid]
     tid = (y0[gid] + k // nx[gid]) * tx + x0[gid] + k % nx[gid]
-    rank = torch.empty_like(gid)
     order_z = torch.argsort(z.detach(), stable=True)
-    rank_all = torch.empty(len(uv), dtype=torch.int64)
-    rank_all[order_z] = torch.arange(len(uv))
-    rank = rank_all[gid]
-    order = torch.argsort(tid * len(uv) + rank)
+    rank_all = torch.empty(len(uv), dtype=torch.int64, device=dev)
+    rank_all[order_z] = torch.arange(len(uv), device=dev)
+    order = torch.argsort(tid * len(uv) + rank_all[gid])
     counts = torch.bincount(tid, minlength=tx * ty)
     return gid[order], torch.cumsum(counts, 0) - counts, counts, tx, ty
 
 
+def _batch_elems(device) -> int:
+    """Bound on tiles × pixels × chunk evaluated at once (each [..] float tensor of the step)."""
+    return BATCH_ELEMS_CPU if device.type == "cpu" else BATCH_ELEMS_GPU
+
+
+def _composite_tiles(uv, z, conic, opac, colors, radius, ids, offs, counts, tx, ty, tile, chunk,
+                     W, H):
+    """Batched tile compositing → per-tile (C [nt,P,3], D [nt,P], T [nt,P]), P = tile².
+
+    Tiles are ordered by load and processed in groups; each round evaluates the next ``L``
+    depth-sorted Gaussians of every still-active tile at once ([tiles, P, L]), padding short
+    lists with transparent slots (α = 0 exactly, so padding changes nothing). T is carried
+    across rounds; a tile leaves the group when its list is exhausted or all its pixels have
+    T < T_MIN — further rounds could only add zero weights, so the result equals the
+    one-tile-at-a-time loop and the reference.
+    """
+    dt, dev = uv.dtype, uv.device
+    nt, P = tx * ty, tile * tile
+    C = torch.zeros(nt, P, 3, dtype=dt, device=dev)
+    D = torch.zeros(nt, P, dtype=dt, device=dev)
+    T = torch.ones(nt, P, dtype=dt, device=dev)
+    if len(ids) == 0:
+        return C, D, T
+    loc = _pixels(0, tile, 0, tile, dt, dev)  # [P, 2] local pixel centres
+    counts_h = counts.cpu()
+    busy = torch.nonzero(counts_h).reshape(-1)
+    busy = busy[torch.argsort(counts_h[busy], descending=True, stable=True)].tolist()
+    budget = _batch_elems(dev)
+    last = len(ids) - 1
+    out_t, out_C, out_D, out_T = [], [], [], []
+    i = 0
+    while i < len(busy):
+        L = min(chunk, int(counts_h[busy[i]]))  # the group's longest list comes first
+        n_grp = max(1, budget // (P * L))
+        grp_h = busy[i:i + n_grp]
+        i += n_grp
+        grp = torch.tensor(grp_h, device=dev)
+        n_g, o_g = counts[grp], offs[grp]
+        org = torch.stack([(grp % tx) * tile, (grp // tx) * tile], -1).to(dt)  # [G, 2]
+        pix = loc[None] + org[:, None]  # [G, P, 2]
+        inside = (pix[..., 0] < W) & (pix[..., 1] < H)  # pixels of edge tiles beyond the image
+        Cg = torch.zeros(len(grp_h), P, 3, dtype=dt, device=dev)
+        Dg = torch.zeros(len(grp_h), P, dtype=dt, device=dev)
+        Tg = inside.to(dt)  # T0 = 0 outside: never used, counts as saturated
+        act = None  # None = every tile of the group
+        rounds = -(-int(counts_h[grp_h].max()) // L)
+        pos0 = torch.arange(L, device=dev)
+        for r in range(rounds):
+            sel = (lambda a: a) if act is None else (lambda a: a[act])  # noqa: E731
+            pos = r * L + pos0
+            valid = pos[None] < sel(n_g)[:, None]  # [A, L]
+            g = ids[torch.clamp_max(sel(o_g)[:, None] + pos, last)]  # [A, L]
+            a = _alpha(sel(pix), uv[g], conic[g], opac[g] * valid, radius[g])
+            c, d, Tn = _composite(a, sel(Tg), colors[g], z[g])
+            if act is None:
+                Cg, Dg, Tg = Cg + c, Dg + d, Tn
+            else:
+                Cg, Dg, Tg = Cg.index_add(0, act, c), Dg.index_add(0, act, d), Tg.index_copy(0, act, Tn)
+            with torch.no_grad():
+                more = ((r + 1) * L < sel(n_g)) & (Tn >= T_MIN).any(-1)
+            idx = torch.nonzero(more).reshape(-1)
+            if len(idx) == 0:
+                break
+            act = idx if act is None else act[idx]
+        out_t.append(grp); out_C.append(Cg); out_D.append(Dg); out_T.append(Tg)
+    t = torch.cat(out_t)
+    return (C.index_put((t,), torch.cat(out_C)), D.index_put((t,), torch.cat(out_D)),
+            T.index_put((t,), torch.cat(out_T)))
+
+
 def rasterize(gaussians, camera: Camera, background=None, tile: int = 16, chunk: int = 256,
-              near: float = 0.01, backend: str = "auto"):
+              near: float = 0.01, backend: str = "auto", return_info: bool = False):
     """Render ``gaussians`` seen by ``camera`` → (rgb [H,W,3], alpha [H,W], depth [H,W]).
 
-    ``backend``: "torch" (this CPU path), "gsplat" (CUDA; needs gsplat), or "auto" (gsplat
-    when importable and the tensors live on CUDA, else torch). Differentiable with respect to
-    every Gaussian parameter through autograd.
+    ``backend``: "torch" (this vectorised path, any device), "gsplat" (CUDA; needs gsplat), or
+    "auto" (gsplat when importable and the tensors live on CUDA, else torch). Differentiable
+    with respect to every Gaussian parameter through autograd. ``chunk``: Gaussians per tile
+    evaluated per compositing round.
+
+    ``return_info=True`` adds a 4th value, a dict: ``"means2d"`` [N, 2] the projected means in
+    pixels, a tensor in the graph (call ``retain_grad()`` on it before ``backward`` to read the
+    screen-space gradient, as density control does), ``"radii"`` [N] int (0 = not visible),
+    ``"width"``, ``"height"``.
     """
     if backend not in ("auto", "torch", "gsplat"):
         raise SplatError(f"backend must be 'auto', 'torch' or 'gsplat'; got {backend!r}")
@@ -158,37 +253,17 @@ def rasterize(gaussians, camera: Camera, background=None, tile: int = 16, chunk:
     if backend != "torch" and gaussians.means.is_cuda:
         from geoface.splat._gsplat import rasterize_gsplat, gsplat_available
         if backend == "gsplat" or gsplat_available():
-            return rasterize_gsplat(gaussians, camera, background, near)
+            return rasterize_gsplat(gaussians, camera, background, near, return_info=return_info)
     elif backend == "gsplat":
         raise SplatError("backend='gsplat' needs Gaussians on a CUDA device")
     uv, z, conic, radius, opac, colors = _prepare(gaussians, camera, near)
     H, W = camera.height, camera.width
-    dt = uv.dtype
     ids, offs, counts, tx, ty = _bin(uv, radius, z, W, H, tile)
-    C = torch.zeros(H, W, 3, dtype=dt)
-    D = torch.zeros(H, W, dtype=dt)
-    T = torch.ones(H, W, dtype=dt)
-    Cs, Ds, Ts, slots = [], [], [], []
-    for t in torch.nonzero(counts).reshape(-1).tolist():
-        ty0, tx0 = (t // tx) * tile, (t % tx) * tile
-        ty1, tx1 = min(ty0 + tile, H), min(tx0 + tile, W)
-        pix = _pixels(tx0, tx1, ty0, ty1, dt)
-        g_all = ids[offs[t]:offs[t] + counts[t]]
-        Ct = torch.zeros(len(pix), 3, dtype=dt)
-        Dt = torch.zeros(len(pix), dtype=dt)
-        Tt = torch.ones(len(pix), dtype=dt)
-        for s in range(0, len(g_all), chunk):
-            g = g_all[s:s + chunk]
-            a = _alpha(pix, uv[g], conic[g], opac[g], radius[g])
-            c, d, Tt = _composite(a, Tt, colors[g], z[g])
-            Ct, Dt = Ct + c, Dt + d
-            if bool((Tt < T_MIN).all()) if Tt.numel() else True:
-                break
-        Cs.append(Ct); Ds.append(Dt); Ts.append(Tt); slots.append((ty0, ty1, tx0, tx1))
-    if slots:  # scatter tile results into the image without in-place ops on graph tensors
-        idx = torch.cat([(torch.arange(a, b)[:, None] * W + torch.arange(c, d)[None]).reshape(-1)
-                         for a, b, c, d in slots])
-        C = C.reshape(-1, 3).index_put((idx,), torch.cat(Cs))
-        D = D.reshape(-1).index_put((idx,), torch.cat(Ds))
-        T = T.reshape(-1).index_put((idx,), torch.cat(Ts))
-    return _finish(C.reshape(-1, 3), D.reshape(-1), T.reshape(-1), background, H, W)
+    C, D, T = _composite_tiles(uv, z, conic, opac, colors, radius, ids, offs, counts, tx, ty,
+                               tile, chunk, W, H)
+    # image pixel (y, x) ← tile (y // tile, x // tile), local pixel (y % tile, x % tile)
+    ys = torch.arange(H, device=uv.device)[:, None]
+    xs = torch.arange(W, device=uv.device)[None]
+    pmap = (((ys // tile) * tx + xs // tile) * (tile * tile) + (ys % tile) * tile + xs % tile).reshape(-1)
+    out = _finish(C.reshape(-1, 3)[pmap], D.reshape(-1)[pmap], T.reshape(-1)[pmap], background, H, W)
+    return (*out, _info(uv, radius, W, H)) if return_info else out
