@@ -455,8 +455,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.set_defaults(func=cmd_dataset_build)
 
     from .learn.cli import register as register_ddpm  # argparse only: torch loads inside the commands
+    from .learn.texture_cli import register as register_texture
 
     register_ddpm(sub, common)
+    register_texture(sub, common)
 
     s = sub.add_parser("synth", help="write procedural test geometry")
     ss = _verbs(s, common)

@@ -209,3 +209,42 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
     out["uv"][m] = uv
     out["normal"][m] = Ncam * 0.5 + 0.5
     return out
+
+
+def make_texture_dataset(out_dir, count: int = 8, res: int = 512, map_res: int | None = None, *,
+                         seed: int = 0, vertices: int = 20000, quiet: bool | None = None) -> list:
+    """Write ``count`` texture-model samples (``sample_XXXX.npz``, see
+    :func:`geoface.learn.texture.save_sample`) of procedural heads with procedural skin, each
+    from a jittered near-frontal camera under random lights.  ``map_res`` (default: ``res``,
+    at least 1024) is the UV-map resolution.  Returns the written paths; existing samples are
+    kept (resumable)."""
+    from pathlib import Path
+
+    from geoface.progress import progress
+    from geoface.splat.camera import look_at
+    from geoface.synth import procedural_head
+
+    from .texture import save_sample
+
+    if count < 1 or not 32 <= res <= 8192:
+        raise LearnError(f"need count >= 1 and res in 32..8192; got count={count}, res={res}")
+    map_res = int(map_res or max(res, 1024))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i in progress(range(count), "texture samples", quiet=quiet):
+        path = out_dir / f"sample_{i:04d}.npz"
+        paths.append(path)
+        if path.exists():
+            continue
+        rng = np.random.default_rng([seed, i])
+        head = procedural_head(vertices, seed=int(rng.integers(1 << 31)))
+        centre = head.V[head.face_mask].mean(0)
+        yaw, pitch = np.radians(rng.uniform(-20, 20)), np.radians(rng.uniform(-10, 10))
+        dist = rng.uniform(0.40, 0.48)
+        eye = centre + dist * np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
+        cam = look_at(eye, centre + rng.normal(0, 0.005, 3), width=res, height=res, fov_y_deg=30)
+        maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)))
+        s = render_skin_sample(head.V, head.F, head.UV, maps, cam, random_lights(rng, int(rng.integers(2, 5))))
+        save_sample(path, s["photo"], s["maps"], s["uv"], s["normal"], s["mask"])
+    return paths

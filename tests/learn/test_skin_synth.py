@@ -90,3 +90,18 @@ def test_render_sample_of_a_uv_square():
     flat = SkinMaps(alb, np.zeros((R, R)), np.broadcast_to([0.5, 0.5, 1.0], (R, R, 3)).copy(), np.zeros((R, R, 1)))
     s = render_skin_sample(V, F, UV, flat, cam, lights)
     np.testing.assert_allclose(s["photo"][m], s["maps"][m][:, :3] ** (1 / 2.2), atol=1e-5)
+
+
+def test_make_texture_dataset(tmp_path):
+    from geoface.learn.skin_synth import make_texture_dataset
+    from geoface.learn.texture import load_sample
+    paths = make_texture_dataset(tmp_path, count=2, res=64, map_res=128, vertices=3000, quiet=True)
+    d = load_sample(paths[0])
+    assert d["photo"].shape == (64, 64, 3) and 0.2 < d["mask"].mean() < 0.95
+    # a near-frontal camera sees normals pointing back at it (camera −z → encoded z < 0.5)
+    assert np.median(d["normal"][d["mask"]][:, 2]) < 0.3
+    before = paths[1].stat().st_mtime_ns
+    make_texture_dataset(tmp_path, count=2, res=64, map_res=128, vertices=3000, quiet=True)
+    assert paths[1].stat().st_mtime_ns == before  # resumable: nothing rewritten
+    with pytest.raises(LearnError):
+        make_texture_dataset(tmp_path, count=0)

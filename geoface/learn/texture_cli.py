@@ -1,0 +1,158 @@
+"""``geoface texture synth|train|reconstruct`` — wired into :mod:`geoface.cli` through :func:`register`.
+
+Heavy imports (torch) happen inside the command functions.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from geoface.errors import GeofaceError
+
+__all__ = ["register"]
+
+MAP_FILES = {"albedo": 3, "micronormal": 3, "specular": 1}
+
+
+def _quiet(args):
+    return True if getattr(args, "quiet", False) else None
+
+
+def _read_photo(path) -> np.ndarray:
+    import cv2
+    p = Path(path)
+    if not p.is_file():
+        raise GeofaceError(f"{p}: no such file")
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if img is None or img.ndim != 3 or img.shape[2] < 3:
+        raise GeofaceError(f"{p} is not a readable RGB image")
+    img = img[:, :, :3][:, :, ::-1]
+    scale = 65535.0 if img.dtype == np.uint16 else 255.0
+    return img.astype(np.float32) / scale
+
+
+def _write_png16(path: Path, img: np.ndarray) -> None:
+    """[H, W, 1 or 3] in [0, 1] → 16-bit PNG, written under a temporary name then renamed."""
+    import cv2
+    q = np.round(np.clip(img, 0, 1) * 65535).astype(np.uint16)
+    q = q[:, :, 0] if q.shape[2] == 1 else np.ascontiguousarray(q[:, :, ::-1])
+    tmp = path.with_name(f".{path.stem}.tmp.png")
+    if not cv2.imwrite(str(tmp), q):
+        raise GeofaceError(f"could not write {path}")
+    os.replace(tmp, path)
+
+
+def _read_camera(path):
+    from geoface.uvmap.project import Camera
+    try:
+        d = json.loads(Path(path).read_text(encoding="utf-8"))
+        if "Rt" in d:
+            return Camera.from_matrix(d["K"], d["Rt"])
+        return Camera(d["K"], d["R"], d["t"])
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
+        raise GeofaceError(f"{path}: a camera JSON needs K (3x3) and R (3x3) + t (3) or Rt (4x4) "
+                           f"({type(e).__name__}: {e})") from None
+
+
+def cmd_synth(args) -> int:
+    from .skin_synth import make_texture_dataset
+    paths = make_texture_dataset(args.output, args.count, args.res, args.map_res, seed=args.seed,
+                                 vertices=args.vertices, quiet=_quiet(args))
+    print(f"{args.output}: {len(paths)} samples at {args.res}²")
+    return 0
+
+
+def cmd_train(args) -> int:
+    from .texture import TextureTrainConfig, train_texture
+    from .texture_nets import TextureNetConfig
+    try:
+        epochs = tuple(int(e) for e in args.epochs.split(","))
+    except ValueError:
+        epochs = ()
+    if len(epochs) != 3 or min(epochs) < 0:
+        raise GeofaceError(f"--epochs must be three counts like 20,20,20 (predictor, GDE, HFDR); got {args.epochs!r}")
+    cfg = TextureTrainConfig(nets=TextureNetConfig(use_hash=not args.no_hash), gde_res=args.gde_res, k=args.k,
+                             epochs=epochs, lr=args.lr, batch=args.batch, seed=args.seed)
+    info = train_texture(args.data_dir, args.output, cfg, quiet=_quiet(args))
+    last = {k: (f"{v[-1]:.4f}" if v else "-") for k, v in info["history"].items()}
+    print(f"{args.output}: {info['samples']} samples of {info['size']}², {info['seconds']:.1f} s; final losses "
+          + " ".join(f"{k} {v}" for k, v in last.items()))
+    return 0
+
+
+def cmd_reconstruct(args) -> int:
+    from .texture import TextureModel, reconstruct
+    if (args.mesh is None) != (args.camera is None):
+        raise GeofaceError("--mesh and --camera go together (the camera that took the photo of that mesh)")
+    photo = _read_photo(args.photo)
+    model = TextureModel.load(args.model)
+    mesh = cam = None
+    if args.mesh:
+        from geoface.mesh.io import load_mesh
+        mesh = load_mesh(args.mesh)
+        if mesh.UV is None:
+            raise GeofaceError(f"{args.mesh} has no UVs to project the maps into")
+        cam = _read_camera(args.camera)
+    maps = reconstruct(model, photo, k=args.k, refine=not args.no_refine)
+    images = {}
+    for name in (*MAP_FILES, "uv", "normal"):
+        img = maps[name]
+        images[name] = np.concatenate([img, np.zeros_like(img[:, :, :1])], 2) if img.shape[2] == 2 else img
+    msg = f"{args.output}: albedo, micronormal, specular ({photo.shape[0]}²)"
+    if mesh is not None:
+        from geoface.uvmap.inpaint import inpaint
+        from geoface.uvmap.project import project_views
+        for name, c in MAP_FILES.items():
+            img = maps[name] if c == 3 else np.repeat(maps[name], 3, 2)
+            res = project_views(mesh, [img.astype(np.float64)], [cam], size=args.uv_size)
+            if not (res.weight > 0).any():
+                raise GeofaceError(f"the camera in {args.camera} sees none of {args.mesh} (check R, t and K)")
+            tex = inpaint(res.texture, res.weight > 0)
+            images[f"uv_{name}"] = tex if c == 3 else tex[:, :, :1]
+        msg += f"; UV maps {args.uv_size}² (seen by the camera: {float((res.weight > 0).mean()):.0%} of texels)"
+    out = Path(args.output)  # only now: a failure above leaves no partial output
+    out.mkdir(parents=True, exist_ok=True)
+    for name, img in images.items():
+        _write_png16(out / f"{name}.png", img)
+    print(msg)
+    return 0
+
+
+def register(sub, common: argparse.ArgumentParser) -> None:
+    """Add ``texture synth|train|reconstruct`` to the ``geoface`` sub-parsers."""
+    s = sub.add_parser("texture", help="ultra-high-resolution skin maps from a photo (needs geoface[learn])")
+    sd = s.add_subparsers(dest="what", metavar="WHAT")
+    sd.required = True
+    p = sd.add_parser("synth", parents=[common], help="write synthetic (photo, maps, UV, normal) samples")
+    p.add_argument("output", metavar="OUT_DIR")
+    p.add_argument("--count", type=int, default=8)
+    p.add_argument("--res", type=int, default=512, help="photo resolution")
+    p.add_argument("--map-res", type=int, default=None, help="UV-map resolution (default max(res, 1024))")
+    p.add_argument("--vertices", type=int, default=20000)
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_synth)
+    t = sd.add_parser("train", parents=[common], help="train predictor, GDE and HFDR in turn")
+    t.add_argument("data_dir")
+    t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
+    t.add_argument("--gde-res", type=int, default=256, help="resolution of the predictor and GDE (paper: 1024)")
+    t.add_argument("--k", type=int, default=4, help="HFDR patches per side")
+    t.add_argument("--epochs", default="20,20,20", help="epochs of predictor, GDE, HFDR")
+    t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--batch", type=int, default=4)
+    t.add_argument("--no-hash", action="store_true", help="GDE without the UV hash encoding (ablation)")
+    t.add_argument("--seed", type=int, default=0)
+    t.set_defaults(func=cmd_train)
+    r = sd.add_parser("reconstruct", parents=[common], help="albedo, micronormal, specular maps of a photo")
+    r.add_argument("photo")
+    r.add_argument("--model", required=True, metavar="MODEL_DIR")
+    r.add_argument("--mesh", default=None, help="a mesh with UVs to project the maps into")
+    r.add_argument("--camera", default=None, metavar="CAM.json", help="K, R, t of the photo's camera (OpenCV)")
+    r.add_argument("--uv-size", type=int, default=1024)
+    r.add_argument("--k", type=int, default=None, help="patches per side (default: the model's)")
+    r.add_argument("--no-refine", action="store_true", help="GDE maps upsampled (baseline), no HFDR")
+    r.add_argument("-o", "--output", required=True, metavar="OUT_DIR")
+    r.set_defaults(func=cmd_reconstruct)

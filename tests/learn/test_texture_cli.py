@@ -1,0 +1,70 @@
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+
+from geoface.cli import main  # noqa: E402
+
+
+def test_synth_train_reconstruct_end_to_end(tmp_path, capsys):
+    data, model, out = tmp_path / "data", tmp_path / "model", tmp_path / "out"
+    assert main(["texture", "synth", str(data), "--count", "2", "--res", "64", "--map-res", "128",
+                 "--vertices", "3000", "-q"]) == 0
+    assert main(["texture", "train", str(data), "-o", str(model), "--gde-res", "32", "--k", "2",
+                 "--epochs", "2,2,2", "--batch", "2", "-q"]) == 0
+    assert (model / "model.safetensors").is_file() and json.loads((model / "config.json").read_text())["k"] == 2
+    import cv2
+
+    from geoface.learn.texture import load_sample
+    photo = load_sample(data / "sample_0000.npz")["photo"]
+    cv2.imwrite(str(tmp_path / "photo.png"), (photo[:, :, ::-1] * 255).astype(np.uint8))
+    # with a mesh + camera: the maps also land in the mesh's UV space
+    from geoface.mesh.io import save_mesh
+    from geoface.synth.surfaces import square_grid
+    V, F = square_grid(8, 1.0)
+    V = np.asarray(V, float)
+    UV = (V[:, :2] - V[:, :2].min(0)) / np.ptp(V[:, :2], axis=0)
+    save_mesh(tmp_path / "plane.obj", V=V, F=F, UV=UV)
+    cam = {"K": [[60, 0, 32], [0, 60, 32], [0, 0, 1]], "R": np.diag([1.0, -1.0, -1.0]).tolist(), "t": [0, 0, 2]}
+    (tmp_path / "cam.json").write_text(json.dumps(cam))
+    assert main(["texture", "reconstruct", str(tmp_path / "photo.png"), "--model", str(model),
+                 "--mesh", str(tmp_path / "plane.obj"), "--camera", str(tmp_path / "cam.json"),
+                 "--uv-size", "64", "-o", str(out), "-q"]) == 0
+    for name in ("albedo", "micronormal", "specular", "uv", "normal", "uv_albedo", "uv_specular"):
+        img = cv2.imread(str(out / f"{name}.png"), cv2.IMREAD_UNCHANGED)
+        assert img is not None and img.dtype == np.uint16, name
+    assert cv2.imread(str(out / "albedo.png"), cv2.IMREAD_UNCHANGED).shape == (64, 64, 3)
+    assert cv2.imread(str(out / "uv_albedo.png"), cv2.IMREAD_UNCHANGED).shape == (64, 64, 3)
+    assert "UV maps 64²" in capsys.readouterr().out
+    # a camera that sees nothing: one-line error, no output folder
+    cam["t"] = [0, 0, -2]
+    (tmp_path / "away.json").write_text(json.dumps(cam))
+    assert main(["texture", "reconstruct", str(tmp_path / "photo.png"), "--model", str(model),
+                 "--mesh", str(tmp_path / "plane.obj"), "--camera", str(tmp_path / "away.json"),
+                 "--uv-size", "64", "-o", str(tmp_path / "out2"), "-q"]) == 2
+    assert "sees none" in capsys.readouterr().err and not (tmp_path / "out2").exists()
+
+
+@pytest.mark.parametrize("argv,msg", [
+    (["texture", "reconstruct", "{tmp}/missing.png", "--model", "{tmp}", "-o", "{tmp}/o"], "no such file"),
+    (["texture", "train", "{tmp}", "-o", "{tmp}/m", "--epochs", "3,3"], "--epochs"),
+    (["texture", "train", "{tmp}", "-o", "{tmp}/m"], "no *.npz"),
+])
+def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, msg):
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert msg in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_corrupt_model_is_one_line_exit_2(tmp_path, capsys):
+    import cv2
+    cv2.imwrite(str(tmp_path / "p.png"), np.zeros((64, 64, 3), np.uint8))
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "config.json").write_text("{not json")
+    assert main(["texture", "reconstruct", str(tmp_path / "p.png"), "--model", str(tmp_path / "m"),
+                 "-o", str(tmp_path / "o")]) == 2
+    assert "corrupt" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
