@@ -134,6 +134,39 @@ def smooth_seams(img: Tensor, k: int, band: int = 8, long: int = 16, short: int 
     return out
 
 
+def smooth_seams_inplace(img: np.ndarray, k: int, band: int = 8, long: int = 16, short: int = 2,
+                         sigma: float = 5.0) -> np.ndarray:  # [C, H, W] numpy, modified and returned
+    """:func:`smooth_seams` on a [C, H, W] numpy array (or memmap), in place and strip by strip:
+    memory is a few seam strips, not copies of the image.  Same result as :func:`smooth_seams`."""
+    C, H, W = img.shape
+    ph_, pw_ = _check((H, W), k)
+    half = band // 2
+    for axis, (kh, kw), step in ((1, (long, short), ph_), (2, (short, long), pw_)):
+        ker = _centred(gaussian_kernel(kh, kw, sigma))
+        mh, mw = ker.shape[0] // 2, ker.shape[1] // 2
+        kt = ker[None, None].expand(C, 1, *ker.shape)
+        n = H if axis == 1 else W
+        results = []
+        for s in range(1, k):
+            a, b = max(s * step - half, 0), min(s * step + band - half, n)
+            m = mh if axis == 1 else mw  # margin across the seam
+            lo, hi = max(a - m, 0), min(b + m, n)
+            strip = img[:, lo:hi] if axis == 1 else img[:, :, lo:hi]
+            t = torch.from_numpy(np.ascontiguousarray(strip, np.float32))[None]
+            if axis == 1:
+                pad = (mw, mw, m - (a - lo), m - (hi - b))
+            else:
+                pad = (m - (a - lo), m - (hi - b), mh, mh)
+            blurred = Fnn.conv2d(Fnn.pad(t, pad, mode="replicate"), kt.to(t), groups=C)[0].numpy()
+            results.append((a, b, blurred))
+        for a, b, blurred in results:  # all strips read the pre-pass image, then write
+            if axis == 1:
+                img[:, a:b] = blurred
+            else:
+                img[:, :, a:b] = blurred
+    return img
+
+
 def stream_patches(fn: Callable[[int, int, slice, slice], np.ndarray], size: tuple[int, int], k: int,
                    channels: int, out: np.ndarray | None = None, dtype=np.float32) -> np.ndarray:
     """Run ``fn(i, j, ys, xs)`` → patch [channels, ph, pw] for every patch and write it into

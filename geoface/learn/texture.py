@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as Fnn
 
 from .errors import CheckpointError, LearnError
-from .patches import guidance_crop, smooth_seams, stream_patches
+from .patches import guidance_crop, smooth_seams_inplace, stream_patches
 from .texture_nets import GDE, HFDR, N_MAPS, NormalUVPredictor, TextureNetConfig, map_loss
 
 KEYS = {"photo": 3, "maps": N_MAPS, "uv": 2, "normal": 3}
@@ -152,9 +152,10 @@ def _masked_l1(a, b, m):
 
 
 def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, quiet: bool | None = None,
-                  log=None) -> dict:
+                  log=None, device: str = "cpu") -> dict:
     """Train the three stages on ``data_dir``/*.npz; writes ``out_dir`` (config + safetensors)
-    and returns the per-stage loss history."""
+    and returns the per-stage loss history.  ``device``: "cpu" or "cuda" (all samples are held
+    on it)."""
     from geoface.progress import progress
     cfg = cfg or TextureTrainConfig()
     files = sorted(Path(data_dir).glob("*.npz"))
@@ -165,9 +166,9 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
     _check_sizes(H, cfg)
     torch.manual_seed(cfg.seed)
     g = torch.Generator().manual_seed(cfg.seed)
-    model = TextureModel(cfg)
-    full = {k: torch.cat([_t(d[k]) for d in data]) for k in KEYS}
-    mask = torch.cat([torch.from_numpy(d["mask"])[None, None].float() for d in data])
+    model = TextureModel(cfg).to(device)
+    full = {k: torch.cat([_t(d[k]) for d in data]).to(device) for k in KEYS}
+    mask = torch.cat([torch.from_numpy(d["mask"])[None, None].float() for d in data]).to(device)
     lo = {k: _down(v, cfg.gde_res) for k, v in full.items()}
     mlo = (_down(mask, cfg.gde_res) > 0.5).float()
     n = len(data)
@@ -178,7 +179,7 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
         opt = torch.optim.Adam(params, lr=cfg.lr)
         sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, patience=5)
         for _ in progress(range(epochs), f"texture {name}", quiet=quiet):
-            perm = torch.randperm(n, generator=g)
+            perm = torch.randperm(n, generator=g).to(device)
             tot = 0.0
             for s in range(0, n, cfg.batch):
                 idx = perm[s:s + cfg.batch]
@@ -218,7 +219,7 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
         xs, ts, ms, uvs, ns, gs = [], [], [], [], [], []
         for i in idx.tolist():
             for _ in range(cfg.hfdr_patches):
-                y0, x0 = (torch.randint(0, cfg.k, (2,), generator=g) * P).tolist()
+                y0, x0 = (torch.randint(0, cfg.k, (2,), generator=g) * P).tolist()  # CPU generator
                 box = (slice(y0, y0 + P), slice(x0, x0 + P))
                 xs.append(full["photo"][i:i + 1, :, box[0], box[1]])
                 ts.append(full["maps"][i:i + 1, :, box[0], box[1]])
@@ -234,13 +235,13 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
 
     run_stage("hfdr", model.hfdr.parameters(), hfdr_step, cfg.epochs[2])
     model.requires_grad_(True)
-    model.save(out_dir)
+    model.cpu().save(out_dir)
     return {"history": hist, "seconds": time.time() - t0, "samples": n, "size": H}
 
 
 @torch.no_grad()
 def reconstruct(model: TextureModel, photo: np.ndarray, *, k: int | None = None, refine: bool = True,
-                smooth: bool = True) -> dict:
+                smooth: bool = True, device: str = "cpu") -> dict:
     """Photo [H, W, 3] in [0, 1] (H = W, divisible by k) → dict of full-resolution maps
     ``albedo`` [H,W,3], ``micronormal`` [H,W,3] (encoded), ``specular`` [H,W,1], and the
     predicted ``uv`` [H,W,2] and ``normal`` [H,W,3] (encoded), all float32.
@@ -255,21 +256,22 @@ def reconstruct(model: TextureModel, photo: np.ndarray, *, k: int | None = None,
     k = k or model.cfg.k
     H = photo.shape[0]
     _check_sizes(H, TextureTrainConfig(**{**model.cfg.__dict__, "k": k}))
-    x = _t(photo)
+    model = model.to(device)
+    x = _t(photo)  # stays on the CPU; patches move to ``device`` one at a time
     r = model.cfg.gde_res
-    uv, nrm, guide = model.coarse(_down(x, r))
+    uv, nrm, guide = model.coarse(_down(x, r).to(device))
     if refine:
         def patch(i, j, ys, xs):
             box = (ys, xs)
-            out = model.hfdr(x[:, :, ys, xs], guidance_crop(uv, (H, H), box),
+            out = model.hfdr(x[:, :, ys, xs].to(device), guidance_crop(uv, (H, H), box),
                              guidance_crop(nrm, (H, H), box), guidance_crop(guide, (H, H), box))
-            return out[0].numpy()
+            return out[0].cpu().numpy()
         maps = stream_patches(patch, (H, H), k, N_MAPS)
         if smooth:
-            maps = smooth_seams(torch.from_numpy(maps)[None], k)[0].numpy()
+            smooth_seams_inplace(maps, k)
     else:
-        maps = Fnn.interpolate(guide, size=(H, H), mode="bilinear", align_corners=False)[0].numpy()
-    up = lambda t: Fnn.interpolate(t, size=(H, H), mode="bilinear", align_corners=False)[0].numpy()  # noqa: E731
+        maps = Fnn.interpolate(guide, size=(H, H), mode="bilinear", align_corners=False)[0].cpu().numpy()
+    up = lambda t: Fnn.interpolate(t, size=(H, H), mode="bilinear", align_corners=False)[0].cpu().numpy()  # noqa: E731
     hwc = lambda a: np.ascontiguousarray(np.moveaxis(a, 0, -1)).astype(np.float32)  # noqa: E731
     return {"albedo": hwc(maps[0:3]), "micronormal": hwc(maps[3:6]), "specular": hwc(maps[6:7]),
             "uv": hwc(up(uv)), "normal": hwc(up(nrm) * 0.5 + 0.5)}

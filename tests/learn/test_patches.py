@@ -76,3 +76,14 @@ def test_stream_patches_writes_every_patch_once():
     assert len(calls) == 16 and out[1, 8, 24] == 13 and out[0, 31, 0] == 30
     with pytest.raises(LearnError, match="shape"):
         stream_patches(lambda *a: np.zeros((2, 4, 4)), (32, 32), 4, channels=2)
+
+
+@pytest.mark.parametrize("k,P", [(4, 32), (3, 20), (8, 8)])
+def test_inplace_strip_smoothing_equals_full_image_version(k, P):
+    from geoface.learn.patches import smooth_seams_inplace
+    img = torch.rand(1, 5, k * P, k * P, generator=torch.Generator().manual_seed(k), dtype=torch.float64)
+    full = smooth_seams(img.float(), k)[0].numpy()
+    arr = img[0].float().numpy().copy()
+    out = smooth_seams_inplace(arr, k)
+    assert out is arr
+    np.testing.assert_allclose(arr, full, atol=1e-6)
