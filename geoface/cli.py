@@ -458,6 +458,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .learn.texture_cli import register as register_texture
 
     register_ddpm(sub, common)
+
+    from .splat.cli import register as register_splat  # argparse only: torch loads inside the command
+
+    register_splat(sub, common)
     register_texture(sub, common)
 
     s = sub.add_parser("synth", help="write procedural test geometry")

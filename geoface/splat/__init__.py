@@ -15,6 +15,8 @@ _NAMES = {
     "save_ply": "ply", "load_ply": "ply",
     "rasterize": "rasterizer", "rasterize_reference": "rasterizer",
     "DensityConfig": "density", "DensityStrategy": "density", "make_optimizer": "density",
+    "render_mesh": "render_mesh", "rasterize_mesh": "render_mesh", "MeshRender": "render_mesh",
+    "FitConfig": "fit", "FitResult": "fit", "fit_mesh": "fit",
     "SplatError": "errors", "CameraError": "errors", "GaussianPlyError": "errors",
 }
 __all__ = sorted(_NAMES)
