@@ -260,3 +260,30 @@ def test_bad_config_and_state():
     m = torch.zeros(1, 2, requires_grad=True)
     with pytest.raises(GeofaceError, match="grad"):
         DensityStrategy().update_state(g, {"means2d": m, "radii": torch.ones(1), "width": 8, "height": 8})
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+@pytest.mark.parametrize("backend", ["torch", "gsplat"])
+def test_density_on_cuda(backend):
+    if backend == "gsplat":
+        pytest.importorskip("gsplat")
+    torch.manual_seed(0)
+    g, _ = _train_setup(40)
+    g = g.cuda()
+    opt = make_optimizer(g)
+    cam = _cam()
+    target = torch.zeros(32, 32, 3, device="cuda")
+    s = DensityStrategy(DensityConfig(grad_threshold=1e-12, refine_start=0, refine_every=1,
+                                      reset_every=2, percent_dense=0.02), scene_extent=1.0)
+    for step in (1, 2, 3):
+        rgb, _, _, info = rasterize(g, cam, backend=backend, return_info=True)
+        s.step_pre_backward(info)
+        opt.zero_grad()
+        (rgb - target).abs().mean().backward()
+        opt.step()
+        out = s.step_post_backward(g, opt, info, step)
+        assert out["n"] == len(g) and g.means.is_cuda and g.parent.is_cuda
+        for grp in opt.param_groups:
+            p = grp["params"][0]
+            assert opt.state[p]["exp_avg"].shape == p.shape and opt.state[p]["exp_avg"].is_cuda
+    assert len(g) > 40

@@ -135,3 +135,22 @@ def test_gsplat_matches_torch():
     ref = rasterize(g, cam, backend="torch")
     out = rasterize(g.cuda(), cam, backend="gsplat")
     torch.testing.assert_close(out[0].cpu(), ref[0], atol=2e-2, rtol=0)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_torch_path_on_cuda_matches_cpu():
+    g = _random_scene(80, 4, sh=True, dtype=torch.float32)
+    cam = look_at([0.3, -0.2, -1.0], [0, 0, 3.0], width=45, height=37, fov_y_deg=50)
+    gc = GaussianTensors(*(getattr(g, n).detach().cuda().requires_grad_(True)
+                           for n in ("means", "log_scales", "quats", "opacity_logits", "colors")))
+    for fn in (rasterize, rasterize_reference):
+        kw = {"backend": "torch"} if fn is rasterize else {}
+        ref = fn(g, cam, background=[0.3, 0.3, 0.3], return_info=True, **kw)
+        out = fn(gc, cam, background=[0.3, 0.3, 0.3], return_info=True, **kw)
+        for a, b in zip(out[:3], ref[:3]):
+            assert a.is_cuda
+            torch.testing.assert_close(a.cpu(), b, atol=1e-4, rtol=0)
+        assert out[3]["means2d"].is_cuda and torch.equal(out[3]["radii"].cpu(), ref[3]["radii"])
+        out[0].sum().backward()
+        assert gc.means.grad is not None and gc.means.grad.is_cuda
+        gc.means.grad = None
