@@ -211,40 +211,53 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
     return out
 
 
-def make_texture_dataset(out_dir, count: int = 8, res: int = 512, map_res: int | None = None, *,
-                         seed: int = 0, vertices: int = 20000, quiet: bool | None = None) -> list:
-    """Write ``count`` texture-model samples (``sample_XXXX.npz``, see
-    :func:`geoface.learn.texture.save_sample`) of procedural heads with procedural skin, each
-    from a jittered near-frontal camera under random lights.  ``map_res`` (default: ``res``,
-    at least 1024) is the UV-map resolution.  Returns the written paths; existing samples are
-    kept (resumable)."""
-    from pathlib import Path
-
-    from geoface.progress import progress
+def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, vertices: int) -> None:
     from geoface.splat.camera import look_at
     from geoface.synth import procedural_head
 
     from .texture import save_sample
+
+    rng = np.random.default_rng([seed, i])
+    head = procedural_head(vertices, seed=int(rng.integers(1 << 31)))
+    centre = head.V[head.face_mask].mean(0)
+    yaw, pitch = np.radians(rng.uniform(-20, 20)), np.radians(rng.uniform(-10, 10))
+    dist = rng.uniform(0.40, 0.48)
+    eye = centre + dist * np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
+    cam = look_at(eye, centre + rng.normal(0, 0.005, 3), width=res, height=res, fov_y_deg=30)
+    maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)))
+    s = render_skin_sample(head.V, head.F, head.UV, maps, cam, random_lights(rng, int(rng.integers(2, 5))))
+    save_sample(path, s["photo"], s["maps"], s["uv"], s["normal"], s["mask"])
+
+
+def make_texture_dataset(out_dir, count: int = 8, res: int = 512, map_res: int | None = None, *,
+                         seed: int = 0, vertices: int = 20000, workers: int = 1,
+                         quiet: bool | None = None) -> list:
+    """Write ``count`` texture-model samples (``sample_XXXX.npz``, see
+    :func:`geoface.learn.texture.save_sample`) of procedural heads with procedural skin, each
+    from a jittered near-frontal camera under random lights.  ``map_res`` (default: ``res``,
+    at least 1024) is the UV-map resolution.  Sample ``i`` depends only on (``seed``, ``i``),
+    so ``workers`` > 1 (a process pool) writes the same files.  Returns the paths; existing
+    samples are kept (resumable)."""
+    from concurrent.futures import ProcessPoolExecutor
+    from pathlib import Path
+
+    from geoface.progress import progress
 
     if count < 1 or not 32 <= res <= 8192:
         raise LearnError(f"need count >= 1 and res in 32..8192; got count={count}, res={res}")
     map_res = int(map_res or max(res, 1024))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for i in progress(range(count), "texture samples", quiet=quiet):
-        path = out_dir / f"sample_{i:04d}.npz"
-        paths.append(path)
-        if path.exists():
-            continue
-        rng = np.random.default_rng([seed, i])
-        head = procedural_head(vertices, seed=int(rng.integers(1 << 31)))
-        centre = head.V[head.face_mask].mean(0)
-        yaw, pitch = np.radians(rng.uniform(-20, 20)), np.radians(rng.uniform(-10, 10))
-        dist = rng.uniform(0.40, 0.48)
-        eye = centre + dist * np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
-        cam = look_at(eye, centre + rng.normal(0, 0.005, 3), width=res, height=res, fov_y_deg=30)
-        maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)))
-        s = render_skin_sample(head.V, head.F, head.UV, maps, cam, random_lights(rng, int(rng.integers(2, 5))))
-        save_sample(path, s["photo"], s["maps"], s["uv"], s["normal"], s["mask"])
+    paths = [out_dir / f"sample_{i:04d}.npz" for i in range(count)]
+    todo = [i for i in range(count) if not paths[i].exists()]
+    args = [(paths[i], i, seed, res, map_res, vertices) for i in todo]
+    if workers > 1 and len(todo) > 1:
+        import multiprocessing as mp
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
+            futs = [ex.submit(_write_texture_sample, *a) for a in args]
+            for f in progress(futs, "texture samples", total=len(futs), quiet=quiet):
+                f.result()
+    else:
+        for a in progress(args, "texture samples", total=len(args), quiet=quiet):
+            _write_texture_sample(*a)
     return paths

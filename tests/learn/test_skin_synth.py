@@ -105,3 +105,13 @@ def test_make_texture_dataset(tmp_path):
     assert paths[1].stat().st_mtime_ns == before  # resumable: nothing rewritten
     with pytest.raises(LearnError):
         make_texture_dataset(tmp_path, count=0)
+
+
+def test_make_texture_dataset_workers_write_the_same_files(tmp_path):
+    from geoface.learn.skin_synth import make_texture_dataset
+    a = make_texture_dataset(tmp_path / "a", count=2, res=48, map_res=64, vertices=2000, quiet=True)
+    b = make_texture_dataset(tmp_path / "b", count=2, res=48, map_res=64, vertices=2000, workers=2, quiet=True)
+    for pa, pb in zip(a, b):
+        with np.load(pa) as za, np.load(pb) as zb:
+            for k in za.files:
+                assert np.array_equal(za[k], zb[k]), k
