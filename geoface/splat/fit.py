@@ -31,14 +31,14 @@ import numpy as np
 import torch
 
 from geoface.splat.camera import Camera, orbit
+from geoface.splat.density import DensityConfig, DensityStrategy, make_optimizer
 from geoface.splat.errors import SplatError
 from geoface.splat.gaussians import Gaussians
 from geoface.splat.rasterizer import rasterize
 from geoface.splat.render_mesh import render_mesh
 
-__all__ = ["FitConfig", "FitResult", "fit_mesh", "fit_cameras", "psnr", "PARAM_NAMES"]
+__all__ = ["FitConfig", "FitResult", "fit_mesh", "fit_cameras", "psnr", "heldout_images"]
 
-PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "colors")
 BACKGROUNDS = ("random", "white", "black")
 
 
@@ -184,21 +184,16 @@ def _compose(pm, a, bg):
     return pm + (1 - a)[..., None] * bg
 
 
-def make_optimizer(gaussians, cfg: FitConfig, extent: float) -> torch.optim.Adam:
-    """Adam with one param group per attribute, each named after it (density control relies on
-    the names). eps = 1e-15 as 3DGS."""
-    lr = {"means": cfg.lr_means * extent, "log_scales": cfg.lr_log_scales, "quats": cfg.lr_quats,
-          "opacity_logits": cfg.lr_opacity, "colors": cfg.lr_colors}
-    return torch.optim.Adam([{"params": [getattr(gaussians, n)], "lr": lr[n], "name": n}
-                             for n in PARAM_NAMES], eps=1e-15)
+def _optimizer(gaussians, cfg: FitConfig, extent: float) -> torch.optim.Adam:
+    """Adam with one group per attribute named after it (what density control expects);
+    eps = 1e-15 as 3DGS."""
+    lrs = {"means": cfg.lr_means * extent, "log_scales": cfg.lr_log_scales, "quats": cfg.lr_quats,
+           "opacity_logits": cfg.lr_opacity, "colors": cfg.lr_colors}
+    return make_optimizer(gaussians, lrs, eps=1e-15)
 
 
 def _density_strategy(cfg: FitConfig, extent: float, n0: int):
-    if not cfg.densify or cfg.iters < 200:
-        return None
-    try:
-        from geoface.splat.density import DensityConfig, DensityStrategy
-    except ImportError:  # density control not available in this checkout: fit without it
+    if not cfg.densify:
         return None
     sched = dict(refine_start=max(100, cfg.iters // 10), refine_stop=int(0.6 * cfg.iters),
                  refine_every=100, reset_every=0, max_gaussians=int(cfg.max_gaussians_factor * n0))
@@ -261,8 +256,9 @@ def fit_mesh(V, F, colors, cfg: FitConfig | None = None,
     hpm, ha = _ground_truth(V, F, C, held, cfg.supersample) if held else (None, None)
     ebg = torch.tensor(cfg.eval_background, dtype=torch.float32)
     g = Gaussians.from_mesh(V, F, C, sh_degree=cfg.sh_degree, opacity=cfg.init_opacity)
-    opt = make_optimizer(g, cfg, extent)
+    opt = _optimizer(g, cfg, extent)
     strategy = _density_strategy(cfg, extent, len(g))
+    means_group = next(grp for grp in opt.param_groups if grp["name"] == "means")
     fixed = {"white": torch.ones(3), "black": torch.zeros(3)}.get(cfg.background)
     lam = cfg.lambda_dssim
     history = []
@@ -274,7 +270,7 @@ def fit_mesh(V, F, colors, cfg: FitConfig | None = None,
     for it in steps:
         # eq.: lr_means(t) = lr0^(1−t/T) · lr1^(t/T), × extent (3DGS exponential decay)
         s = it / max(cfg.iters - 1, 1)
-        opt.param_groups[0]["lr"] = extent * math.exp(
+        means_group["lr"] = extent * math.exp(
             (1 - s) * math.log(cfg.lr_means) + s * math.log(cfg.lr_means_final))
         if not order:
             order = list(rng.permutation(len(train)))

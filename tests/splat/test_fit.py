@@ -108,3 +108,15 @@ def test_cli_errors_are_one_line_exit_2(tmp_path, capsys):
         assert rc == 2
         assert err.startswith("geoface: error:") and err.count("\n") == 1
     assert not (tmp_path / "o.ply").exists()
+
+
+def test_fit_with_density_control_and_sh():
+    V, F, C = _coloured_sphere(2)
+    cfg = FitConfig(views=4, heldout=1, res=32, iters=90, seed=0, threads=1, sh_degree=1,
+                    density={"refine_start": 20, "refine_stop": 80, "refine_every": 30, "grad_threshold": 1e-6})
+    r = fit_mesh(V, F, C, cfg, progress=False)
+    grown = [h for h in r.history if h.get("cloned") or h.get("split")]
+    assert grown and r.n_gaussians > len(V)
+    assert len(r.gaussians.parent) == r.n_gaussians  # parent index kept through densification
+    assert r.gaussians.colors.shape[1:] == (4, 3)
+    assert float(r.gaussians.colors.detach()[:, 1:].abs().max()) > 0  # view-dependent terms trained
