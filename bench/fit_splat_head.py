@@ -63,6 +63,9 @@ def main(argv=None) -> int:
            "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"), "resolution": a.res, "views": a.views,
            "heldout_views": a.heldout, "command": " ".join([sys.executable.split("/")[-1], *sys.argv]),
            "machine": platform.processor() or platform.machine(), "torch": torch.__version__,
+           "seconds_per_iteration": res.seconds / max(res.iterations, 1),
+           "t_forward_mean": float(np.mean([r["t_forward"] for r in res.history])) if res.history else None,
+           "t_backward_mean": float(np.mean([r["t_backward"] for r in res.history])) if res.history else None,
            "config": cfg.to_dict(),
            "heldout_curve": [{"step": r["step"], "psnr_heldout": r["psnr_heldout"], "n": r["n"]}
                              for r in res.history if "psnr_heldout" in r]}

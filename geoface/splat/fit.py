@@ -276,6 +276,7 @@ def fit_mesh(V, F, colors, cfg: FitConfig | None = None,
             order = list(rng.permutation(len(train)))
         v = int(order.pop())
         bg = torch.rand(3) if fixed is None else fixed
+        ta = time.perf_counter()
         rgb, alpha, depth, info = rasterize(g, train[v], background=bg, return_info=True)
         gt = _compose(gt_pm[v], gt_a[v], bg)
         l1 = (rgb - gt).abs().mean()
@@ -283,14 +284,17 @@ def fit_mesh(V, F, colors, cfg: FitConfig | None = None,
         loss = (1 - lam) * l1 + lam * ds  # 3DGS eq. (7)
         if strategy is not None:
             strategy.step_pre_backward(info)
+        tb = time.perf_counter()
         loss.backward()
+        tc = time.perf_counter()
         rest_before = g.colors.detach()[:, 1:].clone() if g.is_sh and g.colors.shape[1] > 1 else None
         opt.step()
         if rest_before is not None:  # SH rest learns lr / sh_rest_lr_div: scale its Adam step
             with torch.no_grad():
                 g.colors[:, 1:] = rest_before + (g.colors[:, 1:] - rest_before) / cfg.sh_rest_lr_div
         opt.zero_grad(set_to_none=True)
-        rec = {"step": it, "loss": float(loss.detach()), "l1": float(l1.detach()), "n": len(g)}
+        rec = {"step": it, "loss": float(loss.detach()), "l1": float(l1.detach()), "n": len(g),
+               "t_forward": tb - ta, "t_backward": tc - tb}
         if strategy is not None:
             counts = strategy.step_post_backward(g, opt, info, it)
             if counts.get("cloned") or counts.get("split") or counts.get("pruned"):
