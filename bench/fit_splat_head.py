@@ -48,7 +48,7 @@ def main(argv=None) -> int:
     t0 = time.process_time()
     res = fit_mesh(head.V, head.F, head.colors, cfg, progress=report)
     cpu = time.process_time() - t0
-    print(res.summary())
+    print(res.summary(), file=sys.stderr)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     pairs = heldout_images(res, head.V, head.F, head.colors)
@@ -70,6 +70,8 @@ def main(argv=None) -> int:
            "heldout_curve": [{"step": r["step"], "psnr_heldout": r["psnr_heldout"], "n": r["n"]}
                              for r in res.history if "psnr_heldout" in r]}
     (out / "fit_head.json").write_text(json.dumps(fig, indent=1, default=float))
+    print(json.dumps({"name": "fit_head", **{k: v for k, v in fig.items() if k not in ("config", "heldout_curve")}},
+                     default=float))
     return 0
 
 
