@@ -47,6 +47,10 @@ class DDPMConfig:
     layers_per_block: int = 2
     attention_head_dim: int = 8
     norm_num_groups: int = 32
+    # levels (0 = full resolution) whose down/up blocks have cross-attention; None = all but the
+    # coarsest (the original layout).  Self-attention at 64x64 costs 4096^2 per head: on a CPU
+    # use e.g. (2, 3) with four levels.  The middle block always has cross-attention.
+    attention_levels: tuple | None = None
     text_encoder: str = "minilm"       # minilm | clip:PATH | hash[:DIM]
     text_max_length: int = 32
     cross_attention_dim: int = 384     # = text encoder dim (filled in at train time)
@@ -71,8 +75,9 @@ class DDPMConfig:
         if unknown:
             raise CheckpointError(f"config.json has unknown keys {unknown}")
         d = dict(d)
-        if "block_out_channels" in d:
-            d["block_out_channels"] = tuple(d["block_out_channels"])
+        for k in ("block_out_channels", "attention_levels"):
+            if d.get(k) is not None:
+                d[k] = tuple(d[k])
         return cls(**d)
 
     def save(self, path: str | os.PathLike) -> None:
@@ -98,11 +103,16 @@ def _atomic_write_text(path: Path, text: str) -> None:
 def build_unet(cfg: DDPMConfig):
     from diffusers import UNet2DConditionModel
     n = len(cfg.block_out_channels)
+    levels = range(n - 1) if cfg.attention_levels is None else cfg.attention_levels
+    bad = [k for k in levels if not 0 <= int(k) < n]
+    if bad:
+        raise CheckpointError(f"attention_levels must lie in 0..{n - 1}; got {tuple(levels)}")
+    attn = [k in set(int(k) for k in levels) for k in range(n)]
     return UNet2DConditionModel(
         sample_size=cfg.res, in_channels=cfg.channels, out_channels=cfg.channels,
-        down_block_types=("CrossAttnDownBlock2D",) * (n - 1) + ("DownBlock2D",),
+        down_block_types=tuple("CrossAttnDownBlock2D" if a else "DownBlock2D" for a in attn),
         mid_block_type="UNetMidBlock2DCrossAttn",
-        up_block_types=("UpBlock2D",) + ("CrossAttnUpBlock2D",) * (n - 1),
+        up_block_types=tuple("CrossAttnUpBlock2D" if a else "UpBlock2D" for a in reversed(attn)),
         block_out_channels=tuple(cfg.block_out_channels), layers_per_block=cfg.layers_per_block,
         cross_attention_dim=cfg.cross_attention_dim, attention_head_dim=cfg.attention_head_dim,
         norm_num_groups=cfg.norm_num_groups)
@@ -240,12 +250,15 @@ def _embed(text, prompts: list[str]) -> torch.Tensor:
 
 def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConfig, *,
           resume: bool = False, device: str | None = None, quiet: bool | None = None,
-          text_encoder=None) -> dict:
+          text_encoder=None, max_seconds: float | None = None) -> dict:
     """Train (or resume) a run; returns ``{"step", "loss", "losses"}`` of the last step.
 
     ``resume=True`` continues from ``RUN_DIR/checkpoint`` (its config wins over ``cfg`` except
-    ``steps``, the new total).  Progress goes through :func:`geoface.progress.progress`.
+    ``steps``, the new total).  ``max_seconds``: a wall-clock budget; training stops after the
+    step that exceeds it and saves a checkpoint there.  Progress goes through
+    :func:`geoface.progress.progress`.
     """
+    import time
     from accelerate import Accelerator
     from safetensors.torch import load_file  # noqa: F401  (fail early if missing)
 
@@ -289,6 +302,7 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
     empty = _embed(text, [""])
     last = {"step": start, "loss": float("nan"), "losses": {}}
     n = len(ds)
+    t_start = time.perf_counter()
     for step in progress(range(start, cfg.steps), "ddpm train", total=cfg.steps - start, quiet=quiet):
         ds.epoch = (step * cfg.batch_size) // n
         idx = torch.randint(0, n, (cfg.batch_size,), generator=g).tolist()
@@ -309,9 +323,12 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
         opt.step()
         ema.update(accel.unwrap_model(unet), step)
         last = {"step": step + 1, "loss": float(loss.detach()), "losses": parts}
-        if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == cfg.steps:
+        out_of_time = max_seconds is not None and time.perf_counter() - t_start > max_seconds
+        if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == cfg.steps or out_of_time:
             if accel.is_main_process:
                 save_checkpoint(ckpt, cfg, accel.unwrap_model(unet), ema, opt, step + 1, extra)
+        if out_of_time:
+            break
     if start >= cfg.steps and not ckpt.is_dir():
         save_checkpoint(ckpt, cfg, accel.unwrap_model(unet), ema, opt, start, extra)
     return last

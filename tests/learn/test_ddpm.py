@@ -87,3 +87,26 @@ def test_corrupt_checkpoint_errors(gimage_dataset, tmp_path):
         load_run(run)
     with pytest.raises(GeofaceError, match="no checkpoint"):
         load_run(tmp_path / "nothing")
+
+
+def test_attention_levels_and_old_configs(tmp_path):
+    import json
+    cfg = tiny(block_out_channels=(8, 16, 16), attention_levels=(1, 2))
+    unet = build_unet(cfg)
+    assert unet.config.down_block_types == ("DownBlock2D", "CrossAttnDownBlock2D", "CrossAttnDownBlock2D")
+    assert unet.config.up_block_types == ("CrossAttnUpBlock2D", "CrossAttnUpBlock2D", "UpBlock2D")
+    cfg.save(tmp_path / "config.json")
+    assert DDPMConfig.load(tmp_path / "config.json") == cfg
+    # a config written before the field existed keeps the original layout
+    d = json.loads(tiny().to_json())
+    d.pop("attention_levels")
+    old = DDPMConfig.from_dict(d)
+    assert old.attention_levels is None
+    assert build_unet(old).config.down_block_types == ("CrossAttnDownBlock2D", "DownBlock2D")
+    with pytest.raises(GeofaceError, match="attention_levels"):
+        build_unet(tiny(attention_levels=(5,)))
+
+
+def test_time_budget_stops_and_saves(gimage_dataset, tmp_path):
+    last = train(gimage_dataset, tmp_path / "run", tiny(steps=100), quiet=True, max_seconds=0.0)
+    assert last["step"] == 1 and load_run(tmp_path / "run").state["step"] == 1

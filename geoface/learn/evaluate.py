@@ -1,0 +1,247 @@
+"""Metrics for generated geometry images (``bench/eval_ddpm.py``): validity, text control,
+diversity and memorisation.
+
+* :func:`mesh_validity` — does a geometry image reconstruct (:func:`geoface.gimage.reconstruct`)
+  to a clean manifold head: finite positions, edge-manifold, one connected component, the
+  topology of a disk (Euler characteristic 1, one boundary loop — what real items give) and no
+  zero-area faces.
+* :func:`vendi_score` — exp of the Shannon entropy of the eigenvalues of ``K / n`` (Friedman &
+  Dieng 2023) for a PSD similarity matrix ``K`` with unit diagonal; :func:`cosine_similarity`
+  builds one from feature vectors.
+* :func:`masked_rms_distances` / :func:`nearest_neighbour` — RMS distance over the position
+  channels, restricted to the pixels both images cover; nearest training neighbour per sample.
+* :class:`ExpressionClassifier` + :func:`train_classifier` / :func:`predict` — a small seeded CNN
+  over ``[B, C, N, N]`` geometry images (the text-control judge).
+
+Arrays are numpy ``float64`` unless stated; images are ``[B, 9, N, N]`` in [-1, 1] space (the
+:class:`geoface.learn.data.GImageDataset` convention) with a ``[B, N, N]`` bool mask.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geoface.errors import GeofaceError
+
+__all__ = ["Validity", "mesh_validity", "vendi_score", "cosine_similarity", "masked_rms_distances",
+           "nearest_neighbour", "ExpressionClassifier", "train_classifier", "predict", "stratified_split"]
+
+
+# ---------------------------------------------------------------- validity
+@dataclass(frozen=True)
+class Validity:
+    """Checks on one reconstructed geometry image; ``valid`` is their conjunction."""
+    valid: bool
+    finite: bool
+    reconstructs: bool
+    edge_manifold: bool
+    components: int
+    euler: int
+    boundary_loops: int
+    zero_area_faces: int
+    vertices: int
+    faces: int
+    reason: str = ""
+
+
+def _components(F: np.ndarray, n: int) -> int:
+    from scipy.sparse.csgraph import connected_components
+
+    from geoface.mesh.core import vertex_adjacency
+    return int(connected_components(vertex_adjacency(F, n), directed=False)[0])
+
+
+def mesh_validity(gi, *, expect_euler: int = 1, expect_loops: int = 1, area_rel: float = 1e-12) -> Validity:
+    """Reconstruct ``gi`` (a :class:`geoface.gimage.GeometryImage`) and check it is a clean disk.
+
+    Parameters
+    ----------
+    gi : GeometryImage
+    expect_euler, expect_loops : the topology real items reconstruct to (a disk: 1 and 1)
+    area_rel : a face is degenerate when its area < ``area_rel * bbox_diagonal**2``
+
+    Examples
+    --------
+    >>> mesh_validity(load_gimage("data/head_0000/aug0")).valid
+    True
+    """
+    from geoface.errors import InvalidGeometryImageError
+    from geoface.gimage import reconstruct
+    from geoface.mesh.core import edge_topology, face_areas
+
+    bad = dict(valid=False, finite=True, reconstructs=False, edge_manifold=False, components=0, euler=0,
+               boundary_loops=0, zero_area_faces=0, vertices=0, faces=0)
+    img = np.asarray(gi.image)
+    if not np.isfinite(img).all():
+        return Validity(**{**bad, "finite": False}, reason="non-finite values")
+    try:
+        mesh = reconstruct(gi)
+    except InvalidGeometryImageError as e:
+        return Validity(**bad, reason=str(e))
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
+    et = edge_topology(F)
+    manifold = len(et.nonmanifold_edges) == 0
+    comps = _components(F, len(V))
+    euler = len(V) - len(et.E) + len(F)
+    loops = _boundary_loop_count(et, len(V))
+    diag2 = float(np.sum((V.max(0) - V.min(0)) ** 2))
+    zero = int(np.sum(face_areas(V, F) <= area_rel * max(diag2, 1e-300)))
+    reasons = [r for ok, r in ((np.isfinite(V).all(), "non-finite vertices"), (manifold, "non-manifold edges"),
+                               (comps == 1, f"{comps} components"), (euler == expect_euler, f"Euler characteristic {euler}"),
+                               (loops == expect_loops, f"{loops} boundary loops"), (zero == 0, f"{zero} zero-area faces"))
+               if not ok]
+    return Validity(valid=not reasons, finite=bool(np.isfinite(V).all()), reconstructs=True, edge_manifold=manifold,
+                    components=comps, euler=int(euler), boundary_loops=loops, zero_area_faces=zero,
+                    vertices=len(V), faces=len(F), reason="; ".join(reasons))
+
+
+def _boundary_loop_count(et, n: int) -> int:
+    """Connected components of the boundary-edge graph (= boundary loops on an edge-manifold disk)."""
+    b = np.flatnonzero(et.edge_faces == 1)
+    if len(b) == 0:
+        return 0
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+    E = et.E[b]
+    used, inv = np.unique(E.ravel(), return_inverse=True)
+    inv = inv.reshape(-1, 2)
+    A = sp.coo_matrix((np.ones(len(E)), (inv[:, 0], inv[:, 1])), shape=(len(used), len(used)))
+    return int(connected_components(A, directed=False)[0])
+
+
+# ---------------------------------------------------------------- diversity
+def cosine_similarity(X) -> np.ndarray:
+    """``(n, n)`` cosine similarity of the rows of ``X (n, d)``; a zero row gets similarity 1 with itself only."""
+    X = np.asarray(X, np.float64).reshape(len(X), -1)
+    L = np.linalg.norm(X, axis=1, keepdims=True)
+    Y = np.divide(X, L, out=np.zeros_like(X), where=L > 0)
+    K = Y @ Y.T
+    np.fill_diagonal(K, 1.0)
+    return K
+
+
+def vendi_score(K) -> float:
+    """Vendi score ``exp(-sum_i l_i log l_i)``, ``l`` the eigenvalues of ``K / n``.
+
+    ``K (n, n)`` must be symmetric PSD with unit diagonal.  n identical items give 1, n mutually
+    orthogonal items give n.
+
+    Examples
+    --------
+    >>> vendi_score(np.eye(4))
+    4.0
+    """
+    K = np.asarray(K, np.float64)
+    if K.ndim != 2 or K.shape[0] != K.shape[1] or K.shape[0] == 0:
+        raise GeofaceError(f"K must be a non-empty square matrix; got shape {K.shape}")
+    if not np.allclose(np.diag(K), 1.0, atol=1e-6):
+        raise GeofaceError("K must have a unit diagonal")
+    lam = np.linalg.eigvalsh((K + K.T) / (2 * len(K)))
+    lam = lam[lam > 1e-12]
+    return float(np.exp(-np.sum(lam * np.log(lam))))
+
+
+# ---------------------------------------------------------------- memorisation
+def masked_rms_distances(A, mA, B, mB) -> np.ndarray:
+    """``(a, b)`` RMS distance between position images ``A (a, 3, N, N)`` and ``B (b, 3, N, N)``
+    over the pixels both cover (``mA (a, N, N)``, ``mB (b, N, N)`` bool); ``inf`` where none."""
+    A = np.asarray(A, np.float64).reshape(len(A), A.shape[1], -1)
+    B = np.asarray(B, np.float64).reshape(len(B), B.shape[1], -1)
+    ma = np.asarray(mA, np.float64).reshape(len(A), -1)
+    mb = np.asarray(mB, np.float64).reshape(len(B), -1)
+    for name, m, X in (("mA", ma, A), ("mB", mb, B)):
+        if m.shape != (X.shape[0], X.shape[2]):
+            raise GeofaceError(f"{name} must have one (N, N) mask per image; got {m.shape[0]} masks for {X.shape[0]} images")
+    C = A.shape[1]
+    # sum_{p in both} |a_p - b_p|^2 = (m_a |a|^2)·m_b + m_a·(m_b |b|^2) - 2 sum_c (m_a a_c)·(m_b b_c)
+    sq = (ma * (A ** 2).sum(1)) @ mb.T + ma @ (mb * (B ** 2).sum(1)).T
+    cross = sum((ma * A[:, c]) @ (mb * B[:, c]).T for c in range(C))
+    cnt = ma @ mb.T
+    d2 = np.maximum(sq - 2 * cross, 0.0) / np.maximum(cnt * C, 1)
+    return np.where(cnt > 0, np.sqrt(d2), np.inf)
+
+
+def nearest_neighbour(A, mA, B, mB) -> tuple[np.ndarray, np.ndarray]:
+    """Distance to and index of the nearest item of ``B`` for every item of ``A`` (see above)."""
+    D = masked_rms_distances(A, mA, B, mB)
+    j = np.argmin(D, axis=1)
+    return D[np.arange(len(D)), j], j
+
+
+# ---------------------------------------------------------------- text control
+def stratified_split(labels, holdout: float = 0.2, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(train, held_out)``: ``holdout`` of every class (at least one when the class has
+    two or more items), chosen by a seeded permutation."""
+    labels = np.asarray(labels)
+    rng = np.random.default_rng(seed)
+    test = []
+    for c in sorted(set(labels.tolist())):
+        idx = np.flatnonzero(labels == c)
+        k = int(round(holdout * len(idx)))
+        k = max(k, 1) if len(idx) >= 2 else 0
+        test.extend(rng.permutation(idx)[:k].tolist())
+    test = np.sort(np.asarray(test, np.int64))
+    train = np.setdiff1d(np.arange(len(labels)), test)
+    return train, test
+
+
+def _torch():
+    from geoface._lazy import lazy_import
+    return lazy_import("torch", "the expression classifier")
+
+
+
+def ExpressionClassifier(in_channels: int, n_classes: int, width: int = 16):
+    """A small CNN: 4 × (conv3×3 → GroupNorm → SiLU → 2× down), global average pool, linear."""
+    nn = _torch().nn
+    layers, c = [], in_channels
+    for k in range(4):
+        w = width * 2 ** min(k, 2)
+        layers += [nn.Conv2d(c, w, 3, padding=1), nn.GroupNorm(4, w), nn.SiLU(), nn.AvgPool2d(2)]
+        c = w
+    return nn.Sequential(*layers, nn.AdaptiveAvgPool2d(1), nn.Flatten(), nn.Linear(c, n_classes))
+
+
+def train_classifier(X, y, *, n_classes: int | None = None, epochs: int = 60, batch_size: int = 32, lr: float = 3e-3,
+                     width: int = 16, seed: int = 0, augment_shift: int = 2):
+    """Train :func:`ExpressionClassifier` on ``X [n, C, N, N]`` (float32) with integer labels ``y (n,)``.
+
+    Deterministic for a seed (CPU).  ``augment_shift``: random integer image shifts up to this many
+    pixels (rolls) against over-fitting a small set.  Returns the model in eval mode.
+    """
+    torch = _torch()
+    X = torch.as_tensor(np.asarray(X, np.float32))
+    y = torch.as_tensor(np.asarray(y, np.int64))
+    if X.ndim != 4 or len(X) != len(y) or len(X) == 0:
+        raise GeofaceError(f"X must be [n, C, N, N] with one label per item; got {tuple(X.shape)} and {tuple(y.shape)}")
+    n_classes = int(n_classes or int(y.max()) + 1)
+    g = torch.Generator().manual_seed(int(seed))
+    torch.manual_seed(int(seed))
+    model = ExpressionClassifier(X.shape[1], n_classes, width)
+    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-3)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, epochs))
+    model.train()
+    for _ in range(int(epochs)):
+        perm = torch.randperm(len(X), generator=g)
+        for s in range(0, len(X), batch_size):
+            idx = perm[s:s + batch_size]
+            xb = X[idx]
+            if augment_shift:
+                dx, dy = torch.randint(-augment_shift, augment_shift + 1, (2,), generator=g).tolist()
+                xb = torch.roll(xb, (dy, dx), dims=(2, 3))
+            loss = torch.nn.functional.cross_entropy(model(xb), y[idx])
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+        sched.step()
+    return model.eval()
+
+
+def predict(model, X, batch_size: int = 64) -> np.ndarray:
+    """Class index per item of ``X [n, C, N, N]``."""
+    torch = _torch()
+    X = torch.as_tensor(np.asarray(X, np.float32))
+    with torch.no_grad():
+        out = [model(X[s:s + batch_size]).argmax(1) for s in range(0, len(X), batch_size)]
+    return torch.cat(out).numpy() if out else np.zeros(0, np.int64)

@@ -1,0 +1,146 @@
+import math
+
+import numpy as np
+import pytest
+
+from geoface import GeofaceError
+from geoface.learn.evaluate import (cosine_similarity, masked_rms_distances, mesh_validity, nearest_neighbour,
+                                    stratified_split, vendi_score)
+
+from .conftest import make_gimage_dataset
+
+
+# ---------------------------------------------------------------- Vendi
+def test_vendi_identical_items_is_one():
+    assert vendi_score(np.ones((6, 6))) == pytest.approx(1.0, abs=1e-9)
+    X = np.tile([[1.0, 2.0, 3.0]], (5, 1))
+    assert vendi_score(cosine_similarity(X)) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_vendi_orthogonal_items_is_n():
+    assert vendi_score(np.eye(5)) == pytest.approx(5.0, abs=1e-9)
+    assert vendi_score(cosine_similarity(3.0 * np.eye(7)[:4])) == pytest.approx(4.0, abs=1e-9)
+
+
+def test_vendi_two_clusters():
+    # two identical-within, orthogonal-between clusters of sizes a, b: eigenvalues a/n, b/n
+    for a, b in ((3, 3), (3, 1)):
+        X = np.array([[1.0, 0.0]] * a + [[0.0, 2.0]] * b)
+        p = np.array([a, b]) / (a + b)
+        assert vendi_score(cosine_similarity(X)) == pytest.approx(math.exp(-(p * np.log(p)).sum()), abs=1e-9)
+    assert vendi_score(cosine_similarity(np.array([[1.0, 0]] * 2 + [[0, 1.0]] * 2))) == pytest.approx(2.0)
+
+
+def test_vendi_rejects_bad_matrices():
+    with pytest.raises(GeofaceError, match="square"):
+        vendi_score(np.ones((2, 3)))
+    with pytest.raises(GeofaceError, match="unit diagonal"):
+        vendi_score(2 * np.eye(3))
+
+
+# ---------------------------------------------------------------- nearest neighbour
+def _brute(A, mA, B, mB):
+    D = np.full((len(A), len(B)), np.inf)
+    for i in range(len(A)):
+        for j in range(len(B)):
+            m = mA[i] & mB[j]
+            if m.any():
+                D[i, j] = np.sqrt(np.mean((A[i][:, m] - B[j][:, m]) ** 2))
+    return D
+
+
+def test_masked_rms_constructed():
+    N = 4
+    A = np.zeros((1, 3, N, N))
+    B = np.stack([np.full((3, N, N), 0.5), np.full((3, N, N), 0.1)])
+    full = np.ones((2, N, N), bool)
+    D = masked_rms_distances(A, full[:1], B, full)
+    np.testing.assert_allclose(D, [[0.5, 0.1]], atol=1e-12)
+    d, j = nearest_neighbour(A, full[:1], B, full)
+    assert j.tolist() == [1] and d[0] == pytest.approx(0.1)
+    # differences outside the common coverage do not count; no overlap gives inf
+    B2 = B.copy()
+    B2[0, :, :, 2:] = 9.0
+    half = np.zeros((2, N, N), bool)
+    half[:, :, :2] = True
+    D2 = masked_rms_distances(A, half[:1], B2, full)
+    np.testing.assert_allclose(D2, [[0.5, 0.1]], atol=1e-12)
+    other = ~half
+    assert np.isinf(masked_rms_distances(A, half[:1], B, other)).all()
+    with pytest.raises(GeofaceError, match="mB"):
+        masked_rms_distances(A, half[:1], B, other[:1])
+
+
+def test_masked_rms_matches_brute_force():
+    rng = np.random.default_rng(0)
+    A, B = rng.normal(size=(5, 3, 6, 6)), rng.normal(size=(4, 3, 6, 6))
+    mA, mB = rng.random((5, 6, 6)) > 0.3, rng.random((4, 6, 6)) > 0.3
+    np.testing.assert_allclose(masked_rms_distances(A, mA, B, mB), _brute(A, mA, B, mB), rtol=1e-9)
+
+
+# ---------------------------------------------------------------- validity
+@pytest.fixture(scope="module")
+def real_gi(tmp_path_factory):
+    from geoface.gimage import load_gimage
+    root = make_gimage_dataset(tmp_path_factory.mktemp("ev"), n_items=1, N=16)
+    return load_gimage(root / "head_000" / "aug0")
+
+
+def test_validity_of_a_real_item_and_corruptions(real_gi):
+    from geoface.gimage import GeometryImage
+    v = mesh_validity(real_gi)
+    assert v.valid, v.reason
+    assert (v.components, v.euler, v.boundary_loops, v.zero_area_faces) == (1, 1, 1, 0)
+
+    nan = GeometryImage(real_gi.image.copy(), real_gi.mask.copy(), dict(real_gi.meta))
+    nan.image[0, 3, 3] = np.nan
+    assert not mesh_validity(nan).valid and not mesh_validity(nan).finite
+
+    rng = np.random.default_rng(0)  # scrambled coverage: holes and islands
+    holes = GeometryImage(real_gi.image.copy(), rng.random(real_gi.mask.shape) > 0.4, dict(real_gi.meta))
+    h = mesh_validity(holes)
+    assert not h.valid and (h.components > 1 or h.euler != 1)
+
+    flat = GeometryImage(real_gi.image.copy(), real_gi.mask.copy(), dict(real_gi.meta))
+    flat.image[0:3, :, :8] = 0.0  # half the positions collapsed onto one point (clamped samples do this)
+    f = mesh_validity(flat)
+    assert not f.valid and f.zero_area_faces > 0
+
+    scrambled = GeometryImage(real_gi.image.copy(), real_gi.mask.copy(), dict(real_gi.meta))
+    perm = rng.permutation(16 * 16)
+    scrambled.image[0:3] = scrambled.image[0:3].reshape(3, -1)[:, perm].reshape(3, 16, 16)
+    assert mesh_validity(scrambled).reconstructs  # topology survives; only geometry changed
+
+    empty = GeometryImage(real_gi.image.copy(), np.zeros_like(real_gi.mask), dict(real_gi.meta))
+    e = mesh_validity(empty)
+    assert not e.valid and not e.reconstructs
+
+
+# ---------------------------------------------------------------- classifier, split
+def test_classifier_learns_a_separable_toy_set():
+    pytest.importorskip("torch")
+    from geoface.learn.evaluate import predict, train_classifier
+    rng = np.random.default_rng(0)
+    y = np.arange(24) % 2
+    X = rng.normal(0, 0.3, size=(24, 3, 16, 16)).astype(np.float32)
+    X[:, 0, 4:12, 4:12] += np.where(y == 1, 1.0, -1.0)[:, None, None]
+    m1 = train_classifier(X[:16], y[:16], epochs=4, width=8, seed=0)
+    assert np.mean(predict(m1, X[16:]) == y[16:]) == 1.0
+    m2 = train_classifier(X[:16], y[:16], epochs=4, width=8, seed=0)
+    for p, q in zip(m1.parameters(), m2.parameters()):
+        assert (p == q).all()  # deterministic for a seed
+    with pytest.raises(GeofaceError, match="one label per item"):
+        train_classifier(X[:3], y[:2])
+
+
+def test_stratified_split():
+    labels = np.array(["a"] * 10 + ["b"] * 5 + ["c"])
+    tr, ho = stratified_split(labels, 0.2, seed=1)
+    assert sorted(np.concatenate([tr, ho]).tolist()) == list(range(16))
+    assert Counter_(labels[ho]) == {"a": 2, "b": 1}
+    np.testing.assert_array_equal(stratified_split(labels, 0.2, seed=1)[1], ho)
+
+
+def Counter_(x):
+    from collections import Counter
+    return dict(Counter(x.tolist()))
