@@ -94,7 +94,8 @@ def skin_maps(res: int = 1024, seed: int = 0, *, pore_density: float = 3e5, frec
     base = TONES[p["tone"]] * (1 + 0.04 * rng.standard_normal(3))
     albedo = np.broadcast_to(base, (res, res, 3)).copy()
     mott = _noise(sub[0], res, 0.01)
-    albedo *= (1 + 0.025 * mott)[..., None]
+    fine = _noise(sub[7], res, 0.0012)  # fine skin texture, about a pixel at 1K: what HFDR must restore
+    albedo *= (1 + 0.025 * mott + 0.06 * fine)[..., None]
     red = np.clip(_noise(sub[1], res, 0.08), 0, None) * p["redness"]
     albedo += red[..., None] * np.array([0.10, -0.05, -0.04])
     region = np.clip(_noise(sub[2], res, 0.15) - 0.3, 0, None)  # where freckles gather
@@ -107,7 +108,7 @@ def skin_maps(res: int = 1024, seed: int = 0, *, pore_density: float = 3e5, frec
     wrinkles = _noise(sub[5], res, 0.002) * 0.3
     height = (-pores + wrinkles) * 2e-4  # UV units (1 = the UV square's side)
     micronormal = height_to_normal(height, strength=1.0)
-    spec = 0.35 + 0.15 * _noise(sub[6], res, 0.1) - 0.15 * pores
+    spec = 0.35 + 0.15 * _noise(sub[6], res, 0.1) - 0.15 * pores + 0.06 * fine
     return SkinMaps(np.clip(albedo, 0, 1), height, micronormal, np.clip(spec, 0, 1)[..., None])
 
 
