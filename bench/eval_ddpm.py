@@ -166,7 +166,7 @@ def main() -> int:
     ap.add_argument("--guidance", type=float, default=3.0)
     ap.add_argument("--prompts", nargs="*", help="prompts to sample (default: one per expression class)")
     ap.add_argument("--n-prompts", type=int, default=5)
-    ap.add_argument("--classifier-epochs", type=int, default=60)
+    ap.add_argument("--classifier-epochs", type=int, default=40)
     ap.add_argument("--out", type=Path, required=True, help="results.json and preview PNGs go here")
     ap.add_argument("--quick", action="store_true", help="tiny smoke configuration (about a minute)")
     ap.add_argument("--seed", type=int, default=0)
@@ -218,12 +218,16 @@ def run(a) -> int:
         run_dir = a.out / "run" if not a.quick else work / "run"
         t = time.perf_counter()
         last = train(train_dir, run_dir, cfg, device=a.device, quiet=True, max_seconds=60 * a.minutes)
-        emit(case="train", steps=last["step"], seconds=time.perf_counter() - t, threads=torch.get_num_threads(),
-             device=a.device, batch=a.batch, final_loss=last["loss"], losses=last["losses"],
-             block_out_channels=list(cfg.block_out_channels), attention_levels=list(cfg.attention_levels),
-             text_encoder=cfg.text_encoder, train_items=len(tr))
+        info = {"steps": last["step"], "seconds": time.perf_counter() - t, "threads": torch.get_num_threads(),
+                "device": a.device, "batch": a.batch, "final_loss": last["loss"], "losses": last["losses"],
+                "block_out_channels": list(cfg.block_out_channels), "attention_levels": list(cfg.attention_levels),
+                "text_encoder": cfg.text_encoder, "train_items": len(tr)}
+        (run_dir / "train_info.json").write_text(json.dumps(info), encoding="utf-8")
+        emit(case="train", **info)
     else:
         run_dir = a.run
+        if (run_dir / "train_info.json").is_file():  # written when this script trained the run
+            emit(case="train", reused=True, **json.loads((run_dir / "train_info.json").read_text(encoding="utf-8")))
     drun = load_run(run_dir)
     emit(case="run", run=str(run_dir), step=drun.state.get("step"), params=sum(p.numel() for p in drun.unet.parameters()),
          trained_on=drun.state.get("data_dir"))

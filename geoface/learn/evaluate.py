@@ -192,34 +192,48 @@ def _torch():
 
 
 
-def ExpressionClassifier(in_channels: int, n_classes: int, width: int = 16):
-    """A small CNN: 4 × (conv3×3 → GroupNorm → SiLU → 2× down), global average pool, linear."""
-    nn = _torch().nn
-    layers, c = [], in_channels
+def ExpressionClassifier(in_channels: int, n_classes: int, width: int = 16, res: int = 64, mean=None):
+    """A small CNN: subtract ``mean [C, N, N]`` (the shared head shape), 4 × (conv3×3 → GroupNorm →
+    SiLU → 2× average pool), flatten the ``N/16 × N/16`` map (keeps *where* a feature is: left vs.
+    right eye), dropout, linear."""
+    torch = _torch()
+    nn = torch.nn
+
+    class Center(nn.Module):
+        def __init__(self, m):
+            super().__init__()
+            self.register_buffer("mean", torch.zeros(in_channels, res, res) if m is None else torch.as_tensor(m).float())
+
+        def forward(self, x):  # [B, C, N, N]
+            return x - self.mean
+
+    layers, c = [Center(mean)], in_channels
     for k in range(4):
         w = width * 2 ** min(k, 2)
         layers += [nn.Conv2d(c, w, 3, padding=1), nn.GroupNorm(4, w), nn.SiLU(), nn.AvgPool2d(2)]
         c = w
-    return nn.Sequential(*layers, nn.AdaptiveAvgPool2d(1), nn.Flatten(), nn.Linear(c, n_classes))
+    side = max(1, res // 16)
+    return nn.Sequential(*layers, nn.Flatten(), nn.Dropout(0.2), nn.Linear(c * side * side, n_classes))
 
 
-def train_classifier(X, y, *, n_classes: int | None = None, epochs: int = 60, batch_size: int = 32, lr: float = 3e-3,
-                     width: int = 16, seed: int = 0, augment_shift: int = 2):
+def train_classifier(X, y, *, n_classes: int | None = None, epochs: int = 60, batch_size: int = 32, lr: float = 2e-3,
+                     width: int = 16, seed: int = 0, augment_shift: int = 1):
     """Train :func:`ExpressionClassifier` on ``X [n, C, N, N]`` (float32) with integer labels ``y (n,)``.
 
-    Deterministic for a seed (CPU).  ``augment_shift``: random integer image shifts up to this many
-    pixels (rolls) against over-fitting a small set.  Returns the model in eval mode.
+    The training mean image is subtracted inside the model.  Deterministic for a seed (CPU).
+    ``augment_shift``: random integer image shifts up to this many pixels against over-fitting a
+    small set.  Returns the model in eval mode.
     """
     torch = _torch()
     X = torch.as_tensor(np.asarray(X, np.float32))
     y = torch.as_tensor(np.asarray(y, np.int64))
-    if X.ndim != 4 or len(X) != len(y) or len(X) == 0:
+    if X.ndim != 4 or len(X) != len(y) or len(X) == 0 or X.shape[2] != X.shape[3]:
         raise GeofaceError(f"X must be [n, C, N, N] with one label per item; got {tuple(X.shape)} and {tuple(y.shape)}")
     n_classes = int(n_classes or int(y.max()) + 1)
     g = torch.Generator().manual_seed(int(seed))
     torch.manual_seed(int(seed))
-    model = ExpressionClassifier(X.shape[1], n_classes, width)
-    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-3)
+    model = ExpressionClassifier(X.shape[1], n_classes, width, res=X.shape[2], mean=X.mean(0))
+    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-2)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, epochs))
     model.train()
     for _ in range(int(epochs)):

@@ -124,9 +124,9 @@ def test_classifier_learns_a_separable_toy_set():
     y = np.arange(24) % 2
     X = rng.normal(0, 0.3, size=(24, 3, 16, 16)).astype(np.float32)
     X[:, 0, 4:12, 4:12] += np.where(y == 1, 1.0, -1.0)[:, None, None]
-    m1 = train_classifier(X[:16], y[:16], epochs=4, width=8, seed=0)
+    m1 = train_classifier(X[:16], y[:16], epochs=3, width=8, seed=0)
     assert np.mean(predict(m1, X[16:]) == y[16:]) == 1.0
-    m2 = train_classifier(X[:16], y[:16], epochs=4, width=8, seed=0)
+    m2 = train_classifier(X[:16], y[:16], epochs=3, width=8, seed=0)
     for p, q in zip(m1.parameters(), m2.parameters()):
         assert (p == q).all()  # deterministic for a seed
     with pytest.raises(GeofaceError, match="one label per item"):
