@@ -1,8 +1,9 @@
 """Time the Gaussian rasterizer: forward and backward, 10K/100K Gaussians at 256²/512².
 
 One JSON line per (device, backend, Gaussians, resolution): median forward and backward
-seconds over ``--repeats`` runs after one warm-up, the torch thread count, and the mean
-alpha of the image (how much of it the head covers).
+wall seconds over ``--repeats`` runs after one warm-up (on CPU also the process CPU seconds,
+all threads, which a busy shared machine disturbs less), the torch thread count, and the
+mean alpha of the image (how much of it the head covers).
 
 Scene: Gaussians on the surface of a head-sized ellipsoid (semi-axes 0.09 × 0.12 × 0.10 m,
 as the procedural head), scales sqrt(area / (π N)) × U(0.5, 1.5) per axis (what a fitted
@@ -59,26 +60,31 @@ def time_case(n, res, device, backend, repeats):
     params, s = head_scene(n, device)
     cam = look_at([0, 0, 0.45], [0, 0, 0], width=res, height=res, fov_y_deg=40)
     w = torch.rand(res, res, 3, generator=torch.Generator().manual_seed(0)).to(device)
-    fwd, bwd, alpha_mean = [], [], 0.0
+    fwd, bwd, cfwd, cbwd, alpha_mean = [], [], [], [], 0.0
     for r in range(repeats + 1):  # the first run warms up (allocator, kernels) and is dropped
         for p in params:
             p.grad = None
         _sync(device)
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         rgb, alpha, depth = rasterize(GaussianTensors(*params), cam, background=(1.0, 1.0, 1.0),
                                       backend=backend)
         _sync(device)
-        t1 = time.perf_counter()
+        c1, t1 = time.process_time(), time.perf_counter()
         ((rgb * w).sum() + alpha.sum()).backward()
         _sync(device)
-        t2 = time.perf_counter()
+        c2, t2 = time.process_time(), time.perf_counter()
         if r:
             fwd.append(t1 - t0)
             bwd.append(t2 - t1)
+            cfwd.append(c1 - c0)
+            cbwd.append(c2 - c1)
         alpha_mean = float(alpha.detach().mean())
-    return {"forward_s": round(statistics.median(fwd), 4), "backward_s": round(statistics.median(bwd), 4),
-            "forward_all": [round(x, 4) for x in fwd], "alpha_mean": round(alpha_mean, 3),
-            "scale_m": round(s, 5)}
+    med = lambda xs: round(statistics.median(xs), 4)  # noqa: E731
+    row = {"forward_s": med(fwd), "backward_s": med(bwd), "forward_all": [round(x, 4) for x in fwd],
+           "alpha_mean": round(alpha_mean, 3), "scale_m": round(s, 5)}
+    if device.type == "cpu":  # process CPU time (all threads): steadier than wall time on a shared machine
+        row.update(forward_cpu_s=med(cfwd), backward_cpu_s=med(cbwd))
+    return row
 
 
 def main() -> None:

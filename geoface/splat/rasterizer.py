@@ -329,25 +329,27 @@ def _composite_tiles(uv, z, conic, opac, colors, radius, ids, offs, counts, tx, 
 
 def auto_tile(radius) -> int:
     """Tile size for the batched path from the median screen radius (pixels) of the visible
-    Gaussians: 4 up to r = 8, 8 up to r = 24, else 16. Work per (tile, Gaussian) pair is
+    Gaussians: 4 up to r = 8, 8 up to r = 48, else 16. Work per (tile, Gaussian) pair is
     tile² while the number of pairs grows as (2r/tile + 1)²; the thresholds come from timing
-    head-like scenes (bench/bench_splat.py) and a scene of large overlapping splats."""
+    forward + backward on head-like scenes (bench/bench_splat.py, r ≈ 3–10) and on scenes of
+    larger overlapping splats (r ≈ 14 and 60) on CPU."""
     r = radius[radius > 0]
     if len(r) == 0:
         return 16
     med = float(r.median())
-    return 4 if med <= 8 else 8 if med <= 24 else 16
+    return 4 if med <= 8 else 8 if med <= 48 else 16
 
 
-def rasterize(gaussians, camera: Camera, background=None, tile: int | None = None, chunk: int = 16,
+def rasterize(gaussians, camera: Camera, background=None, tile: int | None = None, chunk: int | None = None,
               near: float = 0.01, backend: str = "auto", return_info: bool = False):
     """Render ``gaussians`` seen by ``camera`` → (rgb [H,W,3], alpha [H,W], depth [H,W]).
 
     ``backend``: "torch" (this vectorised path, any device), "gsplat" (CUDA; needs gsplat), or
     "auto" (gsplat when importable and the tensors live on CUDA, else torch). Differentiable
     with respect to every Gaussian parameter (autograd around a hand-written backward of the
-    compositing rounds). ``tile``: tile size in pixels (None: :func:`auto_tile`); ``chunk``:
-    Gaussians per tile evaluated per compositing round. Neither changes the result.
+    compositing rounds). ``tile``: tile size in pixels (None: :func:`auto_tile` on CPU, 16 on a
+    GPU); ``chunk``: Gaussians per tile evaluated per compositing round (None: 16 on CPU, 256
+    on a GPU, where fewer, larger rounds pay less launch overhead). Neither changes the result.
 
     ``return_info=True`` adds a 4th value, a dict: ``"means2d"`` [N, 2] the projected means in
     pixels, a tensor in the graph (call ``retain_grad()`` on it before ``backward`` to read the
@@ -356,7 +358,7 @@ def rasterize(gaussians, camera: Camera, background=None, tile: int | None = Non
     """
     if backend not in ("auto", "torch", "gsplat"):
         raise SplatError(f"backend must be 'auto', 'torch' or 'gsplat'; got {backend!r}")
-    if (tile is not None and tile < 1) or chunk < 1:
+    if (tile is not None and tile < 1) or (chunk is not None and chunk < 1):
         raise SplatError(f"tile and chunk must be >= 1; got tile={tile}, chunk={chunk}")
     if backend != "torch" and gaussians.means.is_cuda:
         from geoface.splat._gsplat import rasterize_gsplat, gsplat_available
@@ -366,8 +368,11 @@ def rasterize(gaussians, camera: Camera, background=None, tile: int | None = Non
         raise SplatError("backend='gsplat' needs Gaussians on a CUDA device")
     uv, z, conic, radius, opac, colors = _prepare(gaussians, camera, near)
     H, W = camera.height, camera.width
+    cpu = uv.device.type == "cpu"
     if tile is None:
-        tile = auto_tile(radius)
+        tile = auto_tile(radius) if cpu else 16
+    if chunk is None:
+        chunk = 16 if cpu else 256
     ids, offs, counts, tx, ty = _bin(uv, radius, z, W, H, tile)
     C, D, T = _composite_tiles(uv, z, conic, opac, colors, radius, ids, offs, counts, tx, ty,
                                tile, chunk, W, H)
