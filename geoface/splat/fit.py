@@ -16,7 +16,10 @@ Pipeline:
 
 Background: a random colour per iteration (``background="random"``, default; 3DGS's
 ``--random_background``) makes transparency count — a fixed background lets Gaussians of that
-colour stand in for empty space. PSNR is measured over the whole image on
+colour stand in for empty space. On the procedural head (128², 24 views, 300 steps) the two are
+within 0.2 dB: white training scores 33.42 dB held-out on the white evaluation background
+against 33.27 for random, random scores higher on the covered pixels (29.75 against 29.58 dB);
+random is kept because it does not depend on the background a viewer uses. PSNR is measured over the whole image on
 ``eval_background`` (white), as for 3DGS's synthetic scenes; ``psnr_*_masked`` restricts it
 to pixels covered by the mesh.
 """
@@ -195,8 +198,12 @@ def _optimizer(gaussians, cfg: FitConfig, extent: float) -> torch.optim.Adam:
 def _density_strategy(cfg: FitConfig, extent: float, n0: int):
     if not cfg.densify:
         return None
-    sched = dict(refine_start=max(100, cfg.iters // 10), refine_stop=int(0.6 * cfg.iters),
-                 refine_every=100, reset_every=0, max_gaussians=int(cfg.max_gaussians_factor * n0))
+    # 3DGS refines every 100 of 30K steps from 500 to 15K; scaled to short CPU runs: from 10 %
+    # to 60 % of the run, every min(100, iters/10) steps; no opacity reset (it needs thousands
+    # of steps to recover)
+    every = min(100, max(10, cfg.iters // 10))
+    sched = dict(refine_start=min(500, cfg.iters // 10) - 1, refine_stop=int(0.6 * cfg.iters),
+                 refine_every=every, reset_every=0, max_gaussians=int(cfg.max_gaussians_factor * n0))
     sched.update(cfg.density or {})
     return DensityStrategy(DensityConfig(**sched), scene_extent=extent)
 
