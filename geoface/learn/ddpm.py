@@ -118,10 +118,18 @@ def build_unet(cfg: DDPMConfig):
         norm_num_groups=cfg.norm_num_groups)
 
 
-def build_scheduler(cfg: DDPMConfig, kind: str = "ddpm"):
+def build_scheduler(cfg: DDPMConfig, kind: str = "ddpm", clip: float | None = None):
+    """``clip``: clamp the predicted x0 to [-clip, clip] at each sampling step (None = off).
+
+    With squaredcos_cap_v2 and epsilon prediction, alpha_bar near t = T is ~1e-5, so an unclipped
+    x0 estimate amplifies small epsilon errors ~300x: samples of a briefly trained model came out as
+    per-pixel noise with |x| up to ~40.  The training data lie in [-1, 1], so clip=1 is the bound.
+    """
     from diffusers import DDIMScheduler, DDPMScheduler
+    on = clip is not None and clip > 0
     s = DDPMScheduler(num_train_timesteps=cfg.num_train_timesteps, beta_schedule="squaredcos_cap_v2",
-                      prediction_type="epsilon", clip_sample=False)
+                      prediction_type="epsilon", clip_sample=on,
+                      clip_sample_range=float(clip) if on else 1.0)
     if kind == "ddpm":
         return s
     if kind == "ddim":
@@ -337,15 +345,18 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
 # ---------------------------------------------------------------- sampling
 @torch.no_grad()
 def sample(run: DiffusionRun, prompt: str, n: int = 4, steps: int = 50, scheduler: str = "ddim",
-           guidance: float = 3.0, seed: int = 0, device: str = "cpu", quiet: bool | None = None) -> torch.Tensor:
+           guidance: float = 3.0, seed: int = 0, device: str = "cpu", quiet: bool | None = None,
+           clip: float | None = 1.0) -> torch.Tensor:
     """Draw ``n`` samples ``[n, 9, R, R]`` in [-1, 1]-space (unclipped) for ``prompt``.
 
     Deterministic for a seed (a CPU ``torch.Generator`` drives all noise).  ``guidance`` is the
-    classifier-free guidance weight (1 = plain conditional; <= 0 = unconditional).
+    classifier-free guidance weight (1 = plain conditional; <= 0 = unconditional).  ``clip``
+    clamps each step's x0 estimate to [-clip, clip] (the data range; None = off, see
+    :func:`build_scheduler`).
     """
     from geoface.progress import progress
     cfg = run.config
-    sched = build_scheduler(cfg, scheduler)
+    sched = build_scheduler(cfg, scheduler, clip=clip)
     sched.set_timesteps(int(steps))
     unet = run.unet.to(device).eval()
     g = torch.Generator().manual_seed(int(seed))

@@ -65,6 +65,11 @@ def test_train_save_load_sample_deterministic(gimage_dataset, tmp_path):
         b = sample(r2, "a smiling female", n=2, steps=3, scheduler=sch, guidance=2.0, seed=7, quiet=True)
         assert a.shape == (2, 9, 8, 8)
         torch.testing.assert_close(a, b, rtol=0, atol=0)
+        # x0 is clipped to the data range by default: the last step lands on the clipped estimate
+        assert float(a.abs().max()) <= 1 + 1e-5
+        u = sample(r1, "a smiling female", n=2, steps=3, scheduler=sch, guidance=2.0, seed=7, quiet=True,
+                   clip=None)
+        assert u.shape == a.shape and torch.isfinite(u).all()
     c8 = sample(r1, "a smiling female", n=2, steps=3, seed=8, quiet=True)
     assert not torch.equal(a, c8)
     gis = to_geometry_images(a, r1.state)
