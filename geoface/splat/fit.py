@@ -199,10 +199,10 @@ def _density_strategy(cfg: FitConfig, extent: float, n0: int):
     if not cfg.densify:
         return None
     # 3DGS refines every 100 of 30K steps from 500 to 15K; scaled to short CPU runs: from 10 %
-    # to 60 % of the run, every min(100, iters/10) steps; no opacity reset (it needs thousands
-    # of steps to recover)
+    # (at least step 100: the gradient statistics need that many views) to 60 % of the run,
+    # every min(100, iters/10) steps; no opacity reset (it needs thousands of steps to recover)
     every = min(100, max(10, cfg.iters // 10))
-    sched = dict(refine_start=min(500, cfg.iters // 10) - 1, refine_stop=int(0.6 * cfg.iters),
+    sched = dict(refine_start=max(100, min(500, cfg.iters // 10)) - 1, refine_stop=int(0.6 * cfg.iters),
                  refine_every=every, reset_every=0, max_gaussians=int(cfg.max_gaussians_factor * n0))
     sched.update(cfg.density or {})
     return DensityStrategy(DensityConfig(**sched), scene_extent=extent)
