@@ -164,6 +164,7 @@ def main() -> int:
     ap.add_argument("--samples-per-prompt", type=int, default=8)
     ap.add_argument("--sample-steps", type=int, default=50)
     ap.add_argument("--guidance", type=float, default=3.0)
+    ap.add_argument("--clip", type=float, default=1.0, help="clamp the x0 estimate to [-clip, clip] while sampling (0 = off)")
     ap.add_argument("--prompts", nargs="*", help="prompts to sample (default: one per expression class)")
     ap.add_argument("--n-prompts", type=int, default=5)
     ap.add_argument("--classifier-epochs", type=int, default=40)
@@ -261,7 +262,7 @@ def run(a) -> int:
     for k, (prompt, cls) in enumerate(prompts):
         t = time.perf_counter()
         x = sample(drun, prompt, n=a.samples_per_prompt, steps=a.sample_steps, guidance=a.guidance,
-                   seed=a.seed + k, device=a.device, quiet=True)
+                   seed=a.seed + k, device=a.device, quiet=True, clip=a.clip if a.clip > 0 else None)
         secs = time.perf_counter() - t
         gis = to_geometry_images(x, state)
         S, SM = as_model_space(gis)
