@@ -1,7 +1,12 @@
 """Time the Ricci-flow rectangle map against libigl's harmonic and LSCM maps, in one run.
 
 One JSON line per (mesh, method): vertices, seconds, Newton iterations (ricci), and the
-distortion summary (quasi-conformal ratio mean/p95/max, flipped triangles).
+distortion summary (quasi-conformal ratio mean/p95/max, flipped triangles).  Ricci flow
+has two lines: ``ricci`` (its vertex UVs interpolated linearly, as renderers and the
+geometry images use them; after intrinsic flips these are the chord triangles of the
+intrinsic triangulation) and ``ricci_map`` (the discrete conformal map itself, sampled at
+``level^2`` points per input triangle: projective per triangle, and carried through the
+intrinsic flips when there are any).
 
     python bench/bench_param.py [--sizes 10000 50000 200000]
 """
@@ -31,8 +36,13 @@ def run(name, V, F):
     t = time.perf_counter()
     r = ricci_flow_rectangle(V, F)
     sec = time.perf_counter() - t
-    emit(name, len(V), "ricci", sec, metrics.distortion(V, r.F, r.uv).summary(), iterations=r.iterations,
-         converged=r.converged, residual=float(f"{r.residual:.3g}"), linear_solver=SPDSolver("auto").method)
+    emit(name, len(V), "ricci", sec, metrics.distortion(r.V, r.F, r.uv).summary(), iterations=r.iterations,
+         converged=r.converged, residual=float(f"{r.residual:.3g}"), linear_solver=SPDSolver("auto").method,
+         intrinsic_flips=r.intrinsic_flips, split_boundary_edges=int(len(r.split_edges)))
+    t = time.perf_counter()
+    level = 1 if len(V) > 60000 else 3
+    md = metrics.map_distortion(r.V, r.mesh_F, r.map_points, level=level).summary()
+    emit(name, len(V), "ricci_map", time.perf_counter() - t, md)
     uv, sec = baselines.timed(baselines.harmonic_rectangle, V, F, r.corners)
     emit(name, len(V), "harmonic", sec, metrics.distortion(V, F, uv).summary())
     uv, sec = baselines.timed(baselines.lscm, V, F)

@@ -136,9 +136,18 @@ def cmd_param(args) -> int:
         r = solver.solve(corners)
         if not r.converged:
             raise GeofaceError(f"Ricci flow did not converge (max |K - target| = {r.residual:.3g} after {r.iterations} iterations)")
+        colors = mesh.colors
+        if len(r.V) > len(V):  # boundary edges split by the flow
+            from .pipeline import _extend_split
+
+            V, _, colors = _extend_split(r.V, r.split_edges, len(V), None, colors)
+            mesh = Mesh(V, r.mesh_F, colors=colors)
         F = r.F
         uv = to_unit_square(r.uv, r.width, r.height, args.fit)
-        info.update(iterations=r.iterations, residual=r.residual, seconds=r.seconds, aspect=r.aspect, corners=[int(c) for c in r.corners], ears_flipped=r.ears_flipped)
+        info.update(iterations=r.iterations, residual=r.residual, seconds=r.seconds, aspect=r.aspect, corners=[int(c) for c in r.corners],
+                    ears_flipped=r.ears_flipped, intrinsic_flips=r.intrinsic_flips, split_boundary_edges=int(len(r.split_edges)))
+        # the conformal map itself (projective per triangle / per piece after intrinsic flips)
+        info["conformal_map_distortion"] = metrics.map_distortion(r.V, r.mesh_F, r.map_points, level=2).summary()
     elif args.method == "harmonic":
         uv, t = baselines.timed(baselines.harmonic_rectangle, V, F, corners)
         info.update(seconds=t, corners=[int(c) for c in corners])
@@ -163,6 +172,9 @@ def cmd_param(args) -> int:
     )
     if args.method == "ricci":
         print(f"  Newton iterations {info['iterations']}, max |K - target| {info['residual']:.2e}, rectangle aspect {info['aspect']:.4f}")
+        c = info["conformal_map_distortion"]
+        extra = f"; {r.intrinsic_flips} intrinsic flips, {len(r.split_edges)} boundary edges split" if r.intrinsic_flips else ""
+        print(f"  conformal map (sampled): quasi-conformal mean {c['qc_mean']:.4f}, p95 {c['qc_p95']:.4f}; folded triangles {c['flipped']}{extra}")
     return 0
 
 

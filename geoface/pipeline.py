@@ -121,10 +121,23 @@ def load_roi(path: str | os.PathLike, n_vertices: int) -> np.ndarray:
     return m
 
 
-def corner_uvs_for(F_new: np.ndarray, F_old: np.ndarray, UV: np.ndarray, FUV: np.ndarray):
+def _extend_split(V_new, split_edges, n_old, roi, colors):
+    """Per-vertex data for vertices appended as edge midpoints (``split_edges``, in order)."""
+    k = len(V_new) - n_old
+    edges = np.asarray(split_edges)[-k:]
+    for a, b in edges.tolist():
+        if roi is not None:
+            roi = np.append(roi, roi[a] and roi[b])
+        if colors is not None:
+            colors = np.concatenate([colors, (0.5 * (colors[a].astype(np.float64) + colors[b])).astype(colors.dtype)[None]])
+    return V_new, roi, colors
+
+
+def corner_uvs_for(F_new: np.ndarray, F_old: np.ndarray, UV: np.ndarray, FUV: np.ndarray, split_edges=None):
     """Texture coordinates for the faces ``F_new`` of a re-triangulated mesh: faces that
     exist in ``F_old`` keep their corner UVs (seams survive); others use one UV per vertex.
-    Returns ``(UV_ext, FUV_new)``."""
+    ``split_edges (k, 2)``: vertices appended after ``F_old``'s, each the midpoint of an
+    edge (their UV is the midpoint's).  Returns ``(UV_ext, FUV_new)``."""
     n = int(max(F_new.max(), F_old.max())) + 1
 
     def keys(F):
@@ -141,7 +154,14 @@ def corner_uvs_for(F_new: np.ndarray, F_old: np.ndarray, UV: np.ndarray, FUV: np
     src = order[pos]
     vert_uv = first_corner_uv(F_old, FUV, n)
     UV_ext = np.concatenate([UV, np.zeros((1, 2))])
-    fallback = np.where(vert_uv[F_new] >= 0, vert_uv[F_new], len(UV))
+    if split_edges is not None and len(split_edges):
+        base = n - len(split_edges)
+        for i, (a, b) in enumerate(np.asarray(split_edges).tolist()):  # in order: may chain
+            ua = UV_ext[vert_uv[a]] if vert_uv[a] >= 0 else UV_ext[-1]
+            ub = UV_ext[vert_uv[b]] if vert_uv[b] >= 0 else UV_ext[-1]
+            UV_ext = np.concatenate([UV_ext[:-1], [0.5 * (ua + ub)], UV_ext[-1:]])
+            vert_uv[base + i] = len(UV_ext) - 2
+    fallback = np.where(vert_uv[F_new] >= 0, vert_uv[F_new], len(UV_ext) - 1)
     FUV_new = fallback.copy()
     # matching faces: corner k of F_new[f] is corner (k + rn - ro) of F_old[src]
     f = np.flatnonzero(hit)
@@ -236,6 +256,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     disk = make_disk(mesh.V, mesh.F, up=opts.up, open=opts.open, quiet=quiet)
     dm = mesh.with_geometry(disk.V, disk.F, disk.vertex_map, disk.face_map)
     V = dm.V
+    colors = dm.colors
     roi = None
     if roi0 is not None:
         roi = np.zeros(len(V), bool)
@@ -271,6 +292,8 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             if not r.converged:
                 raise GeofaceError(f"Ricci flow did not converge (max |K - target| {r.residual:.3g})")
             F = r.F
+            if len(r.V) > len(V):  # boundary edges split by the flow: extend per-vertex data
+                V, roi, colors = _extend_split(r.V, r.split_edges, len(V), roi, colors)
             uv = r.unit_square()
             st["ricci"] = {"seconds": time.perf_counter() - t, "iterations": r.iterations, "residual": r.residual, "aspect": r.aspect}
             st["conformal_distortion"] = distortion(V, F, uv).summary()
@@ -289,10 +312,10 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             log(f"convert [{pos + 1}/{len(sets)}]: geometry images {opts.res}x{opts.res}", quiet=quiet)
             kw: dict = {}
             if dm.texture is not None and dm.UV is not None:
-                UVx, FUVx = corner_uvs_for(F, dm.F, dm.UV, dm.FUV)
+                UVx, FUVx = corner_uvs_for(F, dm.F, dm.UV, dm.FUV, split_edges=r.split_edges)
                 kw = {"texture": dm.texture, "tex_uv": UVx, "tex_fuv": FUVx}
-            elif dm.colors is not None:
-                kw = {"colors": dm.colors}
+            elif colors is not None:
+                kw = {"colors": colors}
             # statistics to 6 significant digits: floating-point noise (~1e-12, from memory
             # alignment in vectorised sums) must not change the file's bytes between runs
             meta = {"corners": st["corners"], "method": opts.method, "lam": opts.lam if opts.method == "ot" else None,

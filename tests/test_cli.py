@@ -149,3 +149,20 @@ def test_param_refuses_a_closed_mesh_unless_repaired(tmp_path):
     assert code == 0, err
     code, _, err = run("param", src, "-o", tmp_path / "s.obj", "--repair", "--corners", "1,2")
     assert code == 2 and "four" in err
+
+
+def test_mesh_needing_intrinsic_flips_and_boundary_splits(tmp_path):
+    # the repaired beetle: Ricci flow needs Ptolemy flips and pushes an interior vertex onto
+    # a boundary edge, which is split; param and convert carry the new vertex through
+    src = shared_mesh("beetle.obj")
+    js = tmp_path / "m.json"
+    code, stdout, err = run("param", src, "-o", tmp_path / "b.obj", "--repair", "--json", js)
+    assert code == 0, err
+    d = json.loads(js.read_text())
+    assert d["intrinsic_flips"] > 0 and d["conformal_map_distortion"]["flipped"] == 0
+    m = load_mesh(tmp_path / "b.obj")
+    assert len(m.V) == d["vertices"] + d["split_boundary_edges"]
+    code, stdout, err = run("convert", src, tmp_path / "gim", "--res", "64")
+    assert code == 0, err
+    st = json.loads((tmp_path / "gim" / "metrics.json").read_text())["sets"][0]
+    assert st["distortion"]["flipped"] == 0 and st["reconstruction"]["hausdorff"] < 0.03

@@ -36,15 +36,22 @@ class IntrinsicTriangulation:
     F : (m, 3) int64 — current faces (counter-clockwise)
     L : (3m,) float64 — base length of every half-edge
     twin : (3m,) int64 — opposite half-edge, -1 on the boundary
-    flips : int — Ptolemy flips performed so far
+    flips : int — flips performed so far
+    log : list — every flip in order, ``(h, t, None)`` for a Ptolemy flip of half-edge
+        ``h`` (twin ``t``) and ``(h, t, (l_cd, u))`` for a Euclidean flip in the flat
+        metric scaled by ``u`` (new scaled length ``l_cd``); replayed by
+        :mod:`geoface.param.tracking` to carry points of the input mesh through the flips
     """
 
     def __init__(self, F: np.ndarray, l: np.ndarray):
         self.F = np.array(F, np.int64)
+        self.F0 = self.F.copy()
         # l[f, k] is opposite corner k, i.e. half-edge 3f + (k+1) % 3
         self.L = np.asarray(l, np.float64)[:, [2, 0, 1]].ravel().copy()
+        self.L0 = self.L.copy()
         self.twin = halfedge_twins(self.F)
         self.flips = 0
+        self.log: list = []
 
     def corner_lengths(self, u: np.ndarray) -> np.ndarray:
         """``(m, 3)`` scaled lengths opposite each corner (the layout of ``l`` everywhere)."""
@@ -123,6 +130,7 @@ class IntrinsicTriangulation:
                 twin[tw] = x
         L[new["DC"]] = L[new["CD"]] = l_cd
         twin[new["DC"]], twin[new["CD"]] = new["CD"], new["DC"]
+        self.log.append((h, t, None))
         # refresh cached scaled lengths and endpoints of the six half-edges
         for x in range(3 * f, 3 * f + 3):
             src[x], dst[x] = F[f, x % 3], F[f, (x % 3 + 1) % 3]
@@ -173,6 +181,7 @@ def flip_flat_degenerate(tri: IntrinsicTriangulation, u: np.ndarray, tol: float 
             for x in (3 * f + 2, 3 * g + 2):
                 a_, b_ = tri.F[x // 3, x % 3], tri.F[x // 3, (x % 3 + 1) % 3]
                 tri.L[x] = l_cd * np.exp(-0.5 * (u[a_] + u[b_]))
+            tri.log[-1] = (h, t, (float(l_cd), np.array(u, np.float64)))
             done += 1
             break  # lengths changed: recompute before the next one
     tri.flips += done

@@ -44,8 +44,9 @@ class SPDSolver:
         if self.method == "cholmod":
             from sksparse.cholmod import cholesky
 
-            A = sp.csc_matrix(A)
-            A.sort_indices()
+            if not (sp.isspmatrix_csc(A) and A.has_sorted_indices):
+                A = sp.csc_matrix(A)
+                A.sort_indices()
             same = (
                 self._factor is not None
                 and np.array_equal(self._indptr, A.indptr)

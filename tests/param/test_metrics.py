@@ -41,3 +41,38 @@ def test_bad_uv_shape():
     V, F = square_grid(3)
     with pytest.raises(InvalidMeshError, match="UV"):
         distortion(V, F, np.zeros((3, 2)))
+
+
+def test_map_distortion_equals_per_triangle_distortion_for_linear_maps():
+    from geoface.param.metrics import linear_map, map_distortion
+
+    V, F = irregular_flat_patch(200, seed=3)
+    rng = np.random.default_rng(0)
+    uv = V[:, :2] @ np.array([[1.3, 0.2], [-0.1, 0.8]]) + 0.02 * rng.standard_normal((len(V), 2))
+    d = distortion(V, F, uv)
+    md = map_distortion(V, F, linear_map(F, uv), level=3)
+    ok = ~d.flipped
+    assert np.allclose(md.qc[ok], d.qc[ok], rtol=1e-6)
+    assert np.allclose(md.log_area[ok], d.log_area[ok], atol=1e-6)
+    assert np.array_equal(md.flipped > 0, d.flipped)
+
+
+def test_map_distortion_sees_non_linear_maps():
+    from geoface.param.metrics import map_distortion
+
+    V, F = square_grid(2)  # two triangles: a linear sampling of z -> z^2 would hide its distortion
+
+    def square(face, bary):
+        p = np.einsum("ki,kij->kj", bary, V[F[face], :2]) + [1.0, 0.5]
+        z = (p[:, 0] + 1j * p[:, 1]) ** 2
+        return np.stack([z.real, z.imag], 1)
+
+    def shear(face, bary):  # (x, y) -> (x + y^2, y): qc grows with y
+        p = np.einsum("ki,kij->kj", bary, V[F[face], :2])
+        return np.stack([p[:, 0] + p[:, 1] ** 2, p[:, 1]], 1)
+
+    assert map_distortion(V, F, square, level=6).summary()["qc_max"] < 1 + 1e-4  # holomorphic: conformal
+    s = map_distortion(V, F, shear, level=6).summary()
+    assert s["qc_max"] > 1.5 and s["flipped"] == 0
+    mirror = lambda f, b: square(f, b) * [1, -1]  # noqa: E731
+    assert map_distortion(V, F, mirror, level=2).summary()["flipped"] == len(F)
