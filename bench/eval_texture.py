@@ -12,7 +12,8 @@
    border) for: GDE upsampled (the super-resolution-style baseline), GDE + HFDR, and
    GDE + HFDR without hash encoding;
 4. peak memory and time of inference at ``--sizes`` (default 1024, 2048, 4096), each in a
-   fresh process (peak RSS above the RSS after loading the model), CPU.
+   fresh process (peak RSS during inference, VmHWM reset after loading the model, and the RSS
+   before it), CPU.
 
 Prints one JSON object per line; ``--out/results.json`` collects them.
 """
@@ -64,6 +65,32 @@ def metrics(pred: dict, gt: np.ndarray, mask: np.ndarray) -> dict:
     return out
 
 
+def _status_mib(key: str) -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) / 1024  # kB -> MiB
+    raise KeyError(key)
+
+
+def _reset_peak_rss() -> float:
+    """Current RSS (MiB), after resetting the kernel's peak-RSS mark to it where Linux allows.
+
+    ``ru_maxrss`` cannot be used here: Linux keeps it across fork + exec, so a child started by
+    a big parent reports the parent's peak. Writing 5 to /proc/self/clear_refs resets VmHWM."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return _status_mib("VmRSS")
+    except OSError:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def _peak_rss() -> float:
+    try:
+        return _status_mib("VmHWM")
+    except OSError:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def infer_child(model_dir: str, size: int, photo_path: str, k: int) -> None:
     """Run in a fresh process: reconstruct one photo resized to size², report time and peak RSS."""
     import cv2
@@ -74,11 +101,11 @@ def infer_child(model_dir: str, size: int, photo_path: str, k: int) -> None:
     model = TextureModel.load(model_dir)
     photo = load_sample(photo_path)["photo"]
     photo = cv2.resize(photo, (size, size), interpolation=cv2.INTER_LINEAR if size > photo.shape[0] else cv2.INTER_AREA)
-    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB (Linux: KiB)
+    base = _reset_peak_rss()
     t = time.perf_counter()
     out = reconstruct(model, photo, k=k * size // 1024 if size >= 1024 else k)
     dt = time.perf_counter() - t
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    peak = _peak_rss()
     arrays = (photo.nbytes + sum(v.nbytes for v in out.values())) / 2**20
     print(json.dumps({"size": size, "seconds": round(dt, 2), "peak_rss_mib": round(peak, 1),
                       "rss_before_mib": round(base, 1), "io_arrays_mib": round(arrays, 1),
