@@ -1,0 +1,647 @@
+"""HFM-GS: half-face-mapping Gaussian avatars for real-time HMD removal (Wang et al., TVCG 2025).
+
+A person is registered from a short unoccluded video; afterwards, each frame of a video in which
+a headset hides the upper face is restored from the visible lower face alone:
+
+1. **Latent** θ = E_img(lower-face crop): five stride-2 convolutions (128² → 4²) and one
+   self-attention layer over the 16 cells, flattened to a 128-d code.
+2. **Canonical Gaussians** from the registration head mesh (one per vertex), split by the
+   plane y = y_t into an upper set U (y > y_t) and a lower set L.
+3. **Lower face** (eq. 2): for i ∈ L, ΔX_i, ΔS_i, ΔR_i = MLP_X, MLP_S, MLP_R(γ(x_i), θ) with
+   γ the NeRF frequency embedding of the canonical position.
+4. **Gaussian mapping** (eq. 3–4): φ_i = MLP_gm(γ(x_i)) ∈ R^10 and W_gm = row-softmax(φ_U φ_Lᵀ),
+   how much each upper Gaussian follows each lower one.
+5. **Parameter mapping** (eq. 6–7): lower features f_L = MLP_pm(γ(x_L), p_L) of the lower
+   deformations p_L = (ΔX, log ΔS, ΔR); upper features f_U = W_gm f_L; upper deformations
+   (eq. 5/7) p_U = MLP_mapping(γ(x_U), f_U).
+6. **Global pose** (eq. 8): (ω, τ) = MLP_pose(θ), a rotation exp(ω) about the head centre and a
+   translation applied to every Gaussian after the local deformation.
+7. **Correlation-weight sampling** (eq. 9–10): the mapping runs between 512 upper and 512 lower
+   *key* Gaussians only — upper keys by farthest-point sampling of the canonical positions,
+   lower keys the 512 with the largest correlation weight Σ_u W_gm[u, l] towards the upper
+   keys — and every upper Gaussian takes the inverse-distance average (W_dist, k nearest upper
+   keys, rows sum to 1) of the keys' deformations. Cost O(512²) instead of O(|U|·|L|), and
+   independent of how many Gaussians density control creates. Keys are refreshed after every
+   densification and every ``key_every`` steps.
+8. **Composition** (eq. 1): X + ΔX, S·ΔS, R ⊗ ΔR; then the global pose.
+
+**Gaussian segregation** (Algorithm 1 and eq. 11–12): density control where a split child that
+crosses y_t by more than ``margin`` (an upper parent's child below y_t − m, a lower parent's
+above y_t + m) is dropped, and ReLU boundary losses Σ_U ReLU(y_t − y) + Σ_L ReLU(y − y_t) (means
+over each set) on the canonical positions keep the halves apart.
+
+**Loss** (eq. 13): (1 − λ_rgb)·L1 + λ_rgb·D-SSIM + λ_vgg·L_vgg + λ_split·L_split with
+λ_rgb = 0.4, λ_vgg = 0.1, λ_split = 0.01. L_vgg compares VGG-16 features (relu1_2, relu2_2,
+relu3_3) and needs local weights (``vgg_weights``: a safetensors/torch file of torchvision's
+``vgg16().features`` state dict, keys ``features.N.weight``); without them it is left out and
+training says so.
+
+Ablations (``HFMConfig``): ``global_pose=False`` (no pose MLP), ``gaussian_mapping=False`` (no
+Gaussian & feature mapping: the upper face is deformed from θ like the lower face),
+``feature_mapping=False`` (W_gm maps the lower deformations p_L themselves, no MLP_pm),
+``sampling=False`` (the mapping over all Gaussians).
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as Fnn
+from torch import Tensor, nn
+
+from geoface.splat.density import DensityConfig, DensityStrategy, make_optimizer
+from geoface.splat.errors import SplatError
+from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_to_rotmat
+
+__all__ = ["HFMConfig", "HFMModel", "ImageEncoder", "SegregationStrategy", "select_keys",
+           "inverse_distance_weights", "farthest_point_sampling", "boundary_loss", "VGGPerceptual",
+           "train_hfm", "load_hfm", "remove_hmd", "evaluate_hmd", "ABLATIONS"]
+
+ABLATIONS = {
+    "full": {},
+    "no_global_pose": {"global_pose": False},
+    "no_gaussian_feature_mapping": {"gaussian_mapping": False},
+    "no_feature_mapping": {"feature_mapping": False},
+    "no_sampling": {"sampling": False},
+}
+
+
+@dataclass
+class HFMConfig:
+    """Model, loss and training settings (defaults: the paper's where it gives them)."""
+
+    latent_dim: int = 128
+    crop: int = 128
+    enc_width: int = 32
+    pos_freqs: int = 6
+    hidden: int = 128
+    emb_dim: int = 10          # MLP_gm embeddings
+    feat_dim: int = 32         # MLP_pm features
+    n_keys: int = 512          # key Gaussians per half
+    k_upsample: int = 8        # nearest upper keys in W_dist
+    y_split: float | None = None   # y_t (world metres); None: the registration folder's meta.json
+    margin: float = 0.004      # m of Algorithm 1 (metres)
+    global_pose: bool = True
+    gaussian_mapping: bool = True
+    feature_mapping: bool = True
+    sampling: bool = True
+    lambda_rgb: float = 0.4
+    lambda_vgg: float = 0.1
+    lambda_split: float = 0.01
+    vgg_weights: str | None = None
+    iters: int = 2000
+    lr_nets: float = 5e-4
+    lr_means: float = 1.6e-4   # × head size (3DGS, scene-scaled)
+    key_every: int = 100
+    densify: bool = True
+    init_opacity: float = 0.5
+    seed: int = 0
+    threads: int | None = None
+
+    def __post_init__(self):
+        for name in ("latent_dim", "crop", "enc_width", "hidden", "emb_dim", "feat_dim", "n_keys",
+                     "k_upsample", "iters", "key_every"):
+            if int(getattr(self, name)) < 1:
+                raise SplatError(f"HFMConfig.{name} must be >= 1; got {getattr(self, name)!r}")
+        if self.crop % 32:
+            raise SplatError(f"HFMConfig.crop must be a multiple of 32 (five stride-2 convolutions); got {self.crop}")
+        if self.margin < 0:
+            raise SplatError(f"HFMConfig.margin must be >= 0; got {self.margin}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "HFMConfig":
+        names = {f.name for f in fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise SplatError(f"unknown HFM config keys: {sorted(unknown)}")
+        return cls(**d)
+
+
+# ----------------------------------------------------------------------------- building blocks
+def posenc(x: Tensor, n_freqs: int) -> Tensor:
+    """γ(x) = (x, sin(2^k π x), cos(2^k π x)), k < n_freqs; x roughly in [-1, 1]."""
+    f = (2.0 ** torch.arange(n_freqs, dtype=x.dtype, device=x.device)) * math.pi
+    a = x[..., None] * f  # [N, 3, F]
+    return torch.cat([x, a.sin().flatten(-2), a.cos().flatten(-2)], -1)
+
+
+def mlp(d_in: int, hidden: int, d_out: int, depth: int = 3, zero_last: bool = True) -> nn.Sequential:
+    layers, d = [], d_in
+    for _ in range(depth - 1):
+        layers += [nn.Linear(d, hidden), nn.ReLU(inplace=True)]
+        d = hidden
+    last = nn.Linear(d, d_out)
+    if zero_last:  # identity deformation at initialisation
+        nn.init.zeros_(last.weight)
+        nn.init.zeros_(last.bias)
+    return nn.Sequential(*layers, last)
+
+
+class ImageEncoder(nn.Module):
+    """E_img: five stride-2 3×3 convolutions (crop² → (crop/32)²) with GroupNorm + SiLU, one
+    multi-head self-attention layer over the cells (residual, LayerNorm), flatten, linear → θ."""
+
+    def __init__(self, latent_dim: int = 128, width: int = 32, crop: int = 128):
+        super().__init__()
+        ch = [3, width, 2 * width, 4 * width, 4 * width, 4 * width]
+        convs = []
+        for a, b in zip(ch[:-1], ch[1:]):
+            convs += [nn.Conv2d(a, b, 3, stride=2, padding=1), nn.GroupNorm(min(8, b), b), nn.SiLU()]
+        self.convs = nn.Sequential(*convs)
+        self.cells = (crop // 32) ** 2
+        c = ch[-1]
+        self.pos = nn.Parameter(torch.zeros(1, self.cells, c))
+        self.attn = nn.MultiheadAttention(c, 4, batch_first=True)
+        self.norm = nn.LayerNorm(c)
+        self.out = nn.Linear(c * self.cells, latent_dim)
+
+    def forward(self, x: Tensor) -> Tensor:  # [B, 3, crop, crop] in [0, 1] -> [B, latent]
+        h = self.convs(x * 2 - 1)
+        t = h.flatten(2).transpose(1, 2) + self.pos  # [B, cells, C]
+        t = self.norm(t + self.attn(t, t, t, need_weights=False)[0])
+        return self.out(t.flatten(1))
+
+
+def quat_mul(a: Tensor, b: Tensor) -> Tensor:
+    """Hamilton product of [N, 4] (w, x, y, z) quaternions."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
+
+
+def axis_angle_to_quat(w: Tensor) -> Tensor:  # [3] -> [4]
+    ang = w.norm()
+    half = 0.5 * ang
+    k = torch.where(ang > 1e-8, torch.sin(half) / ang.clamp_min(1e-8), 0.5 - ang**2 / 48)
+    return torch.cat([torch.cos(half)[None], w * k])
+
+
+def farthest_point_sampling(P: Tensor, k: int, seed: int = 0) -> Tensor:
+    """Indices of ``k`` points of ``P`` [N, 3] by farthest-point sampling (all when N ≤ k)."""
+    n = len(P)
+    if n <= k:
+        return torch.arange(n, device=P.device)
+    g = torch.Generator().manual_seed(seed)
+    idx = torch.empty(k, dtype=torch.long, device=P.device)
+    idx[0] = int(torch.randint(n, (1,), generator=g))
+    d = ((P - P[idx[0]]) ** 2).sum(1)
+    for i in range(1, k):
+        idx[i] = torch.argmax(d)
+        d = torch.minimum(d, ((P - P[idx[i]]) ** 2).sum(1))
+    return idx
+
+
+def inverse_distance_weights(P: Tensor, keys: Tensor, k: int = 8, eps: float = 1e-9) -> tuple[Tensor, Tensor]:
+    """W_dist (eq. 10) as (neighbour index [N, k'], weight [N, k']): the k' = min(k, #keys)
+    nearest key positions of each point of ``P``, weights 1/d normalised (rows sum to 1; a
+    point that is a key gets weight ≈1 on itself)."""
+    from scipy.spatial import cKDTree
+
+    kk = min(k, len(keys))
+    d, j = cKDTree(keys.detach().cpu().numpy()).query(P.detach().cpu().numpy(), k=kk)
+    d = np.asarray(d, dtype=np.float64).reshape(len(P), kk)
+    j = np.asarray(j).reshape(len(P), kk)
+    w = 1.0 / (d + eps)
+    w /= w.sum(1, keepdims=True)
+    return torch.as_tensor(j, device=P.device), torch.as_tensor(w, dtype=P.dtype, device=P.device)
+
+
+def boundary_loss(y: Tensor, upper: Tensor, y_t: float) -> Tensor:
+    """Eq. 11–12: mean ReLU(y_t − y) over the upper Gaussians + mean ReLU(y − y_t) over the lower."""
+    zero = y.new_zeros(())
+    lu = Fnn.relu(y_t - y[upper]).mean() if bool(upper.any()) else zero
+    ll = Fnn.relu(y[~upper] - y_t).mean() if bool((~upper).any()) else zero
+    return lu + ll
+
+
+class SegregationStrategy(DensityStrategy):
+    """3DGS density control with HFM-GS's Algorithm 1: a split child is dropped when it crosses
+    y_t by more than ``margin``; ``upper`` [N] bool (which half each Gaussian belongs to) follows
+    clones, splits and prunes."""
+
+    def __init__(self, cfg: DensityConfig | None, scene_extent: float, y_split: float, margin: float,
+                 upper: Tensor):
+        super().__init__(cfg, scene_extent)
+        self.y_split, self.margin = float(y_split), float(margin)
+        self.upper = upper.clone().bool()
+        self.dropped = 0
+
+    def filter_split(self, gaussians, parent_idx, child_params):
+        y = child_params["means"][:, 1]
+        up = self.upper.to(parent_idx.device)[parent_idx]
+        keep = torch.where(up, y >= self.y_split - self.margin, y <= self.y_split + self.margin)
+        self.dropped += int((~keep).sum())
+        return keep
+
+    def on_added(self, gaussians, src_idx, n_new):
+        self.upper = torch.cat([self.upper, self.upper[src_idx.to(self.upper.device)]])
+
+    def on_pruned(self, gaussians, keep):
+        self.upper = self.upper[keep.to(self.upper.device)]
+
+
+# ----------------------------------------------------------------------------- the model
+class HFMModel(nn.Module):
+    """Canonical Gaussians + E_img + the deformation and mapping networks (module doc)."""
+
+    def __init__(self, gaussians: Gaussians, cfg: HFMConfig, y_split: float, center=None, scale=None):
+        super().__init__()
+        self.cfg = cfg
+        self.gaussians = gaussians
+        self.y_split = float(y_split)
+        P = gaussians.means.detach()
+        c = P.mean(0) if center is None else torch.as_tensor(center, dtype=P.dtype)
+        s = (P - c).abs().max() if scale is None else torch.as_tensor(scale, dtype=P.dtype)
+        self.register_buffer("center", c.clone())
+        self.register_buffer("scale", s.clone().reshape(()))
+        e = 3 + 6 * cfg.pos_freqs
+        L, H = cfg.latent_dim, cfg.hidden
+        self.encoder = ImageEncoder(L, cfg.enc_width, cfg.crop)
+        self.mlp_x, self.mlp_s, self.mlp_r = mlp(e + L, H, 3), mlp(e + L, H, 3), mlp(e + L, H, 4)
+        if cfg.gaussian_mapping:
+            self.mlp_gm = mlp(e, 64, cfg.emb_dim, zero_last=False)
+            f_in = cfg.feat_dim if cfg.feature_mapping else 10
+            if cfg.feature_mapping:
+                self.mlp_pm = mlp(e + 10, 64, cfg.feat_dim, zero_last=False)
+            self.mlp_mapping = mlp(e + f_in, H, 10)
+        else:
+            self.mlp_up = mlp(e + L, H, 10)
+        if cfg.global_pose:
+            self.mlp_pose = mlp(L, 64, 6)
+        self.keys_u: Tensor | None = None
+        self.keys_l: Tensor | None = None
+        self.wdist: tuple[Tensor, Tensor] | None = None
+
+    # ------------------------------------------------------------- halves and keys
+    def upper_mask(self) -> Tensor:
+        return self.gaussians.means.detach()[:, 1] > self.y_split
+
+    def embed(self, X: Tensor) -> Tensor:
+        return posenc((X - self.center) / self.scale, self.cfg.pos_freqs)
+
+    @torch.no_grad()
+    def refresh_keys(self) -> None:
+        """Pick the 512 + 512 key Gaussians and W_dist (correlation-weight sampling, eq. 9–10)."""
+        if not (self.cfg.gaussian_mapping and self.cfg.sampling):
+            self.keys_u = self.keys_l = self.wdist = None
+            return
+        up = self.upper_mask()
+        iu, il = torch.nonzero(up).reshape(-1), torch.nonzero(~up).reshape(-1)
+        X = self.gaussians.means.detach()
+        ku, kl = select_keys(self, X, iu, il, self.cfg.n_keys, self.cfg.seed)
+        self.keys_u, self.keys_l = ku, kl
+        j, w = inverse_distance_weights(X[iu], X[ku], self.cfg.k_upsample)
+        self.wdist = (j, w)
+        self._keys_for = (len(X), iu, il)
+
+    def _keys_valid(self, n, iu, il) -> bool:
+        if self.keys_u is None:
+            return False
+        m, ju, jl = self._keys_for
+        return m == n and torch.equal(ju, iu) and torch.equal(jl, il)
+
+    # ------------------------------------------------------------- forward
+    def lower_params(self, eX: Tensor, theta: Tensor) -> Tensor:
+        h = torch.cat([eX, theta.expand(len(eX), -1)], -1)
+        return torch.cat([self.mlp_x(h), self.mlp_s(h), self.mlp_r(h)], -1)  # [n, 10]
+
+    def map_params(self, eU: Tensor, eL: Tensor, pL: Tensor) -> Tensor:
+        """Upper deformations from lower ones through W_gm (eq. 3–7), dense over the given sets
+        (rows in chunks so |U|·|L| need not fit at once)."""
+        phiU, phiL = self.mlp_gm(eU), self.mlp_gm(eL)
+        fL = self.mlp_pm(torch.cat([eL, pL], -1)) if self.cfg.feature_mapping else pL
+        chunk = max(1, int(2**26 // max(len(eL), 1)))
+        fU = torch.cat([torch.softmax(phiU[i:i + chunk] @ phiL.T, -1) @ fL for i in range(0, len(eU), chunk)])
+        return self.mlp_mapping(torch.cat([eU, fU], -1))
+
+    def deform(self, theta: Tensor) -> GaussianTensors:
+        """The Gaussians for latent ``theta`` [1, latent] (eq. 1–10)."""
+        g = self.gaussians
+        X = g.means
+        n = len(X)
+        up = self.upper_mask()
+        iu, il = torch.nonzero(up).reshape(-1), torch.nonzero(~up).reshape(-1)
+        E = self.embed(X)
+        p = X.new_zeros(n, 10)
+        p[il] = self.lower_params(E[il], theta)
+        if len(iu):
+            if not self.cfg.gaussian_mapping:
+                p[iu] = self.mlp_up(torch.cat([E[iu], theta.expand(len(iu), -1)], -1))
+            elif len(il) == 0:
+                pass
+            elif self.cfg.sampling:
+                if not self._keys_valid(n, iu, il):
+                    self.refresh_keys()
+                ku, kl = self.keys_u, self.keys_l
+                pk = self.map_params(E[ku], E[kl], p[kl])
+                j, w = self.wdist
+                p[iu] = (pk[j] * w[..., None]).sum(1)
+            else:
+                p[iu] = self.map_params(E[iu], E[il], p[il])
+        dX, dlogS, dq = p[:, :3], p[:, 3:6], p[:, 6:]
+        means = X + dX * self.scale * 0.1
+        log_scales = g.log_scales + dlogS
+        one = torch.tensor([1.0, 0, 0, 0], dtype=X.dtype, device=X.device)
+        quats = quat_mul(g.quats / g.quats.norm(dim=-1, keepdim=True), one + dq)
+        if self.cfg.global_pose:
+            pose = self.mlp_pose(theta)[0]
+            qg = axis_angle_to_quat(pose[:3])
+            R = quat_to_rotmat(qg[None])[0]
+            means = (means - self.center) @ R.T + self.center + pose[3:] * self.scale * 0.1
+            quats = quat_mul(qg[None].expand(n, 4), quats)
+        return GaussianTensors(means, log_scales, quats, g.opacity_logits, g.colors)
+
+    def forward(self, crop: Tensor) -> GaussianTensors:
+        return self.deform(self.encoder(crop))
+
+
+@torch.no_grad()
+def select_keys(model: HFMModel, X: Tensor, iu: Tensor, il: Tensor, n_keys: int, seed: int = 0):
+    """Key Gaussians (global indices): ``n_keys`` upper by farthest-point sampling, ``n_keys``
+    lower with the largest correlation weight Σ_u softmax_l(φ_u·φ_l) over the upper keys
+    (all of a half when it has fewer)."""
+    ku = iu[farthest_point_sampling(X[iu], n_keys, seed)]
+    if len(il) <= n_keys:
+        return ku, il.clone()
+    E = model.embed(X)
+    W = torch.softmax(model.mlp_gm(E[ku]) @ model.mlp_gm(E[il]).T, -1)  # [|ku|, |L|]
+    corr = W.sum(0)
+    kl = il[torch.topk(corr, n_keys).indices.sort().values]
+    return ku, kl
+
+
+# ----------------------------------------------------------------------------- VGG perceptual
+_VGG16 = [64, 64, "M", 128, 128, "M", 256, 256, 256]  # up to relu3_3
+
+
+class VGGPerceptual(nn.Module):
+    """L1 between VGG-16 features (relu1_2, relu2_2, relu3_3) of ImageNet-normalised images.
+
+    ``weights``: a local file (safetensors, or a torch state dict read with weights_only=True)
+    holding torchvision's ``vgg16().features`` parameters (``features.N.weight``/``.bias`` or
+    ``N.weight``); nothing is downloaded."""
+
+    def __init__(self, weights):
+        super().__init__()
+        layers, c = [], 3
+        for v in _VGG16:
+            if v == "M":
+                layers.append(nn.MaxPool2d(2))
+            else:
+                layers += [nn.Conv2d(c, v, 3, padding=1), nn.ReLU(inplace=False)]
+                c = v
+        self.features = nn.Sequential(*layers)
+        self.taps = {3, 8, 15}
+        sd = _load_state(weights)
+        sd = {k[len("features."):] if k.startswith("features.") else k: v for k, v in sd.items()}
+        own = self.features.state_dict()
+        missing = [k for k in own if k not in sd]
+        if missing:
+            raise SplatError(f"{weights}: not VGG-16 feature weights (missing {missing[:3]})")
+        try:
+            self.features.load_state_dict({k: sd[k] for k in own})
+        except RuntimeError as e:
+            raise SplatError(f"{weights}: VGG-16 weights of the wrong shape ({str(e).splitlines()[0]})") from None
+        self.requires_grad_(False)
+        self.register_buffer("mean", torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1))
+        self.register_buffer("std", torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1))
+
+    def forward(self, a: Tensor, b: Tensor) -> Tensor:  # [B, 3, H, W] in [0, 1]
+        x = torch.cat([a, b]).sub(self.mean).div(self.std)
+        loss = x.new_zeros(())
+        for i, layer in enumerate(self.features):
+            x = layer(x)
+            if i in self.taps:
+                fa, fb = x.chunk(2)
+                loss = loss + (fa - fb).abs().mean()
+        return loss
+
+
+def _load_state(path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise SplatError(f"{path}: no such weights file")
+    try:
+        if path.suffix == ".safetensors":
+            from safetensors.torch import load_file
+            return load_file(str(path))
+        sd = torch.load(str(path), map_location="cpu", weights_only=True)
+    except Exception as e:  # corrupt or not a weights file
+        raise SplatError(f"{path}: cannot read weights ({type(e).__name__}: {str(e).splitlines()[0][:120]})") from None
+    if not isinstance(sd, dict):
+        raise SplatError(f"{path}: not a state dict")
+    return sd
+
+
+# ----------------------------------------------------------------------------- training
+def _frames_tensors(video, crop):
+    imgs = torch.tensor(video.frames, dtype=torch.float32)
+    crops = torch.tensor(video.crops(crop), dtype=torch.float32)
+    return imgs, crops
+
+
+def build_model(video, cfg: HFMConfig) -> HFMModel:
+    """Canonical Gaussians from the registration head mesh (one per vertex, THGS init)."""
+    from geoface.mesh.io import load_mesh
+
+    if video.mesh_path is None:
+        raise SplatError("the registration folder has no head mesh (head.ply / head.obj)")
+    m = load_mesh(video.mesh_path)
+    C = getattr(m, "colors", None)
+    if C is None:
+        raise SplatError(f"{video.mesh_path}: the head mesh needs vertex colours")
+    g = Gaussians.from_mesh(m.V, m.F, np.clip(np.asarray(C)[:, :3], 0, 1), opacity=cfg.init_opacity)
+    y_t = cfg.y_split if cfg.y_split is not None else video.y_split
+    return HFMModel(g, cfg, y_t)
+
+
+def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice | None = None,
+              progress=None, log=print) -> dict:
+    """Register a person from an unoccluded video folder; saves ``out_dir`` (config.json,
+    model.safetensors) and returns a summary (loss history, seconds, Gaussians, keys)."""
+    from geoface.learn.losses import dssim
+    from geoface.progress import progress as bar
+    from geoface.splat.hfm_data import load_video
+    from geoface.splat.rasterizer import rasterize
+
+    cfg = cfg or HFMConfig()
+    if cfg.threads:
+        torch.set_num_threads(int(cfg.threads))
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    video = load_video(reg_dir, need_mesh=True, frames=frames)
+    model = build_model(video, cfg)
+    cam = video.camera
+    imgs, crops = _frames_tensors(video, cfg.crop)
+    vgg = None
+    if cfg.lambda_vgg > 0:
+        if cfg.vgg_weights:
+            vgg = VGGPerceptual(cfg.vgg_weights)
+        elif log:
+            log("hfm: no VGG weights given (--vgg-weights): training without the perceptual term")
+    g = model.gaussians
+    extent = float(model.scale) * 2
+    opt = make_optimizer(g, {"means": cfg.lr_means * extent, "log_scales": 5e-3, "quats": 1e-3,
+                             "opacity_logits": 2.5e-2, "colors": 2.5e-3}, eps=1e-15)
+    nets = [p for n, p in model.named_parameters() if not n.startswith("gaussians.")]
+    opt.add_param_group({"params": nets, "lr": cfg.lr_nets, "name": "nets"})
+    strategy = None
+    if cfg.densify:
+        every = min(100, max(10, cfg.iters // 10))
+        dcfg = DensityConfig(refine_start=max(100, cfg.iters // 10) - 1, refine_stop=int(0.6 * cfg.iters),
+                             refine_every=every, reset_every=0, max_gaussians=3 * len(g))
+        strategy = SegregationStrategy(dcfg, extent, model.y_split, cfg.margin, model.upper_mask())
+    history, order = [], []
+    t0 = time.perf_counter()
+    bg = torch.zeros(3)
+    steps = range(cfg.iters)
+    if not callable(progress):
+        steps = bar(steps, "registering (HFM-GS)", total=cfg.iters, quiet=None if progress is None else not progress)
+    for it in steps:
+        if not order:
+            order = list(rng.permutation(len(imgs)))
+        f = int(order.pop())
+        if it % cfg.key_every == 0:
+            model.refresh_keys()
+        gt = imgs[f]
+        gd = model(crops[f:f + 1])
+        rgb, alpha, depth, info = rasterize(gd, cam, background=bg, return_info=True)
+        l1 = (rgb - gt).abs().mean()
+        a, b = rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None]
+        ds = dssim(a, b)
+        loss = (1 - cfg.lambda_rgb) * l1 + cfg.lambda_rgb * ds
+        if vgg is not None:
+            loss = loss + cfg.lambda_vgg * vgg(a, b)
+        ls = boundary_loss(g.means[:, 1], strategy.upper if strategy is not None else model.upper_mask(),
+                           model.y_split)
+        loss = loss + cfg.lambda_split * ls
+        if strategy is not None:
+            strategy.step_pre_backward(info)
+        loss.backward()
+        opt.step()
+        opt.zero_grad(set_to_none=True)
+        rec = {"step": it, "loss": float(loss.detach()), "l1": float(l1.detach()), "n": len(g)}
+        if strategy is not None:
+            counts = strategy.step_post_backward(g, opt, info, it)
+            if counts["cloned"] or counts["split"] or counts["pruned"]:
+                rec.update(cloned=counts["cloned"], split=counts["split"], pruned=counts["pruned"], n=len(g))
+                model.refresh_keys()
+        history.append(rec)
+        if callable(progress) and (it % 50 == 0 or it == cfg.iters - 1):
+            progress(it, rec)
+    seconds = time.perf_counter() - t0
+    save_hfm(model, out_dir)
+    return {"seconds": seconds, "history": history, "n_gaussians": len(g), "n_upper": int(model.upper_mask().sum()),
+            "dropped_children": strategy.dropped if strategy is not None else 0, "vgg": vgg is not None}
+
+
+def save_hfm(model: HFMModel, out_dir) -> None:
+    from safetensors.torch import save_file
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    sd = {k: v.detach().contiguous().cpu() for k, v in model.state_dict().items() if v is not None}
+    cfg = {"format": "geoface-hfm-gs", "version": 1, "config": model.cfg.to_dict(), "y_split": model.y_split,
+           "n_gaussians": len(model.gaussians)}
+    tmp = out / "model.safetensors.tmp"
+    save_file(sd, str(tmp))
+    tmp.replace(out / "model.safetensors")
+    (out / "config.json").write_text(json.dumps(cfg, indent=1))
+
+
+def load_hfm(model_dir) -> HFMModel:
+    """Load a model folder; any problem is a one-line SplatError."""
+    d = Path(model_dir)
+    try:
+        meta = json.loads((d / "config.json").read_text())
+    except (OSError, ValueError) as e:
+        raise SplatError(f"{d}: not an HFM-GS model folder (config.json: {type(e).__name__})") from None
+    if meta.get("format") != "geoface-hfm-gs":
+        raise SplatError(f"{d}/config.json: not an HFM-GS model")
+    cfg = HFMConfig.from_dict(meta["config"])
+    sd = _load_state(d / "model.safetensors")
+    try:
+        n = sd["gaussians.means"].shape[0]
+        g = Gaussians(sd["gaussians.means"], sd["gaussians.log_scales"], sd["gaussians.quats"],
+                      sd["gaussians.opacity_logits"], sd["gaussians.colors"], sd.get("gaussians.parent"))
+        model = HFMModel(g, cfg, meta["y_split"], sd["center"], sd["scale"])
+        model.load_state_dict(sd, strict=True)
+    except (KeyError, RuntimeError, SplatError) as e:
+        raise SplatError(f"{d}: model weights do not match config.json ({str(e).splitlines()[0][:160]})") from None
+    if n != meta.get("n_gaussians", n):
+        raise SplatError(f"{d}: {n} Gaussians in the weights, config.json says {meta['n_gaussians']}")
+    model.eval()
+    model.refresh_keys()
+    return model
+
+
+# ----------------------------------------------------------------------------- usage
+@torch.no_grad()
+def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: bool = True):
+    """Restore every frame of ``video`` (an :class:`HMDVideo`): render the avatar driven by the
+    lower-face crop; where ``video.hmd_masks`` is known, paste the rendering into the occluded
+    region only (``composite``). Streams frame by frame; returns (renders [T, H, W, 3] float32,
+    per-frame seconds). Writes ``out_dir/frames/*.png`` when given (each file complete or absent)."""
+    from geoface.splat.hfm_data import _write_png, crop_lower_face
+    from geoface.splat.rasterizer import rasterize
+
+    cam = camera or video.camera
+    out = Path(out_dir) if out_dir is not None else None
+    if out is not None:
+        (out / "frames").mkdir(parents=True, exist_ok=True)
+    renders, times = [], []
+    bg = torch.zeros(3)
+    for t in range(len(video)):
+        t0 = time.perf_counter()
+        crop = torch.tensor(crop_lower_face(video.frames[t], video.lower_landmarks(t), model.cfg.crop))[None]
+        rgb = rasterize(model(crop), cam, background=bg)[0].clamp(0, 1).numpy()
+        times.append(time.perf_counter() - t0)
+        renders.append(rgb)
+        if out is not None:
+            img = rgb
+            if composite and video.hmd_masks is not None:
+                img = np.where(video.hmd_masks[t][..., None], rgb, video.frames[t])
+            tmp = out / "frames" / f".{t:06d}.tmp.png"
+            _write_png(tmp, img)
+            tmp.replace(out / "frames" / f"{t:06d}.png")
+    return np.stack(renders), np.asarray(times)
+
+
+def _ssim_masked(a, b, mask) -> float:
+    """SSIM map (11×11 Gaussian window) averaged over ``mask``."""
+    from skimage.metrics import structural_similarity
+
+    _, S = structural_similarity(a, b, channel_axis=2, data_range=1.0, gaussian_weights=True, sigma=1.5,
+                                 use_sample_covariance=False, full=True)
+    S = S.mean(-1)
+    return float(S[mask].mean()) if mask.any() else float("nan")
+
+
+def evaluate_hmd(model: HFMModel, video) -> dict:
+    """PSNR/SSIM of the renders against ``video.gt`` on the whole face (foreground) and in the
+    region the headset hides; FPS of the whole per-frame path (crop, encode, deform, render)."""
+    from geoface.splat.fit import psnr
+
+    if video.gt is None or video.hmd_masks is None:
+        raise SplatError("evaluation needs gt/ and hmd_masks/ in the usage folder")
+    R, times = remove_hmd(model, video)
+    face = video.gt.max(-1) > 0
+    rows = {"psnr_face": [], "ssim_face": [], "psnr_occluded": [], "ssim_occluded": []}
+    for t in range(len(video)):
+        m, o = face[t], video.hmd_masks[t] & face[t]
+        rows["psnr_face"].append(psnr(R[t], video.gt[t], m))
+        rows["psnr_occluded"].append(psnr(R[t], video.gt[t], o))
+        rows["ssim_face"].append(_ssim_masked(R[t], video.gt[t], m))
+        rows["ssim_occluded"].append(_ssim_masked(R[t], video.gt[t], o))
+    out = {k: float(np.nanmean(v)) for k, v in rows.items()}
+    out.update(frames=len(video), fps=float(1.0 / np.median(times)), seconds_per_frame=float(np.median(times)))
+    return out

@@ -1,0 +1,320 @@
+"""Videos for HFM-GS (HMD removal): a folder format, a loader, and a synthetic generator.
+
+A video folder (registration or usage) holds::
+
+    frames/000000.png ...   RGB frames, background removed (black)
+    masks/000000.png ...    optional foreground masks (nonzero = person); default: frame != 0
+    landmarks.json          {"names": [...], "points": [[[x, y], ...] per frame]} in pixels;
+                            the lower-face crop uses nose_tip, mouth_left, mouth_right, chin
+    camera.json             {"fx", "fy", "cx", "cy", "width", "height", "R", "t"} (OpenCV, world→camera)
+    meta.json               {"y_split": y_t in world metres, "up": [0, 1, 0]}: the upper/lower split
+    head.ply | head.obj     a head mesh with vertex colours, in the canonical (first-frame) pose:
+                            initialises the canonical Gaussians (registration folders)
+    hmd_masks/000000.png    usage folders: pixels hidden by the headset (evaluation)
+    gt/000000.png           usage folders: the unoccluded frames, when known (evaluation)
+
+:func:`make_synthetic_hmd` writes a registration and a usage folder from the procedural head
+with expressions that couple the upper and lower face (surprise raises the brows and opens the
+jaw, a smile narrows the eyes, a frown purses the lips), a small head motion, a fixed camera,
+and, in the usage folder, a rendered headset. The usage video is the *last* ``heldout`` fraction
+of the sequence, the registration video the rest.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from geoface.splat.camera import Camera, look_at
+from geoface.splat.errors import SplatError
+
+__all__ = ["HMDVideo", "load_video", "lower_face_box", "crop_lower_face", "make_synthetic_hmd",
+           "LOWER_FACE_LANDMARKS", "headset_mesh"]
+
+LOWER_FACE_LANDMARKS = ("nose_tip", "mouth_left", "mouth_right", "chin")
+
+
+@dataclass
+class HMDVideo:
+    """A loaded video folder (arrays in memory; frames float32 in [0, 1])."""
+
+    frames: np.ndarray          # [T, H, W, 3]
+    masks: np.ndarray           # [T, H, W] bool
+    landmarks: np.ndarray       # [T, K, 2] pixels
+    names: list
+    camera: Camera
+    y_split: float
+    hmd_masks: np.ndarray | None = None   # [T, H, W] bool
+    gt: np.ndarray | None = None          # [T, H, W, 3]
+    mesh_path: Path | None = None
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def crops(self, size: int = 128) -> np.ndarray:
+        """[T, 3, size, size] float32 lower-face crops (from the landmarks)."""
+        return np.stack([crop_lower_face(f, self.lower_landmarks(t), size) for t, f in enumerate(self.frames)])
+
+    def lower_landmarks(self, t: int) -> np.ndarray:
+        idx = [self.names.index(n) for n in LOWER_FACE_LANDMARKS]
+        return self.landmarks[t][idx]
+
+
+def _read_png(path: Path, rgb=True) -> np.ndarray:
+    import cv2
+
+    a = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if a is None:
+        raise SplatError(f"{path}: not a readable image")
+    scale = 65535.0 if a.dtype == np.uint16 else 255.0
+    a = a.astype(np.float32) / scale
+    if rgb:
+        if a.ndim == 2:
+            a = np.repeat(a[..., None], 3, -1)
+        a = a[..., :3][..., ::-1]  # BGR -> RGB
+    elif a.ndim == 3:
+        a = a[..., 0]
+    return np.ascontiguousarray(a)
+
+
+def _write_png(path: Path, img) -> None:
+    import cv2
+
+    a = np.asarray(img)
+    if a.dtype != np.uint8:
+        a = (np.clip(a, 0, 1) * 255 + 0.5).astype(np.uint8)
+    if a.ndim == 3:
+        a = a[..., ::-1]
+    if not cv2.imwrite(str(path), a):
+        raise SplatError(f"{path}: could not write")
+
+
+def _camera_from_json(d: dict) -> Camera:
+    try:
+        return Camera(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), int(d["width"]),
+                      int(d["height"]), np.asarray(d["R"], float), np.asarray(d["t"], float))
+    except (KeyError, TypeError, ValueError) as e:
+        raise SplatError(f"camera.json: needs fx, fy, cx, cy, width, height, R (3×3), t (3); {e}") from None
+
+
+def camera_to_json(cam: Camera) -> dict:
+    return {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width,
+            "height": cam.height, "R": cam.R.tolist(), "t": cam.t.tolist()}
+
+
+def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) -> HMDVideo:
+    """Load a video folder (format in the module doc); every problem is a one-line SplatError."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise SplatError(f"{folder}: not a folder")
+    paths = sorted((folder / "frames").glob("*.png"))
+    if not paths:
+        raise SplatError(f"{folder}: no frames/*.png")
+    if frames is not None:
+        paths = paths[frames]
+    for name in ("landmarks.json", "camera.json", "meta.json"):
+        if not (folder / name).is_file():
+            raise SplatError(f"{folder}: missing {name}")
+    try:
+        lm = json.loads((folder / "landmarks.json").read_text())
+        cam = _camera_from_json(json.loads((folder / "camera.json").read_text()))
+        meta = json.loads((folder / "meta.json").read_text())
+        y_split = float(meta["y_split"])
+        names = list(lm["names"])
+        pts = np.asarray(lm["points"], dtype=np.float64)
+    except (ValueError, KeyError, TypeError) as e:
+        raise SplatError(f"{folder}: malformed json ({type(e).__name__}: {e})") from None
+    missing = [n for n in LOWER_FACE_LANDMARKS if n not in names]
+    if missing:
+        raise SplatError(f"{folder}/landmarks.json: missing landmarks {missing}")
+    all_paths = sorted((folder / "frames").glob("*.png"))
+    if pts.ndim != 3 or pts.shape[0] != len(all_paths) or pts.shape[2] != 2:
+        raise SplatError(f"{folder}/landmarks.json: points must be [frames={len(all_paths)}, K, 2]; "
+                         f"got {pts.shape}")
+    if frames is not None:
+        pts = pts[frames]
+    imgs = np.stack([_read_png(p) for p in paths])
+    if imgs.shape[1:3] != (cam.height, cam.width):
+        raise SplatError(f"{folder}: frames are {imgs.shape[2]}×{imgs.shape[1]} but camera.json says "
+                         f"{cam.width}×{cam.height}")
+
+    def optional(sub, rgb):
+        ps = [folder / sub / p.name for p in paths]
+        if not all(p.is_file() for p in ps):
+            return None
+        a = np.stack([_read_png(p, rgb) for p in ps])
+        if a.shape[1:3] != imgs.shape[1:3]:
+            raise SplatError(f"{folder}/{sub}: images differ in size from frames/")
+        return a
+
+    masks = optional("masks", False)
+    masks = (masks > 0.5) if masks is not None else imgs.max(-1) > 0
+    hmd = optional("hmd_masks", False)
+    mesh = next((folder / n for n in ("head.ply", "head.obj") if (folder / n).is_file()), None)
+    if need_mesh and mesh is None:
+        raise SplatError(f"{folder}: a registration folder needs head.ply or head.obj (the canonical head)")
+    return HMDVideo(imgs, masks, pts, names, cam, y_split, None if hmd is None else hmd > 0.5,
+                    optional("gt", True), mesh)
+
+
+def lower_face_box(pts) -> tuple[float, float, float]:
+    """Square crop (centre x, centre y, side) around nose tip, mouth corners and chin (pixels):
+    from the nose tip down past the chin, as wide as 1.9× the mouth."""
+    nose, ml, mr, chin = np.asarray(pts, dtype=np.float64)
+    top, bottom = nose[1], chin[1]
+    h = max(bottom - top, 1.0)
+    w = max(abs(ml[0] - mr[0]) * 1.9, 1.0)
+    side = 1.15 * max(h, w)
+    cx = 0.5 * (ml[0] + mr[0])
+    cy = top + 0.5 * side - 0.05 * side
+    return float(cx), float(cy), float(side)
+
+
+def crop_lower_face(frame, pts, size: int = 128) -> np.ndarray:
+    """[3, size, size] float32 crop of ``frame`` [H, W, 3] around the lower face (zero padded)."""
+    import cv2
+
+    cx, cy, side = lower_face_box(pts)
+    s = size / side
+    # affine map: output pixel centre (u + .5) ← input (cx − side/2 + (u + .5)/s)
+    M = np.array([[s, 0, -(cx - side / 2) * s], [0, s, -(cy - side / 2) * s]], dtype=np.float64)
+    out = cv2.warpAffine(np.asarray(frame, np.float32), M, (size, size), flags=cv2.INTER_AREA
+                         if s < 1 else cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return np.ascontiguousarray(out.transpose(2, 0, 1))
+
+
+# ----------------------------------------------------------------------------- synthetic data
+def _drivers(T: int, rng) -> np.ndarray:
+    """[T, 3] smooth activations in [0, 1] of (surprise, smile, frown): sums of slow sinusoids,
+    shaped so each is often near 0 and sometimes near 1."""
+    t = np.arange(T)[:, None] / max(T, 1)
+    out = np.zeros((T, 3))
+    for k in range(3):
+        f = rng.uniform(1.5, 4.0, 3)
+        ph = rng.uniform(0, 2 * np.pi, 3)
+        s = sum(np.sin(2 * np.pi * f[j] * t[:, 0] + ph[j]) / (j + 1) for j in range(3))
+        out[:, k] = np.clip((s - 0.2) / 1.2, 0, 1) ** 1.2
+    return out
+
+
+def expressions_from_drivers(d) -> list[dict]:
+    """Expression weights coupling upper and lower face: surprise = jaw_open + brow_raise, smile =
+    smile + eyes narrowed, frown = frown + pucker."""
+    out = []
+    for s, m, a in np.asarray(d):
+        out.append({"jaw_open": 0.8 * s, "brow_raise": s, "smile": m, "eyes_closed_left": 0.45 * m,
+                    "eyes_closed_right": 0.45 * m, "frown": a, "pucker": 0.7 * a})
+    return out
+
+
+def _rot(yaw, pitch, roll) -> np.ndarray:
+    cy, sy, cp, sp, cr, sr = (math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch),
+                              math.cos(roll), math.sin(roll))
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rx = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
+    Rz = np.array([[cr, -sr, 0], [sr, cr, 0], [0, 0, 1]])
+    return Ry @ Rx @ Rz
+
+
+def headset_mesh(y_split: float, front_z: float, width: float = 0.19, height: float = 0.075,
+                 depth: float = 0.07):
+    """A box-shaped headset (V, F) in front of the upper face: bottom edge at ``y_split``, front face
+    at ``front_z + 0.02``."""
+    x0, x1 = -width / 2, width / 2
+    y0, y1 = y_split, y_split + height
+    z1 = front_z + 0.02
+    z0 = z1 - depth
+    V = np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)], dtype=np.float64)
+    # vertex index = 4·ix + 2·iy + iz; outward, counter-clockwise faces
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (1, 5, 7, 3), (0, 2, 6, 4)]
+    F = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
+    return V, F
+
+
+def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int = 128,
+                       n_vertices: int = 8000, seed: int = 0, motion: float = 1.0,
+                       supersample: int = 2, quiet: bool | None = None) -> tuple[Path, Path]:
+    """Write ``out/registration`` and ``out/usage`` (format in the module doc); returns both paths.
+
+    The sequence has ``frames`` frames; the last ``heldout`` fraction is the usage video, rendered
+    with a headset (``hmd_masks/``) and without it (``gt/``). ``motion`` scales the head motion
+    (yaw ±8°, pitch ±4°, roll ±3°, a few millimetres of translation; 0 = a still head).
+    """
+    from geoface.progress import progress
+    from geoface.splat.render_mesh import render_mesh
+    from geoface.synth.head import HeadModel
+
+    if frames < 5 or not 0 < heldout < 1:
+        raise SplatError(f"need frames >= 5 and 0 < heldout < 1; got {frames}, {heldout}")
+    out = Path(out)
+    rng = np.random.default_rng(seed)
+    model = HeadModel(n_vertices=n_vertices, seed=seed)
+    neutral = model.mesh()
+    lmk = neutral.landmarks
+    y_eye, y_nose = neutral.eye_line_y, float(neutral.V[lmk["nose_tip"], 1])
+    y_split = y_eye - 0.4 * (y_eye - y_nose)
+    front = float(neutral.V[:, 2].max())
+    target = np.array([0.0, 0.5 * (y_eye + float(neutral.V[lmk["chin"], 1])) + 0.01, 0.05])
+    cam = look_at(target + [0, 0, 0.42], target, width=res, height=res, fov_y_deg=36.0)
+    pivot = np.array([0.0, -0.09, 0.0])  # the neck
+    hV, hF = headset_mesh(y_split, front)
+    drivers = _drivers(frames, rng)
+    exprs = expressions_from_drivers(drivers)
+    tt = np.arange(frames) / frames
+    ph = rng.uniform(0, 2 * np.pi, 6)
+    yaw = motion * np.radians(8) * np.sin(2 * np.pi * 1.3 * tt + ph[0])
+    pitch = motion * np.radians(4) * np.sin(2 * np.pi * 1.7 * tt + ph[1])
+    roll = motion * np.radians(3) * np.sin(2 * np.pi * 0.9 * tt + ph[2])
+    trans = motion * 0.004 * np.stack([np.sin(2 * np.pi * 1.1 * tt + ph[3]), np.sin(2 * np.pi * 0.7 * tt + ph[4]),
+                                       np.sin(2 * np.pi * 0.5 * tt + ph[5])], 1)
+    n_reg = int(round(frames * (1 - heldout)))
+    dirs = {"registration": out / "registration", "usage": out / "usage"}
+    for d in dirs.values():
+        for sub in ("frames", "masks"):
+            (d / sub).mkdir(parents=True, exist_ok=True)
+    for sub in ("hmd_masks", "gt"):
+        (dirs["usage"] / sub).mkdir(parents=True, exist_ok=True)
+    names = list(lmk)
+    lm_pts = {"registration": [], "usage": []}
+    log = {"registration": [], "usage": []}
+    for t in progress(range(frames), "rendering HMD videos", total=frames, quiet=quiet):
+        head = model.mesh(exprs[t])
+        R = _rot(yaw[t], pitch[t], roll[t])
+        pose = lambda X: (np.asarray(X) - pivot) @ R.T + pivot + trans[t]  # noqa: E731
+        V = pose(head.V)
+        which = "registration" if t < n_reg else "usage"
+        d = dirs[which]
+        k = t if which == "registration" else t - n_reg
+        name = f"{k:06d}.png"
+        r = render_mesh(V, head.F, cam, head.colors, supersample=supersample)
+        uv, _ = cam.project(V[[lmk[n] for n in names]])
+        lm_pts[which].append(np.asarray(uv).tolist())
+        log[which].append({"frame": k, "expression": exprs[t], "drivers": drivers[t].tolist(),
+                           "yaw_pitch_roll_deg": np.degrees([yaw[t], pitch[t], roll[t]]).tolist(),
+                           "translation": trans[t].tolist()})
+        if which == "registration":
+            _write_png(d / "frames" / name, r.rgb * r.alpha[..., None])
+            _write_png(d / "masks" / name, (r.alpha > 0.5).astype(np.uint8) * 255)
+        else:
+            VV = np.concatenate([V, pose(hV)])
+            FF = np.concatenate([head.F, hF + len(V)])
+            CC = np.concatenate([head.colors[:, :3], np.full((len(hV), 3), 0.12)])
+            ro = render_mesh(VV, FF, cam, CC, supersample=supersample)
+            hmd = render_mesh(VV, FF, cam, np.concatenate([np.zeros((len(V), 3)), np.ones((len(hV), 3))]),
+                              supersample=supersample).rgb[..., 0]
+            _write_png(d / "frames" / name, ro.rgb * ro.alpha[..., None])
+            _write_png(d / "masks" / name, (ro.alpha > 0.5).astype(np.uint8) * 255)
+            _write_png(d / "hmd_masks" / name, (hmd > 0.5).astype(np.uint8) * 255)
+            _write_png(d / "gt" / name, r.rgb * r.alpha[..., None])
+    from geoface.mesh.io import save_mesh
+
+    for which, d in dirs.items():
+        (d / "landmarks.json").write_text(json.dumps({"names": names, "points": lm_pts[which]}))
+        (d / "camera.json").write_text(json.dumps(camera_to_json(cam)))
+        (d / "meta.json").write_text(json.dumps({"y_split": y_split, "up": [0, 1, 0], "source": "procedural head",
+                                                 "seed": seed, "n_vertices": n_vertices, "frames": log[which]}))
+    save_mesh(dirs["registration"] / "head.ply", V=neutral.V, F=neutral.F, colors=neutral.colors)
+    return dirs["registration"], dirs["usage"]
