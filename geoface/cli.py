@@ -474,6 +474,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .splat.cli import register as register_splat  # argparse only: torch loads inside the command
 
     register_splat(sub, common)
+    from .splat.hfm_cli import register as register_hmd
+
+    register_hmd(sub, common)
     register_texture(sub, common)
 
     s = sub.add_parser("synth", help="write procedural test geometry")

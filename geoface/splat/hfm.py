@@ -314,13 +314,16 @@ class HFMModel(nn.Module):
         h = torch.cat([eX, theta.expand(len(eX), -1)], -1)
         return torch.cat([self.mlp_x(h), self.mlp_s(h), self.mlp_r(h)], -1)  # [n, 10]
 
+    def w_gm(self, eU: Tensor, eL: Tensor) -> Tensor:
+        """W_gm = row-softmax(φ_U φ_Lᵀ) [|U|, |L|] from embedded positions (eq. 3–4)."""
+        return torch.softmax(self.mlp_gm(eU) @ self.mlp_gm(eL).T, -1)
+
     def map_params(self, eU: Tensor, eL: Tensor, pL: Tensor) -> Tensor:
         """Upper deformations from lower ones through W_gm (eq. 3–7), dense over the given sets
-        (rows in chunks so |U|·|L| need not fit at once)."""
-        phiU, phiL = self.mlp_gm(eU), self.mlp_gm(eL)
+        (rows of W_gm in chunks, so |U|·|L| never has to fit at once)."""
         fL = self.mlp_pm(torch.cat([eL, pL], -1)) if self.cfg.feature_mapping else pL
         chunk = max(1, int(2**26 // max(len(eL), 1)))
-        fU = torch.cat([torch.softmax(phiU[i:i + chunk] @ phiL.T, -1) @ fL for i in range(0, len(eU), chunk)])
+        fU = torch.cat([self.w_gm(eU[i:i + chunk], eL) @ fL for i in range(0, len(eU), chunk)])
         return self.mlp_mapping(torch.cat([eU, fU], -1))
 
     def deform(self, theta: Tensor) -> GaussianTensors:
@@ -373,8 +376,7 @@ def select_keys(model: HFMModel, X: Tensor, iu: Tensor, il: Tensor, n_keys: int,
     if len(il) <= n_keys:
         return ku, il.clone()
     E = model.embed(X)
-    W = torch.softmax(model.mlp_gm(E[ku]) @ model.mlp_gm(E[il]).T, -1)  # [|ku|, |L|]
-    corr = W.sum(0)
+    corr = model.w_gm(E[ku], E[il]).sum(0)  # correlation weight of each lower Gaussian
     kl = il[torch.topk(corr, n_keys).indices.sort().values]
     return ku, kl
 

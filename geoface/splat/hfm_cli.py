@@ -1,0 +1,140 @@
+"""``geoface hmd synth|train|remove|eval`` — HFM-GS head-mounted-display removal.
+
+Wired into :mod:`geoface.cli` through :func:`register`; torch loads inside the commands.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from geoface.errors import GeofaceError
+
+__all__ = ["register"]
+
+
+def _quiet(args) -> bool:
+    from geoface.progress import QUIET
+
+    return bool(getattr(args, "quiet", False) or QUIET)
+
+
+def cmd_hmd_synth(args) -> int:
+    from .hfm_data import make_synthetic_hmd
+
+    out = Path(args.output)
+    if out.exists() and any(out.iterdir()):
+        raise GeofaceError(f"{out} exists and is not empty; choose a new folder")
+    reg, use = make_synthetic_hmd(out, frames=args.frames, heldout=args.heldout, res=args.res,
+                                  n_vertices=args.vertices, seed=args.seed, motion=args.motion,
+                                  quiet=_quiet(args))
+    print(f"{reg}: registration video; {use}: usage video with a headset (+ gt/, hmd_masks/)")
+    return 0
+
+
+def _config(args):
+    from .hfm import ABLATIONS, HFMConfig
+
+    kw = dict(iters=args.iters, seed=args.seed, threads=args.threads, vgg_weights=args.vgg_weights,
+              densify=not args.no_densify)
+    if args.y_split is not None:
+        kw["y_split"] = args.y_split
+    kw.update(ABLATIONS[args.ablation])
+    return HFMConfig(**kw)
+
+
+def cmd_hmd_train(args) -> int:
+    from geoface.progress import log
+
+    from .hfm import train_hfm
+
+    out = Path(args.output)
+    if (out / "model.safetensors").exists() and not args.force:
+        raise GeofaceError(f"{out} already holds a model; use --force to replace it")
+    cfg = _config(args)
+    info = train_hfm(args.reg_dir, out, cfg, progress=None if not _quiet(args) else False, log=log)
+    h = info["history"]
+    first = sum(r["loss"] for r in h[:20]) / len(h[:20])
+    last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])
+    print(f"{args.reg_dir} -> {out}: {cfg.iters} steps in {info['seconds']:.1f} s, loss {first:.4f} -> {last:.4f}, "
+          f"{info['n_gaussians']} Gaussians ({info['n_upper']} upper), {info['dropped_children']} split children "
+          f"dropped at the boundary")
+    return 0
+
+
+def cmd_hmd_remove(args) -> int:
+    from .hfm import load_hfm, remove_hmd
+    from .hfm_data import load_video
+
+    model = load_hfm(args.model_dir)
+    video = load_video(args.usage_dir)
+    out = Path(args.output)
+    if (out / "frames").is_dir() and any((out / "frames").iterdir()) and not args.force:
+        raise GeofaceError(f"{out}/frames is not empty; use --force to overwrite")
+    _, times = remove_hmd(model, video, out_dir=out, composite=not args.no_composite)
+    fps = len(times) / max(float(times.sum()), 1e-9)
+    print(f"{args.usage_dir} -> {out}/frames: {len(times)} frames, {fps:.1f} FPS "
+          f"({1000 * float(times.mean()):.1f} ms per frame: crop, encode, deform, render)")
+    return 0
+
+
+def cmd_hmd_eval(args) -> int:
+    from .hfm import evaluate_hmd, load_hfm
+    from .hfm_data import load_video
+
+    model = load_hfm(args.model_dir)
+    res = evaluate_hmd(model, load_video(args.usage_dir))
+    print(f"{args.usage_dir}: face PSNR {res['psnr_face']:.2f} dB SSIM {res['ssim_face']:.4f}; occluded region "
+          f"PSNR {res['psnr_occluded']:.2f} dB SSIM {res['ssim_occluded']:.4f}; {res['fps']:.1f} FPS "
+          f"({res['frames']} frames)")
+    if args.json:
+        from geoface._io import atomic_path
+
+        with atomic_path(args.json) as tmp:
+            Path(tmp).write_text(json.dumps(res, indent=1))
+    return 0
+
+
+def register(sub, common: argparse.ArgumentParser) -> None:
+    """Add ``geoface hmd ...`` to the ``geoface`` sub-parsers."""
+    h = sub.add_parser("hmd", help="HFM-GS: remove a head-mounted display from video (needs torch)")
+    hs = h.add_subparsers(dest="what", metavar="WHAT")
+    hs.required = True
+    s = hs.add_parser("synth", parents=[common], help="write synthetic registration and usage videos")
+    s.add_argument("output", metavar="OUT_DIR")
+    s.add_argument("--frames", type=int, default=200, help="frames in the whole sequence (200)")
+    s.add_argument("--heldout", type=float, default=0.2, help="last fraction that becomes the usage video (0.2)")
+    s.add_argument("--res", type=int, default=128, help="image side in pixels (128)")
+    s.add_argument("--vertices", type=int, default=8000, help="procedural head vertices (8000)")
+    s.add_argument("--motion", type=float, default=1.0, help="head motion scale (1; 0 = still)")
+    s.add_argument("--seed", type=int, default=0)
+    s.set_defaults(func=cmd_hmd_synth)
+    t = hs.add_parser("train", parents=[common], help="register a person from an unoccluded video folder")
+    t.add_argument("reg_dir", metavar="REG_DIR")
+    t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
+    t.add_argument("--iters", type=int, default=2000, help="optimisation steps (2000)")
+    t.add_argument("--ablation", choices=sorted(ABLATION_NAMES), default="full")
+    t.add_argument("--vgg-weights", default=None, metavar="FILE",
+                   help="local VGG-16 feature weights (.safetensors or .pth) for the perceptual term")
+    t.add_argument("--y-split", type=float, default=None, help="upper/lower split height y_t (default: meta.json)")
+    t.add_argument("--no-densify", action="store_true", help="no clone/split/prune")
+    t.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--force", action="store_true", help="replace a model already in MODEL_DIR")
+    t.set_defaults(func=cmd_hmd_train)
+    r = hs.add_parser("remove", parents=[common], help="restore the full face in a headset video (streams, reports FPS)")
+    r.add_argument("model_dir", metavar="MODEL_DIR")
+    r.add_argument("usage_dir", metavar="USAGE_DIR")
+    r.add_argument("-o", "--output", required=True, metavar="OUT_DIR")
+    r.add_argument("--no-composite", action="store_true", help="write the avatar renders, not frames with the HMD region replaced")
+    r.add_argument("--force", action="store_true")
+    r.set_defaults(func=cmd_hmd_remove)
+    e = hs.add_parser("eval", parents=[common], help="PSNR/SSIM (whole face, occluded region) and FPS on a usage folder with gt/")
+    e.add_argument("model_dir", metavar="MODEL_DIR")
+    e.add_argument("usage_dir", metavar="USAGE_DIR")
+    e.add_argument("--json", default=None, metavar="FILE", help="also write the figures as JSON")
+    e.set_defaults(func=cmd_hmd_eval)
+
+
+# the keys of geoface.splat.hfm.ABLATIONS (kept here so that building the parser imports no torch)
+ABLATION_NAMES = ("full", "no_global_pose", "no_gaussian_feature_mapping", "no_feature_mapping", "no_sampling")

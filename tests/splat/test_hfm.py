@@ -1,0 +1,316 @@
+"""HFM-GS: mapping weights, key sampling, W_dist, segregation, identity at init, training, I/O."""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from geoface.splat.density import DensityConfig
+from geoface.splat.errors import SplatError
+from geoface.splat.gaussians import Gaussians
+from geoface.splat.hfm import (ABLATIONS, HFMConfig, HFMModel, SegregationStrategy, VGGPerceptual,
+                               boundary_loss, evaluate_hmd, farthest_point_sampling,
+                               inverse_distance_weights, load_hfm, save_hfm, train_hfm)
+from geoface.splat.hfm_data import crop_lower_face, load_video, lower_face_box, make_synthetic_hmd
+
+Y_T = 0.0
+
+
+def _model(n=3000, seed=0, **cfg):
+    """Gaussians on a unit-ish sphere around the origin, split at y = 0."""
+    g = torch.Generator().manual_seed(seed)
+    d = torch.randn(n, 3, generator=g)
+    X = 0.1 * d / d.norm(dim=1, keepdim=True)
+    gs = Gaussians(X, torch.full((n, 3), math.log(0.005)), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                   torch.zeros(n), torch.rand(n, 3, generator=g))
+    return HFMModel(gs, HFMConfig(**cfg), Y_T)
+
+
+def _perturb(model, std=0.05, seed=1):
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for name, p in model.named_parameters():
+            if not name.startswith("gaussians."):
+                p.add_(torch.randn(p.shape, generator=g) * std)
+
+
+def test_w_gm_rows_sum_to_one():
+    m = _model(400)
+    _perturb(m)
+    E = m.embed(m.gaussians.means.detach())
+    up = m.upper_mask()
+    W = m.w_gm(E[up], E[~up])
+    assert W.shape == (int(up.sum()), int((~up).sum()))
+    assert torch.all(W >= 0)
+    assert torch.allclose(W.sum(1), torch.ones(len(W)), atol=1e-6)
+
+
+def test_sampling_keeps_exactly_512_plus_512_keys_by_correlation():
+    m = _model(3000)
+    _perturb(m)
+    up = m.upper_mask()
+    assert up.sum() > 512 and (~up).sum() > 512
+    m.refresh_keys()
+    ku, kl = m.keys_u, m.keys_l
+    assert len(ku) == 512 and len(kl) == 512
+    assert len(set(ku.tolist())) == 512 and len(set(kl.tolist())) == 512
+    assert bool(up[ku].all()) and not bool(up[kl].any())
+    # the lower keys are the 512 largest correlation weights towards the upper keys
+    E = m.embed(m.gaussians.means.detach())
+    il = torch.nonzero(~up).reshape(-1)
+    corr = m.w_gm(E[ku], E[il]).sum(0).detach()
+    chosen = torch.isin(il, kl)
+    assert corr[chosen].min() >= corr[~chosen].max() - 1e-6
+    # farthest-point sampling spreads the upper keys: every upper Gaussian is near one
+    d = torch.cdist(m.gaussians.means.detach()[up], m.gaussians.means.detach()[ku]).min(1).values
+    assert float(d.max()) < 0.03  # sphere radius 0.1: 512 well-spread keys on a hemisphere
+
+
+def test_fewer_gaussians_than_keys_uses_them_all():
+    m = _model(300)
+    m.refresh_keys()
+    up = m.upper_mask()
+    assert len(m.keys_u) == int(up.sum()) and len(m.keys_l) == int((~up).sum())
+
+
+def test_w_dist_rows_sum_to_one_and_keys_map_to_themselves():
+    P = torch.rand(500, 3, dtype=torch.float64)
+    keys = farthest_point_sampling(P, 64)
+    j, w = inverse_distance_weights(P, P[keys], k=8)
+    assert j.shape == (500, 8) and w.shape == (500, 8)
+    assert torch.all(w >= 0)
+    assert torch.allclose(w.sum(1), torch.ones(500, dtype=torch.float64), atol=1e-12)
+    # a key's own row puts (almost) all weight on itself
+    assert torch.all(w[keys, 0] > 1 - 1e-6) and torch.equal(j[keys, 0], torch.arange(64))
+    # a point halfway between two keys (and far from the rest) weighs them equally
+    Q = torch.tensor([[0.0, 0, 0], [1.0, 0, 0], [0.5, 0, 0]], dtype=torch.float64)
+    j2, w2 = inverse_distance_weights(Q[2:], Q[:2], k=2)
+    assert torch.allclose(w2, torch.full((1, 2), 0.5, dtype=torch.float64))
+
+
+def test_sampling_with_every_gaussian_a_key_equals_the_dense_mapping():
+    m = _model(600, n_keys=1000)
+    _perturb(m)
+    dense = _model(600, n_keys=1000, sampling=False)
+    dense.load_state_dict(m.state_dict())
+    theta = torch.randn(1, 128)
+    with torch.no_grad():
+        a, b = m.deform(theta), dense.deform(theta)
+    assert torch.allclose(a.means, b.means, atol=1e-6)
+    assert torch.allclose(a.log_scales, b.log_scales, atol=1e-6)
+
+
+def test_segregation_drops_exactly_the_crossing_children():
+    m = 0.004
+    s = SegregationStrategy(DensityConfig(), 1.0, Y_T, m, torch.tensor([True, False]))
+    y = torch.tensor([Y_T - m - 1e-4, Y_T - m + 1e-4, Y_T + 0.01,     # children of the upper parent
+                      Y_T + m + 1e-4, Y_T + m - 1e-4, Y_T - 0.01])    # children of the lower parent
+    parents = torch.tensor([0, 0, 0, 1, 1, 1])
+    means = torch.zeros(6, 3)
+    means[:, 1] = y
+    keep = s.filter_split(None, parents, {"means": means})
+    assert keep.tolist() == [False, True, True, False, True, True]
+    assert s.dropped == 2
+
+
+def test_segregation_during_a_split_and_labels_follow():
+    n = 4
+    X = torch.tensor([[0.0, 0.002, 0], [0.1, 0.05, 0], [0.0, -0.002, 0], [0.1, -0.05, 0]])
+    g = Gaussians(X, torch.full((n, 3), math.log(0.02)), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                  torch.zeros(n), torch.rand(n, 3))
+    upper = X[:, 1] > 0
+    s = SegregationStrategy(DensityConfig(split_n=64), 1.0, 0.0, 0.001, upper)
+    torch.manual_seed(0)
+    s.split(g, None, torch.arange(n))
+    assert s.dropped > 0  # σ = 2 cm around points 2 mm from the plane: many children cross it
+    assert len(s.upper) == len(g)
+    y = g.means.detach()[:, 1]
+    assert torch.all(y[s.upper] >= -0.001) and torch.all(y[~s.upper] <= 0.001)
+
+
+def test_boundary_loss():
+    y = torch.tensor([0.01, 0.02, -0.01, -0.03])
+    up = torch.tensor([True, True, False, False])
+    assert float(boundary_loss(y, up, 0.0)) == 0.0
+    y2 = torch.tensor([-0.01, 0.02, 0.03, -0.03])
+    assert math.isclose(float(boundary_loss(y2, up, 0.0)), 0.01 / 2 + 0.03 / 2, rel_tol=1e-6)
+
+
+@pytest.mark.parametrize("ablation", sorted(ABLATIONS))
+def test_zero_latent_and_identity_mlps_leave_the_canonical_gaussians(ablation):
+    m = _model(1500, **ABLATIONS[ablation])
+    g = m.gaussians
+    with torch.no_grad():
+        for theta in (torch.zeros(1, 128), torch.randn(1, 128)):  # zero-initialised last layers
+            d = m.deform(theta)
+            assert torch.allclose(d.means, g.means, atol=1e-7)
+            assert torch.allclose(d.log_scales, g.log_scales, atol=1e-7)
+            q = g.quats / g.quats.norm(dim=-1, keepdim=True)
+            assert torch.allclose(d.quats, q, atol=1e-7)
+        _perturb(m)  # and the test can fail: trained weights do move them
+        assert not torch.allclose(m.deform(torch.randn(1, 128)).means, g.means, atol=1e-5)
+
+
+def test_global_pose_is_a_rigid_motion_about_the_centre():
+    m = _model(500)
+    w, t = torch.tensor([0.0, 0.3, 0.0]), torch.tensor([0.1, 0.0, -0.2])
+    with torch.no_grad():
+        m.mlp_pose[-1].bias.copy_(torch.cat([w, t]))
+        d = m.deform(torch.zeros(1, 128))
+    c, s = m.center, float(m.scale)
+    R = torch.tensor([[math.cos(0.3), 0, math.sin(0.3)], [0, 1, 0], [-math.sin(0.3), 0, math.cos(0.3)]])
+    want = (m.gaussians.means - c) @ R.T + c + t * s * 0.1
+    assert torch.allclose(d.means, want, atol=1e-6)
+
+
+def test_encoder_shapes_and_config_errors():
+    m = _model(200)
+    assert m.encoder(torch.rand(2, 3, 128, 128)).shape == (2, 128)
+    with pytest.raises(SplatError):
+        HFMConfig(crop=100)
+    with pytest.raises(SplatError):
+        HFMConfig.from_dict({"bogus": 1})
+
+
+def test_vgg_perceptual_from_local_weights(tmp_path):
+    from safetensors.torch import save_file
+
+    v = VGGPerceptual.__new__(VGGPerceptual)
+    torch.nn.Module.__init__(v)
+    layers, c = [], 3
+    for k in (64, 64, "M", 128, 128, "M", 256, 256, 256):
+        if k == "M":
+            layers.append(torch.nn.MaxPool2d(2))
+        else:
+            layers += [torch.nn.Conv2d(c, k, 3, padding=1), torch.nn.ReLU()]
+            c = k
+    sd = {f"features.{k}": t for k, t in torch.nn.Sequential(*layers).state_dict().items()}
+    save_file(sd, str(tmp_path / "vgg.safetensors"))
+    vgg = VGGPerceptual(tmp_path / "vgg.safetensors")
+    a = torch.rand(1, 3, 32, 32)
+    assert float(vgg(a, a)) == 0.0
+    assert float(vgg(a, a.flip(-1))) > 0
+    (tmp_path / "bad.safetensors").write_bytes(b"not weights")
+    with pytest.raises(SplatError):
+        VGGPerceptual(tmp_path / "bad.safetensors")
+    save_file({"features.0.weight": torch.zeros(3)}, str(tmp_path / "other.safetensors"))
+    with pytest.raises(SplatError):
+        VGGPerceptual(tmp_path / "other.safetensors")
+
+
+@pytest.fixture(scope="module")
+def videos(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hmd")
+    return make_synthetic_hmd(out, frames=12, res=64, n_vertices=2000, quiet=True)
+
+
+def test_synthetic_videos_and_loader(videos):
+    reg, use = videos
+    r, u = load_video(reg, need_mesh=True), load_video(use)
+    assert len(r) + len(u) == 12 and len(u) == 2
+    assert r.frames.shape[1:] == (64, 64, 3) and r.masks.any()
+    assert u.gt is not None and u.hmd_masks is not None and u.hmd_masks.any()
+    # the headset hides the eyes, not the mouth
+    lm = {n: u.landmarks[0][u.names.index(n)] for n in ("eye_left_center", "mouth_left")}
+    ij = lambda p: (int(round(p[1] - 0.5)), int(round(p[0] - 0.5)))  # noqa: E731
+    assert u.hmd_masks[0][ij(lm["eye_left_center"])] and not u.hmd_masks[0][ij(lm["mouth_left"])]
+    # in the usage video the occluded pixels differ from the unoccluded truth; elsewhere they agree
+    diff = np.abs(u.frames[0] - u.gt[0]).max(-1)
+    assert diff[u.hmd_masks[0]].mean() > 0.1 and diff[~u.hmd_masks[0]].mean() < 0.02
+    crops = u.crops(128)
+    assert crops.shape == (2, 3, 128, 128) and 0 <= crops.min() and crops.max() <= 1
+
+
+def test_lower_face_crop_contains_the_mouth():
+    pts = np.array([[60.0, 50], [50, 70], [70, 70], [60, 90]])  # nose, mouth l/r, chin
+    cx, cy, side = lower_face_box(pts)
+    for x, y in pts[1:]:
+        assert abs(x - cx) < side / 2 and abs(y - cy) < side / 2
+    img = np.zeros((128, 128, 3), np.float32)
+    img[68:73, 48:73] = 1.0  # the mouth
+    c = crop_lower_face(img, pts, 64)
+    assert c.shape == (3, 64, 64) and c.max() > 0.9
+
+
+def test_loader_errors(videos, tmp_path):
+    import shutil
+
+    reg, _ = videos
+    with pytest.raises(SplatError, match="no frames"):
+        load_video(tmp_path)
+    bad = tmp_path / "bad"
+    shutil.copytree(reg, bad)
+    (bad / "landmarks.json").write_text(json.dumps({"names": ["nose_tip"], "points": []}))
+    with pytest.raises(SplatError, match="missing landmarks"):
+        load_video(bad)
+    shutil.rmtree(bad)
+    shutil.copytree(reg, bad)
+    cam = json.loads((bad / "camera.json").read_text())
+    cam["width"] = 100
+    (bad / "camera.json").write_text(json.dumps(cam))
+    with pytest.raises(SplatError, match="camera.json"):
+        load_video(bad)
+
+
+def test_a_few_training_steps_lower_the_loss_save_load_and_evaluate(videos, tmp_path):
+    reg, use = videos
+    cfg = HFMConfig(iters=40, densify=False, seed=0)
+    info = train_hfm(reg, tmp_path / "m", cfg, progress=False, log=None)
+    h = [r["loss"] for r in info["history"]]
+    assert np.mean(h[-10:]) < 0.85 * np.mean(h[:10])
+    m = load_hfm(tmp_path / "m")
+    video = load_video(use)
+    ev = evaluate_hmd(m, video)
+    assert ev["frames"] == 2 and ev["fps"] > 0 and 5 < ev["psnr_face"] < 60
+    # the saved model reproduces the trained one
+    info2 = train_hfm(reg, tmp_path / "m2", replace(cfg, iters=1), progress=False, log=None)
+    assert info2["n_gaussians"] == 2000
+    crop = torch.tensor(video.crops(128)[:1])
+    m2 = load_hfm(tmp_path / "m")
+    with torch.no_grad():
+        assert torch.equal(m(crop).means, m2(crop).means)
+    # a corrupt checkpoint is a one-line error
+    (tmp_path / "m" / "model.safetensors").write_bytes(b"\0" * 64)
+    with pytest.raises(SplatError, match="cannot read weights"):
+        load_hfm(tmp_path / "m")
+
+
+def test_save_load_round_trip_with_sampling_keys(tmp_path):
+    m = _model(2500)
+    _perturb(m)
+    save_hfm(m, tmp_path)
+    m2 = load_hfm(tmp_path)
+    theta = torch.randn(1, 128)
+    with torch.no_grad():
+        assert torch.allclose(m.deform(theta).means, m2.deform(theta).means, atol=1e-6)
+    cfg = json.loads((tmp_path / "config.json").read_text())
+    cfg["n_gaussians"] = 7
+    (tmp_path / "config.json").write_text(json.dumps(cfg))
+    with pytest.raises(SplatError):
+        load_hfm(tmp_path)
+
+
+def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
+    from geoface.cli import main
+    from geoface.splat.hfm_cli import ABLATION_NAMES
+
+    assert set(ABLATION_NAMES) == set(ABLATIONS)
+    reg, use = videos
+    md = tmp_path / "model"
+    assert main(["hmd", "train", str(reg), "-o", str(md), "--iters", "5", "--no-densify", "-q"]) == 0
+    assert main(["hmd", "train", str(reg), "-o", str(md), "--iters", "5", "-q"]) == 2  # no overwrite
+    assert main(["hmd", "remove", str(md), str(use), "-o", str(tmp_path / "out")]) == 0
+    assert len(list((tmp_path / "out" / "frames").glob("*.png"))) == 2
+    assert main(["hmd", "eval", str(md), str(use), "--json", str(tmp_path / "e.json")]) == 0
+    assert "psnr_occluded" in json.loads((tmp_path / "e.json").read_text())
+    out = capsys.readouterr().out
+    assert "FPS" in out and "occluded region" in out
+    assert main(["hmd", "eval", str(reg), str(use)]) == 2
+    assert main(["hmd", "train", str(use), "-o", str(tmp_path / "m3")]) == 2  # no head mesh
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err and all(line.startswith("geoface: error:") for line in err) and "Traceback" not in "".join(err)
+    assert not (tmp_path / "m3").exists()
