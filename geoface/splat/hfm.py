@@ -500,7 +500,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     if cfg.densify:
         every = min(100, max(10, cfg.iters // 10))
         dcfg = DensityConfig(refine_start=max(100, cfg.iters // 10) - 1, refine_stop=int(0.6 * cfg.iters),
-                             refine_every=every, reset_every=0, max_gaussians=3 * len(g))
+                             refine_every=every, reset_every=0, max_gaussians=2 * len(g))
         strategy = SegregationStrategy(dcfg, extent, model.y_split, cfg.margin, model.upper_mask())
     history, order = [], []
     t0 = time.perf_counter()

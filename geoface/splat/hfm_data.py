@@ -193,7 +193,7 @@ def _drivers(T: int, rng) -> np.ndarray:
     t = np.arange(T)[:, None] / max(T, 1)
     out = np.zeros((T, 3))
     for k in range(3):
-        f = rng.uniform(1.5, 4.0, 3)
+        f = rng.uniform(4.0, 9.0, 3)
         ph = rng.uniform(0, 2 * np.pi, 3)
         s = sum(np.sin(2 * np.pi * f[j] * t[:, 0] + ph[j]) / (j + 1) for j in range(3))
         out[:, k] = np.clip((s - 0.2) / 1.2, 0, 1) ** 1.2
@@ -265,11 +265,13 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
     exprs = expressions_from_drivers(drivers)
     tt = np.arange(frames) / frames
     ph = rng.uniform(0, 2 * np.pi, 6)
-    yaw = motion * np.radians(8) * np.sin(2 * np.pi * 1.3 * tt + ph[0])
-    pitch = motion * np.radians(4) * np.sin(2 * np.pi * 1.7 * tt + ph[1])
-    roll = motion * np.radians(3) * np.sin(2 * np.pi * 0.9 * tt + ph[2])
-    trans = motion * 0.004 * np.stack([np.sin(2 * np.pi * 1.1 * tt + ph[3]), np.sin(2 * np.pi * 0.7 * tt + ph[4]),
-                                       np.sin(2 * np.pi * 0.5 * tt + ph[5])], 1)
+    # several cycles of each motion within the registration part, so that the held-out end of the
+    # sequence revisits poses the registration saw (at other combinations)
+    yaw = motion * np.radians(8) * np.sin(2 * np.pi * 5.3 * tt + ph[0])
+    pitch = motion * np.radians(4) * np.sin(2 * np.pi * 7.1 * tt + ph[1])
+    roll = motion * np.radians(3) * np.sin(2 * np.pi * 3.9 * tt + ph[2])
+    trans = motion * 0.004 * np.stack([np.sin(2 * np.pi * 4.1 * tt + ph[3]), np.sin(2 * np.pi * 2.7 * tt + ph[4]),
+                                       np.sin(2 * np.pi * 3.5 * tt + ph[5])], 1)
     n_reg = int(round(frames * (1 - heldout)))
     dirs = {"registration": out / "registration", "usage": out / "usage"}
     for d in dirs.values():

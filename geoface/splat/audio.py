@@ -1,0 +1,110 @@
+"""Audio features for talking avatars: offline log-mel spectra from WAV files, or precomputed arrays.
+
+:func:`audio_features` gives one feature vector per video frame: ``(T, D)``. A ``.wav`` is read
+with :mod:`scipy.io.wavfile` (mono mix, any rate, int or float samples), analysed with 25 ms Hann
+windows every 10 ms into ``n_mels`` log-mel bands (HTK mel scale, 50 Hz – min(8 kHz, sr/2)), and
+the windows are averaged per frame at ``fps``. ``.npy``/``.npz`` files hold features a user
+extracted elsewhere (e.g. wav2vec): ``(T, D)`` (an ``.npz`` under the key ``features``); they
+are resampled to the requested frame count by linear interpolation when the count differs.
+Nothing is downloaded.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from geoface.splat.errors import SplatError
+
+__all__ = ["read_wav", "log_mel", "audio_features", "envelope"]
+
+
+def read_wav(path) -> tuple[np.ndarray, int]:
+    """(mono float64 samples in [-1, 1], sample rate)."""
+    from scipy.io import wavfile
+
+    try:
+        sr, x = wavfile.read(str(path))
+    except (OSError, ValueError) as e:
+        raise SplatError(f"{path}: not a readable WAV file ({e})") from None
+    x = np.asarray(x)
+    if np.issubdtype(x.dtype, np.integer):
+        x = x.astype(np.float64) / float(np.iinfo(x.dtype).max)
+    x = x.astype(np.float64)
+    if x.ndim == 2:
+        x = x.mean(1)
+    if x.ndim != 1 or len(x) == 0 or not np.isfinite(x).all():
+        raise SplatError(f"{path}: empty or non-finite audio")
+    return x, int(sr)
+
+
+def _mel_filters(n_mels: int, n_fft: int, sr: int, fmin: float = 50.0, fmax: float | None = None) -> np.ndarray:
+    fmax = min(fmax or 8000.0, sr / 2)
+    mel = lambda f: 2595.0 * np.log10(1 + f / 700.0)  # noqa: E731
+    imel = lambda m: 700.0 * (10 ** (m / 2595.0) - 1)  # noqa: E731
+    pts = imel(np.linspace(mel(fmin), mel(fmax), n_mels + 2))
+    freqs = np.fft.rfftfreq(n_fft, 1.0 / sr)
+    Fb = np.zeros((n_mels, len(freqs)))
+    for i in range(n_mels):
+        lo, c, hi = pts[i], pts[i + 1], pts[i + 2]
+        Fb[i] = np.clip(np.minimum((freqs - lo) / (c - lo), (hi - freqs) / (hi - c)), 0, None)
+    return Fb
+
+
+def log_mel(x, sr: int, n_mels: int = 40, win: float = 0.025, hop: float = 0.01) -> tuple[np.ndarray, float]:
+    """Log-mel spectrogram ``(windows, n_mels)`` and the window hop in seconds."""
+    x = np.asarray(x, np.float64)
+    nw, nh = int(round(win * sr)), int(round(hop * sr))
+    if len(x) < nw:
+        x = np.pad(x, (0, nw - len(x)))
+    n = 1 + (len(x) - nw) // nh
+    idx = np.arange(nw)[None] + nh * np.arange(n)[:, None]
+    frames = x[idx] * np.hanning(nw)
+    n_fft = 1 << (nw - 1).bit_length()
+    P = np.abs(np.fft.rfft(frames, n_fft)) ** 2
+    M = P @ _mel_filters(n_mels, n_fft, sr).T
+    return np.log(M + 1e-8), nh / sr
+
+
+def audio_features(path_or_array, n_frames: int, fps: float, *, sr: int | None = None, n_mels: int = 40) -> np.ndarray:
+    """``(n_frames, D)`` float32 per-frame features (module doc)."""
+    if isinstance(path_or_array, (str, Path)):
+        p = Path(path_or_array)
+        if p.suffix.lower() in (".npy", ".npz"):
+            try:
+                if p.suffix.lower() == ".npy":
+                    A = np.load(p, allow_pickle=False)
+                else:
+                    with np.load(p, allow_pickle=False) as d:
+                        A = d["features"]
+            except (OSError, KeyError, ValueError) as e:
+                raise SplatError(f"{p}: cannot read features ({type(e).__name__}: {e})") from None
+            A = np.asarray(A, np.float64)
+            if A.ndim != 2 or len(A) < 1 or not np.isfinite(A).all():
+                raise SplatError(f"{p}: features must be a finite (T, D) array; got {A.shape}")
+            if len(A) != n_frames:
+                t = np.linspace(0, len(A) - 1, n_frames)
+                A = np.stack([np.interp(t, np.arange(len(A)), A[:, j]) for j in range(A.shape[1])], 1)
+            return A.astype(np.float32)
+        x, sr = read_wav(p)
+    else:
+        if sr is None:
+            raise SplatError("sr is required with a sample array")
+        x = np.asarray(path_or_array, np.float64)
+    S, hop = log_mel(x, sr, n_mels)
+    t_win = (np.arange(len(S)) + 0.5) * hop
+    k = np.clip((t_win * fps).astype(int), 0, None)
+    out = np.full((n_frames, S.shape[1]), np.log(1e-8))
+    for f in range(n_frames):
+        rows = S[k == f]
+        if len(rows):
+            out[f] = rows.mean(0)
+    return out.astype(np.float32)
+
+
+def envelope(x, sr: int, fps: float, n_frames: int) -> np.ndarray:
+    """RMS loudness per video frame, ``(n_frames,)``."""
+    x = np.asarray(x, np.float64)
+    edges = (np.arange(n_frames + 1) / fps * sr).astype(int)
+    return np.array([np.sqrt(np.mean(x[a:b] ** 2)) if b > a and a < len(x) else 0.0
+                     for a, b in zip(edges[:-1], edges[1:])])
