@@ -477,6 +477,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .splat.hfm_cli import register as register_hmd
 
     register_hmd(sub, common)
+    from .splat.thgs_cli import register as register_talk
+
+    register_talk(sub, common)
     register_texture(sub, common)
 
     s = sub.add_parser("synth", help="write procedural test geometry")

@@ -34,7 +34,7 @@ from geoface.splat.gaussians import quat_to_rotmat
 __all__ = ["axis_angle_to_matrix", "joint_transforms", "VoxelSkinning", "lbs", "rotmat_to_quat_torch",
            "ExpressionBlendshapes", "SpatialAudioAttention", "ExternalAttention", "mouth_gaussians",
            "THGSConfig", "THGSModel", "train_thgs", "save_thgs", "load_thgs", "evaluate_thgs", "render_frames",
-           "mouth_openness"]
+           "mouth_openness", "animate"]
 
 
 def axis_angle_to_matrix(w: Tensor) -> Tensor:  # [..., 3] -> [..., 3, 3] (Rodrigues, smooth at 0)
@@ -389,6 +389,8 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
         if callable(progress) and (it % 50 == 0 or it == cfg.iters - 1):
             progress(it, history[-1])
     save_thgs(model, out_dir)
+    from geoface.splat.hfm_data import camera_to_json
+    (Path(out_dir) / "camera.json").write_text(json.dumps(camera_to_json(data.camera)))
     return {"seconds": time.perf_counter() - t0, "history": history, "stages": stages, "n_gaussians": len(g)}
 
 
@@ -427,6 +429,7 @@ def load_thgs(model_dir) -> THGSModel:
     except (KeyError, RuntimeError) as e:
         raise SplatError(f"{d}: weights do not match config.json ({str(e).splitlines()[0][:160]})") from None
     model.eval()
+    model._dir = str(d)
     return model
 
 
@@ -513,3 +516,45 @@ def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
                mouth_open_mae=float(np.mean(np.abs(np.asarray(open_r) - np.asarray(open_g)))),
                frames=len(te), fps=float(1 / np.median(times)))
     return out
+
+
+def animate(model: THGSModel, audio_path, out_dir=None, *, poses=None, fps: float = 25.0, camera=None):
+    """Drive the avatar by speech (a WAV, or a .npy/.npz of per-frame features) and optional poses
+    (.npz with rot/transl/expr; default: the rest pose, neutral expression). Writes
+    ``out_dir/frames/*.png`` when given; returns (frames [T, H, W, 3], per-frame seconds)."""
+    from geoface.splat.audio import audio_features, read_wav
+    from geoface.splat.hfm_data import _camera_from_json, _write_png
+    from geoface.splat.thgs_data import load_poses
+
+    p = Path(audio_path)
+    if p.suffix.lower() == ".wav":
+        x, sr = read_wav(p)
+        T = max(1, int(len(x) / sr * fps))
+    else:
+        T = None
+    J, K = len(model.template.joints), model.template.n_expr
+    if poses is not None:
+        rot, transl, expr = load_poses(poses, J, K)
+        T = len(rot) if T is None else min(T, len(rot))
+    elif T is None:
+        raise SplatError("with precomputed audio features give --poses (they fix the frame count)")
+    A = audio_features(p, T, fps)
+    if A.shape[1] != model.audio_ref.shape[0]:
+        raise SplatError(f"{p}: {A.shape[1]} audio features per frame; the model was trained on "
+                         f"{model.audio_ref.shape[0]}")
+    if poses is None:
+        rot, transl, expr = np.zeros((T, J, 3)), np.zeros((T, 3)), np.zeros((T, K))
+    if camera is None:
+        cam_path = Path(getattr(model, "_dir", "")) / "camera.json"
+        if not cam_path.is_file():
+            raise SplatError("no camera: the model folder has no camera.json")
+        camera = _camera_from_json(json.loads(cam_path.read_text()))
+    frames, times = render_frames(model, camera, rot[:T], transl[:T], expr[:T], A)
+    if out_dir is not None:
+        out = Path(out_dir) / "frames"
+        out.mkdir(parents=True, exist_ok=True)
+        for t, img in enumerate(frames):
+            tmp = out / f".{t:06d}.tmp.png"
+            _write_png(tmp, img)
+            tmp.replace(out / f"{t:06d}.png")
+    return frames, times

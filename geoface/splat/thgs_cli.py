@@ -1,0 +1,121 @@
+"""``geoface talk synth|train|animate|eval`` — THGS talking avatars.
+
+Wired into :mod:`geoface.cli` through :func:`register`; torch loads inside the commands.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from geoface.errors import GeofaceError
+
+__all__ = ["register"]
+
+
+def _quiet(args) -> bool:
+    from geoface.progress import QUIET
+
+    return bool(getattr(args, "quiet", False) or QUIET)
+
+
+def cmd_talk_synth(args) -> int:
+    from .thgs_data import make_synthetic_talking
+
+    out = Path(args.output)
+    if out.exists() and any(out.iterdir()):
+        raise GeofaceError(f"{out} exists and is not empty; choose a new folder")
+    make_synthetic_talking(out, seconds=args.seconds, fps=args.fps, res=args.res, n_vertices=args.vertices,
+                           seed=args.seed, quiet=_quiet(args))
+    print(f"{out}: synthetic talking head, {args.seconds:g} s at {args.fps:g} fps, {args.res}² (audio.wav, poses.npz)")
+    return 0
+
+
+def cmd_talk_train(args) -> int:
+    from .thgs import THGSConfig, train_thgs
+
+    out = Path(args.output)
+    if (out / "model.safetensors").exists() and not args.force:
+        raise GeofaceError(f"{out} already holds a model; use --force to replace it")
+    cfg = THGSConfig(iters=args.iters, stage_scale=args.stage_scale, use_leb=not args.no_leb,
+                     use_saam=not args.no_saam, heldout=args.heldout, seed=args.seed, threads=args.threads)
+    info = train_thgs(args.data_dir, out, cfg, progress=None if not _quiet(args) else False)
+    h = info["history"]
+    first = sum(r["loss"] for r in h[:20]) / len(h[:20])
+    last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])
+    print(f"{args.data_dir} -> {out}: {cfg.iters} steps in {info['seconds']:.1f} s, loss {first:.4f} -> {last:.4f}, "
+          f"{info['n_gaussians']} Gaussians; stages start at {list(info['stages'])}")
+    return 0
+
+
+def cmd_talk_animate(args) -> int:
+    from .thgs import animate, load_thgs
+
+    model = load_thgs(args.model_dir)
+    out = Path(args.output)
+    if (out / "frames").is_dir() and any((out / "frames").iterdir()) and not args.force:
+        raise GeofaceError(f"{out}/frames is not empty; use --force to overwrite")
+    frames, times = animate(model, args.audio, out, poses=args.poses, fps=args.fps)
+    import numpy as np
+
+    print(f"{args.audio} -> {out}/frames: {len(frames)} frames, rendered at {1 / float(np.median(times)):.1f} FPS "
+          f"(median; mean {len(times) / max(float(times.sum()), 1e-9):.1f})")
+    return 0
+
+
+def cmd_talk_eval(args) -> int:
+    from .thgs import evaluate_thgs, load_thgs
+    from .thgs_data import load_talking
+
+    res = evaluate_thgs(load_thgs(args.model_dir), load_talking(args.data_dir), args.heldout)
+    print(f"{args.data_dir}: held-out PSNR {res['psnr']:.2f} dB SSIM {res['ssim']:.4f}, mouth PSNR "
+          f"{res['psnr_mouth']:.2f} dB; lip sync r = {res['lipsync_corr']:.2f} (real frames {res['lipsync_corr_real']:.2f}); "
+          f"{res['fps']:.1f} FPS ({res['frames']} frames)")
+    if args.json:
+        from geoface._io import atomic_path
+
+        with atomic_path(args.json) as tmp:
+            Path(tmp).write_text(json.dumps(res, indent=1))
+    return 0
+
+
+def register(sub, common: argparse.ArgumentParser) -> None:
+    """Add ``geoface talk ...`` to the ``geoface`` sub-parsers."""
+    h = sub.add_parser("talk", help="THGS talking avatars (needs torch)")
+    hs = h.add_subparsers(dest="what", metavar="WHAT")
+    hs.required = True
+    s = hs.add_parser("synth", parents=[common], help="write a synthetic talking-head data folder")
+    s.add_argument("output", metavar="OUT_DIR")
+    s.add_argument("--seconds", type=float, default=8.0)
+    s.add_argument("--fps", type=float, default=25.0)
+    s.add_argument("--res", type=int, default=128)
+    s.add_argument("--vertices", type=int, default=6000)
+    s.add_argument("--seed", type=int, default=0)
+    s.set_defaults(func=cmd_talk_synth)
+    t = hs.add_parser("train", parents=[common], help="fit a talking avatar to a data folder")
+    t.add_argument("data_dir", metavar="DATA_DIR")
+    t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
+    t.add_argument("--iters", type=int, default=3000)
+    t.add_argument("--stage-scale", type=float, default=None,
+                   help="factor on the paper's stage starts 1.5K/15K/25K/50K (default iters/60000)")
+    t.add_argument("--no-leb", action="store_true", help="ablation: no learnable expression blendshapes")
+    t.add_argument("--no-saam", action="store_true", help="ablation: no spatial audio attention")
+    t.add_argument("--heldout", type=float, default=0.2, help="last fraction of frames kept out of training (0.2)")
+    t.add_argument("--threads", type=int, default=None)
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--force", action="store_true")
+    t.set_defaults(func=cmd_talk_train)
+    a = hs.add_parser("animate", parents=[common], help="drive a trained avatar by speech (frames, FPS)")
+    a.add_argument("model_dir", metavar="MODEL_DIR")
+    a.add_argument("--audio", required=True, help="WAV file, or .npy/.npz per-frame features")
+    a.add_argument("--poses", default=None, help=".npz with rot [T, J, 3], transl [T, 3], expr [T, K]")
+    a.add_argument("--fps", type=float, default=25.0)
+    a.add_argument("-o", "--output", required=True, metavar="OUT_DIR")
+    a.add_argument("--force", action="store_true")
+    a.set_defaults(func=cmd_talk_animate)
+    e = hs.add_parser("eval", parents=[common], help="held-out PSNR/SSIM, mouth error, lip sync, FPS")
+    e.add_argument("model_dir", metavar="MODEL_DIR")
+    e.add_argument("data_dir", metavar="DATA_DIR")
+    e.add_argument("--heldout", type=float, default=None, help="default: the fraction used in training")
+    e.add_argument("--json", default=None, metavar="FILE")
+    e.set_defaults(func=cmd_talk_eval)

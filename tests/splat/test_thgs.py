@@ -1,0 +1,245 @@
+"""THGS: templates, voxel LBS, LEB, SAAM, audio features, training and the CLI."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from geoface.splat.audio import audio_features, envelope, log_mel
+from geoface.splat.errors import SplatError
+from geoface.splat.template import Template, load_smplx, procedural_template
+from geoface.splat.thgs import (ExpressionBlendshapes, SpatialAudioAttention, THGSConfig, THGSModel,
+                                VoxelSkinning, axis_angle_to_matrix, evaluate_thgs, joint_transforms, lbs,
+                                load_thgs, mouth_openness, train_thgs)
+
+
+@pytest.fixture(scope="module")
+def tpl():
+    return procedural_template(2000, seed=0)
+
+
+def _two_cluster_template():
+    """Joint 0 at the origin owns a blob near y = 0; joint 1 at (0, 1, 0) owns a blob near y = 2."""
+    rng = np.random.default_rng(0)
+    A = rng.normal(0, 0.1, (200, 3))
+    B = rng.normal(0, 0.1, (200, 3)) + [0, 2, 0]
+    V = np.concatenate([A, B])
+    W = np.zeros((400, 2))
+    W[:200, 0] = 1
+    W[200:, 1] = 1
+    return Template(V, np.zeros((0, 3), int), [[0, 0, 0], [0, 1, 0]], [-1, 0], W, np.zeros((1, 400, 3)),
+                    np.ones(400, bool), [[-0.1, -0.1, -0.1], [0.1, 0.1, 0.1]], ["root", "child"])
+
+
+def test_rodrigues_matches_closed_form_and_is_smooth_at_zero():
+    w = torch.tensor([0.0, 0.0, math.pi / 2], dtype=torch.float64)
+    R = axis_angle_to_matrix(w)
+    assert torch.allclose(R, torch.tensor([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]], dtype=torch.float64), atol=1e-12)
+    z = torch.zeros(3, dtype=torch.float64, requires_grad=True)
+    axis_angle_to_matrix(z).sum().backward()
+    assert torch.isfinite(z.grad).all()
+
+
+def test_identity_pose_returns_the_canonical_gaussians(tpl):
+    m = THGSModel(tpl, THGSConfig(), audio_dim=8)
+    J, K = len(tpl.joints), tpl.n_expr
+    with torch.no_grad():
+        g = m(np.zeros((J, 3)), np.zeros(3), np.zeros(K), torch.zeros(8))
+    c = m.gaussians
+    assert torch.allclose(g.means, c.means, atol=1e-6)
+    assert torch.allclose(g.quats, c.quats / c.quats.norm(dim=-1, keepdim=True), atol=1e-6)
+    assert torch.equal(g.log_scales, c.log_scales)
+
+
+def test_rotating_one_joint_rotates_exactly_its_gaussians():
+    t = _two_cluster_template()
+    skin = VoxelSkinning(t.V, t.weights, res=32)
+    X = torch.tensor(t.V, dtype=torch.float32)
+    W = skin(X)
+    assert torch.allclose(W[:200, 0], torch.ones(200)) and torch.allclose(W[200:, 1], torch.ones(200))
+    rot = torch.zeros(2, 3)
+    rot[1] = torch.tensor([0.0, 0.0, math.pi / 2])
+    A = joint_transforms(torch.tensor(t.joints, dtype=torch.float32), t.parents, rot)
+    q = torch.tensor([[1.0, 0, 0, 0]]).repeat(400, 1)
+    Xp, qp = lbs(X, q, W, A)
+    Rz = torch.tensor([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
+    j1 = torch.tensor([0.0, 1, 0])
+    assert torch.allclose(Xp[:200], X[:200], atol=1e-6)  # the other joint's Gaussians stay
+    assert torch.allclose(Xp[200:], (X[200:] - j1) @ Rz.T + j1, atol=1e-5)
+    s = math.sqrt(0.5)
+    assert torch.allclose(qp[200:], torch.tensor([s, 0, 0, s]).expand(200, 4), atol=1e-5)
+    assert torch.allclose(qp[:200], q[:200], atol=1e-6)
+
+
+def test_parent_rotation_carries_the_child_joint():
+    joints = torch.tensor([[0.0, 0, 0], [0, 1, 0], [0, 2, 0]])
+    rot = torch.zeros(3, 3)
+    rot[0, 2] = math.pi / 2
+    A = joint_transforms(joints, [-1, 0, 1], rot, torch.tensor([1.0, 0, 0]))
+    tip = torch.tensor([0.0, 2, 0, 1])
+    assert torch.allclose((A[2] @ tip)[:3], torch.tensor([1 - 2.0, 0, 0]), atol=1e-6)
+
+
+def test_voxel_skinning_agrees_with_vertex_weights_at_the_vertices(tpl):
+    skin = VoxelSkinning(tpl.V, tpl.weights, res=64)
+    W = skin(torch.tensor(tpl.V, dtype=torch.float32)).detach().numpy()
+    err = np.abs(W - tpl.weights).sum(1)
+    assert np.allclose(W.sum(1), 1, atol=1e-5)
+    assert err.mean() < 0.02 and np.percentile(err, 99) < 0.15
+    # a coarse grid is measurably worse: the test would catch a wrong lookup
+    coarse = VoxelSkinning(tpl.V, tpl.weights, res=6)(torch.tensor(tpl.V, dtype=torch.float32)).detach().numpy()
+    assert np.abs(coarse - tpl.weights).sum(1).mean() > 2 * err.mean()
+
+
+def test_leb_with_zero_delta_equals_the_base_and_stays_in_the_head(tpl):
+    leb = ExpressionBlendshapes(tpl.expr_basis, tpl.head_mask)
+    psi = torch.rand(tpl.n_expr)
+    base = torch.einsum("k,knc->nc", psi, torch.tensor(tpl.expr_basis, dtype=torch.float32))
+    assert torch.allclose(leb(psi), base, atol=1e-7)
+    with torch.no_grad():
+        leb.delta.add_(0.01)
+    D = leb(psi) - base
+    head = torch.tensor(tpl.head_mask)
+    assert torch.allclose(D[~head], torch.zeros_like(D[~head]), atol=1e-7)
+    assert float(D[head].detach().abs().min()) > 0
+    assert float(leb.penalty()) > 0
+
+
+def test_saam_with_zero_audio_moves_nothing(tpl):
+    saam = SpatialAudioAttention(tpl.mouth_box, audio_dim=16)
+    X = torch.tensor(tpl.V[:50], dtype=torch.float32)
+    a = torch.randn(16)
+    assert torch.equal(saam(X, a), torch.zeros(50, 10))  # zero-initialised output layer
+    with torch.no_grad():
+        for p in saam.mlp.parameters():
+            p.add_(torch.randn_like(p) * 0.1)
+    assert torch.allclose(saam(X, torch.zeros(16)), torch.zeros(50, 10), atol=1e-7)
+    assert float(saam(X, a).abs().max()) > 1e-4
+
+
+def test_log_mel_peaks_at_the_tone_and_frames_follow_loudness(tmp_path):
+    from scipy.io import wavfile
+
+    sr = 16000
+    t = np.arange(sr) / sr
+    tone = np.sin(2 * np.pi * 1000 * t)
+    S, hop = log_mel(tone, sr, n_mels=40)
+    assert hop == 0.01 and S.shape[1] == 40
+    mel = lambda f: 2595 * np.log10(1 + f / 700)  # noqa: E731
+    centres = np.linspace(mel(50), mel(8000), 42)[1:-1]
+    assert abs(int(np.argmax(S.mean(0))) - int(np.argmin(np.abs(centres - mel(1000))))) <= 1
+    x = np.concatenate([np.zeros(sr // 2), 0.5 * tone[: sr // 2]])
+    wavfile.write(tmp_path / "a.wav", sr, (x * 32767).astype(np.int16))
+    A = audio_features(tmp_path / "a.wav", 25, 25.0)
+    assert A.shape == (25, 40)
+    assert A[18:].mean() > A[:10].mean() + 5  # the loud half has more energy
+    env = envelope(x, sr, 25.0, 25)
+    assert env[:12].max() < 1e-6 and env[14:].min() > 0.3
+    np.save(tmp_path / "f.npy", np.arange(20, dtype=np.float32).reshape(10, 2))
+    B = audio_features(tmp_path / "f.npy", 19, 25.0)
+    assert B.shape == (19, 2) and np.isclose(B[-1, 1], 19.0)
+    (tmp_path / "bad.wav").write_bytes(b"RIFF0000")
+    with pytest.raises(SplatError):
+        audio_features(tmp_path / "bad.wav", 5, 25.0)
+
+
+def test_smplx_loader_on_a_small_file_in_the_same_format(tmp_path):
+    rng = np.random.default_rng(0)
+    n, J, E = 60, 25, 5
+    V = rng.normal(size=(n, 3))
+    Jreg = rng.random((J, n))
+    Jreg /= Jreg.sum(1, keepdims=True)
+    W = rng.random((n, J))
+    W /= W.sum(1, keepdims=True)
+    W[:10] = 0
+    W[:10, 22] = 1  # jaw
+    kin = np.stack([np.r_[4294967295, np.arange(J - 1)], np.arange(J)]).astype(np.int64)
+    sd = rng.normal(size=(n, 3, 300 + E))
+    np.savez(tmp_path / "SMPLX_TEST.npz", v_template=V, f=np.array([[0, 1, 2], [1, 2, 3]]), J_regressor=Jreg,
+             kintree_table=kin, weights=W, shapedirs=sd)
+    t = load_smplx(tmp_path / "SMPLX_TEST.npz", n_expr=E)
+    assert np.allclose(t.joints, Jreg @ V)
+    assert t.parents[0] == -1 and list(t.parents[1:]) == list(range(J - 1))
+    assert np.allclose(t.expr_basis, np.moveaxis(sd[:, :, 300:], 2, 0))
+    assert t.jaw == 22
+    with pytest.raises(SplatError, match="pickle"):
+        load_smplx(tmp_path / "SMPLX.pkl")
+    np.savez(tmp_path / "broken.npz", v_template=V)
+    with pytest.raises(SplatError):
+        load_smplx(tmp_path / "broken.npz")
+
+
+def test_template_validation_and_round_trip(tpl, tmp_path):
+    tpl.save(tmp_path / "t.npz")
+    t2 = Template.load(tmp_path / "t.npz")
+    assert np.array_equal(t2.F, tpl.F) and t2.joint_names == tpl.joint_names and t2.jaw == tpl.jaw
+    bad = tpl.weights.copy()
+    bad[0] *= 2
+    with pytest.raises(SplatError, match="sum to 1"):
+        Template(tpl.V, tpl.F, tpl.joints, tpl.parents, bad, tpl.expr_basis, tpl.head_mask, tpl.mouth_box,
+                 tpl.joint_names)
+    assert np.allclose(tpl.weights.sum(1), 1)
+    assert tpl.weights[:, tpl.jaw].max() > 0.9  # the jaw is skinned to its joint
+
+
+def test_mouth_openness_measures_a_dark_cavity():
+    img = np.full((20, 20, 3), 0.6, np.float32)
+    assert mouth_openness(img, (0, 20, 0, 20)) == 0.0
+    img[8:12, 5:15] = 0.05
+    assert math.isclose(mouth_openness(img, (0, 20, 0, 20)), 40 / 400)
+
+
+@pytest.fixture(scope="module")
+def talk_dir(tmp_path_factory):
+    from geoface.splat.thgs_data import make_synthetic_talking
+
+    return make_synthetic_talking(tmp_path_factory.mktemp("talk") / "d", seconds=2.0, res=64, n_vertices=2000,
+                                  quiet=True)
+
+
+def test_synthetic_talking_mouth_follows_the_speech(talk_dir):
+    from geoface.splat.thgs_data import load_talking
+
+    d = load_talking(talk_dir)
+    assert len(d) == 50 and d.audio.shape == (50, 40) and d.rot.shape == (50, 4, 3)
+    jaw = np.array(d.meta["jaw_open"])
+    loud = d.audio.mean(1)
+    assert np.corrcoef(jaw, loud)[0, 1] > 0.5  # the jaw opens with the sound (lag 40 ms)
+    assert not np.abs(d.rot[:, 3]).any()  # the tracker's poses leave the jaw to the audio
+
+
+def test_a_few_training_steps_lower_the_loss_and_round_trip(talk_dir, tmp_path):
+    cfg = THGSConfig(iters=40, stage_scale=0.0005)
+    info = train_thgs(talk_dir, tmp_path / "m", cfg, progress=False)
+    h = [r["loss"] for r in info["history"]]
+    assert np.mean(h[-10:]) < 0.8 * np.mean(h[:10])
+    assert info["history"][-1]["stage"] == 4
+    m = load_thgs(tmp_path / "m")
+    from geoface.splat.thgs_data import load_talking
+
+    d = load_talking(talk_dir)
+    ev = evaluate_thgs(m, d)
+    assert ev["frames"] == 10 and 5 < ev["psnr"] < 60 and -1 <= ev["lipsync_corr"] <= 1
+    (tmp_path / "m" / "model.safetensors").write_bytes(b"junk")
+    with pytest.raises(SplatError):
+        load_thgs(tmp_path / "m")
+
+
+def test_cli(talk_dir, tmp_path, capsys):
+    from geoface.cli import main
+
+    md = tmp_path / "m"
+    assert main(["talk", "train", str(talk_dir), "-o", str(md), "--iters", "3", "-q"]) == 0
+    assert main(["talk", "train", str(talk_dir), "-o", str(md), "--iters", "3", "-q"]) == 2
+    assert main(["talk", "animate", str(md), "--audio", str(talk_dir / "audio.wav"), "-o", str(tmp_path / "o")]) == 0
+    assert len(list((tmp_path / "o" / "frames").glob("*.png"))) == 50
+    assert main(["talk", "eval", str(md), str(talk_dir), "--json", str(tmp_path / "e.json")]) == 0
+    assert "lipsync_corr" in json.loads((tmp_path / "e.json").read_text())
+    assert main(["talk", "animate", str(md), "--audio", str(tmp_path / "none.wav"), "-o", str(tmp_path / "o2")]) == 2
+    assert main(["talk", "train", str(tmp_path), "-o", str(tmp_path / "m2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err and all(line.startswith("geoface: error:") for line in err)
+    assert not (tmp_path / "o2").exists() and not (tmp_path / "m2").exists()
