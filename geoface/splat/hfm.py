@@ -546,31 +546,43 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
             "dropped_children": strategy.dropped if strategy is not None else 0, "vgg": vgg is not None}
 
 
-def save_hfm(model: HFMModel, out_dir) -> None:
+def write_model_dir(out_dir, module: nn.Module, meta: dict) -> Path:
+    """``out_dir/model.safetensors`` (the module's state, written to a temporary name first) and
+    ``out_dir/config.json`` (``meta``). Shared by the avatar models."""
     from safetensors.torch import save_file
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    sd = {k: v.detach().contiguous().cpu() for k, v in model.state_dict().items() if v is not None}
-    cfg = {"format": "geoface-hfm-gs", "version": 1, "config": model.cfg.to_dict(), "y_split": model.y_split,
-           "n_gaussians": len(model.gaussians)}
+    sd = {k: v.detach().contiguous().cpu() for k, v in module.state_dict().items() if v is not None}
     tmp = out / "model.safetensors.tmp"
     save_file(sd, str(tmp))
     tmp.replace(out / "model.safetensors")
-    (out / "config.json").write_text(json.dumps(cfg, indent=1))
+    (out / "config.json").write_text(json.dumps(meta, indent=1))
+    return out
 
 
-def load_hfm(model_dir) -> HFMModel:
-    """Load a model folder; any problem is a one-line SplatError."""
+def read_model_dir(model_dir, fmt: str, what: str) -> tuple[Path, dict, dict]:
+    """(folder, config.json, state dict) of a model folder written by :func:`write_model_dir`
+    whose config says ``"format": fmt``; any problem is a one-line SplatError."""
     d = Path(model_dir)
     try:
         meta = json.loads((d / "config.json").read_text())
     except (OSError, ValueError) as e:
-        raise SplatError(f"{d}: not an HFM-GS model folder (config.json: {type(e).__name__})") from None
-    if meta.get("format") != "geoface-hfm-gs":
-        raise SplatError(f"{d}/config.json: not an HFM-GS model")
+        raise SplatError(f"{d}: not a {what} model folder (config.json: {type(e).__name__})") from None
+    if not isinstance(meta, dict) or meta.get("format") != fmt:
+        raise SplatError(f"{d}/config.json: not a {what} model")
+    return d, meta, _load_state(d / "model.safetensors")
+
+
+def save_hfm(model: HFMModel, out_dir) -> None:
+    write_model_dir(out_dir, model, {"format": "geoface-hfm-gs", "version": 1, "config": model.cfg.to_dict(),
+                                     "y_split": model.y_split, "n_gaussians": len(model.gaussians)})
+
+
+def load_hfm(model_dir) -> HFMModel:
+    """Load a model folder; any problem is a one-line SplatError."""
+    d, meta, sd = read_model_dir(model_dir, "geoface-hfm-gs", "HFM-GS")
     cfg = HFMConfig.from_dict(meta["config"])
-    sd = _load_state(d / "model.safetensors")
     try:
         n = sd["gaussians.means"].shape[0]
         g = Gaussians(sd["gaussians.means"], sd["gaussians.log_scales"], sd["gaussians.quats"],

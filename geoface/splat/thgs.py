@@ -395,32 +395,20 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
 
 
 def save_thgs(model: THGSModel, out_dir) -> None:
-    from safetensors.torch import save_file
+    from geoface.splat.hfm import write_model_dir
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    sd = {k: v.detach().contiguous() for k, v in model.state_dict().items()}
-    save_file(sd, str(out / "model.safetensors.tmp"))
-    (out / "model.safetensors.tmp").replace(out / "model.safetensors")
+    out = write_model_dir(out_dir, model, {"format": "geoface-thgs", "version": 1, "config": asdict(model.cfg),
+                                           "audio_dim": int(model.audio_ref.shape[0]),
+                                           "n_frames": int(model.d_rot.shape[0])})
     model.template.save(out / "template.npz")
-    (out / "config.json").write_text(json.dumps({"format": "geoface-thgs", "version": 1, "config": asdict(model.cfg),
-                                                 "audio_dim": int(model.audio_ref.shape[0]),
-                                                 "n_frames": int(model.d_rot.shape[0])}, indent=1))
 
 
 def load_thgs(model_dir) -> THGSModel:
-    from geoface.splat.hfm import _load_state
+    from geoface.splat.hfm import read_model_dir
     from geoface.splat.template import Template
 
-    d = Path(model_dir)
-    try:
-        meta = json.loads((d / "config.json").read_text())
-    except (OSError, ValueError) as e:
-        raise SplatError(f"{d}: not a THGS model folder (config.json: {type(e).__name__})") from None
-    if meta.get("format") != "geoface-thgs":
-        raise SplatError(f"{d}/config.json: not a THGS model")
+    d, meta, sd = read_model_dir(model_dir, "geoface-thgs", "THGS")
     tpl = Template.load(d / "template.npz")
-    sd = _load_state(d / "model.safetensors")
     try:
         g = Gaussians(sd["gaussians.means"], sd["gaussians.log_scales"], sd["gaussians.quats"],
                       sd["gaussians.opacity_logits"], sd["gaussians.colors"], sd["gaussians.parent"])

@@ -12,11 +12,7 @@ from geoface.errors import GeofaceError
 
 __all__ = ["register"]
 
-
-def _quiet(args) -> bool:
-    from geoface.progress import QUIET
-
-    return bool(getattr(args, "quiet", False) or QUIET)
+from geoface.splat.hfm_cli import _quiet  # noqa: E402  (argparse only, no torch)
 
 
 def cmd_talk_synth(args) -> int:
