@@ -41,8 +41,11 @@ def main(argv=None) -> int:
     ap.add_argument("--saam-from", type=float, default=0.4)
     ap.add_argument("--variants", default=",".join(VARIANTS))
     ap.add_argument("--out", default="/tmp/geoface_eval_thgs")
+    ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--quick", action="store_true")
     a = ap.parse_args(argv)
+    if a.threads:
+        torch.set_num_threads(a.threads)
     if a.quick:
         a.seconds, a.iters, a.vertices, a.res = 2.0, 30, 2000, 64
     out = Path(a.out)

@@ -95,7 +95,7 @@ class HFMConfig:
     lambda_split: float = 0.01
     vgg_weights: str | None = None
     iters: int = 2000
-    lr_nets: float = 5e-4
+    lr_nets: float = 1e-3
     lr_means: float = 1.6e-4   # × head size (3DGS, scene-scaled)
     key_every: int = 100
     densify: bool = True
@@ -147,7 +147,11 @@ def mlp(d_in: int, hidden: int, d_out: int, depth: int = 3, zero_last: bool = Tr
 
 class ImageEncoder(nn.Module):
     """E_img: five stride-2 3×3 convolutions (crop² → (crop/32)²) with GroupNorm + SiLU, one
-    multi-head self-attention layer over the cells (residual, LayerNorm), flatten, linear → θ."""
+    multi-head self-attention layer over the cells (residual, LayerNorm), flatten, linear → θ.
+
+    The crop follows the lower-face landmarks, so it no longer shows where the head is in the
+    frame; the crop box (centre and side relative to the image, ``box`` [B, 3]) joins the
+    flattened features before the last linear layer so that θ still carries the head's position."""
 
     def __init__(self, latent_dim: int = 128, width: int = 32, crop: int = 128):
         super().__init__()
@@ -161,13 +165,15 @@ class ImageEncoder(nn.Module):
         self.pos = nn.Parameter(torch.zeros(1, self.cells, c))
         self.attn = nn.MultiheadAttention(c, 4, batch_first=True)
         self.norm = nn.LayerNorm(c)
-        self.out = nn.Linear(c * self.cells, latent_dim)
+        self.out = nn.Linear(c * self.cells + 3, latent_dim)
 
-    def forward(self, x: Tensor) -> Tensor:  # [B, 3, crop, crop] in [0, 1] -> [B, latent]
+    def forward(self, x: Tensor, box: Tensor | None = None) -> Tensor:  # [B, 3, crop, crop] in [0, 1] -> [B, latent]
         h = self.convs(x * 2 - 1)
         t = h.flatten(2).transpose(1, 2) + self.pos  # [B, cells, C]
         t = self.norm(t + self.attn(t, t, t, need_weights=False)[0])
-        return self.out(t.flatten(1))
+        if box is None:
+            box = x.new_tensor([[0.5, 0.5, 0.5]]).expand(len(x), 3)
+        return self.out(torch.cat([t.flatten(1), (box - 0.5) * 4], 1))
 
 
 def quat_mul(a: Tensor, b: Tensor) -> Tensor:
@@ -363,8 +369,8 @@ class HFMModel(nn.Module):
             quats = quat_mul(qg[None].expand(n, 4), quats)
         return GaussianTensors(means, log_scales, quats, g.opacity_logits, g.colors)
 
-    def forward(self, crop: Tensor) -> GaussianTensors:
-        return self.deform(self.encoder(crop))
+    def forward(self, crop: Tensor, box: Tensor | None = None) -> GaussianTensors:
+        return self.deform(self.encoder(crop, box))
 
 
 @torch.no_grad()
@@ -448,7 +454,7 @@ def _load_state(path) -> dict:
 def _frames_tensors(video, crop):
     imgs = torch.tensor(video.frames, dtype=torch.float32)
     crops = torch.tensor(video.crops(crop), dtype=torch.float32)
-    return imgs, crops
+    return imgs, crops, torch.tensor(video.boxes())
 
 
 def build_model(video, cfg: HFMConfig) -> HFMModel:
@@ -483,7 +489,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     video = load_video(reg_dir, need_mesh=True, frames=frames)
     model = build_model(video, cfg)
     cam = video.camera
-    imgs, crops = _frames_tensors(video, cfg.crop)
+    imgs, crops, boxes = _frames_tensors(video, cfg.crop)
     vgg = None
     if cfg.lambda_vgg > 0:
         if cfg.vgg_weights:
@@ -515,7 +521,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
         if it % cfg.key_every == 0:
             model.refresh_keys()
         gt = imgs[f]
-        gd = model(crops[f:f + 1])
+        gd = model(crops[f:f + 1], boxes[f:f + 1])
         rgb, alpha, depth, info = rasterize(gd, cam, background=bg, return_info=True)
         l1 = (rgb - gt).abs().mean()
         a, b = rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None]
@@ -614,10 +620,11 @@ def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: 
         (out / "frames").mkdir(parents=True, exist_ok=True)
     renders, times = [], []
     bg = torch.zeros(3)
+    boxes = video.boxes()
     for t in range(len(video)):
         t0 = time.perf_counter()
         crop = torch.tensor(crop_lower_face(video.frames[t], video.lower_landmarks(t), model.cfg.crop))[None]
-        rgb = rasterize(model(crop), cam, background=bg)[0].clamp(0, 1).numpy()
+        rgb = rasterize(model(crop, torch.tensor(boxes[t:t + 1])), cam, background=bg)[0].clamp(0, 1).numpy()
         times.append(time.perf_counter() - t0)
         renders.append(rgb)
         if out is not None:

@@ -58,6 +58,13 @@ class HMDVideo:
         """[T, 3, size, size] float32 lower-face crops (from the landmarks)."""
         return np.stack([crop_lower_face(f, self.lower_landmarks(t), size) for t, f in enumerate(self.frames)])
 
+    def boxes(self) -> np.ndarray:
+        """[T, 3] float32: each crop's centre x, centre y and side divided by the image width and
+        height — where the lower face is, which the crop itself no longer shows."""
+        H, W = self.frames.shape[1:3]
+        return np.array([[cx / W, cy / H, side / W] for cx, cy, side in
+                         (lower_face_box(self.lower_landmarks(t)) for t in range(len(self)))], np.float32)
+
     def lower_landmarks(self, t: int) -> np.ndarray:
         idx = [self.names.index(n) for n in LOWER_FACE_LANDMARKS]
         return self.landmarks[t][idx]
