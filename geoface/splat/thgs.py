@@ -12,6 +12,8 @@ Spatial Audio Attention Module (Chen et al., "THGS: talking human avatars with G
   the polar factor of Σ_j w_j R_j has an SVD whose gradient is singular for equal rotations.
 * :class:`ExpressionBlendshapes` (eq. 8–9): Ê = E + ΔE ∘ M_H with ΔE zero at start and confined
   to the head mask M_H; vertex offsets Σ_k ψ_k Ê_k; L2 penalty ‖ΔE‖² (weight 0.1 in training).
+* training (:func:`train_thgs`): 0.8·L1 + 0.2·D-SSIM, vertex loss (eq. 19, weight 1e-2), LEB
+  penalty (0.1) and, in the refinement stage, a normal loss (:meth:`THGSModel.normal_loss`).
 * :class:`SpatialAudioAttention` (eq. 10–15): the mouth Gaussians (inside the teeth box + 0.02)
   encoded by a multiresolution tri-plane hash encoding, fused with the frame's audio features,
   passed through external attention (two learned memories, double normalisation) and a
@@ -233,6 +235,7 @@ class THGSConfig:
     lambda_dssim: float = 0.2
     lambda_vertex: float = 1e-2
     lambda_leb: float = 0.1
+    lambda_normal: float = 0.01   # refinement stage (from the blendshape stage on)
     lr_means: float = 1.6e-4
     lr_nets: float = 1e-3
     lr_pose: float = 1e-3
@@ -270,6 +273,7 @@ class THGSModel(nn.Module):
             self.gaussians.parent = torch.arange(len(tpl.V))
         self.register_buffer("V0", torch.tensor(tpl.V, dtype=torch.float32))
         self.register_buffer("joints", torch.tensor(tpl.joints, dtype=torch.float32))
+        self.register_buffer("vertex_normals", torch.tensor(_vertex_normals(tpl.V, tpl.F), dtype=torch.float32))
         self.parents = [int(p) for p in tpl.parents]
         self.skin = VoxelSkinning(tpl.V, tpl.weights, res=cfg.voxel_res)
         self.leb = ExpressionBlendshapes(tpl.expr_basis, tpl.head_mask)
@@ -315,10 +319,32 @@ class THGSModel(nn.Module):
         Xp, qp = lbs(X, quats, W, A)
         return GaussianTensors(Xp, log_scales, qp, g.opacity_logits, g.colors)
 
+    def normal_loss(self) -> Tensor:
+        """Refinement-stage normal loss: 1 − |n_g · n_v| between each Gaussian's normal (the axis of
+        its smallest scale) and its parent vertex's template normal (a geometric stand-in for the
+        paper's normal supervision, which needs normal maps of the video)."""
+        g = self.gaussians
+        R = quat_to_rotmat(g.quats)
+        k = torch.argmin(g.log_scales.detach(), dim=1)
+        n = R.gather(2, k[:, None, None].expand(-1, 3, 1))[..., 0]
+        return (1 - (n * self.vertex_normals[g.parent]).sum(-1).abs()).mean()
+
     def vertex_loss(self) -> Tensor:
         """Eq. 19: mean squared distance of each Gaussian to its parent vertex (metres²)."""
         g = self.gaussians
         return ((g.means - self.V0[g.parent]) ** 2).sum(-1).mean()
+
+
+def _vertex_normals(V, F) -> np.ndarray:
+    """Area-weighted unit vertex normals (+z where a vertex has no face)."""
+    V, F = np.asarray(V, np.float64), np.asarray(F, np.int64)
+    N = np.zeros_like(V)
+    if len(F):
+        fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+        for c in range(3):
+            np.add.at(N, F[:, c], fn)
+    ln = np.linalg.norm(N, axis=1, keepdims=True)
+    return np.where(ln > 0, N / np.where(ln > 0, ln, 1), [0.0, 0.0, 1.0])
 
 
 def _split(n: int, heldout: float):
@@ -373,8 +399,10 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
         l1 = (rgb - gt).abs().mean()
         loss = (1 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * dssim(rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])
         loss = loss + cfg.lambda_vertex * model.vertex_loss() / ext**2
-        if model.stage >= 3 and cfg.use_leb:
-            loss = loss + cfg.lambda_leb * model.leb.penalty() / ext**2
+        if model.stage >= 3:
+            if cfg.use_leb:
+                loss = loss + cfg.lambda_leb * model.leb.penalty() / ext**2
+            loss = loss + cfg.lambda_normal * model.normal_loss()
         loss.backward()
         for grp in opt.param_groups:  # staged schedule: parts not yet switched on keep still
             name = grp["name"]

@@ -52,6 +52,11 @@ def test_identity_pose_returns_the_canonical_gaussians(tpl):
     assert torch.allclose(g.means, c.means, atol=1e-6)
     assert torch.allclose(g.quats, c.quats / c.quats.norm(dim=-1, keepdim=True), atol=1e-6)
     assert torch.equal(g.log_scales, c.log_scales)
+    # the mesh init puts each Gaussian's normal on its vertex normal; a tilt is penalised
+    assert abs(float(m.normal_loss().detach())) < 1e-6
+    with torch.no_grad():
+        c.quats.copy_(torch.tensor([math.cos(0.5), math.sin(0.5), 0, 0]).expand_as(c.quats))
+    assert float(m.normal_loss().detach()) > 0.05
 
 
 def test_rotating_one_joint_rotates_exactly_its_gaussians():
