@@ -12,6 +12,9 @@ A video folder (registration or usage) holds::
                             initialises the canonical Gaussians (registration folders)
     hmd_masks/000000.png    usage folders: pixels hidden by the headset (evaluation)
     gt/000000.png           usage folders: the unoccluded frames, when known (evaluation)
+    head_poses.npz          optional: the tracked rigid head pose per frame, R [T, 3, 3], t [T, 3],
+                            pivot [3] (X' = R (X − pivot) + pivot + t): a face tracker's in the
+                            registration video, the headset's own 6-DoF tracking in the usage video
 
 :func:`make_synthetic_hmd` writes a registration and a usage folder from the procedural head
 with expressions that couple the upper and lower face (surprise raises the brows and opens the
@@ -50,6 +53,7 @@ class HMDVideo:
     hmd_masks: np.ndarray | None = None   # [T, H, W] bool
     gt: np.ndarray | None = None          # [T, H, W, 3]
     mesh_path: Path | None = None
+    poses: tuple | None = None            # (R [T, 3, 3], t [T, 3], pivot [3]) or None
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -163,8 +167,20 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
     mesh = next((folder / n for n in ("head.ply", "head.obj") if (folder / n).is_file()), None)
     if need_mesh and mesh is None:
         raise SplatError(f"{folder}: a registration folder needs head.ply or head.obj (the canonical head)")
+    poses = None
+    if (folder / "head_poses.npz").is_file():
+        try:
+            with np.load(folder / "head_poses.npz", allow_pickle=False) as d:
+                R, t, piv = (np.asarray(d[k], np.float64) for k in ("R", "t", "pivot"))
+        except (OSError, KeyError, ValueError) as e:
+            raise SplatError(f"{folder}/head_poses.npz: needs R [T, 3, 3], t [T, 3], pivot [3] ({e})") from None
+        n_all = len(all_paths)
+        if R.shape != (n_all, 3, 3) or t.shape != (n_all, 3) or piv.shape != (3,) or not np.isfinite(R).all():
+            raise SplatError(f"{folder}/head_poses.npz: shapes R {R.shape}, t {t.shape}, pivot {piv.shape} "
+                             f"do not fit {n_all} frames")
+        poses = (R, t, piv) if frames is None else (R[frames], t[frames], piv)
     return HMDVideo(imgs, masks, pts, names, cam, y_split, None if hmd is None else hmd > 0.5,
-                    optional("gt", True), mesh)
+                    optional("gt", True), mesh, poses)
 
 
 def lower_face_box(pts) -> tuple[float, float, float]:
@@ -287,6 +303,8 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
     for sub in ("hmd_masks", "gt"):
         (dirs["usage"] / sub).mkdir(parents=True, exist_ok=True)
     names = list(lmk)
+    Rs = {"registration": [], "usage": []}
+    ts = {"registration": [], "usage": []}
     lm_pts = {"registration": [], "usage": []}
     log = {"registration": [], "usage": []}
     for t in progress(range(frames), "rendering HMD videos", total=frames, quiet=quiet):
@@ -301,6 +319,8 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
         r = render_mesh(V, head.F, cam, head.colors, supersample=supersample)
         uv, _ = cam.project(V[[lmk[n] for n in names]])
         lm_pts[which].append(np.asarray(uv).tolist())
+        Rs[which].append(R)
+        ts[which].append(trans[t])
         log[which].append({"frame": k, "expression": exprs[t], "drivers": drivers[t].tolist(),
                            "yaw_pitch_roll_deg": np.degrees([yaw[t], pitch[t], roll[t]]).tolist(),
                            "translation": trans[t].tolist()})
@@ -322,6 +342,7 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
 
     for which, d in dirs.items():
         (d / "landmarks.json").write_text(json.dumps({"names": names, "points": lm_pts[which]}))
+        np.savez(d / "head_poses.npz", R=np.stack(Rs[which]), t=np.stack(ts[which]), pivot=pivot)
         (d / "camera.json").write_text(json.dumps(camera_to_json(cam)))
         (d / "meta.json").write_text(json.dumps({"y_split": y_split, "up": [0, 1, 0], "source": "procedural head",
                                                  "seed": seed, "n_vertices": n_vertices, "frames": log[which]}))

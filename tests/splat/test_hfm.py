@@ -314,3 +314,17 @@ def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err and all(line.startswith("geoface: error:") for line in err) and "Traceback" not in "".join(err)
     assert not (tmp_path / "m3").exists()
+
+
+def test_tracked_head_pose_is_applied_rigidly():
+    m = _model(800)
+    a = 0.2
+    R = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+    t, piv = np.array([0.01, -0.02, 0.0]), np.array([0.0, -0.09, 0.0])
+    with torch.no_grad():
+        d = m.deform(torch.randn(1, 128), (R, t, piv))
+    X = m.gaussians.means.detach().double().numpy()
+    assert np.allclose(d.means.double().numpy(), (X - piv) @ R.T + piv + t, atol=1e-6)
+    q = d.quats.double()
+    assert torch.allclose(q, torch.tensor([math.cos(a / 2), 0, math.sin(a / 2), 0], dtype=torch.float64).expand_as(q),
+                          atol=1e-6)
