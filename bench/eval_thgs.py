@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--vertices", type=int, default=6000)
     ap.add_argument("--iters", type=int, default=3000)
-    ap.add_argument("--saam-from", type=float, default=0.4)
+    ap.add_argument("--saam-from", type=float, default=0.1)
     ap.add_argument("--variants", default=",".join(VARIANTS))
     ap.add_argument("--out", default="/tmp/geoface_eval_thgs")
     ap.add_argument("--threads", type=int, default=None)
