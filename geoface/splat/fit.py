@@ -43,7 +43,7 @@ from geoface.splat.gaussians import Gaussians
 from geoface.splat.rasterizer import rasterize
 from geoface.splat.render_mesh import render_mesh
 
-__all__ = ["FitConfig", "FitResult", "fit_mesh", "fit_cameras", "psnr", "heldout_images"]
+__all__ = ["FitConfig", "FitResult", "fit_mesh", "fit_cameras", "psnr", "ssim_masked", "heldout_images"]
 
 BACKGROUNDS = ("random", "white", "black")
 
@@ -147,6 +147,17 @@ def psnr(a, b, mask=None) -> float:
         d2 = d2[m]
     mse = float(d2.mean()) if d2.numel() else 0.0
     return float("inf") if mse == 0 else -10.0 * math.log10(mse)
+
+
+def ssim_masked(a, b, mask) -> float:
+    """SSIM of [H, W, 3] images in [0, 1]: the SSIM map (Gaussian window σ 1.5, skimage) averaged
+    over ``mask`` [H, W] bool (nan where the mask is empty)."""
+    from skimage.metrics import structural_similarity
+
+    _, S = structural_similarity(a, b, channel_axis=2, data_range=1.0, gaussian_weights=True, sigma=1.5,
+                                 use_sample_covariance=False, full=True)
+    S = S.mean(-1)
+    return float(S[mask].mean()) if mask.any() else float("nan")
 
 
 def fit_cameras(V, cfg: FitConfig) -> tuple[list[Camera], list[Camera], float]:

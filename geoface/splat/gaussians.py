@@ -31,6 +31,27 @@ def quat_to_rotmat(quats: Tensor) -> Tensor:  # [N, 4] (w, x, y, z), any norm ->
     ], -1).reshape(q.shape[:-1] + (3, 3))
 
 
+def quat_mul(a: Tensor, b: Tensor) -> Tensor:
+    """Hamilton product of [N, 4] (w, x, y, z) quaternions."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
+
+
+def rotmat_to_quat_torch(R: Tensor) -> Tensor:  # [N, 3, 3] proper rotations -> [N, 4] (w, x, y, z)
+    tr = R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2]
+    w = torch.sqrt(torch.clamp(1 + tr, min=1e-12)) / 2
+    x = torch.sqrt(torch.clamp(1 + R[:, 0, 0] - R[:, 1, 1] - R[:, 2, 2], min=1e-12)) / 2
+    y = torch.sqrt(torch.clamp(1 - R[:, 0, 0] + R[:, 1, 1] - R[:, 2, 2], min=1e-12)) / 2
+    z = torch.sqrt(torch.clamp(1 - R[:, 0, 0] - R[:, 1, 1] + R[:, 2, 2], min=1e-12)) / 2
+    x = torch.copysign(x, R[:, 2, 1] - R[:, 1, 2])
+    y = torch.copysign(y, R[:, 0, 2] - R[:, 2, 0])
+    z = torch.copysign(z, R[:, 1, 0] - R[:, 0, 1])
+    q = torch.stack([w, x, y, z], -1)
+    return q / q.norm(dim=-1, keepdim=True)
+
+
 def rotmat_to_quat(R: np.ndarray) -> np.ndarray:  # [N, 3, 3] -> [N, 4] (w, x, y, z), w >= 0
     """Quaternions from proper rotation matrices (Shepperd's method, numerically robust)."""
     R = np.asarray(R, dtype=np.float64)

@@ -50,7 +50,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -60,7 +60,7 @@ from torch import Tensor, nn
 
 from geoface.splat.density import DensityConfig, DensityStrategy, make_optimizer
 from geoface.splat.errors import SplatError
-from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_to_rotmat
+from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat, rotmat_to_quat_torch
 
 __all__ = ["HFMConfig", "HFMModel", "ImageEncoder", "SegregationStrategy", "select_keys",
            "inverse_distance_weights", "farthest_point_sampling", "boundary_loss", "VGGPerceptual",
@@ -178,14 +178,6 @@ class ImageEncoder(nn.Module):
         if box is None:
             box = x.new_tensor([[0.5, 0.5, 0.5]]).expand(len(x), 3)
         return self.out(torch.cat([t.flatten(1), (box - 0.5) * 4], 1))
-
-
-def quat_mul(a: Tensor, b: Tensor) -> Tensor:
-    """Hamilton product of [N, 4] (w, x, y, z) quaternions."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                        aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
 
 
 def axis_angle_to_quat(w: Tensor) -> Tensor:  # [3] -> [4]
@@ -376,7 +368,6 @@ class HFMModel(nn.Module):
         if head_pose is not None:
             R, t, piv = (torch.as_tensor(np.asarray(a), dtype=X.dtype, device=X.device) for a in head_pose)
             means = (means - piv) @ R.T + piv + t
-            from geoface.splat.thgs import rotmat_to_quat_torch
             quats = quat_mul(rotmat_to_quat_torch(R[None]).expand(n, 4), quats)
         return GaussianTensors(means, log_scales, quats, g.opacity_logits, g.colors)
 
@@ -576,12 +567,13 @@ def write_model_dir(out_dir, module: nn.Module, meta: dict) -> Path:
     ``out_dir/config.json`` (``meta``). Shared by the avatar models."""
     from safetensors.torch import save_file
 
+    from geoface._io import atomic_path
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     sd = {k: v.detach().contiguous().cpu() for k, v in module.state_dict().items() if v is not None}
-    tmp = out / "model.safetensors.tmp"
-    save_file(sd, str(tmp))
-    tmp.replace(out / "model.safetensors")
+    with atomic_path(out / "model.safetensors") as tmp:
+        save_file(sd, str(tmp))
     (out / "config.json").write_text(json.dumps(meta, indent=1))
     return out
 
@@ -630,13 +622,11 @@ def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: 
     lower-face crop; where ``video.hmd_masks`` is known, paste the rendering into the occluded
     region only (``composite``). Streams frame by frame; returns (renders [T, H, W, 3] float32,
     per-frame seconds). Writes ``out_dir/frames/*.png`` when given (each file complete or absent)."""
-    from geoface.splat.hfm_data import _write_png, crop_lower_face
+    from geoface.splat.hfm_data import crop_lower_face, write_frame
     from geoface.splat.rasterizer import rasterize
 
     cam = camera or video.camera
     out = Path(out_dir) if out_dir is not None else None
-    if out is not None:
-        (out / "frames").mkdir(parents=True, exist_ok=True)
     renders, times = [], []
     bg = torch.zeros(3)
     boxes = video.boxes()
@@ -651,26 +641,14 @@ def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: 
             img = rgb
             if composite and video.hmd_masks is not None:
                 img = np.where(video.hmd_masks[t][..., None], rgb, video.frames[t])
-            tmp = out / "frames" / f".{t:06d}.tmp.png"
-            _write_png(tmp, img)
-            tmp.replace(out / "frames" / f"{t:06d}.png")
+            write_frame(out, t, img)
     return np.stack(renders), np.asarray(times)
-
-
-def _ssim_masked(a, b, mask) -> float:
-    """SSIM map (11×11 Gaussian window) averaged over ``mask``."""
-    from skimage.metrics import structural_similarity
-
-    _, S = structural_similarity(a, b, channel_axis=2, data_range=1.0, gaussian_weights=True, sigma=1.5,
-                                 use_sample_covariance=False, full=True)
-    S = S.mean(-1)
-    return float(S[mask].mean()) if mask.any() else float("nan")
 
 
 def evaluate_hmd(model: HFMModel, video) -> dict:
     """PSNR/SSIM of the renders against ``video.gt`` on the whole face (foreground) and in the
     region the headset hides; FPS of the whole per-frame path (crop, encode, deform, render)."""
-    from geoface.splat.fit import psnr
+    from geoface.splat.fit import psnr, ssim_masked
 
     if video.gt is None or video.hmd_masks is None:
         raise SplatError("evaluation needs gt/ and hmd_masks/ in the usage folder")
@@ -681,8 +659,8 @@ def evaluate_hmd(model: HFMModel, video) -> dict:
         m, o = face[t], video.hmd_masks[t] & face[t]
         rows["psnr_face"].append(psnr(R[t], video.gt[t], m))
         rows["psnr_occluded"].append(psnr(R[t], video.gt[t], o))
-        rows["ssim_face"].append(_ssim_masked(R[t], video.gt[t], m))
-        rows["ssim_occluded"].append(_ssim_masked(R[t], video.gt[t], o))
+        rows["ssim_face"].append(ssim_masked(R[t], video.gt[t], m))
+        rows["ssim_occluded"].append(ssim_masked(R[t], video.gt[t], o))
     out = {k: float(np.nanmean(v)) for k, v in rows.items()}
     out.update(frames=len(video), fps=float(1.0 / np.median(times)), seconds_per_frame=float(np.median(times)))
     return out

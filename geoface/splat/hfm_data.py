@@ -103,6 +103,16 @@ def _write_png(path: Path, img) -> None:
         raise SplatError(f"{path}: could not write")
 
 
+def write_frame(folder, t: int, img) -> Path:
+    """``folder/frames/{t:06d}.png``, written under a temporary name and renamed (never partial)."""
+    from geoface._io import atomic_path
+
+    path = Path(folder) / "frames" / f"{t:06d}.png"
+    with atomic_path(path) as tmp:
+        _write_png(tmp, img)
+    return path
+
+
 def _camera_from_json(d: dict) -> Camera:
     try:
         return Camera(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), int(d["width"]),

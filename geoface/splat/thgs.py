@@ -23,15 +23,19 @@ Spatial Audio Attention Module (Chen et al., "THGS: talking human avatars with G
 """
 from __future__ import annotations
 
-import math
+import json
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as Fnn
 from torch import Tensor, nn
 
+from geoface.mesh.core import vertex_normals
 from geoface.splat.errors import SplatError
-from geoface.splat.gaussians import quat_to_rotmat
+from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat, rotmat_to_quat_torch
 
 __all__ = ["axis_angle_to_matrix", "joint_transforms", "VoxelSkinning", "lbs", "rotmat_to_quat_torch",
            "ExpressionBlendshapes", "SpatialAudioAttention", "ExternalAttention", "mouth_gaussians",
@@ -113,19 +117,6 @@ class VoxelSkinning(nn.Module):
         return s / s.sum(1, keepdim=True).clamp_min(1e-12)
 
 
-def rotmat_to_quat_torch(R: Tensor) -> Tensor:  # [N, 3, 3] proper rotations -> [N, 4] (w, x, y, z)
-    tr = R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2]
-    w = torch.sqrt(torch.clamp(1 + tr, min=1e-12)) / 2
-    x = torch.sqrt(torch.clamp(1 + R[:, 0, 0] - R[:, 1, 1] - R[:, 2, 2], min=1e-12)) / 2
-    y = torch.sqrt(torch.clamp(1 - R[:, 0, 0] + R[:, 1, 1] - R[:, 2, 2], min=1e-12)) / 2
-    z = torch.sqrt(torch.clamp(1 - R[:, 0, 0] - R[:, 1, 1] + R[:, 2, 2], min=1e-12)) / 2
-    x = torch.copysign(x, R[:, 2, 1] - R[:, 1, 2])
-    y = torch.copysign(y, R[:, 0, 2] - R[:, 2, 0])
-    z = torch.copysign(z, R[:, 1, 0] - R[:, 0, 1])
-    q = torch.stack([w, x, y, z], -1)
-    return q / q.norm(dim=-1, keepdim=True)
-
-
 def lbs(X: Tensor, quats: Tensor, W: Tensor, A: Tensor) -> tuple[Tensor, Tensor]:
     """Posed means and quaternions: x' = Σ w_j A_j x, q' = normalise(Σ w_j q_j) ⊗ q."""
     M = torch.einsum("nj,jab->nab", W, A)  # [N, 4, 4]
@@ -133,7 +124,6 @@ def lbs(X: Tensor, quats: Tensor, W: Tensor, A: Tensor) -> tuple[Tensor, Tensor]
     qj = rotmat_to_quat_torch(A[:, :3, :3])
     qj = qj * torch.where(qj[:, :1] < 0, -1.0, 1.0)  # one hemisphere
     qb = W.to(qj.dtype) @ qj
-    from geoface.splat.hfm import quat_mul
     return Xp, quat_mul(qb / qb.norm(dim=-1, keepdim=True), quats / quats.norm(dim=-1, keepdim=True))
 
 
@@ -210,12 +200,6 @@ class SpatialAudioAttention(nn.Module):
 
 
 # ============================================================================ the avatar
-from dataclasses import asdict, dataclass, fields  # noqa: E402
-import json  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-from geoface.splat.gaussians import Gaussians, GaussianTensors  # noqa: E402
 
 PAPER_STAGES = (1500, 15000, 25000, 50000)  # skinning & pose, expression, blendshapes, SAAM
 PAPER_ITERS = 60000
@@ -273,7 +257,7 @@ class THGSModel(nn.Module):
             self.gaussians.parent = torch.arange(len(tpl.V))
         self.register_buffer("V0", torch.tensor(tpl.V, dtype=torch.float32))
         self.register_buffer("joints", torch.tensor(tpl.joints, dtype=torch.float32))
-        self.register_buffer("vertex_normals", torch.tensor(_vertex_normals(tpl.V, tpl.F), dtype=torch.float32))
+        self.register_buffer("vertex_normals", torch.tensor(vertex_normals(tpl.V, tpl.F), dtype=torch.float32))
         self.parents = [int(p) for p in tpl.parents]
         self.skin = VoxelSkinning(tpl.V, tpl.weights, res=cfg.voxel_res)
         self.leb = ExpressionBlendshapes(tpl.expr_basis, tpl.head_mask)
@@ -303,13 +287,12 @@ class THGSModel(nn.Module):
         X = Xc + D[g.parent]
         quats, log_scales = g.quats, g.log_scales
         if self.saam is not None and audio is not None and self.stage >= 4:
-            m = mouth_gaussians(Xc.detach(), self.template.mouth_box, self.saam.margin)
+            m = mouth_gaussians(Xc.detach(), self.saam.box, self.saam.margin)
             if bool(m.any()):
                 d = self.saam(Xc[m], self.normalize_audio(torch.as_tensor(audio, dtype=torch.float32)))
                 X = X.clone()
                 X[m] = X[m] + d[:, :3] * 0.01
                 one = torch.tensor([1.0, 0, 0, 0])
-                from geoface.splat.hfm import quat_mul
                 quats = quats.clone()
                 quats[m] = quat_mul(quats[m] / quats[m].norm(dim=-1, keepdim=True), one + d[:, 3:7])
                 log_scales = log_scales.clone()
@@ -333,18 +316,6 @@ class THGSModel(nn.Module):
         """Eq. 19: mean squared distance of each Gaussian to its parent vertex (metres²)."""
         g = self.gaussians
         return ((g.means - self.V0[g.parent]) ** 2).sum(-1).mean()
-
-
-def _vertex_normals(V, F) -> np.ndarray:
-    """Area-weighted unit vertex normals (+z where a vertex has no face)."""
-    V, F = np.asarray(V, np.float64), np.asarray(F, np.int64)
-    N = np.zeros_like(V)
-    if len(F):
-        fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-        for c in range(3):
-            np.add.at(N, F[:, c], fn)
-    ln = np.linalg.norm(N, axis=1, keepdims=True)
-    return np.where(ln > 0, N / np.where(ln > 0, ln, 1), [0.0, 0.0, 1.0])
 
 
 def _split(n: int, heldout: float):
@@ -496,10 +467,8 @@ def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
     """Held-out frames (the last ``heldout`` fraction): PSNR/SSIM over the person, PSNR of the mouth
     rectangle, and lip sync — the correlation of the rendered mouth's openness
     (:func:`mouth_openness`) with the audio loudness envelope, next to the same correlation for the real frames; FPS."""
-    from skimage.metrics import structural_similarity
-
     from geoface.splat.audio import envelope, read_wav
-    from geoface.splat.fit import psnr
+    from geoface.splat.fit import psnr, ssim_masked
 
     h = model.cfg.heldout if heldout is None else heldout
     _, te = _split(len(data), h)
@@ -512,9 +481,7 @@ def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
         gt = data.frames[t]
         m = gt.max(-1) > 0
         rows["psnr"].append(psnr(R[k], gt, m))
-        _, S = structural_similarity(R[k], gt, channel_axis=2, data_range=1.0, gaussian_weights=True, sigma=1.5,
-                                     use_sample_covariance=False, full=True)
-        rows["ssim"].append(float(S.mean(-1)[m].mean()))
+        rows["ssim"].append(ssim_masked(R[k], gt, m))
         rect = _mouth_rect(model, data.camera, data.rot[t], data.transl[t])
         y0, y1, x0, x1 = rect
         rows["psnr_mouth"].append(psnr(R[k][y0:y1, x0:x1], gt[y0:y1, x0:x1]))
@@ -539,7 +506,7 @@ def animate(model: THGSModel, audio_path, out_dir=None, *, poses=None, fps: floa
     (.npz with rot/transl/expr; default: the rest pose, neutral expression). Writes
     ``out_dir/frames/*.png`` when given; returns (frames [T, H, W, 3], per-frame seconds)."""
     from geoface.splat.audio import audio_features, read_wav
-    from geoface.splat.hfm_data import _camera_from_json, _write_png
+    from geoface.splat.hfm_data import _camera_from_json, write_frame
     from geoface.splat.thgs_data import load_poses
 
     p = Path(audio_path)
@@ -567,10 +534,6 @@ def animate(model: THGSModel, audio_path, out_dir=None, *, poses=None, fps: floa
         camera = _camera_from_json(json.loads(cam_path.read_text()))
     frames, times = render_frames(model, camera, rot[:T], transl[:T], expr[:T], A)
     if out_dir is not None:
-        out = Path(out_dir) / "frames"
-        out.mkdir(parents=True, exist_ok=True)
         for t, img in enumerate(frames):
-            tmp = out / f".{t:06d}.tmp.png"
-            _write_png(tmp, img)
-            tmp.replace(out / f"{t:06d}.png")
+            write_frame(out_dir, t, img)
     return frames, times
