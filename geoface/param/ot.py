@@ -173,7 +173,7 @@ def semi_discrete_ot(
             tau = 1.0
             while True:
                 hn = hr + tau * d
-                pdn = power_diagram(Pr, hn)
+                pdn = power_diagram(Pr, hn, previous=pd)
                 gnew = pdn.area - target
                 if pdn.area.min() >= eps0 and np.linalg.norm(gnew) <= (1 - tau / 2) * gn:
                     break

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from geoface.errors import ParameterizationError
 from geoface.param.measure import measure_preserving_map, signed_uv_areas
@@ -55,6 +56,64 @@ def test_power_cells_match_brute_force():
     big = pd.area > 5e-3
     assert np.abs(pd.centroid[big] - c[big]).max() < 3e-3
     assert ((pd.area == 0) == (a == 0)).mean() > 0.95
+
+
+@pytest.mark.parametrize("layout", ["random", "grid", "clustered"])
+def test_flip_update_equals_fresh_hull(layout):
+    """A diagram updated by edge flips from the previous weights' triangulation is the
+    diagram Qhull builds from scratch: same cells, same shared edges."""
+    rng = np.random.default_rng(7)
+    if layout == "random":
+        P = rng.random((2000, 2))
+    elif layout == "grid":
+        P = grid_points(40)  # cocircular quads everywhere
+    else:
+        # (a cluster Qhull resolves: at 1e-4 it merges nearly coplanar lifted facets and
+        # is the less exact of the two, against an exact predicate)
+        P = np.concatenate([rng.random((1000, 2)), 0.3 + 1e-2 * rng.random((500, 2))])
+    n = len(P)
+    pd0 = power_diagram(P)
+    # weight changes on the scale of each site's squared spacing: the triangulation changes
+    # a lot while no cell vanishes
+    nn = cKDTree(P).query(P, 2)[0][:, 1]
+    updated = 0
+    for scale in (0.05, 0.2, 0.4):
+        w1 = scale * nn**2 * rng.normal(0, 1, n)
+        a = power_diagram(P, w1, previous=pd0)
+        b = power_diagram(P, w1)
+        updated += a._tri.source == "flips"
+        assert b._tri.source == "qhull"
+        # round-off only (Qhull's power centres come from its plane equations, the flips'
+        # from the three sites): a wrong edge would change areas by a share of a cell
+        assert np.abs(a.area - b.area).max() < 1e-10 / n
+        big = a.edge_length > 1e-9
+        ea = set(map(tuple, a.edges[big].tolist()))
+        eb = set(map(tuple, b.edges[b.edge_length > 1e-9].tolist()))
+        assert len(ea ^ eb) <= 2  # dual edges of length ~1e-9 may sit on either side of the cut
+        assert np.abs(a.centroid - b.centroid).max() < 1e-9
+        assert (len(set(map(tuple, a.edges.tolist())) ^ set(map(tuple, pd0.edges.tolist()))) > 0) or layout == "grid"
+    assert updated >= 2
+
+
+def test_flip_update_falls_back_when_a_cell_vanishes():
+    """A site whose weight drops until its cell is empty cannot be reached by flips: the
+    update gives up and Qhull builds the diagram (which is then still exact)."""
+    P = grid_points(6)
+    pd0 = power_diagram(P)
+    w = np.zeros(len(P))
+    w[14] = -1.0  # far below its neighbours: its cell disappears
+    a = power_diagram(P, w, previous=pd0)
+    assert a._tri.source == "qhull" and a.area[14] == 0
+    b = power_diagram(P, w)
+    assert np.allclose(a.area, b.area, atol=1e-15)
+
+
+def test_flip_update_needs_the_same_points():
+    rng = np.random.default_rng(0)
+    P = rng.random((200, 2))
+    pd0 = power_diagram(P)
+    a = power_diagram(P + 1e-3, None, previous=pd0)
+    assert a._tri.source == "qhull"
 
 
 def test_hessian_matches_finite_differences():
