@@ -40,15 +40,29 @@ def quat_mul(a: Tensor, b: Tensor) -> Tensor:
 
 
 def rotmat_to_quat_torch(R: Tensor) -> Tensor:  # [N, 3, 3] proper rotations -> [N, 4] (w, x, y, z)
-    tr = R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2]
-    w = torch.sqrt(torch.clamp(1 + tr, min=1e-12)) / 2
-    x = torch.sqrt(torch.clamp(1 + R[:, 0, 0] - R[:, 1, 1] - R[:, 2, 2], min=1e-12)) / 2
-    y = torch.sqrt(torch.clamp(1 - R[:, 0, 0] + R[:, 1, 1] - R[:, 2, 2], min=1e-12)) / 2
-    z = torch.sqrt(torch.clamp(1 - R[:, 0, 0] - R[:, 1, 1] + R[:, 2, 2], min=1e-12)) / 2
-    x = torch.copysign(x, R[:, 2, 1] - R[:, 1, 2])
-    y = torch.copysign(y, R[:, 0, 2] - R[:, 2, 0])
-    z = torch.copysign(z, R[:, 1, 0] - R[:, 0, 1])
-    q = torch.stack([w, x, y, z], -1)
+    """Quaternions from rotation matrices, differentiable everywhere (Shepperd's method).
+
+    Each row uses the branch with the largest of (trace, R00, R11, R22), whose square root
+    is at least 1; the sign-copying formula with clamped square roots has no gradient for
+    the vector part at the identity (the rest pose of every joint)."""
+    r00, r11, r22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
+    tr = r00 + r11 + r22
+    d21, d02, d10 = R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]
+    s01, s02, s12 = R[:, 0, 1] + R[:, 1, 0], R[:, 0, 2] + R[:, 2, 0], R[:, 1, 2] + R[:, 2, 1]
+    # every branch with its own (clamped) scale; only the selected one is used
+    s0 = 2 * torch.sqrt(torch.clamp(1 + tr, min=1e-12))
+    s1 = 2 * torch.sqrt(torch.clamp(1 + r00 - r11 - r22, min=1e-12))
+    s2 = 2 * torch.sqrt(torch.clamp(1 - r00 + r11 - r22, min=1e-12))
+    s3 = 2 * torch.sqrt(torch.clamp(1 - r00 - r11 + r22, min=1e-12))
+    cand = torch.stack([
+        torch.stack([s0 / 4, d21 / s0, d02 / s0, d10 / s0], -1),
+        torch.stack([d21 / s1, s1 / 4, s01 / s1, s02 / s1], -1),
+        torch.stack([d02 / s2, s01 / s2, s2 / 4, s12 / s2], -1),
+        torch.stack([d10 / s3, s02 / s3, s12 / s3, s3 / 4], -1),
+    ], 1)  # [N, 4 branches, 4]
+    k = torch.argmax(torch.stack([tr, r00, r11, r22], -1), -1)
+    q = torch.gather(cand, 1, k[:, None, None].expand(-1, 1, 4))[:, 0]
+    q = q * torch.where(q[:, :1] < 0, -1.0, 1.0)  # w >= 0
     return q / q.norm(dim=-1, keepdim=True)
 
 

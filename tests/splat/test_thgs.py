@@ -43,6 +43,24 @@ def test_rodrigues_matches_closed_form_and_is_smooth_at_zero():
     assert torch.isfinite(z.grad).all()
 
 
+def test_joint_quaternions_are_exact_and_have_gradients_at_the_rest_pose():
+    """LBS blends the joints' quaternions: they must match the matrices for every rotation
+    (including half turns) and carry a gradient at the rest pose, where training starts."""
+    from geoface.splat.gaussians import quat_to_rotmat, rotmat_to_quat_torch
+
+    g = torch.Generator().manual_seed(0)
+    w = torch.randn(500, 3, generator=g, dtype=torch.float64) * 2
+    w[0] = 0
+    w[1] = torch.tensor([math.pi, 0, 0])
+    w[2] = torch.tensor([0, 0, math.pi - 1e-9])
+    R = axis_angle_to_matrix(w)
+    assert torch.allclose(quat_to_rotmat(rotmat_to_quat_torch(R)), R, atol=1e-12)
+    J = torch.autograd.functional.jacobian(lambda v: rotmat_to_quat_torch(axis_angle_to_matrix(v)),
+                                           torch.zeros(1, 3, dtype=torch.float64))
+    # q = (cos|w|/2, sin(|w|/2) w/|w|): dq/dw = [0; I/2] at zero
+    assert torch.allclose(J.reshape(4, 3), torch.cat([torch.zeros(1, 3), torch.eye(3) / 2]).double(), atol=1e-9)
+
+
 def test_identity_pose_returns_the_canonical_gaussians(tpl):
     m = THGSModel(tpl, THGSConfig(), audio_dim=8)
     J, K = len(tpl.joints), tpl.n_expr
