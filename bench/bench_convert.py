@@ -131,7 +131,8 @@ def case_claim(n, resolutions):
             rec = st["reconstruction"]
             emit(case="claim", vertices=n, res=res, map=("conformal" if method == "conformal" else f"ot_lam{lam:g}"),
                  face_pixel_share=st["roi_pixel_share"], hausdorff=rec["hausdorff"], mean=rec["mean"],
-                 face_hausdorff=rec["face_hausdorff"], face_mean=rec["face_mean"], flipped=st["distortion"]["flipped"])
+                 face_hausdorff=rec["face_hausdorff"], face_mean=rec["face_mean"], flipped=st["distortion"]["flipped"],
+                 log_area_abs_mean=st["distortion"]["log_area_abs_mean"])
 
 
 def main():
