@@ -42,6 +42,7 @@ def main(argv=None) -> int:
     ap.add_argument("--iters", type=int, default=1500)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--variants", default=",".join(ABLATIONS))
+    ap.add_argument("--seed", type=int, default=0, help="model seed (initialisation, key sampling); the data stay the same")
     ap.add_argument("--out", default="/tmp/geoface_eval_hfm")
     ap.add_argument("--quick", action="store_true", help="smoke: 20 frames, 2 variants, 30 steps")
     a = ap.parse_args(argv)
@@ -57,14 +58,14 @@ def main(argv=None) -> int:
         rows.append(row)
 
     emit(bench="eval_hfm", stage="config", frames=a.frames, res=a.res, vertices=a.vertices, iters=a.iters,
-         threads=torch.get_num_threads())
+         threads=torch.get_num_threads(), seed=a.seed)
     t = time.perf_counter()
     if not (out / "usage" / "gt").is_dir():
         make_synthetic_hmd(out, frames=a.frames, res=a.res, n_vertices=a.vertices, quiet=True)
     emit(stage="data", seconds=round(time.perf_counter() - t, 1))
     usage = load_video(out / "usage")
     for name in a.variants.split(","):
-        cfg = replace(HFMConfig(iters=a.iters, seed=0), **ABLATIONS[name])
+        cfg = replace(HFMConfig(iters=a.iters, seed=a.seed), **ABLATIONS[name])
         info = train_hfm(out / "registration", out / f"model_{name}", cfg, progress=False, log=None)
         h = info["history"]
         model = load_hfm(out / f"model_{name}")
