@@ -24,7 +24,7 @@ import numpy as np
 
 from geoface.errors import GeofaceError
 
-__all__ = ["Validity", "mesh_validity", "vendi_score", "cosine_similarity", "masked_rms_distances",
+__all__ = ["Validity", "mesh_validity", "vendi_score", "cosine_similarity", "masked_rms_distances", "aligned_rms_distances",
            "nearest_neighbour", "ExpressionClassifier", "train_classifier", "predict", "stratified_split"]
 
 
@@ -162,9 +162,47 @@ def masked_rms_distances(A, mA, B, mB) -> np.ndarray:
     return np.where(cnt > 0, np.sqrt(d2), np.inf)
 
 
-def nearest_neighbour(A, mA, B, mB) -> tuple[np.ndarray, np.ndarray]:
-    """Distance to and index of the nearest item of ``B`` for every item of ``A`` (see above)."""
-    D = masked_rms_distances(A, mA, B, mB)
+def aligned_rms_distances(A, mA, B, mB, *, scale: bool = True) -> np.ndarray:
+    """Like :func:`masked_rms_distances`, after the best similarity transform (rotation,
+    translation and, with ``scale``, uniform scale) of each ``A`` item onto each ``B`` item
+    over their common pixels (Umeyama 1991).  Geometry images share their parameterization, so
+    pixels correspond and the alignment is closed-form: this is the distance that rigid
+    augmentation (a rotated, shifted, scaled copy of a training head) does not hide."""
+    A = np.asarray(A, np.float64).reshape(len(A), 3, -1)
+    B = np.asarray(B, np.float64).reshape(len(B), 3, -1)
+    ma = np.asarray(mA, np.float64).reshape(len(A), -1)
+    mb = np.asarray(mB, np.float64).reshape(len(B), -1)
+    for name, m, X in (("mA", ma, A), ("mB", mb, B)):
+        if m.shape != (X.shape[0], X.shape[2]):
+            raise GeofaceError(f"{name} must have one (N, N) mask per image; got {m.shape[0]} masks for {X.shape[0]} images")
+    D = np.full((len(A), len(B)), np.inf)
+    for i in range(len(A)):
+        m = ma[i][None] * mb  # (b, P)
+        cnt = m.sum(1)
+        ok = cnt >= 3
+        c = np.maximum(cnt, 1)[:, None]
+        mu_a = (m @ A[i].T) / c  # (b, 3)
+        mu_b = np.einsum("bp,bcp->bc", m, B) / c
+        a0 = A[i][None] - mu_a[:, :, None]  # (b, 3, P)
+        b0 = B - mu_b[:, :, None]
+        var_a = np.einsum("bp,bcp->b", m, a0 ** 2) / c[:, 0]
+        var_b = np.einsum("bp,bcp->b", m, b0 ** 2) / c[:, 0]
+        S = np.einsum("bp,bip,bjp->bij", m, b0, a0) / c[:, :, None]  # cov(b, a)
+        U, d, Vt = np.linalg.svd(S)
+        sgn = np.sign(np.linalg.det(U) * np.linalg.det(Vt))
+        tr = d[:, 0] + d[:, 1] + sgn * d[:, 2]
+        if scale:
+            res = var_b - tr ** 2 / np.maximum(var_a, 1e-300)
+        else:
+            res = var_a + var_b - 2 * tr
+        D[i] = np.where(ok, np.sqrt(np.maximum(res, 0.0) / 3), np.inf)
+    return D
+
+
+def nearest_neighbour(A, mA, B, mB, *, aligned: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Distance to and index of the nearest item of ``B`` for every item of ``A`` (see above);
+    ``aligned``: after the best similarity transform (:func:`aligned_rms_distances`)."""
+    D = aligned_rms_distances(A, mA, B, mB) if aligned else masked_rms_distances(A, mA, B, mB)
     j = np.argmin(D, axis=1)
     return D[np.arange(len(D)), j], j
 
