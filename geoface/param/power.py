@@ -22,6 +22,14 @@ How the square clipping is done, without mirroring every point:
 
 Coordinates are re-centred on the square's centre before lifting.  Coincident points: Qhull
 keeps one and the others get empty cells (``area == 0``).
+
+Newton's method for OT asks for many diagrams of the same sites with slowly changing weights:
+``power_diagram(P, w, previous=pd)`` starts from ``pd``'s regular triangulation and restores
+regularity by Lawson flips (vectorised rounds over independent sets of non-regular edges, the
+power in-circle test taken relative to the fourth site), about six times faster than a new hull.
+Flips cannot delete a site: when one must vanish the update gets stuck on a non-convex quad and
+Qhull builds the diagram instead.  Power centres come from each triangle's three sites (relative
+to one of them), far more precise than Qhull's plane equations for cells 1e-6 wide.
 """
 
 from __future__ import annotations
