@@ -30,3 +30,9 @@ def atomic_path(target: str | os.PathLike, suffix: str | None = None):
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
+
+
+def atomic_write_text(target: str | os.PathLike, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``target`` through :func:`atomic_path`."""
+    with atomic_path(target) as tmp:
+        tmp.write_text(text, encoding="utf-8")

@@ -161,10 +161,9 @@ def cmd_param(args) -> int:
     out = Mesh(V, F, UV=uv, FUV=F, colors=mesh.colors, texture=None)
     save_mesh(args.output, out)
     if args.json:
-        from ._io import atomic_path
+        from ._io import atomic_write_text
 
-        with atomic_path(args.json) as tmp:
-            Path(tmp).write_text(json.dumps(info, indent=2))
+        atomic_write_text(args.json, json.dumps(info, indent=2))
     print(f"{args.input} -> {args.output}  ({args.method}, {info['seconds']:.2f} s)")
     print(
         f"  quasi-conformal ratio: mean {d['qc_mean']:.4f}, p95 {d['qc_p95']:.4f}, max {d['qc_max']:.3g}; "
@@ -210,7 +209,7 @@ def cmd_synth_head(args) -> int:
         mesh = Mesh(head.V, head.F, colors=head.colors)
     save_mesh(args.output, mesh)
     if args.meta:
-        from ._io import atomic_path
+        from ._io import atomic_write_text
 
         meta = {
             "seed": head.seed,
@@ -220,8 +219,7 @@ def cmd_synth_head(args) -> int:
             "landmarks": {k: int(v) for k, v in head.landmarks.items()},
             "face_mask": [int(i) for i in head.face_mask.nonzero()[0]],
         }
-        with atomic_path(args.meta) as tmp:
-            Path(tmp).write_text(json.dumps(meta, indent=1))
+        atomic_write_text(args.meta, json.dumps(meta, indent=1))
     print(f"wrote {args.output}: {len(head.V)} vertices, {len(head.F)} faces (seed {head.seed})")
     return 0
 

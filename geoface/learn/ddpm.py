@@ -30,6 +30,7 @@ from pathlib import Path
 
 import torch
 
+from .._io import atomic_write_text
 from .errors import CheckpointError
 
 __all__ = ["DDPMConfig", "build_unet", "build_scheduler", "ddpm_loss", "EMA", "DiffusionRun",
@@ -81,7 +82,7 @@ class DDPMConfig:
         return cls(**d)
 
     def save(self, path: str | os.PathLike) -> None:
-        _atomic_write_text(Path(path), self.to_json())
+        atomic_write_text(path, self.to_json())
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "DDPMConfig":
@@ -92,12 +93,6 @@ class DDPMConfig:
             return cls.from_dict(json.loads(path.read_text(encoding="utf-8")))
         except (json.JSONDecodeError, TypeError) as e:
             raise CheckpointError(f"{path} is not a valid config ({e})") from None
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def build_unet(cfg: DDPMConfig):

@@ -143,9 +143,8 @@ def vendi_score(K) -> float:
 
 
 # ---------------------------------------------------------------- memorisation
-def masked_rms_distances(A, mA, B, mB) -> np.ndarray:
-    """``(a, b)`` RMS distance between position images ``A (a, 3, N, N)`` and ``B (b, 3, N, N)``
-    over the pixels both cover (``mA (a, N, N)``, ``mB (b, N, N)`` bool); ``inf`` where none."""
+def _flat_images(A, mA, B, mB):
+    """``(a, C, P)`` / ``(a, P)`` float arrays of images and masks, checked to pair up."""
     A = np.asarray(A, np.float64).reshape(len(A), A.shape[1], -1)
     B = np.asarray(B, np.float64).reshape(len(B), B.shape[1], -1)
     ma = np.asarray(mA, np.float64).reshape(len(A), -1)
@@ -153,6 +152,13 @@ def masked_rms_distances(A, mA, B, mB) -> np.ndarray:
     for name, m, X in (("mA", ma, A), ("mB", mb, B)):
         if m.shape != (X.shape[0], X.shape[2]):
             raise GeofaceError(f"{name} must have one (N, N) mask per image; got {m.shape[0]} masks for {X.shape[0]} images")
+    return A, ma, B, mb
+
+
+def masked_rms_distances(A, mA, B, mB) -> np.ndarray:
+    """``(a, b)`` RMS distance between position images ``A (a, 3, N, N)`` and ``B (b, 3, N, N)``
+    over the pixels both cover (``mA (a, N, N)``, ``mB (b, N, N)`` bool); ``inf`` where none."""
+    A, ma, B, mb = _flat_images(A, mA, B, mB)
     C = A.shape[1]
     # sum_{p in both} |a_p - b_p|^2 = (m_a |a|^2)·m_b + m_a·(m_b |b|^2) - 2 sum_c (m_a a_c)·(m_b b_c)
     sq = (ma * (A ** 2).sum(1)) @ mb.T + ma @ (mb * (B ** 2).sum(1)).T
@@ -168,13 +174,7 @@ def aligned_rms_distances(A, mA, B, mB, *, scale: bool = True) -> np.ndarray:
     over their common pixels (Umeyama 1991).  Geometry images share their parameterization, so
     pixels correspond and the alignment is closed-form: this is the distance that rigid
     augmentation (a rotated, shifted, scaled copy of a training head) does not hide."""
-    A = np.asarray(A, np.float64).reshape(len(A), 3, -1)
-    B = np.asarray(B, np.float64).reshape(len(B), 3, -1)
-    ma = np.asarray(mA, np.float64).reshape(len(A), -1)
-    mb = np.asarray(mB, np.float64).reshape(len(B), -1)
-    for name, m, X in (("mA", ma, A), ("mB", mb, B)):
-        if m.shape != (X.shape[0], X.shape[2]):
-            raise GeofaceError(f"{name} must have one (N, N) mask per image; got {m.shape[0]} masks for {X.shape[0]} images")
+    A, ma, B, mb = _flat_images(A, mA, B, mB)
     D = np.full((len(A), len(B)), np.inf)
     for i in range(len(A)):
         m = ma[i][None] * mb  # (b, P)

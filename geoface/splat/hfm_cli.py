@@ -90,10 +90,9 @@ def cmd_hmd_eval(args) -> int:
           f"PSNR {res['psnr_occluded']:.2f} dB SSIM {res['ssim_occluded']:.4f}; {res['fps']:.1f} FPS "
           f"({res['frames']} frames)")
     if args.json:
-        from geoface._io import atomic_path
+        from geoface._io import atomic_write_text
 
-        with atomic_path(args.json) as tmp:
-            Path(tmp).write_text(json.dumps(res, indent=1))
+        atomic_write_text(args.json, json.dumps(res, indent=1))
     return 0
 
 

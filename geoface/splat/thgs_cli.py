@@ -68,10 +68,9 @@ def cmd_talk_eval(args) -> int:
           f"{res['psnr_mouth']:.2f} dB; lip sync r = {res['lipsync_corr']:.2f} (real frames {res['lipsync_corr_real']:.2f}); "
           f"{res['fps']:.1f} FPS ({res['frames']} frames)")
     if args.json:
-        from geoface._io import atomic_path
+        from geoface._io import atomic_write_text
 
-        with atomic_path(args.json) as tmp:
-            Path(tmp).write_text(json.dumps(res, indent=1))
+        atomic_write_text(args.json, json.dumps(res, indent=1))
     return 0
 
 
