@@ -43,6 +43,9 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--variants", default=",".join(ABLATIONS))
     ap.add_argument("--seed", type=int, default=0, help="model seed (initialisation, key sampling); the data stay the same")
+    ap.add_argument("--reg-frames", type=int, default=None,
+                    help="register from only the first K frames of the registration video (a short registration); "
+                         "the held-out usage video stays the same")
     ap.add_argument("--out", default="/tmp/geoface_eval_hfm")
     ap.add_argument("--quick", action="store_true", help="smoke: 20 frames, 2 variants, 30 steps")
     a = ap.parse_args(argv)
@@ -58,7 +61,7 @@ def main(argv=None) -> int:
         rows.append(row)
 
     emit(bench="eval_hfm", stage="config", frames=a.frames, res=a.res, vertices=a.vertices, iters=a.iters,
-         threads=torch.get_num_threads(), seed=a.seed)
+         threads=torch.get_num_threads(), seed=a.seed, reg_frames=a.reg_frames)
     t = time.perf_counter()
     if not (out / "usage" / "gt").is_dir():
         make_synthetic_hmd(out, frames=a.frames, res=a.res, n_vertices=a.vertices, quiet=True)
@@ -66,15 +69,17 @@ def main(argv=None) -> int:
     usage = load_video(out / "usage")
     for name in a.variants.split(","):
         cfg = replace(HFMConfig(iters=a.iters, seed=a.seed), **ABLATIONS[name])
-        info = train_hfm(out / "registration", out / f"model_{name}", cfg, progress=False, log=None)
+        tag = name + (f"_reg{a.reg_frames}" if a.reg_frames else "") + (f"_s{a.seed}" if a.seed else "")
+        info = train_hfm(out / "registration", out / f"model_{tag}", cfg, progress=False, log=None,
+                         frames=None if a.reg_frames is None else slice(0, a.reg_frames))
         h = info["history"]
-        model = load_hfm(out / f"model_{name}")
+        model = load_hfm(out / f"model_{tag}")
         ev = evaluate_hmd(model, usage)
-        emit(stage="heldout", variant=name, train_seconds=round(info["seconds"], 1), gaussians=info["n_gaussians"],
+        emit(stage="heldout", variant=name, seed=a.seed, reg_frames=a.reg_frames or info["frames"], train_seconds=round(info["seconds"], 1), gaussians=info["n_gaussians"],
              loss_first=round(float(np.mean([r["loss"] for r in h[:20]])), 4),
              loss_last=round(float(np.mean([r["loss"] for r in h[-20:]])), 4),
              dropped_children=info["dropped_children"], **{k: round(v, 4) for k, v in ev.items()})
-        if name == "full":
+        if name == "full" and a.reg_frames is None:
             c = usage.camera
             for s in (1, 2):
                 cam = Camera(c.fx * s, c.fy * s, c.cx * s, c.cy * s, c.width * s, c.height * s, c.R, c.t)

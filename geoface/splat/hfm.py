@@ -22,8 +22,11 @@ a headset hides the upper face is restored from the visible lower face alone:
    training then stalls at an L1 loss near 0.05, against 0.007 for a still head.
 7. **Correlation-weight sampling** (eq. 9–10): the mapping runs between 512 upper and 512 lower
    *key* Gaussians only — upper keys by farthest-point sampling of the canonical positions,
-   lower keys the 512 with the largest correlation weight Σ_u W_gm[u, l] towards the upper
-   keys — and every upper Gaussian takes the inverse-distance average (W_dist, k nearest upper
+   lower keys 512 drawn without replacement with probability proportional to their correlation
+   weight Σ_u W_gm[u, l] towards the upper keys (``lower_keys="sample"``, the default; ``"top"``
+   takes the 512 largest, which lets an early, still uninformative W_gm lock the keys onto one
+   region — on the synthetic head, the neck, away from the mouth that carries the expression) —
+   and every upper Gaussian takes the inverse-distance average (W_dist, k nearest upper
    keys, rows sum to 1) of the keys' deformations. Cost O(512²) instead of O(|U|·|L|), and
    independent of how many Gaussians density control creates. Keys are refreshed after every
    densification and every ``key_every`` steps.
@@ -39,6 +42,14 @@ over each set) on the canonical positions keep the halves apart.
 relu3_3) and needs local weights (``vgg_weights``: a safetensors/torch file of torchvision's
 ``vgg16().features`` state dict, keys ``features.N.weight``); without them it is left out and
 training says so.
+
+**Training.** One frame per step, Adam. The first ``warmup`` (20%) of the steps train the
+Gaussians alone (the networks start at the identity deformation); the networks then train at
+``lr_nets`` = 2e-4 with Adam's usual ε. At 1e-3 (and the 3DGS ε = 1e-15 for everything) the
+deformation MLPs lost most of their ReLU units within a few hundred steps and the encoder
+collapsed θ to a near constant for some model seeds: the avatar then never followed an
+expression (upper-face Gaussians moved by 1e-6 m across frames) and the ablation comparison
+measured which seeds happened to escape.
 
 Ablations (``HFMConfig``): ``global_pose=False`` (no pose MLP), ``gaussian_mapping=False`` (no
 Gaussian & feature mapping: the upper face is deformed from θ like the lower face),
@@ -64,7 +75,7 @@ from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_t
 
 __all__ = ["HFMConfig", "HFMModel", "ImageEncoder", "SegregationStrategy", "select_keys",
            "inverse_distance_weights", "farthest_point_sampling", "boundary_loss", "VGGPerceptual",
-           "train_hfm", "load_hfm", "remove_hmd", "evaluate_hmd", "ABLATIONS"]
+           "expression_motion", "train_hfm", "load_hfm", "remove_hmd", "evaluate_hmd", "ABLATIONS"]
 
 ABLATIONS = {
     "full": {},
@@ -94,12 +105,14 @@ class HFMConfig:
     gaussian_mapping: bool = True
     feature_mapping: bool = True
     sampling: bool = True
+    lower_keys: str = "sample"  # "sample" (∝ correlation weight) or "top" (largest weights)
     lambda_rgb: float = 0.4
     lambda_vgg: float = 0.1
     lambda_split: float = 0.01
     vgg_weights: str | None = None
     iters: int = 2000
-    lr_nets: float = 1e-3
+    warmup: float = 0.2        # fraction of iters that trains the Gaussians alone (static warm-up)
+    lr_nets: float = 2e-4     # 1e-3 (batch of one frame) kills ReLU units and collapses θ to a constant
     lr_means: float = 1.6e-4   # × head size (3DGS, scene-scaled)
     key_every: int = 100
     densify: bool = True
@@ -114,8 +127,12 @@ class HFMConfig:
                 raise SplatError(f"HFMConfig.{name} must be >= 1; got {getattr(self, name)!r}")
         if self.crop % 32:
             raise SplatError(f"HFMConfig.crop must be a multiple of 32 (five stride-2 convolutions); got {self.crop}")
+        if self.lower_keys not in ("sample", "top"):
+            raise SplatError(f"HFMConfig.lower_keys must be 'sample' or 'top'; got {self.lower_keys!r}")
         if self.margin < 0:
             raise SplatError(f"HFMConfig.margin must be >= 0; got {self.margin}")
+        if not 0 <= self.warmup < 1:
+            raise SplatError(f"HFMConfig.warmup is a fraction of iters in [0, 1); got {self.warmup}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -299,7 +316,7 @@ class HFMModel(nn.Module):
         up = self.upper_mask()
         iu, il = torch.nonzero(up).reshape(-1), torch.nonzero(~up).reshape(-1)
         X = self.gaussians.means.detach()
-        ku, kl = select_keys(self, X, iu, il, self.cfg.n_keys, self.cfg.seed)
+        ku, kl = select_keys(self, X, iu, il, self.cfg.n_keys, self.cfg.seed, self.cfg.lower_keys)
         self.keys_u, self.keys_l = ku, kl
         j, w = inverse_distance_weights(X[iu], X[ku], self.cfg.k_upsample)
         self.wdist = (j, w)
@@ -376,17 +393,25 @@ class HFMModel(nn.Module):
 
 
 @torch.no_grad()
-def select_keys(model: HFMModel, X: Tensor, iu: Tensor, il: Tensor, n_keys: int, seed: int = 0):
-    """Key Gaussians (global indices): ``n_keys`` upper by farthest-point sampling, ``n_keys``
-    lower with the largest correlation weight Σ_u softmax_l(φ_u·φ_l) over the upper keys
-    (all of a half when it has fewer)."""
+def select_keys(model: HFMModel, X: Tensor, iu: Tensor, il: Tensor, n_keys: int, seed: int = 0,
+                lower: str = "sample"):
+    """Key Gaussians (global indices, sorted): ``n_keys`` upper by farthest-point sampling,
+    ``n_keys`` lower by their correlation weight c_l = Σ_u softmax_l(φ_u·φ_l) over the upper keys:
+    drawn without replacement with probability ∝ c_l (``lower="sample"``, seeded by ``seed``) or
+    the ``n_keys`` largest (``"top"``). All of a half when it has fewer."""
     ku = iu[farthest_point_sampling(X[iu], n_keys, seed)]
     if len(il) <= n_keys:
         return ku, il.clone()
     E = model.embed(X)
     corr = model.w_gm(E[ku], E[il]).sum(0)  # correlation weight of each lower Gaussian
-    kl = il[torch.topk(corr, n_keys).indices.sort().values]
-    return ku, kl
+    if lower == "top":
+        pick = torch.topk(corr, n_keys).indices
+    elif lower == "sample":
+        gen = torch.Generator().manual_seed(int(seed))
+        pick = torch.multinomial(corr.detach().double().cpu(), n_keys, replacement=False, generator=gen).to(il.device)
+    else:
+        raise SplatError(f"lower keys: 'sample' or 'top', not {lower!r}")
+    return ku, il[pick.sort().values]
 
 
 # ----------------------------------------------------------------------------- VGG perceptual
@@ -511,7 +536,16 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     opt = make_optimizer(g, {"means": cfg.lr_means * extent, "log_scales": 5e-3, "quats": 1e-3,
                              "opacity_logits": 2.5e-2, "colors": 2.5e-3}, eps=1e-15)
     nets = [p for n, p in model.named_parameters() if not n.startswith("gaussians.")]
-    opt.add_param_group({"params": nets, "lr": cfg.lr_nets, "name": "nets"})
+    # Adam's usual ε for the networks: the 3DGS ε = 1e-15 turns the tiny, noisy gradients of
+    # barely-used weights into full-size steps and kills ReLU units
+    opt.add_param_group({"params": nets, "lr": cfg.lr_nets, "name": "nets", "eps": 1e-8})
+    # static warm-up: the networks start from the identity deformation (zero last layers) and stay
+    # frozen until the Gaussians fit the average face; trained from the first step, the encoder
+    # tends to collapse θ to a constant while the residual is still dominated by the static fit
+    # (seen on the synthetic head for one model seed in two), and the avatar never follows expressions
+    n_warm = int(cfg.warmup * cfg.iters)
+    for p in nets:
+        p.requires_grad_(n_warm == 0)
     strategy = None
     if cfg.densify:
         every = min(100, max(10, cfg.iters // 10))
@@ -525,6 +559,9 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     if not callable(progress):
         steps = bar(steps, "registering (HFM-GS)", total=cfg.iters, quiet=None if progress is None else not progress)
     for it in steps:
+        if it == n_warm and n_warm:
+            for p in nets:
+                p.requires_grad_(True)
         if not order:
             order = list(rng.permutation(len(imgs)))
         f = int(order.pop())
@@ -547,7 +584,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
         loss.backward()
         opt.step()
         opt.zero_grad(set_to_none=True)
-        rec = {"step": it, "loss": float(loss.detach()), "l1": float(l1.detach()), "n": len(g)}
+        rec = {"step": it, "loss": float(loss.detach()), "l1": float(l1.detach()), "n": len(g), "nets": it >= n_warm}
         if strategy is not None:
             counts = strategy.step_post_backward(g, opt, info, it)
             if counts["cloned"] or counts["split"] or counts["pruned"]:
@@ -558,7 +595,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
             progress(it, rec)
     seconds = time.perf_counter() - t0
     save_hfm(model, out_dir)
-    return {"seconds": seconds, "history": history, "n_gaussians": len(g), "n_upper": int(model.upper_mask().sum()),
+    return {"seconds": seconds, "frames": len(imgs), "warmup_steps": n_warm, "history": history, "n_gaussians": len(g), "n_upper": int(model.upper_mask().sum()),
             "dropped_children": strategy.dropped if strategy is not None else 0, "vgg": vgg is not None}
 
 
@@ -645,6 +682,26 @@ def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: 
     return np.stack(renders), np.asarray(times)
 
 
+@torch.no_grad()
+def expression_motion(model: HFMModel, video) -> dict:
+    """How far the crop moves the Gaussians: per Gaussian, the RMS distance of its deformed
+    centre (before the tracked head pose) from its mean over the frames of ``video``; averaged
+    over the upper and the lower set, in millimetres (scene units are metres). Near zero means
+    the avatar ignores the lower face (a collapsed encoder or dead deformation networks)."""
+    from geoface.splat.hfm_data import crop_lower_face
+
+    boxes = video.boxes()
+    P = []
+    for t in range(len(video)):
+        crop = torch.tensor(crop_lower_face(video.frames[t], video.lower_landmarks(t), model.cfg.crop))[None]
+        P.append(model(crop, torch.tensor(boxes[t:t + 1])).means)
+    P = torch.stack(P)
+    rms = (P - P.mean(0)).pow(2).sum(-1).mean(0).sqrt() * 1000
+    up = model.upper_mask()
+    return {"upper_motion_mm": float(rms[up].mean()) if bool(up.any()) else 0.0,
+            "lower_motion_mm": float(rms[~up].mean()) if bool((~up).any()) else 0.0}
+
+
 def evaluate_hmd(model: HFMModel, video) -> dict:
     """PSNR/SSIM of the renders against ``video.gt`` on the whole face (foreground) and in the
     region the headset hides; FPS of the whole per-frame path (crop, encode, deform, render)."""
@@ -662,5 +719,6 @@ def evaluate_hmd(model: HFMModel, video) -> dict:
         rows["ssim_face"].append(ssim_masked(R[t], video.gt[t], m))
         rows["ssim_occluded"].append(ssim_masked(R[t], video.gt[t], o))
     out = {k: float(np.nanmean(v)) for k, v in rows.items()}
+    out.update(expression_motion(model, video))
     out.update(frames=len(video), fps=float(1.0 / np.median(times)), seconds_per_frame=float(np.median(times)))
     return out

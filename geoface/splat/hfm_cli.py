@@ -36,7 +36,7 @@ def _config(args):
     from .hfm import ABLATIONS, HFMConfig
 
     kw = dict(iters=args.iters, seed=args.seed, threads=args.threads, vgg_weights=args.vgg_weights,
-              densify=not args.no_densify)
+              densify=not args.no_densify, warmup=args.warmup)
     if args.y_split is not None:
         kw["y_split"] = args.y_split
     kw.update(ABLATIONS[args.ablation])
@@ -88,7 +88,8 @@ def cmd_hmd_eval(args) -> int:
     res = evaluate_hmd(model, load_video(args.usage_dir))
     print(f"{args.usage_dir}: face PSNR {res['psnr_face']:.2f} dB SSIM {res['ssim_face']:.4f}; occluded region "
           f"PSNR {res['psnr_occluded']:.2f} dB SSIM {res['ssim_occluded']:.4f}; {res['fps']:.1f} FPS "
-          f"({res['frames']} frames)")
+          f"({res['frames']} frames); expression motion upper {res['upper_motion_mm']:.2f} mm, "
+          f"lower {res['lower_motion_mm']:.2f} mm")
     if args.json:
         from geoface._io import atomic_write_text
 
@@ -114,6 +115,8 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("reg_dir", metavar="REG_DIR")
     t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
     t.add_argument("--iters", type=int, default=2000, help="optimisation steps (2000)")
+    t.add_argument("--warmup", type=float, default=0.2,
+                   help="fraction of the steps that trains the Gaussians alone before the networks (0.2)")
     t.add_argument("--ablation", choices=sorted(ABLATION_NAMES), default="full")
     t.add_argument("--vgg-weights", default=None, metavar="FILE",
                    help="local VGG-16 feature weights (.safetensors or .pth) for the perceptual term")

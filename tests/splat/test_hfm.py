@@ -12,7 +12,7 @@ import torch
 from geoface.splat.density import DensityConfig
 from geoface.splat.errors import SplatError
 from geoface.splat.gaussians import Gaussians
-from geoface.splat.hfm import (ABLATIONS, HFMConfig, HFMModel, SegregationStrategy, VGGPerceptual,
+from geoface.splat.hfm import (ABLATIONS, HFMConfig, HFMModel, SegregationStrategy, VGGPerceptual, select_keys,
                                boundary_loss, evaluate_hmd, farthest_point_sampling,
                                inverse_distance_weights, load_hfm, save_hfm, train_hfm)
 from geoface.splat.hfm_data import crop_lower_face, load_video, lower_face_box, make_synthetic_hmd
@@ -59,15 +59,55 @@ def test_sampling_keeps_exactly_512_plus_512_keys_by_correlation():
     assert len(ku) == 512 and len(kl) == 512
     assert len(set(ku.tolist())) == 512 and len(set(kl.tolist())) == 512
     assert bool(up[ku].all()) and not bool(up[kl].any())
-    # the lower keys are the 512 largest correlation weights towards the upper keys
+    # default: the lower keys are drawn ∝ correlation weight, reproducibly for one seed
+    again = select_keys(m, m.gaussians.means.detach(), torch.nonzero(up).reshape(-1),
+                        torch.nonzero(~up).reshape(-1), 512, m.cfg.seed)
+    assert torch.equal(again[0], ku) and torch.equal(again[1], kl)
     E = m.embed(m.gaussians.means.detach())
     il = torch.nonzero(~up).reshape(-1)
     corr = m.w_gm(E[ku], E[il]).sum(0).detach()
-    chosen = torch.isin(il, kl)
+    # "top": the 512 largest correlation weights towards the upper keys
+    _, top = select_keys(m, m.gaussians.means.detach(), torch.nonzero(up).reshape(-1), il, 512, 0, "top")
+    chosen = torch.isin(il, top)
     assert corr[chosen].min() >= corr[~chosen].max() - 1e-6
     # farthest-point sampling spreads the upper keys: every upper Gaussian is near one
     d = torch.cdist(m.gaussians.means.detach()[up], m.gaussians.means.detach()[ku]).min(1).values
     assert float(d.max()) < 0.03  # sphere radius 0.1: 512 well-spread keys on a hemisphere
+
+
+def test_lower_keys_are_drawn_in_proportion_to_correlation_weight():
+    """Inclusion frequency over many seeds follows the weight: the heaviest tenth of the lower
+    Gaussians is drawn clearly more often than the lightest tenth, yet every region gets keys
+    (unlike "top", which never picks the light ones)."""
+    m = _model(3000)
+    _perturb(m)
+    with torch.no_grad():  # sharper embeddings: correlation weights that differ
+        m.mlp_gm[-1].weight.mul_(4.0)
+    X = m.gaussians.means.detach()
+    up = m.upper_mask()
+    iu, il = torch.nonzero(up).reshape(-1), torch.nonzero(~up).reshape(-1)
+    ku, _ = select_keys(m, X, iu, il, 512, 0)
+    E = m.embed(X)
+    corr = m.w_gm(E[ku], E[il]).sum(0).detach()
+    order = torch.argsort(corr)
+    tenth = len(il) // 10
+    light, heavy = order[:tenth], order[-tenth:]
+    hits = torch.zeros(len(il))
+    for seed in range(40):
+        _, kl = select_keys(m, X, iu, il, 512, seed)
+        assert len(kl) == 512 and len(set(kl.tolist())) == 512
+        hits += torch.isin(il, kl).float()
+    rate = hits / 40
+    ratio = float(corr[heavy].mean() / corr[light].mean())
+    assert ratio > 1.5, ratio  # the test needs weights that differ
+    assert rate[heavy].mean() > 1.2 * rate[light].mean()
+    assert rate[light].mean() > 0.05
+    _, top = select_keys(m, X, iu, il, 512, 0, "top")
+    assert not bool(torch.isin(il[light], top).any())
+    with pytest.raises(SplatError):
+        select_keys(m, X, iu, il, 512, 0, "largest")
+    with pytest.raises(SplatError):
+        HFMConfig(lower_keys="largest")
 
 
 def test_fewer_gaussians_than_keys_uses_them_all():
@@ -277,6 +317,43 @@ def test_a_few_training_steps_lower_the_loss_save_load_and_evaluate(videos, tmp_
     (tmp_path / "m" / "model.safetensors").write_bytes(b"\0" * 64)
     with pytest.raises(SplatError, match="cannot read weights"):
         load_hfm(tmp_path / "m")
+
+
+def test_static_warm_up_freezes_the_networks_then_trains_them(videos, tmp_path):
+    from geoface.splat.hfm import build_model
+
+    reg, _ = videos
+    cfg = HFMConfig(iters=10, warmup=0.6, densify=False, seed=3)
+    info = train_hfm(reg, tmp_path / "w", cfg, progress=False, log=None)
+    assert info["warmup_steps"] == 6
+    assert [r["nets"] for r in info["history"]] == [False] * 6 + [True] * 4
+    torch.manual_seed(cfg.seed)
+    init = build_model(load_video(reg, need_mesh=True), cfg)
+    trained = load_hfm(tmp_path / "w")
+    assert not torch.equal(init.encoder.out.weight, trained.encoder.out.weight)
+    # without warm-up the networks train from the first step
+    info0 = train_hfm(reg, tmp_path / "w0", replace(cfg, iters=3, warmup=0.0), progress=False, log=None)
+    assert all(r["nets"] for r in info0["history"]) and info0["warmup_steps"] == 0
+    with pytest.raises(SplatError, match="warmup"):
+        HFMConfig(warmup=1.0)
+
+
+def test_expression_motion_is_zero_at_the_identity_and_follows_the_crop(videos):
+    from geoface.splat.hfm import build_model, expression_motion
+
+    reg, use = videos
+    torch.manual_seed(0)
+    m = build_model(load_video(reg, need_mesh=True), HFMConfig())
+    video = load_video(reg)  # ten frames with different expressions
+    assert max(expression_motion(m, video).values()) < 1e-4  # float32 rounding only
+    _perturb(m)
+    mo = expression_motion(m, video)
+    assert mo["lower_motion_mm"] > 1e-3 and mo["upper_motion_mm"] > 1e-3
+    # every frame the same crop: nothing moves
+    same = load_video(reg)
+    same.frames[:] = same.frames[:1]
+    same.landmarks[:] = same.landmarks[:1]
+    assert max(expression_motion(m, same).values()) < 1e-4
 
 
 def test_save_load_round_trip_with_sampling_keys(tmp_path):
