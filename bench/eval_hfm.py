@@ -46,6 +46,9 @@ def main(argv=None) -> int:
     ap.add_argument("--reg-frames", type=int, default=None,
                     help="register from only the first K frames of the registration video (a short registration); "
                          "the held-out usage video stays the same")
+    ap.add_argument("--data-seed", type=int, default=0, help="seed of the synthetic head and its sequence")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override an HFMConfig field for every variant (JSON value), e.g. --set detach_lower=true")
     ap.add_argument("--out", default="/tmp/geoface_eval_hfm")
     ap.add_argument("--quick", action="store_true", help="smoke: 20 frames, 2 variants, 30 steps")
     a = ap.parse_args(argv)
@@ -55,31 +58,39 @@ def main(argv=None) -> int:
         torch.set_num_threads(a.threads)
     out = Path(a.out)
     rows = []
+    overrides = {}
+    for kv in a.set:
+        k, _, v = kv.partition("=")
+        try:
+            overrides[k] = json.loads(v)
+        except ValueError:
+            overrides[k] = v  # a plain string
 
     def emit(**row):
         print(json.dumps(row), flush=True)
         rows.append(row)
 
     emit(bench="eval_hfm", stage="config", frames=a.frames, res=a.res, vertices=a.vertices, iters=a.iters,
-         threads=torch.get_num_threads(), seed=a.seed, reg_frames=a.reg_frames)
+         threads=torch.get_num_threads(), seed=a.seed, reg_frames=a.reg_frames, data_seed=a.data_seed, overrides=overrides)
     t = time.perf_counter()
     if not (out / "usage" / "gt").is_dir():
-        make_synthetic_hmd(out, frames=a.frames, res=a.res, n_vertices=a.vertices, quiet=True)
+        make_synthetic_hmd(out, frames=a.frames, res=a.res, n_vertices=a.vertices, seed=a.data_seed, quiet=True)
     emit(stage="data", seconds=round(time.perf_counter() - t, 1))
     usage = load_video(out / "usage")
     for name in a.variants.split(","):
-        cfg = replace(HFMConfig(iters=a.iters, seed=a.seed), **ABLATIONS[name])
-        tag = name + (f"_reg{a.reg_frames}" if a.reg_frames else "") + (f"_s{a.seed}" if a.seed else "")
+        cfg = replace(HFMConfig.from_dict({"iters": a.iters, "seed": a.seed, **overrides}), **ABLATIONS[name])
+        tag = name + (f"_reg{a.reg_frames}" if a.reg_frames else "") + (f"_s{a.seed}" if a.seed else "") + \
+            "".join(f"_{k}{v}" for k, v in overrides.items())
         info = train_hfm(out / "registration", out / f"model_{tag}", cfg, progress=False, log=None,
                          frames=None if a.reg_frames is None else slice(0, a.reg_frames))
         h = info["history"]
         model = load_hfm(out / f"model_{tag}")
         ev = evaluate_hmd(model, usage)
-        emit(stage="heldout", variant=name, seed=a.seed, reg_frames=a.reg_frames or info["frames"], train_seconds=round(info["seconds"], 1), gaussians=info["n_gaussians"],
+        emit(stage="heldout", variant=name, seed=a.seed, data_seed=a.data_seed, overrides=overrides, reg_frames=a.reg_frames or info["frames"], train_seconds=round(info["seconds"], 1), gaussians=info["n_gaussians"],
              loss_first=round(float(np.mean([r["loss"] for r in h[:20]])), 4),
              loss_last=round(float(np.mean([r["loss"] for r in h[-20:]])), 4),
              dropped_children=info["dropped_children"], **{k: round(v, 4) for k, v in ev.items()})
-        if name == "full" and a.reg_frames is None:
+        if name == "full" and a.reg_frames is None and not overrides:
             c = usage.camera
             for s in (1, 2):
                 cam = Camera(c.fx * s, c.fy * s, c.cx * s, c.cy * s, c.width * s, c.height * s, c.R, c.t)

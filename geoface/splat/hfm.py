@@ -106,6 +106,7 @@ class HFMConfig:
     feature_mapping: bool = True
     sampling: bool = True
     lower_keys: str = "sample"  # "sample" (∝ correlation weight) or "top" (largest weights)
+    detach_lower: bool = False  # the mapping reads the lower deformations without training them
     lambda_rgb: float = 0.4
     lambda_vgg: float = 0.1
     lambda_split: float = 0.01
@@ -340,6 +341,8 @@ class HFMModel(nn.Module):
     def map_params(self, eU: Tensor, eL: Tensor, pL: Tensor) -> Tensor:
         """Upper deformations from lower ones through W_gm (eq. 3–7), dense over the given sets
         (rows of W_gm in chunks, so |U|·|L| never has to fit at once)."""
+        if self.cfg.detach_lower:  # upper-face errors then cannot reshape the lower face
+            pL = pL.detach()
         fL = self.mlp_pm(torch.cat([eL, pL], -1)) if self.cfg.feature_mapping else pL
         chunk = max(1, int(2**26 // max(len(eL), 1)))
         fU = torch.cat([self.w_gm(eU[i:i + chunk], eL) @ fL for i in range(0, len(eU), chunk)])

@@ -110,6 +110,19 @@ def test_lower_keys_are_drawn_in_proportion_to_correlation_weight():
         HFMConfig(lower_keys="largest")
 
 
+@pytest.mark.parametrize("detach", [False, True])
+def test_detach_lower_keeps_upper_face_errors_out_of_the_lower_networks(detach):
+    m = _model(3000, detach_lower=detach)
+    _perturb(m)
+    up = m.upper_mask()
+    g = m.deform(torch.randn(1, 128))
+    g.means[up].pow(2).sum().backward()  # a loss on the upper face only
+    lower_grad = sum(float(p.grad.abs().sum()) for p in m.mlp_x.parameters() if p.grad is not None)
+    mapping_grad = sum(float(p.grad.abs().sum()) for p in m.mlp_mapping.parameters())
+    assert mapping_grad > 0
+    assert (lower_grad == 0) == detach
+
+
 def test_fewer_gaussians_than_keys_uses_them_all():
     m = _model(300)
     m.refresh_keys()
