@@ -411,7 +411,7 @@ def select_keys(model: HFMModel, X: Tensor, iu: Tensor, il: Tensor, n_keys: int,
         pick = torch.topk(corr, n_keys).indices
     elif lower == "sample":
         gen = torch.Generator().manual_seed(int(seed))
-        pick = torch.multinomial(corr.detach().double().cpu(), n_keys, replacement=False, generator=gen).to(il.device)
+        pick = torch.multinomial(corr.double().cpu(), n_keys, replacement=False, generator=gen).to(il.device)
     else:
         raise SplatError(f"lower keys: 'sample' or 'top', not {lower!r}")
     return ku, il[pick.sort().values]
@@ -656,13 +656,22 @@ def load_hfm(model_dir) -> HFMModel:
 
 
 # ----------------------------------------------------------------------------- usage
+def _frame_input(video, t: int, size: int, boxes: np.ndarray) -> tuple[Tensor, Tensor]:
+    """Frame ``t``'s lower-face crop [1, 3, size, size] and crop box [1, 3] (``boxes`` =
+    ``video.boxes()``), as the encoder takes them."""
+    from geoface.splat.hfm_data import crop_lower_face
+
+    crop = torch.tensor(crop_lower_face(video.frames[t], video.lower_landmarks(t), size))[None]
+    return crop, torch.tensor(boxes[t:t + 1])
+
+
 @torch.no_grad()
 def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: bool = True):
     """Restore every frame of ``video`` (an :class:`HMDVideo`): render the avatar driven by the
     lower-face crop; where ``video.hmd_masks`` is known, paste the rendering into the occluded
     region only (``composite``). Streams frame by frame; returns (renders [T, H, W, 3] float32,
     per-frame seconds). Writes ``out_dir/frames/*.png`` when given (each file complete or absent)."""
-    from geoface.splat.hfm_data import crop_lower_face, write_frame
+    from geoface.splat.hfm_data import write_frame
     from geoface.splat.rasterizer import rasterize
 
     cam = camera or video.camera
@@ -672,8 +681,7 @@ def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: 
     boxes = video.boxes()
     for t in range(len(video)):
         t0 = time.perf_counter()
-        crop = torch.tensor(crop_lower_face(video.frames[t], video.lower_landmarks(t), model.cfg.crop))[None]
-        rgb = rasterize(model(crop, torch.tensor(boxes[t:t + 1]), _pose(video, t)), cam,
+        rgb = rasterize(model(*_frame_input(video, t, model.cfg.crop, boxes), _pose(video, t)), cam,
                         background=bg)[0].clamp(0, 1).numpy()
         times.append(time.perf_counter() - t0)
         renders.append(rgb)
@@ -691,14 +699,8 @@ def expression_motion(model: HFMModel, video) -> dict:
     centre (before the tracked head pose) from its mean over the frames of ``video``; averaged
     over the upper and the lower set, in millimetres (scene units are metres). Near zero means
     the avatar ignores the lower face (a collapsed encoder or dead deformation networks)."""
-    from geoface.splat.hfm_data import crop_lower_face
-
     boxes = video.boxes()
-    P = []
-    for t in range(len(video)):
-        crop = torch.tensor(crop_lower_face(video.frames[t], video.lower_landmarks(t), model.cfg.crop))[None]
-        P.append(model(crop, torch.tensor(boxes[t:t + 1])).means)
-    P = torch.stack(P)
+    P = torch.stack([model(*_frame_input(video, t, model.cfg.crop, boxes)).means for t in range(len(video))])
     rms = (P - P.mean(0)).pow(2).sum(-1).mean(0).sqrt() * 1000
     up = model.upper_mask()
     return {"upper_motion_mm": float(rms[up].mean()) if bool(up.any()) else 0.0,
