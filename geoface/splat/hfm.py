@@ -11,9 +11,13 @@ a headset hides the upper face is restored from the visible lower face alone:
    γ the NeRF frequency embedding of the canonical position.
 4. **Gaussian mapping** (eq. 3–4): φ_i = MLP_gm(γ(x_i)) ∈ R^10 and W_gm = row-softmax(φ_U φ_Lᵀ),
    how much each upper Gaussian follows each lower one.
-5. **Parameter mapping** (eq. 6–7): lower features f_L = MLP_pm(γ(x_L), p_L) of the lower
+5. **Parameter mapping** (eq. 6–7): lower features f_L = MLP_pm(γ(x_L), p̂_L) of the lower
    deformations p_L = (ΔX, log ΔS, ΔR); upper features f_U = W_gm f_L; upper deformations
-   (eq. 5/7) p_U = MLP_mapping(γ(x_U), f_U).
+   (eq. 5/7) p_U = MLP_mapping(γ(x_U), f_U). p̂_L = p_L / RMS is each channel divided by its
+   running RMS over training (``map_norm``, a buffer saved with the model; like batch norm's
+   running statistics, without centring): the networks start at the identity, so p_L grows from
+   0 to a few hundredths, and read raw it stayed a small part of MLP_pm's input next to the O(1)
+   position embedding; on the synthetic head the upper face then hardly followed the lower one.
 6. **Global pose** (eq. 8): (ω, τ) = MLP_pose(θ), a rotation exp(ω) about the head centre and a
    translation applied to every Gaussian after the local deformation. Where the video folder has
    the tracked head pose (``head_poses.npz``: a face tracker in registration, the headset's own
@@ -107,6 +111,8 @@ class HFMConfig:
     sampling: bool = True
     lower_keys: str = "sample"  # "sample" (∝ correlation weight) or "top" (largest weights)
     detach_lower: bool = False  # the mapping reads the lower deformations without training them
+    map_norm: bool = True       # the mapping reads p_L / running RMS (per channel) instead of raw p_L
+    map_norm_momentum: float = 0.02
     lambda_rgb: float = 0.4
     lambda_vgg: float = 0.1
     lambda_split: float = 0.01
@@ -132,6 +138,8 @@ class HFMConfig:
             raise SplatError(f"HFMConfig.lower_keys must be 'sample' or 'top'; got {self.lower_keys!r}")
         if self.margin < 0:
             raise SplatError(f"HFMConfig.margin must be >= 0; got {self.margin}")
+        if not 0 < self.map_norm_momentum <= 1:
+            raise SplatError(f"HFMConfig.map_norm_momentum must be in (0, 1]; got {self.map_norm_momentum}")
         if not 0 <= self.warmup < 1:
             raise SplatError(f"HFMConfig.warmup is a fraction of iters in [0, 1); got {self.warmup}")
 
@@ -297,6 +305,10 @@ class HFMModel(nn.Module):
             self.mlp_up = mlp(e + L, H, 10)
         if cfg.global_pose:
             self.mlp_pose = mlp(L, 64, 6)
+        if cfg.gaussian_mapping and cfg.map_norm:
+            # running mean square of each lower deformation channel (bias-corrected EMA over steps)
+            self.register_buffer("p_ms", torch.zeros(10))
+            self.register_buffer("p_steps", torch.zeros(()))
         self.keys_u: Tensor | None = None
         self.keys_l: Tensor | None = None
         self.wdist: tuple[Tensor, Tensor] | None = None
@@ -338,11 +350,29 @@ class HFMModel(nn.Module):
         """W_gm = row-softmax(φ_U φ_Lᵀ) [|U|, |L|] from embedded positions (eq. 3–4)."""
         return torch.softmax(self.mlp_gm(eU) @ self.mlp_gm(eL).T, -1)
 
+    def lower_rms(self, pL: Tensor, update: bool) -> Tensor:
+        """[10] running RMS of the lower deformation channels, ``update``d by ``pL`` (in training,
+        once the networks train; frozen otherwise and saved with the model). Without it (module
+        doc, item 5) the upper deformations of a trained Full model varied 26× less across the
+        synthetic frames than those of the variant that maps p_L itself."""
+        if update:
+            with torch.no_grad():
+                m = self.cfg.map_norm_momentum
+                self.p_ms.mul_(1 - m).add_(m * pL.detach().pow(2).mean(0))
+                self.p_steps.add_(1)
+        if float(self.p_steps) == 0:  # no statistics yet (an untrained model): p_L as it is
+            return torch.ones_like(self.p_ms)
+        corr = 1 - (1 - self.cfg.map_norm_momentum) ** self.p_steps
+        return (self.p_ms / corr).sqrt() + 1e-6
+
     def map_params(self, eU: Tensor, eL: Tensor, pL: Tensor) -> Tensor:
         """Upper deformations from lower ones through W_gm (eq. 3–7), dense over the given sets
         (rows of W_gm in chunks, so |U|·|L| never has to fit at once)."""
+        update = self.training and pL.requires_grad  # not during the static warm-up
         if self.cfg.detach_lower:  # upper-face errors then cannot reshape the lower face
             pL = pL.detach()
+        if self.cfg.map_norm:
+            pL = pL / self.lower_rms(pL, update)
         fL = self.mlp_pm(torch.cat([eL, pL], -1)) if self.cfg.feature_mapping else pL
         chunk = max(1, int(2**26 // max(len(eL), 1)))
         fU = torch.cat([self.w_gm(eU[i:i + chunk], eL) @ fL for i in range(0, len(eU), chunk)])
@@ -639,7 +669,9 @@ def save_hfm(model: HFMModel, out_dir) -> None:
 def load_hfm(model_dir) -> HFMModel:
     """Load a model folder; any problem is a one-line SplatError."""
     d, meta, sd = read_model_dir(model_dir, "geoface-hfm-gs", "HFM-GS")
-    cfg = HFMConfig.from_dict(meta["config"])
+    conf = dict(meta["config"])
+    conf.setdefault("map_norm", False)  # folders written before the field read p_L raw
+    cfg = HFMConfig.from_dict(conf)
     try:
         n = sd["gaussians.means"].shape[0]
         g = Gaussians(sd["gaussians.means"], sd["gaussians.log_scales"], sd["gaussians.quats"],

@@ -123,6 +123,37 @@ def test_detach_lower_keeps_upper_face_errors_out_of_the_lower_networks(detach):
     assert (lower_grad == 0) == detach
 
 
+def test_mapping_reads_the_lower_deformations_by_their_running_rms():
+    m = _model(2000)
+    _perturb(m)
+    m.train()
+    up = m.upper_mask()
+    E = m.embed(m.gaussians.means.detach())
+    eU, eL = E[up][:300], E[~up][:400]
+    pL = torch.randn(400, 10) * torch.logspace(-3, -1, 10)  # channels of very different size
+    # a frozen p_L (the static warm-up, or evaluation) leaves the statistics alone
+    with torch.no_grad():
+        m.map_params(eU, eL, pL)
+    assert float(m.p_steps) == 0 and float(m.p_ms.abs().sum()) == 0
+    assert torch.equal(m.lower_rms(pL, False), torch.ones(10))  # no statistics yet: p_L as it is
+    out = {}
+    for c in (1.0, 10.0):  # the same deformations in other units
+        m.p_ms.zero_(), m.p_steps.zero_()
+        out[c] = m.map_params(eU, eL, (c * pL).requires_grad_())
+        # bias-corrected: after one update the RMS is the current one, per channel
+        assert torch.allclose(m.lower_rms(pL, False), c * pL.pow(2).mean(0).sqrt(), rtol=1e-5, atol=2e-6)
+    assert float(m.p_steps) == 1
+    assert torch.allclose(out[1.0], out[10.0], atol=1e-5)
+    m.eval()
+    before = m.p_ms.clone()
+    m.map_params(eU, eL, (3 * pL).requires_grad_())
+    assert torch.equal(m.p_ms, before)
+    raw = _model(2000, map_norm=False)
+    _perturb(raw)  # and without it, units matter
+    with torch.no_grad():
+        assert not torch.allclose(raw.map_params(eU, eL, pL), raw.map_params(eU, eL, 10 * pL), atol=1e-3)
+
+
 def test_fewer_gaussians_than_keys_uses_them_all():
     m = _model(300)
     m.refresh_keys()
@@ -227,6 +258,8 @@ def test_encoder_shapes_and_config_errors():
         HFMConfig(crop=100)
     with pytest.raises(SplatError):
         HFMConfig.from_dict({"bogus": 1})
+    with pytest.raises(SplatError, match="map_norm_momentum"):
+        HFMConfig(map_norm_momentum=0)
 
 
 def test_vgg_perceptual_from_local_weights(tmp_path):
@@ -377,6 +410,13 @@ def test_save_load_round_trip_with_sampling_keys(tmp_path):
     theta = torch.randn(1, 128)
     with torch.no_grad():
         assert torch.allclose(m.deform(theta).means, m2.deform(theta).means, atol=1e-6)
+    # a folder written before map_norm existed reads p_L raw
+    old = _model(2500, map_norm=False)
+    save_hfm(old, tmp_path / "old")
+    meta = json.loads((tmp_path / "old" / "config.json").read_text())
+    del meta["config"]["map_norm"], meta["config"]["map_norm_momentum"]
+    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    assert load_hfm(tmp_path / "old").cfg.map_norm is False
     cfg = json.loads((tmp_path / "config.json").read_text())
     cfg["n_gaussians"] = 7
     (tmp_path / "config.json").write_text(json.dumps(cfg))
