@@ -90,6 +90,12 @@ def cmd_hmd_eval(args) -> int:
           f"PSNR {res['psnr_occluded']:.2f} dB SSIM {res['ssim_occluded']:.4f}; {res['fps']:.1f} FPS "
           f"({res['frames']} frames); expression motion upper {res['upper_motion_mm']:.2f} mm, "
           f"lower {res['lower_motion_mm']:.2f} mm")
+    if res.get("expression_frames") == 0:
+        print("expression region: no usage frame has an upper-face expression to score")
+    elif "psnr_expression" in res:
+        print(f"expression region (what brows and lids change, {res['expression_frames']} frames): PSNR "
+              f"{res['psnr_expression']:.2f} dB SSIM {res['ssim_expression']:.4f}; the rest-pose upper face "
+              f"scores {res['psnr_expression_rest']:.2f} dB there")
     if args.json:
         from geoface._io import atomic_write_text
 

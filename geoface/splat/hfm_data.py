@@ -12,6 +12,10 @@ A video folder (registration or usage) holds::
                             initialises the canonical Gaussians (registration folders)
     hmd_masks/000000.png    usage folders: pixels hidden by the headset (evaluation)
     gt/000000.png           usage folders: the unoccluded frames, when known (evaluation)
+    gt_static_upper/000000.png  optional, synthetic usage folders: the same frames with the
+                            upper-face expression switched off (brows and lids at rest): where
+                            they differ from gt/ is what the upper expression changes, which
+                            the evaluation scores on its own (``evaluate_hmd``)
     head_poses.npz          optional: the tracked rigid head pose per frame, R [T, 3, 3], t [T, 3],
                             pivot [3] (X' = R (X − pivot) + pivot + t): a face tracker's in the
                             registration video, the headset's own 6-DoF tracking in the usage video
@@ -35,9 +39,11 @@ from geoface.splat.camera import Camera, look_at
 from geoface.splat.errors import SplatError
 
 __all__ = ["HMDVideo", "load_video", "lower_face_box", "crop_lower_face", "make_synthetic_hmd",
-           "LOWER_FACE_LANDMARKS", "headset_mesh"]
+           "LOWER_FACE_LANDMARKS", "UPPER_EXPRESSIONS", "headset_mesh"]
 
 LOWER_FACE_LANDMARKS = ("nose_tip", "mouth_left", "mouth_right", "chin")
+# the expression weights of the synthetic sequences that move the upper face (above y_t)
+UPPER_EXPRESSIONS = ("brow_raise", "eyes_closed_left", "eyes_closed_right")
 
 
 @dataclass
@@ -54,6 +60,7 @@ class HMDVideo:
     gt: np.ndarray | None = None          # [T, H, W, 3]
     mesh_path: Path | None = None
     poses: tuple | None = None            # (R [T, 3, 3], t [T, 3], pivot [3]) or None
+    gt_static_upper: np.ndarray | None = None  # [T, H, W, 3]: gt with the upper expression at rest
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -190,7 +197,7 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
                              f"do not fit {n_all} frames")
         poses = (R, t, piv) if frames is None else (R[frames], t[frames], piv)
     return HMDVideo(imgs, masks, pts, names, cam, y_split, None if hmd is None else hmd > 0.5,
-                    optional("gt", True), mesh, poses)
+                    optional("gt", True), mesh, poses, optional("gt_static_upper", True))
 
 
 def lower_face_box(pts) -> tuple[float, float, float]:
@@ -310,7 +317,7 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
     for d in dirs.values():
         for sub in ("frames", "masks"):
             (d / sub).mkdir(parents=True, exist_ok=True)
-    for sub in ("hmd_masks", "gt"):
+    for sub in ("hmd_masks", "gt", "gt_static_upper"):
         (dirs["usage"] / sub).mkdir(parents=True, exist_ok=True)
     names = list(lmk)
     Rs = {"registration": [], "usage": []}
@@ -348,6 +355,9 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
             _write_png(d / "masks" / name, (ro.alpha > 0.5).astype(np.uint8) * 255)
             _write_png(d / "hmd_masks" / name, (hmd > 0.5).astype(np.uint8) * 255)
             _write_png(d / "gt" / name, r.rgb * r.alpha[..., None])
+            rest = model.mesh({**exprs[t], **{k: 0.0 for k in UPPER_EXPRESSIONS}})
+            rs = render_mesh(pose(rest.V), rest.F, cam, rest.colors, supersample=supersample)
+            _write_png(d / "gt_static_upper" / name, rs.rgb * rs.alpha[..., None])
     from geoface.mesh.io import save_mesh
 
     for which, d in dirs.items():
