@@ -56,7 +56,9 @@ expression (upper-face Gaussians moved by 1e-6 m across frames) and the ablation
 measured which seeds happened to escape.
 
 Ablations (``HFMConfig``): ``global_pose=False`` (no pose MLP), ``gaussian_mapping=False`` (no
-Gaussian & feature mapping: the upper face is deformed from θ like the lower face),
+Gaussian & feature mapping: the upper face is deformed from θ by the lower face's networks of
+eq. 2, one deformation field over the whole head; ``unmapped_upper="separate"`` gives it its own
+MLP instead, a stronger baseline than the paper's ablation with more weights than the mapping's),
 ``feature_mapping=False`` (W_gm maps the lower deformations p_L themselves, no MLP_pm),
 ``sampling=False`` (the mapping over all Gaussians).
 """
@@ -85,6 +87,7 @@ ABLATIONS = {
     "full": {},
     "no_global_pose": {"global_pose": False},
     "no_gaussian_feature_mapping": {"gaussian_mapping": False},
+    "no_gaussian_feature_mapping_separate": {"gaussian_mapping": False, "unmapped_upper": "separate"},
     "no_feature_mapping": {"feature_mapping": False},
     "no_sampling": {"sampling": False},
 }
@@ -109,6 +112,7 @@ class HFMConfig:
     gaussian_mapping: bool = True
     feature_mapping: bool = True
     sampling: bool = True
+    unmapped_upper: str = "shared"  # without the mapping: upper face by MLP_X/S/R ("shared") or its own MLP
     lower_keys: str = "sample"  # "sample" (∝ correlation weight) or "top" (largest weights)
     detach_lower: bool = False  # the mapping reads the lower deformations without training them
     map_norm: bool = True       # the mapping reads p_L / running RMS (per channel) instead of raw p_L
@@ -134,6 +138,8 @@ class HFMConfig:
                 raise SplatError(f"HFMConfig.{name} must be >= 1; got {getattr(self, name)!r}")
         if self.crop % 32:
             raise SplatError(f"HFMConfig.crop must be a multiple of 32 (five stride-2 convolutions); got {self.crop}")
+        if self.unmapped_upper not in ("shared", "separate"):
+            raise SplatError(f"HFMConfig.unmapped_upper must be 'shared' or 'separate'; got {self.unmapped_upper!r}")
         if self.lower_keys not in ("sample", "top"):
             raise SplatError(f"HFMConfig.lower_keys must be 'sample' or 'top'; got {self.lower_keys!r}")
         if self.margin < 0:
@@ -301,7 +307,7 @@ class HFMModel(nn.Module):
             if cfg.feature_mapping:
                 self.mlp_pm = mlp(e + 10, 64, cfg.feat_dim, zero_last=False)
             self.mlp_mapping = mlp(e + f_in, H, 10)
-        else:
+        elif cfg.unmapped_upper == "separate":
             self.mlp_up = mlp(e + L, H, 10)
         if cfg.global_pose:
             self.mlp_pose = mlp(L, 64, 6)
@@ -391,7 +397,9 @@ class HFMModel(nn.Module):
         p = X.new_zeros(n, 10)
         p[il] = self.lower_params(E[il], theta)
         if len(iu):
-            if not self.cfg.gaussian_mapping:
+            if not self.cfg.gaussian_mapping and self.cfg.unmapped_upper == "shared":
+                p[iu] = self.lower_params(E[iu], theta)
+            elif not self.cfg.gaussian_mapping:
                 p[iu] = self.mlp_up(torch.cat([E[iu], theta.expand(len(iu), -1)], -1))
             elif len(il) == 0:
                 pass
@@ -671,6 +679,8 @@ def load_hfm(model_dir) -> HFMModel:
     d, meta, sd = read_model_dir(model_dir, "geoface-hfm-gs", "HFM-GS")
     conf = dict(meta["config"])
     conf.setdefault("map_norm", False)  # folders written before the field read p_L raw
+    if not conf.get("gaussian_mapping", True):  # before the field: the unmapped upper face had its own MLP
+        conf.setdefault("unmapped_upper", "separate" if any(k.startswith("mlp_up.") for k in sd) else "shared")
     cfg = HFMConfig.from_dict(conf)
     try:
         n = sd["gaussians.means"].shape[0]

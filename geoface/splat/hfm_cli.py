@@ -147,4 +147,5 @@ def register(sub, common: argparse.ArgumentParser) -> None:
 
 
 # the keys of geoface.splat.hfm.ABLATIONS (kept here so that building the parser imports no torch)
-ABLATION_NAMES = ("full", "no_global_pose", "no_gaussian_feature_mapping", "no_feature_mapping", "no_sampling")
+ABLATION_NAMES = ("full", "no_global_pose", "no_gaussian_feature_mapping", "no_gaussian_feature_mapping_separate",
+                  "no_feature_mapping", "no_sampling")

@@ -240,6 +240,37 @@ def test_zero_latent_and_identity_mlps_leave_the_canonical_gaussians(ablation):
         assert not torch.allclose(m.deform(torch.randn(1, 128)).means, g.means, atol=1e-5)
 
 
+def test_without_the_mapping_one_deformation_field_moves_both_halves():
+    """The paper's ablation: the upper face is deformed by the lower face's networks (eq. 2) —
+    the same function of (position, θ) everywhere, no extra weights; "separate" adds its own MLP."""
+    shared = _model(1200, **ABLATIONS["no_gaussian_feature_mapping"])
+    assert not hasattr(shared, "mlp_up") and not hasattr(shared, "mlp_gm")
+    _perturb(shared)
+    theta = torch.randn(1, 128)
+    X = shared.gaussians.means.detach()
+    shared.cfg = replace(shared.cfg, global_pose=False)
+    with torch.no_grad():
+        d = shared.deform(theta)
+        p = shared.lower_params(shared.embed(X), theta)  # eq. 2 on every Gaussian
+    up = shared.upper_mask()
+    assert up.any() and (~up).any()
+    assert torch.allclose(d.means, X + p[:, :3] * shared.scale * 0.1, atol=1e-6)
+    assert torch.allclose(d.log_scales, shared.gaussians.log_scales + p[:, 3:6], atol=1e-6)
+    sep = _model(1200, **ABLATIONS["no_gaussian_feature_mapping_separate"])
+    n_shared = sum(q.numel() for q in _model(1200, **ABLATIONS["no_gaussian_feature_mapping"]).parameters())
+    assert sum(q.numel() for q in sep.parameters()) - n_shared == sum(q.numel() for q in sep.mlp_up.parameters())
+    _perturb(sep)
+    with torch.no_grad():
+        sep.cfg = replace(sep.cfg, global_pose=False)
+        d = sep.deform(theta)
+        pl = sep.lower_params(sep.embed(X), theta)
+    up = sep.upper_mask()
+    assert torch.allclose(d.means[~up], X[~up] + pl[~up, :3] * sep.scale * 0.1, atol=1e-6)
+    assert not torch.allclose(d.means[up], X[up] + pl[up, :3] * sep.scale * 0.1, atol=1e-4)
+    with pytest.raises(SplatError, match="unmapped_upper"):
+        HFMConfig(unmapped_upper="own")
+
+
 def test_global_pose_is_a_rigid_motion_about_the_centre():
     m = _model(500)
     w, t = torch.tensor([0.0, 0.3, 0.0]), torch.tensor([0.1, 0.0, -0.2])
@@ -459,6 +490,13 @@ def test_save_load_round_trip_with_sampling_keys(tmp_path):
     del meta["config"]["map_norm"], meta["config"]["map_norm_momentum"]
     (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
     assert load_hfm(tmp_path / "old").cfg.map_norm is False
+    # folders of the variant without the mapping written before unmapped_upper: by their weights
+    for name, want in (("no_gaussian_feature_mapping_separate", "separate"), ("no_gaussian_feature_mapping", "shared")):
+        save_hfm(_model(600, **ABLATIONS[name]), tmp_path / name)
+        meta = json.loads((tmp_path / name / "config.json").read_text())
+        del meta["config"]["unmapped_upper"]
+        (tmp_path / name / "config.json").write_text(json.dumps(meta))
+        assert load_hfm(tmp_path / name).cfg.unmapped_upper == want
     cfg = json.loads((tmp_path / "config.json").read_text())
     cfg["n_gaussians"] = 7
     (tmp_path / "config.json").write_text(json.dumps(cfg))
