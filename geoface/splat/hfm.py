@@ -398,12 +398,14 @@ class HFMModel(nn.Module):
         up = self.upper_mask()
         iu, il = torch.nonzero(up).reshape(-1), torch.nonzero(~up).reshape(-1)
         E = self.embed(X)
-        p = X.new_zeros(n, 10)
-        p[il] = self.lower_params(E[il], theta)
-        if len(iu):
-            if not self.cfg.gaussian_mapping and self.cfg.unmapped_upper == "shared":
-                p[iu] = self.lower_params(E[iu], theta)
-            elif not self.cfg.gaussian_mapping:
+        one_field = not self.cfg.gaussian_mapping and self.cfg.unmapped_upper == "shared"
+        if one_field:  # the eq.-2 networks deform both halves
+            p = self.lower_params(E, theta)
+        else:
+            p = X.new_zeros(n, 10)
+            p[il] = self.lower_params(E[il], theta)
+        if len(iu) and not one_field:
+            if not self.cfg.gaussian_mapping:
                 p[iu] = self.mlp_up(torch.cat([E[iu], theta.expand(len(iu), -1)], -1))
             elif len(il) == 0:
                 pass
