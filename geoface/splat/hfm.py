@@ -119,6 +119,7 @@ class HFMConfig:
     unmapped_upper: str = "shared"  # without the mapping: upper face by MLP_X/S/R ("shared") or its own MLP
     lower_keys: str = "sample"  # "sample" (∝ correlation weight) or "top" (largest weights)
     detach_lower: bool = True   # the mapping reads the lower deformations without training them
+    map_latent_grad: bool = False  # with detach_lower: the upper-face loss still trains θ (the encoder)
     map_norm: bool = True       # the mapping reads p_L / running RMS (per channel) instead of raw p_L
     map_norm_momentum: float = 0.02
     lambda_rgb: float = 0.4
@@ -352,9 +353,25 @@ class HFMModel(nn.Module):
         return m == n and torch.equal(ju, iu) and torch.equal(jl, il)
 
     # ------------------------------------------------------------- forward
-    def lower_params(self, eX: Tensor, theta: Tensor) -> Tensor:
+    def lower_params(self, eX: Tensor, theta: Tensor, frozen: bool = False) -> Tensor:
+        """[n, 10] eq.-2 deformations; ``frozen``: through the networks' weights detached (the
+        result's gradient reaches θ and the positions, not MLP_X/S/R)."""
         h = torch.cat([eX, theta.expand(len(eX), -1)], -1)
-        return torch.cat([self.mlp_x(h), self.mlp_s(h), self.mlp_r(h)], -1)  # [n, 10]
+        if frozen:
+            def run(m):
+                return torch.func.functional_call(m, {k: v.detach() for k, v in m.named_parameters()}, (h,))
+        else:
+            def run(m):
+                return m(h)
+        return torch.cat([run(self.mlp_x), run(self.mlp_s), run(self.mlp_r)], -1)
+
+    def _mapping_input(self, p: Tensor, idx: Tensor, E: Tensor, theta: Tensor) -> tuple[Tensor, bool]:
+        """The lower deformations the mapping reads at ``idx`` and whether to detach them: with
+        ``map_latent_grad`` they are recomputed through frozen eq.-2 networks, so the upper-face
+        loss trains θ but (as with ``detach_lower``) not the lower face's networks."""
+        if self.cfg.detach_lower and self.cfg.map_latent_grad and torch.is_grad_enabled() and p.requires_grad:
+            return self.lower_params(E[idx], theta, frozen=True), False
+        return p[idx], self.cfg.detach_lower
 
     def w_gm(self, eU: Tensor, eL: Tensor) -> Tensor:
         """W_gm = row-softmax(φ_U φ_Lᵀ) [|U|, |L|] from embedded positions (eq. 3–4)."""
@@ -375,11 +392,12 @@ class HFMModel(nn.Module):
         corr = 1 - (1 - self.cfg.map_norm_momentum) ** self.p_steps
         return (self.p_ms / corr).sqrt() + 1e-6
 
-    def map_params(self, eU: Tensor, eL: Tensor, pL: Tensor) -> Tensor:
+    def map_params(self, eU: Tensor, eL: Tensor, pL: Tensor, detach: bool | None = None) -> Tensor:
         """Upper deformations from lower ones through W_gm (eq. 3–7), dense over the given sets
-        (rows of W_gm in chunks, so |U|·|L| never has to fit at once)."""
+        (rows of W_gm in chunks, so |U|·|L| never has to fit at once). ``detach`` (default
+        ``detach_lower``): read ``pL`` without passing gradients back into it."""
         update = self.training and pL.requires_grad  # not during the static warm-up
-        if self.cfg.detach_lower:  # upper-face errors then cannot reshape the lower face
+        if self.cfg.detach_lower if detach is None else detach:  # upper-face errors cannot reshape the lower face
             pL = pL.detach()
         if self.cfg.map_norm:
             pL = pL / self.lower_rms(pL, update)
@@ -413,11 +431,11 @@ class HFMModel(nn.Module):
                 if not self._keys_valid(n, iu, il):
                     self.refresh_keys()
                 ku, kl = self.keys_u, self.keys_l
-                pk = self.map_params(E[ku], E[kl], p[kl])
+                pk = self.map_params(E[ku], E[kl], *self._mapping_input(p, kl, E, theta))
                 j, w = self.wdist
                 p[iu] = (pk[j] * w[..., None]).sum(1)
             else:
-                p[iu] = self.map_params(E[iu], E[il], p[il])
+                p[iu] = self.map_params(E[iu], E[il], *self._mapping_input(p, il, E, theta))
         dX, dlogS, dq = p[:, :3], p[:, 3:6], p[:, 6:]
         means = X + dX * self.scale * 0.1
         log_scales = g.log_scales + dlogS

@@ -111,17 +111,24 @@ def test_lower_keys_are_drawn_in_proportion_to_correlation_weight():
         HFMConfig(lower_keys="largest")
 
 
-@pytest.mark.parametrize("detach", [False, True])
-def test_detach_lower_keeps_upper_face_errors_out_of_the_lower_networks(detach):
-    m = _model(3000, detach_lower=detach)
+@pytest.mark.parametrize("detach,latent", [(False, False), (True, False), (True, True)])
+def test_detach_lower_keeps_upper_face_errors_out_of_the_lower_networks(detach, latent):
+    m = _model(3000, detach_lower=detach, map_latent_grad=latent, global_pose=False)  # θ reaches U only by the mapping
     _perturb(m)
     up = m.upper_mask()
-    g = m.deform(torch.randn(1, 128))
+    theta = torch.randn(1, 128, requires_grad=True)
+    g = m.deform(theta)
+    with torch.no_grad():  # the same Gaussians whichever way the gradients go
+        ref = _model(3000, global_pose=False)
+        ref.load_state_dict(m.state_dict())
+        assert torch.allclose(ref.deform(theta).means, g.means, atol=1e-7)
     g.means[up].pow(2).sum().backward()  # a loss on the upper face only
     lower_grad = sum(float(p.grad.abs().sum()) for p in m.mlp_x.parameters() if p.grad is not None)
     mapping_grad = sum(float(p.grad.abs().sum()) for p in m.mlp_mapping.parameters())
     assert mapping_grad > 0
     assert (lower_grad == 0) == detach
+    # the latent learns from the upper face end to end, or with map_latent_grad
+    assert (theta.grad is not None and float(theta.grad.abs().sum()) > 0) == (latent or not detach)
 
 
 def test_mapping_reads_the_lower_deformations_by_their_running_rms():
