@@ -21,7 +21,10 @@ a headset hides the upper face is restored from the visible lower face alone:
    The mapping reads p_L detached (``detach_lower``, default on): the upper-face loss then trains
    the mapping networks but not the lower face's. On the synthetic videos, detaching gained Full
    0.4 dB in the occluded region (five of six runs) and 0.2 dB on the whole face (six of six)
-   over training the lower networks through the mapping.
+   over training the lower networks through the mapping. Detached, the encoder learns from the
+   lower face alone; ``map_latent_grad`` lets the upper-face loss train θ through frozen copies of
+   the eq.-2 networks (off: on two further heads it changed the occluded region by +0.05 and
+   −0.47 dB).
 6. **Global pose** (eq. 8): (ω, τ) = MLP_pose(θ), a rotation exp(ω) about the head centre and a
    translation applied to every Gaussian after the local deformation. Where the video folder has
    the tracked head pose (``head_poses.npz``: a face tracker in registration, the headset's own
