@@ -372,7 +372,7 @@ class HFMModel(nn.Module):
         """The lower deformations the mapping reads at ``idx`` and whether to detach them: with
         ``map_latent_grad`` they are recomputed through frozen eq.-2 networks, so the upper-face
         loss trains θ but (as with ``detach_lower``) not the lower face's networks."""
-        if self.cfg.detach_lower and self.cfg.map_latent_grad and torch.is_grad_enabled() and p.requires_grad:
+        if self.cfg.detach_lower and self.cfg.map_latent_grad and p.requires_grad:  # False under no_grad
             return self.lower_params(E[idx], theta, frozen=True), False
         return p[idx], self.cfg.detach_lower
 
