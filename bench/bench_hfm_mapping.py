@@ -71,10 +71,7 @@ def child(n: int, sampling: bool, repeats: int) -> dict:
             full.append(time.perf_counter() - t)
             t = time.perf_counter()
             if sampling:
-                ku, kl = model.keys_u, model.keys_l
-                pk = model.map_params(E[ku], E[kl], pL[rows])
-                j, w = model.wdist
-                (pk[j] * w[..., None]).sum(1)
+                model.map_keys(E, iu, pL[rows])
             else:
                 model.map_params(E[iu], E[il], pL)
             mapping.append(time.perf_counter() - t)

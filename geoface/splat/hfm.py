@@ -113,6 +113,7 @@ class HFMConfig:
     feat_dim: int = 32         # MLP_pm features
     n_keys: int = 512          # key Gaussians per half
     k_upsample: int = 8        # nearest upper keys in W_dist
+    upsample: str = "params"   # W_dist spreads the keys' deformations ("params") or their mapped features ("features")
     y_split: float | None = None   # y_t (world metres); None: the registration folder's meta.json
     margin: float = 0.004      # m of Algorithm 1 (metres)
     global_pose: bool = True
@@ -148,6 +149,8 @@ class HFMConfig:
             raise SplatError(f"HFMConfig.crop must be a multiple of 32 (five stride-2 convolutions); got {self.crop}")
         if self.unmapped_upper not in ("shared", "separate"):
             raise SplatError(f"HFMConfig.unmapped_upper must be 'shared' or 'separate'; got {self.unmapped_upper!r}")
+        if self.upsample not in ("params", "features"):
+            raise SplatError(f"HFMConfig.upsample must be 'params' or 'features'; got {self.upsample!r}")
         if self.lower_keys not in ("sample", "top"):
             raise SplatError(f"HFMConfig.lower_keys must be 'sample' or 'top'; got {self.lower_keys!r}")
         if self.margin < 0:
@@ -395,9 +398,9 @@ class HFMModel(nn.Module):
         corr = 1 - (1 - self.cfg.map_norm_momentum) ** self.p_steps
         return (self.p_ms / corr).sqrt() + 1e-6
 
-    def map_params(self, eU: Tensor, eL: Tensor, pL: Tensor, detach: bool | None = None) -> Tensor:
-        """Upper deformations from lower ones through W_gm (eq. 3–7), dense over the given sets
-        (rows of W_gm in chunks, so |U|·|L| never has to fit at once). ``detach`` (default
+    def map_features(self, eU: Tensor, eL: Tensor, pL: Tensor, detach: bool | None = None) -> Tensor:
+        """Upper features f_U = W_gm f_L from lower deformations (eq. 3–4, 6), dense over the given
+        sets (rows of W_gm in chunks, so |U|·|L| never has to fit at once). ``detach`` (default
         ``detach_lower``): read ``pL`` without passing gradients back into it."""
         update = self.training and pL.requires_grad  # not during the static warm-up
         if self.cfg.detach_lower if detach is None else detach:  # upper-face errors cannot reshape the lower face
@@ -406,8 +409,26 @@ class HFMModel(nn.Module):
             pL = pL / self.lower_rms(pL, update)
         fL = self.mlp_pm(torch.cat([eL, pL], -1)) if self.cfg.feature_mapping else pL
         chunk = max(1, int(2**26 // max(len(eL), 1)))
-        fU = torch.cat([self.w_gm(eU[i:i + chunk], eL) @ fL for i in range(0, len(eU), chunk)])
-        return self.mlp_mapping(torch.cat([eU, fU], -1))
+        return torch.cat([self.w_gm(eU[i:i + chunk], eL) @ fL for i in range(0, len(eU), chunk)])
+
+    def map_params(self, eU: Tensor, eL: Tensor, pL: Tensor, detach: bool | None = None) -> Tensor:
+        """Upper deformations p_U = MLP_mapping(γ(x_U), W_gm f_L) (eq. 3–7; ``map_features``)."""
+        return self.mlp_mapping(torch.cat([eU, self.map_features(eU, eL, pL, detach)], -1))
+
+    def map_keys(self, E: Tensor, iu: Tensor, pK: Tensor, detach: bool | None = None) -> Tensor:
+        """Deformations [|U|, 10] of the upper Gaussians ``iu`` by the mapping between the key
+        Gaussians (eq. 9–10; ``refresh_keys`` first), ``pK`` the lower keys' deformations and ``E``
+        the embedded positions of all Gaussians. W_dist spreads over the upper Gaussians either
+        the upper keys' deformations (``upsample="params"``) or their mapped features f_U, which
+        MLP_mapping then turns into a deformation at each upper Gaussian's own position
+        (``"features"``): keys lie ~12 mm apart on the synthetic head, so spreading deformations
+        blurs an eyelid's closing into the brow and cheek around it."""
+        j, w = self.wdist
+        if self.cfg.upsample == "features":
+            fk = self.map_features(E[self.keys_u], E[self.keys_l], pK, detach)
+            return self.mlp_mapping(torch.cat([E[iu], (fk[j] * w[..., None]).sum(1)], -1))
+        pk = self.map_params(E[self.keys_u], E[self.keys_l], pK, detach)
+        return (pk[j] * w[..., None]).sum(1)
 
     def deform(self, theta: Tensor, head_pose=None) -> GaussianTensors:
         """The Gaussians for latent ``theta`` [1, latent] (eq. 1–10), then the tracked rigid head
@@ -433,10 +454,7 @@ class HFMModel(nn.Module):
             elif self.cfg.sampling:
                 if not self._keys_valid(n, iu, il):
                     self.refresh_keys()
-                ku, kl = self.keys_u, self.keys_l
-                pk = self.map_params(E[ku], E[kl], *self._mapping_input(p, kl, E, theta))
-                j, w = self.wdist
-                p[iu] = (pk[j] * w[..., None]).sum(1)
+                p[iu] = self.map_keys(E, iu, *self._mapping_input(p, self.keys_l, E, theta))
             else:
                 p[iu] = self.map_params(E[iu], E[il], *self._mapping_input(p, il, E, theta))
         dX, dlogS, dq = p[:, :3], p[:, 3:6], p[:, 6:]

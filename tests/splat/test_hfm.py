@@ -196,6 +196,33 @@ def test_sampling_with_every_gaussian_a_key_equals_the_dense_mapping():
     assert torch.allclose(a.log_scales, b.log_scales, atol=1e-6)
 
 
+def test_upsampling_features_runs_the_mapping_mlp_at_every_upper_gaussian():
+    m = _model(3000, upsample="features", global_pose=False)
+    _perturb(m, std=0.2)
+    params = _model(3000, global_pose=False)
+    params.load_state_dict(m.state_dict())
+    theta = torch.randn(1, 128)
+    with torch.no_grad():
+        a, b = m.deform(theta), params.deform(theta)
+        X = m.gaussians.means
+        up = m.upper_mask()
+        iu = torch.nonzero(up).reshape(-1)
+        E = m.embed(X)
+        p = m.lower_params(E, theta)
+        fk = m.map_features(E[m.keys_u], E[m.keys_l], p[m.keys_l])
+        j, w = m.wdist
+        want = m.mlp_mapping(torch.cat([E[iu], (fk[j] * w[..., None]).sum(1)], -1))
+    assert torch.equal(m.keys_u, params.keys_u) and torch.equal(m.keys_l, params.keys_l)
+    # p_U = MLP_mapping(γ(x_u), Σ_k W_dist[u, k] f_k) at each upper Gaussian
+    assert torch.allclose((a.means - X)[iu] / (m.scale * 0.1), want[:, :3], atol=1e-5)
+    assert torch.allclose(a.log_scales[iu] - m.gaussians.log_scales[iu], want[:, 3:6], atol=1e-5)
+    # both spread the same key values: equal at the keys, different between them
+    key = torch.isin(iu, m.keys_u)
+    assert torch.allclose(a.means[iu[key]], b.means[iu[key]], atol=1e-5)
+    assert (a.means[iu[~key]] - b.means[iu[~key]]).norm(dim=1).max() > 1e-4
+    assert torch.equal(a.means[~up], b.means[~up])
+
+
 def test_segregation_drops_exactly_the_crossing_children():
     m = 0.004
     s = SegregationStrategy(DensityConfig(), 1.0, Y_T, m, torch.tensor([True, False]))
@@ -299,6 +326,8 @@ def test_encoder_shapes_and_config_errors():
         HFMConfig.from_dict({"bogus": 1})
     with pytest.raises(SplatError, match="map_norm_momentum"):
         HFMConfig(map_norm_momentum=0)
+    with pytest.raises(SplatError, match="upsample"):
+        HFMConfig(upsample="keys")
 
 
 def test_vgg_perceptual_from_local_weights(tmp_path):
