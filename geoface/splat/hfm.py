@@ -126,6 +126,7 @@ class HFMConfig:
     map_latent_grad: bool = False  # with detach_lower: the upper-face loss still trains θ (the encoder)
     map_norm: bool = True       # the mapping reads p_L / running RMS (per channel) instead of raw p_L
     map_norm_momentum: float = 0.02
+    feat_norm: bool = False     # MLP_mapping reads f_U standardised per channel by running statistics
     lambda_rgb: float = 0.4
     lambda_vgg: float = 0.1
     lambda_split: float = 0.01
@@ -326,6 +327,11 @@ class HFMModel(nn.Module):
             # running mean square of each lower deformation channel (bias-corrected EMA over steps)
             self.register_buffer("p_ms", torch.zeros(10))
             self.register_buffer("p_steps", torch.zeros(()))
+        if cfg.gaussian_mapping and cfg.feat_norm:
+            # running mean and mean square of each upper feature channel (bias-corrected EMA)
+            self.register_buffer("f_mean", torch.zeros(f_in))
+            self.register_buffer("f_ms", torch.zeros(f_in))
+            self.register_buffer("f_steps", torch.zeros(()))
         self.keys_u: Tensor | None = None
         self.keys_l: Tensor | None = None
         self.wdist: tuple[Tensor, Tensor] | None = None
@@ -411,9 +417,30 @@ class HFMModel(nn.Module):
         chunk = max(1, int(2**26 // max(len(eL), 1)))
         return torch.cat([self.w_gm(eU[i:i + chunk], eL) @ fL for i in range(0, len(eU), chunk)])
 
+    def standardise_features(self, fU: Tensor) -> Tensor:
+        """``feat_norm``: f_U minus its running mean, over its running standard deviation, per
+        channel (updated in training once the networks train; frozen otherwise and saved with the
+        model). f_U is mostly a constant (the average of MLP_pm over positions) plus a smaller
+        part that follows the expression; standardised, the expression moves MLP_mapping's input
+        as much as θ moves the eq.-2 networks' input."""
+        if not self.cfg.feat_norm:
+            return fU
+        if self.training and fU.requires_grad:
+            with torch.no_grad():
+                m = self.cfg.map_norm_momentum
+                self.f_mean.mul_(1 - m).add_(m * fU.detach().mean(0))
+                self.f_ms.mul_(1 - m).add_(m * fU.detach().pow(2).mean(0))
+                self.f_steps.add_(1)
+        if float(self.f_steps) == 0:
+            return fU
+        corr = 1 - (1 - self.cfg.map_norm_momentum) ** self.f_steps
+        mean, ms = self.f_mean / corr, self.f_ms / corr
+        # floor: a channel that barely varies is scaled up at most tenfold against its RMS
+        return (fU - mean) / ((ms - mean.pow(2)).clamp_min(0) + 0.01 * ms + 1e-12).sqrt()
+
     def map_params(self, eU: Tensor, eL: Tensor, pL: Tensor, detach: bool | None = None) -> Tensor:
         """Upper deformations p_U = MLP_mapping(γ(x_U), W_gm f_L) (eq. 3–7; ``map_features``)."""
-        return self.mlp_mapping(torch.cat([eU, self.map_features(eU, eL, pL, detach)], -1))
+        return self.mlp_mapping(torch.cat([eU, self.standardise_features(self.map_features(eU, eL, pL, detach))], -1))
 
     def map_keys(self, E: Tensor, iu: Tensor, pK: Tensor, detach: bool | None = None) -> Tensor:
         """Deformations [|U|, 10] of the upper Gaussians ``iu`` by the mapping between the key
@@ -425,7 +452,7 @@ class HFMModel(nn.Module):
         blurs an eyelid's closing into the brow and cheek around it."""
         j, w = self.wdist
         if self.cfg.upsample == "features":
-            fk = self.map_features(E[self.keys_u], E[self.keys_l], pK, detach)
+            fk = self.standardise_features(self.map_features(E[self.keys_u], E[self.keys_l], pK, detach))
             return self.mlp_mapping(torch.cat([E[iu], (fk[j] * w[..., None]).sum(1)], -1))
         pk = self.map_params(E[self.keys_u], E[self.keys_l], pK, detach)
         return (pk[j] * w[..., None]).sum(1)

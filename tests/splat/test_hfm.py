@@ -162,6 +162,36 @@ def test_mapping_reads_the_lower_deformations_by_their_running_rms():
         assert not torch.allclose(raw.map_params(eU, eL, pL), raw.map_params(eU, eL, 100 * pL), atol=1e-3)
 
 
+def test_feature_standardisation_by_running_statistics(tmp_path):
+    m = _model(2000, feat_norm=True)
+    m.train()
+    g = torch.Generator().manual_seed(3)
+    mean = torch.linspace(-1, 1, 32)
+    std = torch.logspace(-2, 0, 32)
+    std[0] = 0.0  # a channel that never varies
+    f = mean + std * torch.randn(64, 32, generator=g)
+    assert torch.equal(m.standardise_features(f), f)  # no statistics yet: f_U as it is
+    m.standardise_features(f.detach())  # frozen features (warm-up, evaluation): no update
+    assert float(m.f_steps) == 0
+    for _ in range(400):  # a stream of frames: the EMA sees the spread across them
+        m.standardise_features((mean + std * torch.randn(64, 32, generator=g)).requires_grad_())
+    assert float(m.f_steps) == 400
+    m.eval()
+    z = m.standardise_features(mean + std * torch.randn(4000, 32, generator=g))
+    # the varying channels come out centred with unit spread (the floor adds 1% of the mean square)
+    floor = (1 + 0.01 * (mean[1:] ** 2 + std[1:] ** 2) / std[1:] ** 2).sqrt()
+    assert torch.allclose(z[:, 1:].mean(0), torch.zeros(31), atol=0.15)
+    assert torch.allclose(z[:, 1:].std(0) * floor, torch.ones(31), rtol=0.15)
+    # a constant channel is not blown up: a change of its RMS moves it by at most ten
+    shifted = m.standardise_features(torch.full((1, 32), 0.0) + mean + torch.cat([mean[:1].abs(), torch.zeros(31)]))
+    assert shifted[0, 0].abs() <= 10 + 1e-3
+    before = m.f_mean.clone()
+    m.standardise_features((mean + torch.randn(8, 32)).requires_grad_())  # eval: statistics frozen
+    assert torch.equal(m.f_mean, before)
+    save_hfm(m, tmp_path / "m")
+    assert torch.equal(load_hfm(tmp_path / "m").f_ms, m.f_ms)
+
+
 def test_fewer_gaussians_than_keys_uses_them_all():
     m = _model(300)
     m.refresh_keys()
