@@ -24,7 +24,11 @@ a headset hides the upper face is restored from the visible lower face alone:
    over training the lower networks through the mapping. Detached, the encoder learns from the
    lower face alone; ``map_latent_grad`` lets the upper-face loss train θ through frozen copies of
    the eq.-2 networks (off: on two further heads it changed the occluded region by +0.05 and
-   −0.47 dB).
+   −0.47 dB). MLP_mapping reads f_U standardised per channel by its running mean and standard
+   deviation (``feat_norm``, buffers saved with the model): f_U is mostly a constant (the average
+   of MLP_pm over the key positions) and moves with the expression ~20× less than θ moves the
+   eq.-2 networks' input (regression on the eyes' closing, synthetic head), so MLP_mapping
+   learned the lids' closing in a smile too slowly to show it within training.
 6. **Global pose** (eq. 8): (ω, τ) = MLP_pose(θ), a rotation exp(ω) about the head centre and a
    translation applied to every Gaussian after the local deformation. Where the video folder has
    the tracked head pose (``head_poses.npz``: a face tracker in registration, the headset's own
@@ -38,8 +42,12 @@ a headset hides the upper face is restored from the visible lower face alone:
    takes the 512 largest, which lets an early, still uninformative W_gm lock the keys onto one
    region — on the synthetic head, the neck, away from the mouth that carries the expression) —
    and every upper Gaussian takes the inverse-distance average (W_dist, k nearest upper
-   keys, rows sum to 1) of the keys' deformations. Cost O(512²) instead of O(|U|·|L|), and
-   independent of how many Gaussians density control creates. Keys are refreshed after every
+   keys, rows sum to 1) of the keys' upper features f_U, which MLP_mapping turns into its
+   deformation at its own position (``upsample="features"``); ``"params"`` averages the keys'
+   deformations instead. Upper keys lie ~12 mm apart on the synthetic head, and averaging
+   deformations moves a lid, the eye under it and the brow above it alike, so the eyes could not
+   close in a smile. Cost O(512²) for the mapping plus one MLP per upper Gaussian (like the
+   eq.-2 networks per lower one) instead of O(|U|·|L|). Keys are refreshed after every
    densification and every ``key_every`` steps.
 8. **Composition** (eq. 1): X + ΔX, S·ΔS, R ⊗ ΔR; then the global pose.
 
@@ -113,7 +121,7 @@ class HFMConfig:
     feat_dim: int = 32         # MLP_pm features
     n_keys: int = 512          # key Gaussians per half
     k_upsample: int = 8        # nearest upper keys in W_dist
-    upsample: str = "params"   # W_dist spreads the keys' deformations ("params") or their mapped features ("features")
+    upsample: str = "features"  # W_dist spreads the keys' mapped features ("features") or their deformations ("params")
     y_split: float | None = None   # y_t (world metres); None: the registration folder's meta.json
     margin: float = 0.004      # m of Algorithm 1 (metres)
     global_pose: bool = True
@@ -126,7 +134,7 @@ class HFMConfig:
     map_latent_grad: bool = False  # with detach_lower: the upper-face loss still trains θ (the encoder)
     map_norm: bool = True       # the mapping reads p_L / running RMS (per channel) instead of raw p_L
     map_norm_momentum: float = 0.02
-    feat_norm: bool = False     # MLP_mapping reads f_U standardised per channel by running statistics
+    feat_norm: bool = True      # MLP_mapping reads f_U standardised per channel by running statistics
     lambda_rgb: float = 0.4
     lambda_vgg: float = 0.1
     lambda_split: float = 0.01
@@ -752,6 +760,8 @@ def load_hfm(model_dir) -> HFMModel:
     conf = dict(meta["config"])
     conf.setdefault("map_norm", False)  # folders written before the field read p_L raw
     conf.setdefault("detach_lower", False)  # and trained the lower networks through the mapping
+    conf.setdefault("upsample", "params")  # before the field: W_dist spread the keys' deformations
+    conf.setdefault("feat_norm", False)  # of f_U as MLP_pm and W_gm gave it
     if not conf.get("gaussian_mapping", True):  # before the field: the unmapped upper face had its own MLP
         conf.setdefault("unmapped_upper", "separate" if any(k.startswith("mlp_up.") for k in sd) else "shared")
     cfg = HFMConfig.from_dict(conf)
