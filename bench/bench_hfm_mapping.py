@@ -4,8 +4,9 @@ correlation-weight sampling, at 40K, 70K and 100K Gaussians.
 
 One JSON line per (Gaussians, sampling): the median seconds of one inference ``deform`` (the
 whole per-frame Gaussian path: lower MLPs, mapping, composition, global pose) and of the mapping
-alone (upper deformations from lower ones: 512 × 512 keys + W_dist upsampling, or W_gm over all
-upper × lower Gaussians in row chunks), the one-off key selection (after each densification), and
+alone (upper deformations from lower ones: 512 × 512 keys, W_dist upsampling and, with the default
+``upsample="features"``, MLP_mapping at every upper Gaussian; or W_gm over all upper × lower
+Gaussians in row chunks), the one-off key selection (after each densification), and
 the peak RSS above the RSS before the first call (VmHWM reset; each case in a fresh process).
 Gaussians: one per vertex of the procedural head with that many vertices, split at the eye/nose
 plane as in training; random (untrained) network weights — the cost does not depend on them.
