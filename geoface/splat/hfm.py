@@ -429,8 +429,8 @@ class HFMModel(nn.Module):
         """``feat_norm``: f_U minus its running mean, over its running standard deviation, per
         channel (updated in training once the networks train; frozen otherwise and saved with the
         model). f_U is mostly a constant (the average of MLP_pm over positions) plus a smaller
-        part that follows the expression; standardised, the expression moves MLP_mapping's input
-        as much as θ moves the eq.-2 networks' input."""
+        part that follows the expression; standardised, that part reaches MLP_mapping at unit
+        scale per channel (module doc, item 5)."""
         if not self.cfg.feat_norm:
             return fU
         if self.training and fU.requires_grad:
@@ -761,7 +761,7 @@ def load_hfm(model_dir) -> HFMModel:
     conf.setdefault("map_norm", False)  # folders written before the field read p_L raw
     conf.setdefault("detach_lower", False)  # and trained the lower networks through the mapping
     conf.setdefault("upsample", "params")  # before the field: W_dist spread the keys' deformations
-    conf.setdefault("feat_norm", False)  # of f_U as MLP_pm and W_gm gave it
+    conf.setdefault("feat_norm", False)  # and MLP_mapping read f_U as W_gm gave it
     if not conf.get("gaussian_mapping", True):  # before the field: the unmapped upper face had its own MLP
         conf.setdefault("unmapped_upper", "separate" if any(k.startswith("mlp_up.") for k in sd) else "shared")
     cfg = HFMConfig.from_dict(conf)
