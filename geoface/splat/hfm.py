@@ -397,20 +397,30 @@ class HFMModel(nn.Module):
         """W_gm = row-softmax(φ_U φ_Lᵀ) [|U|, |L|] from embedded positions (eq. 3–4)."""
         return torch.softmax(self.mlp_gm(eU) @ self.mlp_gm(eL).T, -1)
 
+    @torch.no_grad()
+    def _running_stats(self, steps: Tensor, bufs: tuple[Tensor, ...], values: tuple[Tensor, ...] | None):
+        """Per-channel running statistics kept in the buffers ``bufs``: a bias-corrected EMA over
+        steps (momentum ``map_norm_momentum``, step count ``steps``). Folds in ``values`` (one per
+        buffer) when given, then returns the corrected estimates, or None before the first step."""
+        m = self.cfg.map_norm_momentum
+        if values is not None:
+            for b, v in zip(bufs, values):
+                b.mul_(1 - m).add_(m * v)
+            steps.add_(1)
+        if float(steps) == 0:
+            return None
+        corr = 1 - (1 - m) ** steps
+        return tuple(b / corr for b in bufs)
+
     def lower_rms(self, pL: Tensor, update: bool) -> Tensor:
         """[10] running RMS of the lower deformation channels, ``update``d by ``pL`` (in training,
         once the networks train; frozen otherwise and saved with the model). Without it (module
         doc, item 5) the upper deformations of a trained Full model varied 26× less across the
         synthetic frames than those of the variant that maps p_L itself."""
-        if update:
-            with torch.no_grad():
-                m = self.cfg.map_norm_momentum
-                self.p_ms.mul_(1 - m).add_(m * pL.detach().pow(2).mean(0))
-                self.p_steps.add_(1)
-        if float(self.p_steps) == 0:  # no statistics yet (an untrained model): p_L as it is
+        st = self._running_stats(self.p_steps, (self.p_ms,), (pL.detach().pow(2).mean(0),) if update else None)
+        if st is None:  # no statistics yet (an untrained model): p_L as it is
             return torch.ones_like(self.p_ms)
-        corr = 1 - (1 - self.cfg.map_norm_momentum) ** self.p_steps
-        return (self.p_ms / corr).sqrt() + 1e-6
+        return st[0].sqrt() + 1e-6
 
     def map_features(self, eU: Tensor, eL: Tensor, pL: Tensor, detach: bool | None = None) -> Tensor:
         """Upper features f_U = W_gm f_L from lower deformations (eq. 3–4, 6), dense over the given
@@ -433,16 +443,12 @@ class HFMModel(nn.Module):
         scale per channel (module doc, item 5)."""
         if not self.cfg.feat_norm:
             return fU
-        if self.training and fU.requires_grad:
-            with torch.no_grad():
-                m = self.cfg.map_norm_momentum
-                self.f_mean.mul_(1 - m).add_(m * fU.detach().mean(0))
-                self.f_ms.mul_(1 - m).add_(m * fU.detach().pow(2).mean(0))
-                self.f_steps.add_(1)
-        if float(self.f_steps) == 0:
+        f = fU.detach()
+        st = self._running_stats(self.f_steps, (self.f_mean, self.f_ms),
+                                 (f.mean(0), f.pow(2).mean(0)) if self.training and fU.requires_grad else None)
+        if st is None:
             return fU
-        corr = 1 - (1 - self.cfg.map_norm_momentum) ** self.f_steps
-        mean, ms = self.f_mean / corr, self.f_ms / corr
+        mean, ms = st
         # floor: a channel that barely varies is scaled up at most tenfold against its RMS
         return (fU - mean) / ((ms - mean.pow(2)).clamp_min(0) + 0.01 * ms + 1e-12).sqrt()
 
