@@ -94,7 +94,7 @@ from geoface.splat.density import DensityConfig, DensityStrategy, make_optimizer
 from geoface.splat.errors import SplatError
 from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat, rotmat_to_quat_torch
 
-__all__ = ["HFMConfig", "HFMModel", "ImageEncoder", "SegregationStrategy", "select_keys",
+__all__ = ["HFMConfig", "HFMModel", "ImageEncoder", "SegregationStrategy", "WeightAverage", "select_keys",
            "inverse_distance_weights", "farthest_point_sampling", "boundary_loss", "VGGPerceptual",
            "expression_motion", "train_hfm", "load_hfm", "remove_hmd", "evaluate_hmd", "hmd_metrics", "ABLATIONS"]
 
@@ -142,6 +142,7 @@ class HFMConfig:
     iters: int = 2000
     warmup: float = 0.2        # fraction of iters that trains the Gaussians alone (static warm-up)
     lr_nets: float = 2e-4     # 1e-3 (batch of one frame) kills ReLU units and collapses θ to a constant
+    ema: float = 0.99          # the saved model averages the weights over the last steps (decay per step; 0: last step)
     lr_means: float = 1.6e-4   # × head size (3DGS, scene-scaled)
     key_every: int = 100
     densify: bool = True
@@ -168,6 +169,8 @@ class HFMConfig:
             raise SplatError(f"HFMConfig.map_norm_momentum must be in (0, 1]; got {self.map_norm_momentum}")
         if not 0 <= self.warmup < 1:
             raise SplatError(f"HFMConfig.warmup is a fraction of iters in [0, 1); got {self.warmup}")
+        if not 0 <= self.ema < 1:
+            raise SplatError(f"HFMConfig.ema is a decay per step in [0, 1); got {self.ema}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -605,6 +608,38 @@ def _load_state(path) -> dict:
 
 
 # ----------------------------------------------------------------------------- training
+class WeightAverage:
+    """Exponential moving average of a module's parameters (Polyak averaging): ``update`` after
+    each optimiser step folds the current values in with weight 1 − ``decay``; ``copy_to`` writes
+    the bias-corrected averages into the module (the updates' values weighted by decay^age, over
+    the updates made so far: a short run averages what it has). The parameters must keep their
+    shapes while it runs (start it after density control has stopped adding and removing Gaussians)."""
+
+    def __init__(self, module: nn.Module, decay: float):
+        if not 0 <= decay < 1:
+            raise SplatError(f"weight average decay must be in [0, 1); got {decay}")
+        self.decay = float(decay)
+        self.avg = {n: torch.zeros_like(p.detach()) for n, p in module.named_parameters()}
+        self.steps = 0
+
+    @torch.no_grad()
+    def update(self, module: nn.Module) -> None:
+        for n, p in module.named_parameters():
+            a = self.avg[n]
+            if a.shape != p.shape:
+                raise SplatError(f"weight average: {n} changed shape {tuple(a.shape)} -> {tuple(p.shape)}")
+            a.mul_(self.decay).add_(p.detach(), alpha=1 - self.decay)
+        self.steps += 1
+
+    @torch.no_grad()
+    def copy_to(self, module: nn.Module) -> None:
+        if self.steps == 0:
+            raise SplatError("weight average: no update yet")
+        corr = 1 - self.decay ** self.steps
+        for n, p in module.named_parameters():
+            p.copy_(self.avg[n] / corr)
+
+
 def _frames_tensors(video, crop):
     imgs = torch.tensor(video.frames, dtype=torch.float32)
     crops = torch.tensor(video.crops(crop), dtype=torch.float32)
@@ -680,6 +715,9 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
                              refine_every=every, reset_every=0, max_gaussians=2 * len(g))
         strategy = SegregationStrategy(dcfg, extent, model.y_split, cfg.margin, model.upper_mask())
     history, order = [], []
+    # the weights are averaged once the networks train and density control has stopped
+    ema_start = max(n_warm, strategy.cfg.refine_stop if strategy is not None else 0) if cfg.ema > 0 else cfg.iters
+    average = None
     t0 = time.perf_counter()
     bg = torch.zeros(3)
     steps = range(cfg.iters)
@@ -717,12 +755,20 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
             if counts["cloned"] or counts["split"] or counts["pruned"]:
                 rec.update(cloned=counts["cloned"], split=counts["split"], pruned=counts["pruned"], n=len(g))
                 model.refresh_keys()
+        if it >= ema_start:
+            if average is None:
+                average = WeightAverage(model, cfg.ema)
+            average.update(model)
         history.append(rec)
         if callable(progress) and (it % 50 == 0 or it == cfg.iters - 1):
             progress(it, rec)
+    if average is not None:
+        average.copy_to(model)
+        model.refresh_keys()  # W_gm of the averaged weights
     seconds = time.perf_counter() - t0
     save_hfm(model, out_dir)
-    return {"seconds": seconds, "frames": len(imgs), "warmup_steps": n_warm, "history": history, "n_gaussians": len(g), "n_upper": int(model.upper_mask().sum()),
+    return {"seconds": seconds, "frames": len(imgs), "warmup_steps": n_warm,
+            "averaged_steps": average.steps if average is not None else 0, "history": history, "n_gaussians": len(g), "n_upper": int(model.upper_mask().sum()),
             "dropped_children": strategy.dropped if strategy is not None else 0, "vgg": vgg is not None}
 
 

@@ -12,7 +12,7 @@ import torch
 from geoface.splat.density import DensityConfig
 from geoface.splat.errors import SplatError
 from geoface.splat.gaussians import Gaussians
-from geoface.splat.hfm import (ABLATIONS, HFMConfig, HFMModel, SegregationStrategy, VGGPerceptual, select_keys,
+from geoface.splat.hfm import (ABLATIONS, HFMConfig, HFMModel, SegregationStrategy, VGGPerceptual, WeightAverage, select_keys,
                                boundary_loss, evaluate_hmd, farthest_point_sampling, hmd_metrics,
                                inverse_distance_weights, load_hfm, save_hfm, train_hfm)
 from geoface.splat.hfm_data import (LOWER_FACE_LANDMARKS, UPPER_EXPRESSIONS, HMDVideo, crop_lower_face,
@@ -521,6 +521,66 @@ def test_static_warm_up_freezes_the_networks_then_trains_them(videos, tmp_path):
     assert all(r["nets"] for r in info0["history"]) and info0["warmup_steps"] == 0
     with pytest.raises(SplatError, match="warmup"):
         HFMConfig(warmup=1.0)
+
+
+def test_weight_average_is_the_bias_corrected_exponential_average():
+    lin = torch.nn.Linear(2, 1)
+    avg = WeightAverage(lin, 0.5)
+    with pytest.raises(SplatError, match="no update"):
+        avg.copy_to(lin)
+    for v in (1.0, 2.0, 3.0):
+        with torch.no_grad():
+            lin.weight.fill_(v)
+            lin.bias.fill_(-v)
+        avg.update(lin)
+    avg.copy_to(lin)
+    want = (0.25 * 1 + 0.5 * 2 + 1 * 3) / 1.75  # weights 0.5^age over the three updates, normalised
+    assert torch.allclose(lin.weight, torch.full((1, 2), want)) and torch.allclose(lin.bias, torch.tensor([-want]))
+    last = WeightAverage(lin, 0.0)  # decay 0: the last values
+    with torch.no_grad():
+        lin.weight.fill_(7.0)
+    last.update(lin)
+    with torch.no_grad():
+        lin.weight.fill_(0.0)
+    last.copy_to(lin)
+    assert torch.all(lin.weight == 7.0)
+    with torch.no_grad():
+        lin.weight = torch.nn.Parameter(torch.zeros(3, 2))
+    with pytest.raises(SplatError, match="changed shape"):
+        last.update(lin)
+    with pytest.raises(SplatError, match="ema"):
+        HFMConfig(ema=1.0)
+
+
+def test_the_saved_model_averages_the_weights_of_the_last_steps(videos, tmp_path, monkeypatch):
+    reg, _ = videos
+    snaps = []
+    update = WeightAverage.update
+
+    def spy(self, module):
+        snaps.append({n: p.detach().clone() for n, p in module.named_parameters()})
+        update(self, module)
+
+    monkeypatch.setattr(WeightAverage, "update", spy)
+    cfg = HFMConfig(iters=12, warmup=0.25, densify=False, seed=0, ema=0.7)
+    info = train_hfm(reg, tmp_path / "a", cfg, progress=False, log=None)
+    assert info["averaged_steps"] == len(snaps) == 9  # every step once the networks train (step 3 on)
+    w = 0.7 ** torch.arange(8, -1, -1, dtype=torch.float64)
+    w = w / w.sum()
+    sd = load_hfm(tmp_path / "a").state_dict()
+    for name in ("encoder.out.weight", "mlp_x.0.weight", "mlp_mapping.0.weight", "gaussians.colors", "gaussians.means"):
+        want = sum(float(wi) * s[name] for wi, s in zip(w, snaps))
+        assert torch.allclose(sd[name], want, atol=1e-6), name
+        assert not torch.allclose(sd[name], snaps[-1][name], atol=1e-6), name  # not the last step's weights
+    # with density control the average starts once it has stopped adding and removing Gaussians
+    snaps.clear()
+    info = train_hfm(reg, tmp_path / "b", replace(cfg, iters=20, densify=True), progress=False, log=None)
+    assert info["averaged_steps"] == len(snaps) == 20 - int(0.6 * 20)
+    assert {len(s["gaussians.means"]) for s in snaps} == {info["n_gaussians"]}
+    # ema=0 saves the last step's weights
+    snaps.clear()
+    assert train_hfm(reg, tmp_path / "c", replace(cfg, ema=0.0), progress=False, log=None)["averaged_steps"] == 0
+    assert not snaps
 
 
 def test_expression_motion_is_zero_at_the_identity_and_follows_the_crop(videos):
