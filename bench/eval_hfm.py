@@ -20,6 +20,7 @@ import argparse
 import json
 import sys
 import time
+from contextlib import nullcontext
 from dataclasses import replace
 from pathlib import Path
 
@@ -32,7 +33,7 @@ def main(argv=None) -> int:
     import torch
 
     from geoface.splat.camera import Camera
-    from geoface.splat.hfm import ABLATIONS, HFMConfig, evaluate_hmd, load_hfm, remove_hmd, train_hfm
+    from geoface.splat.hfm import ABLATIONS, HFMConfig, evaluate_hmd, hmd_metrics, load_hfm, remove_hmd, train_hfm
     from geoface.splat.hfm_data import load_video, make_synthetic_hmd
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -49,6 +50,9 @@ def main(argv=None) -> int:
     ap.add_argument("--data-seed", type=int, default=0, help="seed of the synthetic head and its sequence")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override an HFMConfig field for every variant (JSON value), e.g. --set detach_lower=true")
+    ap.add_argument("--score-every", type=int, default=0, metavar="K",
+                    help="once the weight average has started, score the held-out video every K steps with the "
+                         "last step's weights and with the average (one 'trace' line each time)")
     ap.add_argument("--out", default="/tmp/geoface_eval_hfm")
     ap.add_argument("--quick", action="store_true", help="smoke: 20 frames, 2 variants, 30 steps")
     a = ap.parse_args(argv)
@@ -81,8 +85,20 @@ def main(argv=None) -> int:
         cfg = replace(HFMConfig.from_dict({"iters": a.iters, "seed": a.seed, **overrides}), **ABLATIONS[name])
         tag = name + (f"_reg{a.reg_frames}" if a.reg_frames else "") + (f"_s{a.seed}" if a.seed else "") + \
             "".join(f"_{k}{v}" for k, v in overrides.items())
+        def trace(step, model, average, name=name):
+            if not a.score_every or average is None or (step + 1) % a.score_every:
+                return
+            row = {}
+            model.eval()
+            for which in ("last", "average"):
+                with average.applied(model) if which == "average" else nullcontext():
+                    ev = hmd_metrics(remove_hmd(model, usage)[0], usage)
+                row.update({f"{k}_{which}": round(ev[k], 4) for k in ("psnr_face", "psnr_occluded", "psnr_expression")})
+            model.train()
+            emit(stage="trace", variant=name, step=step + 1, averaged_steps=average.steps, **row)
+
         info = train_hfm(out / "registration", out / f"model_{tag}", cfg, progress=False, log=None,
-                         frames=None if a.reg_frames is None else slice(0, a.reg_frames))
+                         frames=None if a.reg_frames is None else slice(0, a.reg_frames), callback=trace)
         h = info["history"]
         model = load_hfm(out / f"model_{tag}")
         ev = evaluate_hmd(model, usage)

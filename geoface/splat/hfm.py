@@ -79,6 +79,7 @@ MLP instead, a stronger baseline than the paper's ablation with more weights tha
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import time
@@ -631,6 +632,19 @@ class WeightAverage:
             a.mul_(self.decay).add_(p.detach(), alpha=1 - self.decay)
         self.steps += 1
 
+    @contextlib.contextmanager
+    def applied(self, module: nn.Module):
+        """The averages in ``module`` inside the block, its own weights back afterwards."""
+        with torch.no_grad():
+            own = {n: p.detach().clone() for n, p in module.named_parameters()}
+        self.copy_to(module)
+        try:
+            yield module
+        finally:
+            with torch.no_grad():
+                for n, p in module.named_parameters():
+                    p.copy_(own[n])
+
     @torch.no_grad()
     def copy_to(self, module: nn.Module) -> None:
         if self.steps == 0:
@@ -670,9 +684,11 @@ def build_model(video, cfg: HFMConfig) -> HFMModel:
 
 
 def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice | None = None,
-              progress=None, log=print) -> dict:
+              progress=None, log=print, callback=None) -> dict:
     """Register a person from an unoccluded video folder; saves ``out_dir`` (config.json,
-    model.safetensors) and returns a summary (loss history, seconds, Gaussians, keys)."""
+    model.safetensors) and returns a summary (loss history, seconds, Gaussians, keys).
+    ``callback(step, model, average)``, when given, runs after every step (``average``: the
+    :class:`WeightAverage` once it has started, else None), e.g. to score the model as it trains."""
     from geoface.learn.losses import dssim
     from geoface.progress import progress as bar
     from geoface.splat.hfm_data import load_video
@@ -762,6 +778,8 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
         history.append(rec)
         if callable(progress) and (it % 50 == 0 or it == cfg.iters - 1):
             progress(it, rec)
+        if callback is not None:
+            callback(it, model, average)
     if average is not None:
         average.copy_to(model)
         model.refresh_keys()  # W_gm of the averaged weights
