@@ -192,6 +192,31 @@ def test_feature_standardisation_by_running_statistics(tmp_path):
     assert torch.equal(load_hfm(tmp_path / "m").f_ms, m.f_ms)
 
 
+def test_refit_statistics_are_plain_means_over_the_frames():
+    m = _model(2500)  # map_norm and feat_norm on, keys sampled
+    _perturb(m, std=0.1)
+    m.refresh_keys()
+    g = torch.Generator().manual_seed(5)
+    crops, boxes = torch.rand(5, 3, 128, 128, generator=g), torch.rand(5, 3, generator=g)
+    with torch.no_grad():  # stale statistics, as the last training steps leave them
+        m.p_ms.fill_(7.0), m.p_steps.fill_(30), m.f_mean.fill_(3.0), m.f_ms.fill_(20.0), m.f_steps.fill_(30)
+    m.refit_statistics(crops, boxes)
+    X = m.gaussians.means.detach()
+    E = m.embed(X)
+    with torch.no_grad():
+        pK = [m.lower_params(E[m.keys_l], m.encoder(crops[t:t + 1], boxes[t:t + 1])) for t in range(5)]
+        want_ms = torch.stack([p.pow(2).mean(0) for p in pK]).mean(0)
+        assert torch.allclose(m.lower_rms(pK[0], False), want_ms.sqrt() + 1e-6, rtol=1e-5)  # no bias left
+        fU = [m.map_features(E[m.keys_u], E[m.keys_l], p) for p in pK]  # reads p_L by the new RMS
+        assert torch.allclose(m.f_mean, torch.stack([f.mean(0) for f in fU]).mean(0), atol=1e-6)
+        assert torch.allclose(m.f_ms, torch.stack([f.pow(2).mean(0) for f in fU]).mean(0), rtol=1e-5, atol=1e-7)
+    assert m._refit is None
+    before = m.deform(m.encoder(crops[:1], boxes[:1])).means
+    m.refit_statistics(crops, boxes)  # the same weights and frames: the same statistics
+    assert torch.allclose(m.deform(m.encoder(crops[:1], boxes[:1])).means, before, atol=1e-6)
+    _model(600, gaussian_mapping=False).refit_statistics(crops, boxes)  # nothing to refit
+
+
 def test_fewer_gaussians_than_keys_uses_them_all():
     m = _model(300)
     m.refresh_keys()
