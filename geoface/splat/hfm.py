@@ -129,7 +129,7 @@ class HFMConfig:
     feat_dim: int = 32         # MLP_pm features
     n_keys: int = 512          # key Gaussians per half
     k_upsample: int = 8        # nearest upper keys in W_dist
-    mapping_heads: int = 1     # MLP_mapping as one MLP for (ΔX, ΔS, ΔR) (1) or three, one each, as eq. 2 (3)
+    mapping_heads: int = 3     # MLP_mapping as three MLPs, one each for ΔX, ΔS, ΔR as in eq. 2 (3), or one for all (1)
     upsample: str = "features"  # W_dist spreads the keys' mapped features ("features") or their deformations ("params")
     y_split: float | None = None   # y_t (world metres); None: the registration folder's meta.json
     margin: float = 0.004      # m of Algorithm 1 (metres)
@@ -151,7 +151,6 @@ class HFMConfig:
     iters: int = 2000
     warmup: float = 0.2        # fraction of iters that trains the Gaussians alone (static warm-up)
     lr_nets: float = 2e-4     # 1e-3 (batch of one frame) kills ReLU units and collapses θ to a constant
-    lr_mapping: float | None = None  # the mapping networks (MLP_gm, MLP_pm, MLP_mapping); None: lr_nets
     ema: float = 0.99          # the saved model averages the weights over the last steps (decay per step; 0: last step)
     lr_means: float = 1.6e-4   # × head size (3DGS, scene-scaled)
     key_every: int = 100
@@ -769,16 +768,10 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     extent = float(model.scale) * 2
     opt = make_optimizer(g, {"means": cfg.lr_means * extent, "log_scales": 5e-3, "quats": 1e-3,
                              "opacity_logits": 2.5e-2, "colors": 2.5e-3}, eps=1e-15)
-    mapping = ("mlp_gm.", "mlp_pm.", "mlp_mapping.")
-    named = [(n, p) for n, p in model.named_parameters() if not n.startswith("gaussians.")]
-    nets = [p for n, p in named if not n.startswith(mapping)]
-    maps = [p for n, p in named if n.startswith(mapping)]
+    nets = [p for n, p in model.named_parameters() if not n.startswith("gaussians.")]
     # Adam's usual ε for the networks: the 3DGS ε = 1e-15 turns the tiny, noisy gradients of
     # barely-used weights into full-size steps and kills ReLU units
     opt.add_param_group({"params": nets, "lr": cfg.lr_nets, "name": "nets", "eps": 1e-8})
-    if maps:
-        opt.add_param_group({"params": maps, "lr": cfg.lr_mapping or cfg.lr_nets, "name": "mapping", "eps": 1e-8})
-        nets = nets + maps
     # static warm-up: the networks start from the identity deformation (zero last layers) and stay
     # frozen until the Gaussians fit the average face; trained from the first step, the encoder
     # tends to collapse θ to a constant while the residual is still dominated by the static fit

@@ -217,6 +217,31 @@ def test_refit_statistics_are_plain_means_over_the_frames():
     _model(600, gaussian_mapping=False).refit_statistics(crops, boxes)  # nothing to refit
 
 
+def test_mapping_heads_decode_each_parameter_as_eq_2_does(tmp_path):
+    three, one = _model(1500), _model(1500, mapping_heads=1)
+    _perturb(three)
+    h = torch.randn(50, three.mlp_mapping.x[0].in_features)
+    with torch.no_grad():
+        out = three.mlp_mapping(h)
+        heads = three.mlp_mapping
+        assert torch.equal(out, torch.cat([heads.x(h), heads.s(h), heads.r(h)], -1)) and out.shape == (50, 10)
+    # each head is as wide as the eq.-2 network for its parameter; one head shares a single MLP
+    width = [m.out_features for m in three.mlp_mapping.x if isinstance(m, torch.nn.Linear)]
+    assert width == [three.cfg.hidden, three.cfg.hidden, 3]
+    n = lambda mod: sum(p.numel() for p in mod.parameters())  # noqa: E731
+    assert n(three.mlp_mapping) - n(one.mlp_mapping) == 2 * n(one.mlp_mapping) - 20 * (three.cfg.hidden + 1)
+    # identity at initialisation, whatever the features
+    assert torch.equal(_model(1500).mlp_mapping(h), torch.zeros(50, 10))
+    # folders written before the field have one head
+    save_hfm(one, tmp_path / "old")
+    meta = json.loads((tmp_path / "old" / "config.json").read_text())
+    del meta["config"]["mapping_heads"]
+    (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
+    assert load_hfm(tmp_path / "old").cfg.mapping_heads == 1
+    with pytest.raises(SplatError, match="mapping_heads"):
+        HFMConfig(mapping_heads=2)
+
+
 def test_fewer_gaussians_than_keys_uses_them_all():
     m = _model(300)
     m.refresh_keys()
@@ -593,7 +618,7 @@ def test_the_saved_model_averages_the_weights_of_the_last_steps(videos, tmp_path
     w = 0.7 ** torch.arange(8, -1, -1, dtype=torch.float64)
     w = w / w.sum()
     sd = load_hfm(tmp_path / "a").state_dict()
-    for name in ("encoder.out.weight", "mlp_x.0.weight", "mlp_mapping.0.weight", "gaussians.colors", "gaussians.means"):
+    for name in ("encoder.out.weight", "mlp_x.0.weight", "mlp_mapping.x.0.weight", "gaussians.colors", "gaussians.means"):
         want = sum(float(wi) * s[name] for wi, s in zip(w, snaps))
         assert torch.allclose(sd[name], want, atol=1e-6), name
         assert not torch.allclose(sd[name], snaps[-1][name], atol=1e-6), name  # not the last step's weights
