@@ -36,7 +36,7 @@ def _config(args):
     from .hfm import ABLATIONS, HFMConfig
 
     kw = dict(iters=args.iters, seed=args.seed, threads=args.threads, vgg_weights=args.vgg_weights,
-              densify=not args.no_densify, warmup=args.warmup)
+              densify=not args.no_densify, warmup=args.warmup, ema=args.ema)
     if args.y_split is not None:
         kw["y_split"] = args.y_split
     kw.update(ABLATIONS[args.ablation])
@@ -58,7 +58,7 @@ def cmd_hmd_train(args) -> int:
     last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])
     print(f"{args.reg_dir} -> {out}: {cfg.iters} steps in {info['seconds']:.1f} s, loss {first:.4f} -> {last:.4f}, "
           f"{info['n_gaussians']} Gaussians ({info['n_upper']} upper), {info['dropped_children']} split children "
-          f"dropped at the boundary")
+          f"dropped at the boundary; weights averaged over the last {info['averaged_steps']} steps")
     return 0
 
 
@@ -123,6 +123,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--iters", type=int, default=2000, help="optimisation steps (2000)")
     t.add_argument("--warmup", type=float, default=0.2,
                    help="fraction of the steps that trains the Gaussians alone before the networks (0.2)")
+    t.add_argument("--ema", type=float, default=0.99, metavar="DECAY",
+                   help="save the moving average of the weights over the steps after density control, with this "
+                        "decay per step (0.99; 0 saves the last step's weights)")
     t.add_argument("--ablation", choices=sorted(ABLATION_NAMES), default="full")
     t.add_argument("--vgg-weights", default=None, metavar="FILE",
                    help="local VGG-16 feature weights (.safetensors or .pth) for the perceptual term")

@@ -691,6 +691,8 @@ def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
     md = tmp_path / "model"
     assert main(["hmd", "train", str(reg), "-o", str(md), "--iters", "5", "--no-densify", "-q"]) == 0
     assert main(["hmd", "train", str(reg), "-o", str(md), "--iters", "5", "-q"]) == 2  # no overwrite
+    assert main(["hmd", "train", str(reg), "-o", str(tmp_path / "m4"), "--iters", "5", "--ema", "1.5", "-q"]) == 2
+    assert not (tmp_path / "m4" / "model.safetensors").exists()
     assert main(["hmd", "remove", str(md), str(use), "-o", str(tmp_path / "out")]) == 0
     assert len(list((tmp_path / "out" / "frames").glob("*.png"))) == 2
     assert main(["hmd", "eval", str(md), str(use), "--json", str(tmp_path / "e.json")]) == 0
