@@ -463,8 +463,7 @@ class HFMModel(nn.Module):
         """Upper features f_U = W_gm f_L from lower deformations (eq. 3–4, 6), dense over the given
         sets (rows of W_gm in chunks, so |U|·|L| never has to fit at once). ``detach`` (default
         ``detach_lower``): read ``pL`` without passing gradients back into it."""
-        # not during the static warm-up; in refit_statistics, in its first pass
-        update = (self.training and pL.requires_grad) if self._refit is None else self._refit == "p"
+        update = self._updates_statistics(pL, "p")
         if self.cfg.detach_lower if detach is None else detach:  # upper-face errors cannot reshape the lower face
             pL = pL.detach()
         if self.cfg.map_norm:
@@ -483,15 +482,18 @@ class HFMModel(nn.Module):
             return fU
         f = fU.detach()
         st = self._running_stats(self.f_steps, (self.f_mean, self.f_ms),
-                                 (f.mean(0), f.pow(2).mean(0)) if self._update_features(fU) else None)
+                                 (f.mean(0), f.pow(2).mean(0)) if self._updates_statistics(fU, "f") else None)
         if st is None:
             return fU
         mean, ms = st
         # floor: a channel that barely varies is scaled up at most tenfold against its RMS
         return (fU - mean) / ((ms - mean.pow(2)).clamp_min(0) + 0.01 * ms + 1e-12).sqrt()
 
-    def _update_features(self, fU: Tensor) -> bool:
-        return (self.training and fU.requires_grad) if self._refit is None else self._refit == "f"
+    def _updates_statistics(self, x: Tensor, which: str) -> bool:
+        """Whether this pass folds ``x`` into the running statistics ``which`` ("p": map_norm's,
+        "f": feat_norm's): in training once the networks train (not during the static warm-up,
+        where ``x`` carries no gradient); inside :meth:`refit_statistics`, in that statistics' pass."""
+        return (self.training and x.requires_grad) if self._refit is None else self._refit == which
 
     @torch.no_grad()
     def refit_statistics(self, crops: Tensor, boxes: Tensor | None = None) -> None:
