@@ -5,21 +5,39 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.geoface-installed
 OUT    := demo_out
 
-.PHONY: install cholmod test demo bench clean distclean
+.PHONY: install cgal cgal-headers cholmod test demo bench clean distclean
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml constraints.txt
+$(STAMP): pyproject.toml constraints.txt setup.py geoface/param/_native/regular_triangulation.cpp
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	-@$(MAKE) --no-print-directory cgal-headers
 	$(PY) -m pip install --disable-pip-version-check -q -c constraints.txt -e ".[all,dev]"
+	@$(PY) -c "from geoface.param import regular as r; print('CGAL exact power diagrams:', 'built' if r.available() else 'NOT built: ' + r.INSTALL_HINT)"
 	-@$(MAKE) --no-print-directory cholmod
 	touch $(STAMP)
+
+# Debian packages, best effort (root only): install, and on failure refresh the lists once and retry.
+APT_INSTALL = timeout 900 apt-get install -y -qq --no-install-recommends
+define apt_get
+	if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
+		$(APT_INSTALL) $(1) >/dev/null 2>&1 || { timeout 600 apt-get update -qq >/dev/null 2>&1; $(APT_INSTALL) $(1) >/dev/null 2>&1; } || true; fi
+endef
+
+# CGAL's headers (Debian's libcgal-dev) for the exact regular triangulations behind optimal
+# transport; the extension is compiled by pip (setup.py).  `make cgal` installs and rebuilds.
+cgal-headers:
+	@if [ ! -f /usr/include/CGAL/Regular_triangulation_2.h ]; then $(call apt_get,libcgal-dev); fi
+
+cgal: cgal-headers
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --disable-pip-version-check -q -c constraints.txt --no-deps -e .
+	@$(PY) -c "from geoface.param import regular as r; print('CGAL exact power diagrams:', 'built' if r.available() else 'NOT built: ' + r.INSTALL_HINT)"
 
 # Optional, best effort: CHOLMOD (scikit-sparse 0.4.16 builds against Debian's SuiteSparse 5)
 # and OpenBLAS make Ricci-flow Newton steps ~3x faster. Without them geoface uses SciPy's SuperLU.
 cholmod:
-	@if [ ! -f /usr/include/suitesparse/cholmod.h ] && command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
-		timeout 600 apt-get install -y -qq libsuitesparse-dev libopenblas0-pthread >/dev/null 2>&1 || true; fi
+	@if [ ! -f /usr/include/suitesparse/cholmod.h ]; then $(call apt_get,libsuitesparse-dev libopenblas0-pthread); fi
 	@if [ -f /usr/include/suitesparse/cholmod.h ]; then \
 		timeout 600 $(PY) -m pip install --disable-pip-version-check -q scikit-sparse==0.4.16 >/dev/null 2>&1 \
 		&& echo "CHOLMOD: installed" || echo "CHOLMOD: not available (SciPy SuperLU will be used)"; \

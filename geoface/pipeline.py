@@ -304,8 +304,12 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
                 uv = mp.uv
                 st["ot"] = {
                     "seconds": time.perf_counter() - t, "iterations": mp.ot.iterations, "halvings": mp.ot.halvings,
-                    "stages": mp.ot.stages, "residual": mp.ot.residual, "flipped_before": mp.flipped_before,
-                    "flipped_after": mp.flipped_after, "untangled_vertices": mp.untangled_vertices,
+                    "stages": mp.ot.stages, "residual": mp.ot.residual, "power_diagrams": mp.ot.backend,
+                    "path": mp.path, "flipped_before": mp.flipped_before, "flipped_after": mp.flipped_after,
+                    "area_error_before": mp.area_error_before, "area_error_after": mp.area_error_after,
+                    "fitted_vertices": mp.fold_free.reference_vertices if mp.fold_free else 0,
+                    "boundary_adjusted": mp.fold_free.boundary_adjusted if mp.fold_free else 0,
+                    "max_displacement": mp.fold_free.max_displacement if mp.fold_free else 0.0,
                 }
             st["distortion"] = distortion(V, F, uv).summary()
             t = time.perf_counter()

@@ -59,4 +59,11 @@ class SPDSolver:
                 self._indptr, self._indices = A.indptr.copy(), A.indices.copy()
             return self._factor(b)
         lu = spla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        self._factor = lu
         return lu.solve(b)
+
+    def resolve(self, b: np.ndarray) -> np.ndarray:
+        """Solve again with the matrix of the last :meth:`solve` (its factorization kept)."""
+        if self._factor is None:
+            raise InvalidMeshError("resolve() before solve()")
+        return self._factor(b) if self.method == "cholmod" else self._factor.solve(b)

@@ -10,13 +10,15 @@ of the square (the face is magnified).
 Two details make the result usable as a parameterization:
 
 * Boundary vertices stay on their side of the square (a centroid lies inside its cell, a
-  little off the side); corners stay at the corners.
-* Centroid maps can fold a few triangles where the density changes fast.  ``untangle``
-  repairs them locally: each vertex of a folded triangle moves to the centre of the kernel
-  of its one-ring (the point where its triangles' smallest height is largest: a 3-variable
-  linear program; boundary vertices slide along their side, corners stay), growing the set
-  by a ring when that is not enough.  Every other vertex
-  keeps its centroid, so cell areas change only there (the count is reported).
+  little off the side, and is moved onto it); corners stay at the corners.
+* Centroid maps fold triangles where the mesh's connectivity disagrees with the power
+  diagram (where the density changes fast, and around long protrusions of real scans).
+  The final map is fold-free by construction: a convex-combination map whose weights are
+  the centroid map's own mean value coordinates wherever it does not fold (so it *is* the
+  centroid map there) and the conformal map's around folds
+  (:func:`geoface.param.foldfree.convex_combination_map`; Tutte/Floater: it cannot fold).
+  How far it moved from the centroids is reported: the per-vertex area error against the
+  target masses before and after, and the largest displacement.
 """
 
 from __future__ import annotations
@@ -27,32 +29,43 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ParameterizationError
-from ..mesh.core import boundary_loops, check_mesh, signed_uv_areas, vertex_adjacency, vertex_areas, vertex_face_incidence
+from ..mesh.core import boundary_loops, check_mesh, signed_uv_areas, vertex_areas
+from .foldfree import FoldFreeResult, convex_combination_map, square_sides
+from ..progress import log
 from .ot import OTResult, semi_discrete_ot
 
-__all__ = ["MeasureMapResult", "measure_preserving_map", "signed_uv_areas", "untangle"]
+__all__ = ["MeasureMapResult", "measure_preserving_map", "signed_uv_areas", "area_error"]
 
 
 @dataclass
 class MeasureMapResult:
-    """uv : (n, 2) the new map; ot : the OT solve; flipped_before / flipped_after : folded
-    triangles before and after untangling; untangled_vertices : vertices moved by it;
-    roi_share : share of the square covered by the region of interest's triangles."""
+    """Result of :func:`measure_preserving_map`.
+
+    uv : (n, 2) the map (fold-free unless ``fold_free=False``); ot : the OT solve;
+    flipped_before : folded triangles of the centroid map; flipped_after : of ``uv`` (0);
+    fold_free : the convex-combination step's report (None when the step was skipped);
+    area_error_before / area_error_after : mean |log(a_i / ν_i)| of the per-vertex areas
+    (⅓ of adjacent UV triangles) against the target masses, for the centroid map and ``uv``;
+    roi_share : share of the square covered by the region of interest's triangles.
+    """
 
     uv: np.ndarray
     ot: OTResult
     flipped_before: int
     flipped_after: int
-    untangled_vertices: int
     seconds: float
+    fold_free: FoldFreeResult | None = None
+    area_error_before: float = 0.0
+    area_error_after: float = 0.0
     roi_share: float | None = None
 
-
-def _sides(uv: np.ndarray, bnd: np.ndarray, eps: float = 1e-9):
-    """Which sides of the unit square each boundary vertex lies on: (k, 4) bool
-    (x=0, x=1, y=0, y=1)."""
-    p = uv[bnd]
-    return np.column_stack([p[:, 0] <= eps, p[:, 0] >= 1 - eps, p[:, 1] <= eps, p[:, 1] >= 1 - eps])
+    @property
+    def path(self) -> str:
+        """How the map was made, for reports: ``"ot"`` (the centroids as they are, no fold)
+        or ``"ot+convex-combination"`` (folds replaced by the fold-free step)."""
+        if self.fold_free is None or self.flipped_before == 0:
+            return "ot"
+        return "ot+convex-combination"
 
 
 def _snap(uv_new: np.ndarray, bnd: np.ndarray, sides: np.ndarray) -> np.ndarray:
@@ -66,71 +79,14 @@ def _snap(uv_new: np.ndarray, bnd: np.ndarray, sides: np.ndarray) -> np.ndarray:
     return out
 
 
-def _kernel_centre(v, ring_faces, F, uv, orientation, lock=-1):
-    """The point deepest inside the kernel of vertex ``v``'s one-ring (a small LP), i.e.
-    where every incident triangle has the largest smallest height; None if the kernel is empty."""
-    from scipy.optimize import linprog
-
-    f = F[ring_faces]
-    k = np.argmax(f == v, axis=1)
-    a = uv[f[np.arange(len(f)), (k + 1) % 3]]
-    b = uv[f[np.arange(len(f)), (k + 2) % 3]]
-    e = (b - a) * orientation
-    nrm = np.column_stack([-e[:, 1], e[:, 0]])  # left normal of a -> b: inside for positive area
-    L = np.linalg.norm(nrm, axis=1)
-    ok = L > 0
-    nrm, a, L = nrm[ok] / L[ok, None], a[ok], L[ok]
-    # maximise t subject to nrm . x - nrm . a >= t   (x in the plane, t <= scale)
-    A_ub = np.column_stack([-nrm, np.ones(len(nrm))])
-    b_ub = -(nrm * a).sum(1)
-    scale = float(L.max())
-    bounds = [(None, None), (None, None), (None, scale)]
-    if lock in (0, 1):  # a boundary vertex slides along its side of the square
-        bounds[lock] = (uv[v, lock], uv[v, lock])
-    res = linprog(c=[0, 0, -1], A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
-    if res.status != 0 or res.x[2] <= 0:
-        return None
-    return res.x[:2]
-
-
-def untangle(F: np.ndarray, uv: np.ndarray, lock: np.ndarray, *, max_rounds: int = 80, orientation: float = 1.0):
-    """Remove folded triangles by moving the vertices around them, one at a time, to the
-    centre of their one-ring's kernel (a point where all their triangles are positive).
-
-    ``lock`` (n,) int: -1 free, 0 keep x (slide along a vertical side), 1 keep y, 2 fixed
-    (corners).  The set of vertices tried grows by one ring every few rounds when folds
-    remain.  Returns ``(uv, moved_vertex_count)``; raises :class:`ParameterizationError` if
-    folds remain.
-    """
-    fixed = lock == 2
-    uv = uv.copy()
-    n = len(uv)
-    A = vertex_adjacency(F, n)
-    vf = vertex_face_incidence(F, n)
-    moved = np.zeros(n, bool)
-    grow = np.zeros(n, bool)
-    for rnd in range(max_rounds):
-        bad = orientation * signed_uv_areas(F, uv) <= 0
-        if not bad.any():
-            return uv, int(moved.sum())
-        cand = np.zeros(n, bool)
-        cand[F[bad].ravel()] = True
-        if rnd and rnd % 4 == 0:
-            grow = grow | cand
-            grow = grow | (A @ grow.astype(np.float64) > 0)
-        cand = (cand | grow) & ~fixed
-        for v in np.flatnonzero(cand):
-            faces = vf.indices[vf.indptr[v]:vf.indptr[v + 1]]
-            if not grow[v] and (orientation * signed_uv_areas(F[faces], uv) > 0).all():
-                continue  # grown vertices move even when fine, to widen their neighbours' kernels
-            c = _kernel_centre(v, faces, F, uv, orientation, int(lock[v]))
-            if c is not None:
-                uv[v] = c
-                moved[v] = True
-    bad = orientation * signed_uv_areas(F, uv) <= 0
-    if bad.any():
-        raise ParameterizationError(f"could not untangle {int(bad.sum())} folded triangles")
-    return uv, int(moved.sum())
+def area_error(F: np.ndarray, uv: np.ndarray, nu: np.ndarray) -> float:
+    """Mean |log(a_i / ν_i)| of per-vertex UV areas (⅓ of adjacent triangles, normalised)
+    against target masses ``nu`` (normalised)."""
+    a = np.abs(signed_uv_areas(F, uv))
+    va = np.bincount(F.ravel(), np.repeat(a / 3.0, 3), minlength=len(nu))
+    va = va / va.sum()
+    nu = nu / nu.sum()
+    return float(np.mean(np.abs(np.log(np.maximum(va, 1e-300) / nu))))
 
 
 def measure_preserving_map(
@@ -141,9 +97,10 @@ def measure_preserving_map(
     roi=None,
     lam: float = 2.5,
     tol: float = 1e-3,
-    untangle_folds: bool = True,
+    fold_free: bool = True,
     h0=None,
     linear_solver: str = "auto",
+    backend: str = "auto",
     quiet: bool | None = None,
 ) -> MeasureMapResult:
     """Measure-preserving map from a map ``uv`` of the disk ``(V, F)`` onto the unit square.
@@ -155,6 +112,9 @@ def measure_preserving_map(
     roi : (n,) bool vertex mask of the region of interest (e.g. the face) or None
     lam : mass factor on the region of interest (the paper: 2.5); 1 = area-preserving
     tol : OT tolerance, max |w_i - ν_i| / ν_i
+    fold_free : replace the centroid map by the fold-free convex-combination map (default);
+        False returns the centroids (snapped to the sides), which may fold
+    backend : power-diagram construction (``"auto"``, ``"cgal"``, ``"qhull"``)
     """
     t0 = time.perf_counter()
     V, F = check_mesh(V, F)
@@ -177,33 +137,32 @@ def measure_preserving_map(
         unused = int((va <= 0).sum())
         raise ParameterizationError(f"{unused} vertices have no area (unreferenced or only in degenerate faces)")
     nu = weight * va
-    ot = semi_discrete_ot(uv, nu, tol=tol, h0=h0, linear_solver=linear_solver, quiet=quiet)
+    loops = boundary_loops(F)
+    bnd = np.concatenate(loops) if loops else np.zeros(0, np.int64)
+    sides = square_sides(uv[bnd])
+    if len(bnd) and not sides.any(1).all():
+        raise ParameterizationError("the starting map does not put every boundary vertex on the square's sides")
+    orient = 1.0 if signed_uv_areas(F, uv).sum() >= 0 else -1.0
+    ot = semi_discrete_ot(uv, nu, tol=tol, h0=h0, linear_solver=linear_solver, backend=backend, quiet=quiet)
     if not ot.converged:
-        raise ParameterizationError(f"optimal transport did not converge (max relative cell-area error {ot.residual:.3g} after {ot.iterations} iterations)")
+        raise ParameterizationError(f"optimal transport did not converge (max relative cell-area error {ot.residual:.3g} "
+                                    f"after {ot.iterations} iterations)")
     if ot.merged:
         import warnings
 
         from ..errors import GeofaceWarning
 
-        warnings.warn(f"{ot.merged} vertices lie closer together in the input map than the power diagram can "
-                      "resolve; they share a cell (and a UV before untangling)", GeofaceWarning, stacklevel=2)
-    loops = boundary_loops(F)
-    bnd = np.concatenate(loops) if loops else np.zeros(0, np.int64)
-    sides = _sides(uv, bnd)
-    if len(bnd) and not sides.any(1).all():
-        raise ParameterizationError("the starting map does not put every boundary vertex on the square's sides")
+        warnings.warn(f"{ot.merged} vertices lie on top of each other in the map; they share a cell (and a centroid; "
+                      "the fold-free step separates them)", GeofaceWarning, stacklevel=2)
     new = _snap(ot.centroid, bnd, sides)
-    orient = 1.0 if signed_uv_areas(F, uv).sum() >= 0 else -1.0
     flipped_before = int((orient * signed_uv_areas(F, new) <= 0).sum())
-    moved = 0
-    if untangle_folds and flipped_before:
-        lock = np.full(n, -1)
-        on_x = sides[:, 0] | sides[:, 1]
-        on_y = sides[:, 2] | sides[:, 3]
-        lock[bnd[on_x]] = 0
-        lock[bnd[on_y]] = 1
-        lock[bnd[on_x & on_y]] = 2
-        new, moved = untangle(F, new, lock, orientation=orient)
+    err_before = area_error(F, new, ot.nu)
+    ff = None
+    if fold_free and flipped_before:
+        ff = convex_combination_map(F, new, uv)
+        new = ff.uv
+        log(f"  measure-preserving map: {flipped_before} folded triangles of the centroid map replaced "
+            f"({ff.fitted_vertices} vertices re-fitted)", quiet=quiet)
     flipped_after = int((orient * signed_uv_areas(F, new) <= 0).sum())
     share = None
     if roi is not None:
@@ -211,6 +170,6 @@ def measure_preserving_map(
         in_roi = roi.astype(bool)[F].all(1)
         share = float(fa[in_roi].sum() / fa.sum())
     return MeasureMapResult(
-        uv=new, ot=ot, flipped_before=flipped_before, flipped_after=flipped_after, untangled_vertices=moved,
-        seconds=time.perf_counter() - t0, roi_share=share,
+        uv=new, ot=ot, flipped_before=flipped_before, flipped_after=flipped_after, seconds=time.perf_counter() - t0,
+        fold_free=ff, area_error_before=err_before, area_error_after=area_error(F, new, ot.nu), roi_share=share,
     )

@@ -20,15 +20,15 @@ How the square clipping is done, without mirroring every point:
   pieces, taken relative to the site itself for precision (cells 1e-8 wide are common in
   conformal maps of heads).
 
-Coordinates are re-centred on the square's centre before lifting.  Coincident points: Qhull
-keeps one and the others get empty cells (``area == 0``).
+Coordinates are re-centred on the square's centre before lifting.  Coincident points: one
+keeps the cell and the others get empty cells (``area == 0``).
 
 Newton's method for OT asks for many diagrams of the same sites with slowly changing weights:
 ``power_diagram(P, w, previous=pd)`` starts from ``pd``'s regular triangulation and restores
 regularity by Lawson flips (vectorised rounds over independent sets of non-regular edges, the
 power in-circle test taken relative to the fourth site), about six times faster than a new hull.
 Flips cannot delete a site: when one must vanish the update gets stuck on a non-convex quad and
-Qhull builds the diagram instead.  Power centres come from each triangle's three sites (relative
+the diagram is built anew.  Power centres come from each triangle's three sites (relative
 to one of them), far more precise than Qhull's plane equations for cells 1e-6 wide.
 """
 
@@ -40,8 +40,12 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from ..errors import ParameterizationError
+from . import regular
 
-__all__ = ["PowerDiagram", "power_diagram"]
+__all__ = ["PowerDiagram", "power_diagram", "BACKENDS"]
+
+#: how a diagram is built from scratch: "auto" (CGAL when built, else Qhull), "cgal", "qhull"
+BACKENDS = ("auto", "cgal", "qhull")
 
 # the square's sides, counter-clockwise: start point and direction (unit length)
 _SIDES = (
@@ -73,6 +77,11 @@ class PowerDiagram:
     @property
     def empty(self) -> np.ndarray:
         return self.area <= 0.0
+
+    @property
+    def source(self) -> str:
+        """What built the triangulation: ``"cgal"``, ``"qhull"`` or ``"flips"`` (an update)."""
+        return self._tri.source if self._tri is not None else "trivial"
 
 
 def _check(points, weights):
@@ -245,6 +254,22 @@ def _qhull_triangulation(X, Xa, wa, n) -> _Triangulation:
     return _Triangulation(X, T, N, cen, updatable, "qhull")
 
 
+def _cgal_triangulation(X, Xa, wa, n) -> _Triangulation:
+    """The regular triangulation with exact predicates (CGAL); every triangle is
+    counter-clockwise and non-degenerate, hidden sites are simply absent."""
+    T, N = regular.regular_triangulation(Xa, wa)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cen = _power_centres(Xa, wa, T)
+    flat = ~np.isfinite(cen).all(1)
+    if flat.any():  # a triangle too thin for double precision: extended precision
+        cen[flat] = _power_centres(Xa.astype(np.longdouble), wa.astype(np.longdouble), T[flat]).astype(np.float64)
+        cen[~np.isfinite(cen).all(1)] = Xa[T[~np.isfinite(cen).all(1), 0]]
+    o = _orient(Xa, T[:, 0], T[:, 1], T[:, 2])
+    present = np.bincount(T.ravel(), minlength=n + 4)[:n] > 0
+    updatable = bool(present.all() and (o > 0).all())
+    return _Triangulation(X, T, N, cen, updatable, "cgal")
+
+
 #: a non-regular edge is flipped when its power in-circle determinant exceeds this share of
 #: its magnitude (near-degenerate quads are left as they are: their dual edge has no length)
 _FLIP_TOL = 1e-11
@@ -321,15 +346,22 @@ def _flip_to_regular(prev: _Triangulation, Xa, wa) -> _Triangulation | None:
     return _Triangulation(prev.X, T, N, _power_centres(Xa, wa, T), True, "flips")
 
 
-def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = None) -> PowerDiagram:
+def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = None, backend: str = "auto") -> PowerDiagram:
     """Power diagram of ``points (n, 2)`` with ``weights (n,)`` clipped to ``[0, 1]^2``.
 
     Sites may lie on the square's edges or slightly outside it; coincident sites get
     empty cells.  ``previous``: a diagram of the same points with other weights (a Newton
     step's last iterate); its regular triangulation is updated by edge flips, several times
-    faster than a new convex hull, with Qhull as the fallback.  Raises
-    :class:`ParameterizationError` for malformed input.
+    faster than a new triangulation, which is built when flips cannot get there.
+    ``backend``: how a triangulation is built anew: ``"cgal"`` (exact predicates),
+    ``"qhull"`` (SciPy; merges sites closer than ~1e-7) or ``"auto"`` (CGAL when built).
+    The result's ``source`` says which built it.  Raises :class:`ParameterizationError` for
+    malformed input.
     """
+    if backend not in BACKENDS:
+        raise ParameterizationError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
+    if backend == "cgal":
+        regular.require()
     P, w = _check(points, weights)
     n = len(P)
     X = P - 0.5  # re-centre: the square is [-0.5, 0.5]^2
@@ -350,7 +382,8 @@ def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = Non
     if prev is not None and prev.updatable and prev.X.shape == X.shape and np.array_equal(prev.X, X):
         tri = _flip_to_regular(prev, Xa, wa)
     if tri is None:
-        tri = _qhull_triangulation(X, Xa, wa, n)
+        exact = backend == "cgal" or (backend == "auto" and regular.available())
+        tri = (_cgal_triangulation if exact else _qhull_triangulation)(X, Xa, wa, n)
     return _cells(X, w, Xa, n, tri)
 
 

@@ -61,16 +61,15 @@ def test_power_cells_match_brute_force():
 @pytest.mark.parametrize("layout", ["random", "grid", "clustered"])
 def test_flip_update_equals_fresh_hull(layout):
     """A diagram updated by edge flips from the previous weights' triangulation is the
-    diagram Qhull builds from scratch: same cells, same shared edges."""
+    diagram built from scratch (CGAL's exact regular triangulation): same cells, same shared
+    edges."""
     rng = np.random.default_rng(7)
     if layout == "random":
         P = rng.random((2000, 2))
     elif layout == "grid":
         P = grid_points(40)  # cocircular quads everywhere
     else:
-        # (a cluster Qhull resolves: at 1e-4 it merges nearly coplanar lifted facets and
-        # is the less exact of the two, against an exact predicate)
-        P = np.concatenate([rng.random((1000, 2)), 0.3 + 1e-2 * rng.random((500, 2))])
+        P = np.concatenate([rng.random((1000, 2)), 0.3 + 1e-6 * rng.random((500, 2))])
     n = len(P)
     pd0 = power_diagram(P)
     # weight changes on the scale of each site's squared spacing: the triangulation changes
@@ -80,11 +79,10 @@ def test_flip_update_equals_fresh_hull(layout):
     for scale in (0.05, 0.2, 0.4):
         w1 = scale * nn**2 * rng.normal(0, 1, n)
         a = power_diagram(P, w1, previous=pd0)
-        b = power_diagram(P, w1)
-        updated += a._tri.source == "flips"
-        assert b._tri.source == "qhull"
-        # round-off only (Qhull's power centres come from its plane equations, the flips'
-        # from the three sites): a wrong edge would change areas by a share of a cell
+        b = power_diagram(P, w1, backend="cgal")
+        updated += a.source == "flips"
+        assert b.source == "cgal"
+        # round-off only: a wrong edge would change areas by a share of a cell
         assert np.abs(a.area - b.area).max() < 1e-10 / n
         big = a.edge_length > 1e-9
         ea = set(map(tuple, a.edges[big].tolist()))
@@ -97,13 +95,13 @@ def test_flip_update_equals_fresh_hull(layout):
 
 def test_flip_update_falls_back_when_a_cell_vanishes():
     """A site whose weight drops until its cell is empty cannot be reached by flips: the
-    update gives up and Qhull builds the diagram (which is then still exact)."""
+    update gives up and the diagram is built anew (exactly)."""
     P = grid_points(6)
     pd0 = power_diagram(P)
     w = np.zeros(len(P))
     w[14] = -1.0  # far below its neighbours: its cell disappears
     a = power_diagram(P, w, previous=pd0)
-    assert a._tri.source == "qhull" and a.area[14] == 0
+    assert a.source == "cgal" and a.area[14] == 0
     b = power_diagram(P, w)
     assert np.allclose(a.area, b.area, atol=1e-15)
 
@@ -113,7 +111,40 @@ def test_flip_update_needs_the_same_points():
     P = rng.random((200, 2))
     pd0 = power_diagram(P)
     a = power_diagram(P + 1e-3, None, previous=pd0)
-    assert a._tri.source == "qhull"
+    assert a.source == "cgal"
+
+
+@pytest.mark.parametrize("layout", ["random", "grid"])
+def test_qhull_and_cgal_agree_on_well_separated_sites(layout):
+    rng = np.random.default_rng(5)
+    P = rng.random((1500, 2)) if layout == "random" else grid_points(30)
+    w = 0.1 * cKDTree(P).query(P, 2)[0][:, 1] ** 2 * rng.normal(0, 1, len(P))
+    a = power_diagram(P, w, backend="qhull")
+    b = power_diagram(P, w, backend="cgal")
+    assert a.source == "qhull" and b.source == "cgal"
+    assert np.abs(a.area - b.area).max() < 1e-12
+    assert np.abs(a.centroid - b.centroid).max() < 1e-9
+
+
+@pytest.mark.parametrize("spacing", [1e-6, 1e-9, 1e-11])
+def test_exact_predicates_resolve_crowded_sites(spacing):
+    """Sites far closer than floating point resolves by arithmetic (the squeezed ends of
+    conformal maps of real scans) each keep their own Voronoi cell: the areas of a
+    cluster's cells add up to the area a single site there would own, and each cell holds
+    its site."""
+    rng = np.random.default_rng(4)
+    base = rng.random((300, 2))
+    cluster = 0.41 + spacing * rng.random((200, 2))
+    P = np.concatenate([base, cluster])
+    pd = power_diagram(P, backend="cgal")
+    assert (pd.area > 0).all()
+    one = power_diagram(np.concatenate([base, [[0.41 + spacing / 2] * 2]]), backend="cgal")
+    # the cluster as a whole owns what one site at its centre owns (up to its own size)
+    assert abs(pd.area[300:].sum() - one.area[300]) < 1e-6 * one.area[300] + 10 * spacing
+    assert np.allclose(pd.area[:300], one.area[:300], atol=10 * spacing)
+    # Qhull cannot: it merges most of the cluster
+    if spacing <= 1e-9:
+        assert (power_diagram(P, backend="qhull").area[300:] == 0).sum() > 100
 
 
 def test_hessian_matches_finite_differences():
@@ -156,13 +187,42 @@ def test_clustered_points_with_huge_mass_ratio():
     assert (ot.area > 0).all() and ot.stages > 1
 
 
+@pytest.mark.parametrize("size", [1e-4, 1e-6])
+def test_crowded_sites_each_get_their_mass(size):
+    """A cluster of 100 random sites in a box 1e-6 wide (1e-12 of the area; closest pairs
+    ~1e-8 apart) must grow to hold 4/9 of the square, each site its own share: exact
+    predicates keep every site (Qhull merges them)."""
+    spacing = size
+    rng = np.random.default_rng(2)
+    P = np.concatenate([rng.random((400, 2)), 0.5 + spacing * rng.random((100, 2))])
+    nu = np.r_[np.ones(400), np.full(100, 4.0)]
+    ot = semi_discrete_ot(P, nu, backend="cgal")
+    assert ot.converged and ot.merged == 0 and ot.backend == "cgal"
+    assert np.max(np.abs(ot.area - ot.nu) / ot.nu) <= 1e-3
+    assert len(np.unique(ot.centroid[400:], axis=0)) == 100
+
+
+def test_beyond_double_precision_is_a_clear_error():
+    """Random sites 1e-10 apart whose cells must grow 1e18-fold need heights resolved to
+    ~1e-25: a ParameterizationError, never a crash or a wrong answer."""
+    rng = np.random.default_rng(2)
+    P = np.concatenate([rng.random((400, 2)), 0.5 + 1e-9 * rng.random((100, 2))])
+    nu = np.r_[np.ones(400), np.full(100, 4.0)]
+    try:
+        ot = semi_discrete_ot(P, nu, backend="cgal", max_iterations=60)
+    except ParameterizationError:
+        return
+    assert not ot.converged or np.max(np.abs(ot.area - ot.nu) / ot.nu) <= 1e-3
+
+
 def test_sites_below_qhull_resolution_share_cells():
-    """Sites 1e-7 apart are beyond Qhull's resolution: they are merged with the site that
-    owns their position, the merged masses are met, and merged sites share a centroid."""
+    """With Qhull (no CGAL), sites 1e-7 apart are beyond its resolution: they are merged with
+    the site that owns their position, the merged masses are met, and merged sites share a
+    centroid."""
     rng = np.random.default_rng(2)
     P = np.concatenate([rng.random((400, 2)), 0.5 + 1e-7 * rng.random((100, 2))])
     nu = np.r_[np.ones(400), np.full(100, 4.0)]
-    ot = semi_discrete_ot(P, nu, max_iterations=50)
+    ot = semi_discrete_ot(P, nu, max_iterations=50, backend="qhull")
     assert ot.converged and ot.merged > 0
     cluster = ot.centroid[400:]
     assert len(np.unique(cluster, axis=0)) == 100 - ot.merged
