@@ -144,7 +144,8 @@ def cmd_param(args) -> int:
             mesh = Mesh(V, r.mesh_F, colors=colors)
         F = r.F
         uv = to_unit_square(r.uv, r.width, r.height, args.fit)
-        info.update(iterations=r.iterations, residual=r.residual, seconds=r.seconds, aspect=r.aspect, corners=[int(c) for c in r.corners],
+        info.update(iterations=r.iterations, residual=r.residual, seconds=r.seconds, aspect=r.aspect, fit=args.fit,
+                    corners=[int(c) for c in r.corners],
                     ears_flipped=r.ears_flipped, intrinsic_flips=r.intrinsic_flips, split_boundary_edges=int(len(r.split_edges)))
         # the conformal map itself (projective per triangle / per piece after intrinsic flips)
         info["conformal_map_distortion"] = metrics.map_distortion(r.V, r.mesh_F, r.map_points, level=2).summary()
@@ -408,7 +409,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ricci: conformal map to a rectangle (default); harmonic: to the square by arc length; lscm: free boundary")
     s.add_argument("--corners", default=None, help="four boundary vertex indices I,J,K,L in boundary order")
     s.add_argument("--corner-set", type=int, default=None, help="one of the 8 augmentation corner sets (0..7)")
-    s.add_argument("--fit", choices=["stretch", "uniform"], default="stretch", help="rectangle into the unit square (ricci)")
+    s.add_argument("--fit", choices=["rectangle", "uniform", "stretch"], default="rectangle",
+                   help="ricci: write the conformal rectangle itself, height 1 (default), fit it into the unit square "
+                        "keeping its aspect (uniform), or stretch it to the square (no longer conformal)")
     s.add_argument("--tolerance", type=float, default=1e-9, help="curvature tolerance of the flow (radians)")
     s.add_argument("--repair", action="store_true", help="run make_disk first")
     s.add_argument("--up", default="y", help="up axis for --repair")

@@ -234,12 +234,8 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     ``preview.png``; and ``metrics.json`` in ``out_dir``.  The folder appears complete or
     not at all.  Returns the metrics dict.
     """
-    from .gimage import geometry_image, reconstruct, save_reconstruction
-    from .gimage.image import replace_dir, write_gimage_files
-    from .gimage.raster import interpolate, rasterize_faces
+    from .gimage.image import replace_dir
     from .param.corners import corner_sets
-    from .param.measure import measure_preserving_map
-    from .param.metrics import distortion
     from .param.ricci import RicciFlowSolver
     from .repair import make_disk
 
@@ -265,7 +261,10 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     times["repair"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    all_sets = corner_sets(V, dm.F, n=8, front=np.asarray(opts.front, float))
+    from .repair.opening import AXES
+
+    up_vec = np.asarray(AXES[opts.up] if isinstance(opts.up, str) and opts.up in AXES else opts.up, float)
+    all_sets = corner_sets(V, dm.F, n=8, front=np.asarray(opts.front, float), up=up_vec)
     indices = [opts.corner_set] if opts.corner_set is not None else list(range(opts.augment))
     sets = [all_sets[i] for i in indices]
     times["corners"] = time.perf_counter() - t
@@ -282,74 +281,25 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     tmp_root = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
         solver = RicciFlowSolver(V, dm.F)
+        failures: list = []
         for pos, (k, corners) in enumerate(zip(indices, sets)):
             st: dict = {"corner_set": k, "corners": [int(c) for c in corners]}
             folder = tmp_root if len(sets) == 1 else tmp_root / f"aug{k}"
             folder.mkdir(exist_ok=True)
-            t = time.perf_counter()
-            log(f"convert [{pos + 1}/{len(sets)}]: Ricci flow", quiet=quiet)
-            r = solver.solve(corners, quiet=quiet)
-            if not r.converged:
-                raise GeofaceError(f"Ricci flow did not converge (max |K - target| {r.residual:.3g})")
-            F = r.F
-            if len(r.V) > len(V):  # boundary edges split by the flow: extend per-vertex data
-                V, roi, colors = _extend_split(r.V, r.split_edges, len(V), roi, colors)
-            uv = r.unit_square()
-            st["ricci"] = {"seconds": time.perf_counter() - t, "iterations": r.iterations, "residual": r.residual, "aspect": r.aspect}
-            st["conformal_distortion"] = distortion(V, F, uv).summary()
-            if opts.method == "ot":
-                t = time.perf_counter()
-                log(f"convert [{pos + 1}/{len(sets)}]: optimal transport (lam {opts.lam:g})", quiet=quiet)
-                mp = measure_preserving_map(V, F, uv, roi=roi, lam=opts.lam, tol=opts.ot_tol, quiet=quiet)
-                uv = mp.uv
-                st["ot"] = {
-                    "seconds": time.perf_counter() - t, "iterations": mp.ot.iterations, "halvings": mp.ot.halvings,
-                    "stages": mp.ot.stages, "residual": mp.ot.residual, "power_diagrams": mp.ot.backend,
-                    "path": mp.path, "flipped_before": mp.flipped_before, "flipped_after": mp.flipped_after,
-                    "area_error_before": mp.area_error_before, "area_error_after": mp.area_error_after,
-                    "fitted_vertices": mp.fold_free.reference_vertices if mp.fold_free else 0,
-                    "boundary_adjusted": mp.fold_free.boundary_adjusted if mp.fold_free else 0,
-                    "max_displacement": mp.fold_free.max_displacement if mp.fold_free else 0.0,
-                }
-            st["distortion"] = distortion(V, F, uv).summary()
-            t = time.perf_counter()
-            log(f"convert [{pos + 1}/{len(sets)}]: geometry images {opts.res}x{opts.res}", quiet=quiet)
-            kw: dict = {}
-            if dm.texture is not None and dm.UV is not None:
-                UVx, FUVx = corner_uvs_for(F, dm.F, dm.UV, dm.FUV, split_edges=r.split_edges)
-                kw = {"texture": dm.texture, "tex_uv": UVx, "tex_fuv": FUVx}
-            elif colors is not None:
-                kw = {"colors": colors}
-            # statistics to 6 significant digits: floating-point noise (~1e-12, from memory
-            # alignment in vectorised sums) must not change the file's bytes between runs
-            meta = {"corners": st["corners"], "method": opts.method, "lam": opts.lam if opts.method == "ot" else None,
-                    "param": {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in st["distortion"].items()}}
-            fid, bary = rasterize_faces(F, uv, opts.res)
-            gi = geometry_image(V, F, uv, opts.res, meta=meta, raster=(fid, bary), **kw)
-            face_img = None
-            if roi is not None:
-                face_img = interpolate(fid, bary, F, roi.astype(float))[0] > 0.5
-                st["roi_pixel_share"] = float(face_img[gi.mask].mean())
-            st["coverage"] = float(gi.mask.mean())
-            write_gimage_files(folder, gi)
-            st["images_seconds"] = time.perf_counter() - t
-            if opts.reconstruct:
-                t = time.perf_counter()
-                log(f"convert [{pos + 1}/{len(sets)}]: reconstruction", quiet=quiet)
-                rec = reconstruct(gi, smooth=opts.smooth)
-                save_reconstruction(folder / "reconstruction.obj", rec, gi)
-                rec_mask = None
-                if face_img is not None:  # each reconstructed vertex sits at a pixel centre
-                    N = opts.res
-                    jj = np.clip(np.round(rec.UV[:, 0] * N - 0.5).astype(int), 0, N - 1)
-                    ii = np.clip(np.round((1.0 - rec.UV[:, 1]) * N - 0.5).astype(int), 0, N - 1)
-                    rec_mask = face_img[ii, jj]
-                st["reconstruction"] = {"vertices": int(len(rec.V)), "faces": int(len(rec.F))}
-                st["reconstruction"].update(reconstruction_error(V, F, rec.V, rec.F, ref_mask=roi, rec_mask=rec_mask))
-                st["reconstruction"]["seconds"] = time.perf_counter() - t
-            if opts.preview:
-                _preview(gi, folder / "preview.png")
+            try:
+                V, roi, colors = _convert_set(st, folder, pos, len(sets), corners, solver, V, roi, colors, dm, opts, quiet)
+            except GeofaceError as e:
+                if len(sets) == 1:
+                    raise
+                # one failing corner set is recorded and skipped; the others stand
+                shutil.rmtree(folder, ignore_errors=True)
+                failures.append({"corner_set": k, "error": str(e)})
+                log(f"convert [{pos + 1}/{len(sets)}]: corner set {k} failed and is skipped: {e}", quiet=quiet)
+                continue
             metrics["sets"].append(st)
+        if not metrics["sets"]:
+            raise GeofaceError(f"every corner set failed; the first: {failures[0]['error']}")
+        metrics["failed_sets"] = failures
         metrics["seconds"] = {"repair": times["repair"], "corners": times["corners"], "total": time.perf_counter() - t_all}
         if opts.metrics:
             (tmp_root / "metrics.json").write_text(json.dumps(metrics, indent=2))
@@ -358,3 +308,79 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         shutil.rmtree(tmp_root, ignore_errors=True)
         raise
     return metrics
+
+
+def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opts, quiet):
+    """One corner set: Ricci flow → OT → images → reconstruction, into ``folder``; fills
+    ``st`` and returns the (possibly extended) per-vertex data."""
+    from .gimage import geometry_image, reconstruct, save_reconstruction
+    from .gimage.image import write_gimage_files
+    from .gimage.raster import interpolate, rasterize_faces
+    from .param.measure import measure_preserving_map
+    from .param.metrics import distortion
+
+    t = time.perf_counter()
+    log(f"convert [{pos + 1}/{count}]: Ricci flow", quiet=quiet)
+    r = solver.solve(corners, quiet=quiet)
+    if not r.converged:
+        raise GeofaceError(f"Ricci flow did not converge (max |K - target| {r.residual:.3g})")
+    F = r.F
+    if len(r.V) > len(V):  # boundary edges split by the flow: extend per-vertex data
+        V, roi, colors = _extend_split(r.V, r.split_edges, len(V), roi, colors)
+    uv = r.unit_square()
+    st["ricci"] = {"seconds": time.perf_counter() - t, "iterations": r.iterations, "residual": r.residual, "aspect": r.aspect,
+                   "log_conformal_factor_range": float(r.u.max() - r.u.min()), "intrinsic_flips": r.intrinsic_flips}
+    st["conformal_distortion"] = distortion(V, F, uv).summary()
+    if opts.method == "ot":
+        t = time.perf_counter()
+        log(f"convert [{pos + 1}/{count}]: optimal transport (lam {opts.lam:g})", quiet=quiet)
+        mp = measure_preserving_map(V, F, uv, roi=roi, lam=opts.lam, tol=opts.ot_tol, quiet=quiet)
+        uv = mp.uv
+        st["ot"] = {
+            "seconds": time.perf_counter() - t, "iterations": mp.ot.iterations, "halvings": mp.ot.halvings,
+            "stages": mp.ot.stages, "residual": mp.ot.residual, "power_diagrams": mp.ot.backend,
+            "path": mp.path, "flipped_before": mp.flipped_before, "flipped_after": mp.flipped_after,
+            "area_error_before": mp.area_error_before, "area_error_after": mp.area_error_after,
+            "fitted_vertices": mp.fold_free.fitted_vertices if mp.fold_free else 0,
+            "boundary_adjusted": mp.fold_free.boundary_adjusted if mp.fold_free else 0,
+            "max_displacement": mp.fold_free.max_displacement if mp.fold_free else 0.0,
+        }
+    st["distortion"] = distortion(V, F, uv).summary()
+    t = time.perf_counter()
+    log(f"convert [{pos + 1}/{count}]: geometry images {opts.res}x{opts.res}", quiet=quiet)
+    kw: dict = {}
+    if dm.texture is not None and dm.UV is not None:
+        UVx, FUVx = corner_uvs_for(F, dm.F, dm.UV, dm.FUV, split_edges=r.split_edges)
+        kw = {"texture": dm.texture, "tex_uv": UVx, "tex_fuv": FUVx}
+    elif colors is not None:
+        kw = {"colors": colors}
+    # statistics to 6 significant digits: floating-point noise (~1e-12, from memory
+    # alignment in vectorised sums) must not change the file's bytes between runs
+    meta = {"corners": st["corners"], "method": opts.method, "lam": opts.lam if opts.method == "ot" else None,
+            "param": {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in st["distortion"].items()}}
+    fid, bary = rasterize_faces(F, uv, opts.res, align_corners=True)
+    gi = geometry_image(V, F, uv, opts.res, meta=meta, raster=(fid, bary), **kw)
+    face_img = None
+    if roi is not None:
+        face_img = interpolate(fid, bary, F, roi.astype(float))[0] > 0.5
+        st["roi_pixel_share"] = float(face_img[gi.mask].mean())
+    st["coverage"] = float(gi.mask.mean())
+    write_gimage_files(folder, gi)
+    st["images_seconds"] = time.perf_counter() - t
+    if opts.reconstruct:
+        t = time.perf_counter()
+        log(f"convert [{pos + 1}/{count}]: reconstruction", quiet=quiet)
+        rec = reconstruct(gi, smooth=opts.smooth)
+        save_reconstruction(folder / "reconstruction.obj", rec, gi)
+        rec_mask = None
+        if face_img is not None:  # each reconstructed vertex sits at a pixel centre
+            N = opts.res
+            jj = np.clip(np.round(rec.UV[:, 0] * N - 0.5).astype(int), 0, N - 1)
+            ii = np.clip(np.round((1.0 - rec.UV[:, 1]) * N - 0.5).astype(int), 0, N - 1)
+            rec_mask = face_img[ii, jj]
+        st["reconstruction"] = {"vertices": int(len(rec.V)), "faces": int(len(rec.F))}
+        st["reconstruction"].update(reconstruction_error(V, F, rec.V, rec.F, ref_mask=roi, rec_mask=rec_mask))
+        st["reconstruction"]["seconds"] = time.perf_counter() - t
+    if opts.preview:
+        _preview(gi, folder / "preview.png")
+    return V, roi, colors

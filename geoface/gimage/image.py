@@ -7,6 +7,12 @@ bounding box in ``meta``), ``normal`` ((n + 1) / 2 of the unit normal), ``textur
 On disk (a folder): one 16-bit PNG per modality — ``position.png``, ``normal.png``,
 ``texture.png`` — an 8-bit ``mask.png`` and ``meta.json``.  Values are quantised to
 ``round(x · 65535)``, so a round trip changes a value by at most half a step (7.6e-6).
+
+Pixel grid (format version 2, ``meta["align_corners"] = true``): pixel ``(i, j)`` samples
+UV ``(j / (N - 1), 1 - i / (N - 1))``, so the outermost pixels lie on the square's edges,
+where the mesh boundary is mapped.  Version 1 folders (pixel centres at
+``((j + 0.5) / N, ...)``, no ``align_corners`` key) still load; ``GeometryImage.align_corners``
+tells which grid an image uses.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ from .raster import interpolate, interpolate_corners, rasterize_faces, sample_te
 
 __all__ = ["GeometryImage", "geometry_image", "save_gimage", "load_gimage", "MODALITIES", "FORMAT_VERSION"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 MODALITIES = {"position": ("px", "py", "pz"), "normal": ("nx", "ny", "nz"), "texture": ("r", "g", "b")}
 Q = 65535.0
 
@@ -69,6 +75,18 @@ class GeometryImage:
         hi = np.asarray(self.meta["bbox_max"], np.float64)
         p = self.modality("position").astype(np.float64).transpose(1, 2, 0)
         return lo + p * (hi - lo)
+
+    @property
+    def align_corners(self) -> bool:
+        """The pixel grid: True (format 2) when the outermost pixels sample the square's
+        edges, False (format 1) for pixel centres at ``(j + 0.5) / N``."""
+        return bool(self.meta.get("align_corners", False))
+
+    def sample_uv(self) -> np.ndarray:
+        """``(N, N, 2)`` parameter-domain UV each pixel samples."""
+        from .raster import pixel_grid_uv
+
+        return pixel_grid_uv(self.resolution, self.align_corners)
 
     def normals(self) -> np.ndarray:
         """``(N, N, 3)`` unit normals (zero where uncovered)."""
@@ -115,14 +133,14 @@ def geometry_image(
         corners ``tex_fuv (m, 3)`` for the faces ``F``) → the texture is sampled through them
     bbox : (min, max) for the position normalisation (default: the mesh's own bounding box;
         give a fixed one to make a dataset share one scale)
-    raster : ``rasterize_faces(F, uv, N)`` when the caller already has it (to interpolate
-        more attributes over the same pixels without rasterizing twice)
+    raster : ``rasterize_faces(F, uv, N, align_corners=True)`` when the caller already has it
+        (to interpolate more attributes over the same pixels without rasterizing twice)
     """
     V, F = check_mesh(V, F)
     uv = np.asarray(uv, np.float64)
     if uv.shape != (len(V), 2) or not np.isfinite(uv).all():
         raise InvalidGeometryImageError(f"uv must be a finite ({len(V)}, 2) array")
-    face, bary = rasterize_faces(F, uv, N) if raster is None else raster
+    face, bary = rasterize_faces(F, uv, N, align_corners=True) if raster is None else raster
     if face.shape != (N, N):
         raise InvalidGeometryImageError(f"raster must be {N}x{N}; got {face.shape}")
     lo, hi = _bbox(V, bbox)
@@ -162,6 +180,7 @@ def geometry_image(
     m = {
         "version": FORMAT_VERSION,
         "resolution": int(N),
+        "align_corners": True,
         "channels": names,
         "bbox_min": lo.tolist(),
         "bbox_max": hi.tolist(),

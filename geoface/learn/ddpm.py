@@ -386,6 +386,6 @@ def to_geometry_images(x: torch.Tensor, state: dict) -> list:
         img = img * mask[None]
         meta = {"bbox_min": list(state["bbox_min"]), "bbox_max": list(state["bbox_max"]),
                 "channels": [c for m in ("position", "normal", "texture") for c in MODALITIES[m]],
-                "resolution": int(img.shape[-1]), "version": FORMAT_VERSION, "source": "geoface.learn.ddpm"}
+                "resolution": int(img.shape[-1]), "version": FORMAT_VERSION, "align_corners": True, "source": "geoface.learn.ddpm"}
         out.append(GeometryImage(img, mask, meta))
     return out

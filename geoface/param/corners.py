@@ -1,5 +1,9 @@
 """Choosing the four rectangle corners on the boundary, and the paper's 8-fold augmentation.
 
+The boundary is split by length into four equal arcs; the default set puts the boundary
+point under the chin mid-way along the bottom side, and the eight augmentation sets turn
+that split by 1/32 of the boundary each (eight different parameterizations).
+
 >>> from geoface.synth import disk_grid
 >>> V, F = disk_grid(6)
 >>> len(corner_sets(V, F, n=8))
@@ -21,15 +25,18 @@ def boundary_arclength(V: np.ndarray, loop: np.ndarray) -> tuple[np.ndarray, flo
     return s, float(seg.sum())
 
 
-def _reference(V: np.ndarray, loop: np.ndarray, reference: int | None, front) -> int:
+def _reference(V: np.ndarray, loop: np.ndarray, reference: int | None, front, up) -> int:
     if reference is not None:
         r = int(reference)
         if r not in set(loop.tolist()):
             raise ParameterizationError(f"reference vertex {r} is not on the boundary")
         return r
     f = np.asarray((0.0, 0.0, 1.0) if front is None else front, np.float64)
-    # the boundary vertex furthest along the front direction (for heads: under the chin)
-    return int(loop[np.argmax(V[loop] @ f)])
+    u = np.asarray((0.0, 1.0, 0.0) if up is None else up, np.float64)
+    d = f / max(np.linalg.norm(f), 1e-300) - u / max(np.linalg.norm(u), 1e-300)
+    # the boundary vertex furthest forward and down: under the chin, on a head open at the
+    # neck (a level loop) and on a face scan open around the face alike
+    return int(loop[np.argmax(V[loop] @ d)])
 
 
 def _split(V: np.ndarray, loop: np.ndarray, start: int, fractions: np.ndarray) -> np.ndarray:
@@ -38,7 +45,7 @@ def _split(V: np.ndarray, loop: np.ndarray, start: int, fractions: np.ndarray) -
     lp = np.roll(loop, -k)
     s, L = boundary_arclength(V, lp)
     idx = []
-    for fr in fractions:
+    for fr in np.mod(fractions, 1.0):
         target = fr * L
         d = np.abs(s - target)
         d = np.minimum(d, L - d)
@@ -49,34 +56,59 @@ def _split(V: np.ndarray, loop: np.ndarray, start: int, fractions: np.ndarray) -
     return lp[idx]
 
 
-def default_corners(V, F, reference: int | None = None, front=None) -> np.ndarray:
-    """Four corners splitting the boundary into equal arc lengths from ``reference``.
-
-    ``reference`` defaults to the boundary vertex furthest along ``front`` (default +Z,
-    the face direction of an upright head: the boundary vertex under the chin).
-    Returned counter-clockwise (in boundary order).
-    """
+def _loop(V, F) -> np.ndarray:
     V, F = check_mesh(V, F)
     loops = boundary_loops(F)
     if len(loops) != 1:
         raise ParameterizationError(f"need exactly one boundary loop; got {len(loops)}")
-    loop = loops[0]
-    return _split(V, loop, _reference(V, loop, reference, front), np.arange(4) / 4)
+    return loops[0]
 
 
-def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None) -> list[np.ndarray]:
-    """The paper's augmentation: the boundary split into ``n`` equal-length arcs; offset
-    ``k`` puts the first corner at arc ``k`` and the others a quarter of the boundary apart.
+#: where corner 0 sits relative to the reference vertex, and the others after it (fractions
+#: of the boundary's length, in boundary order): the reference lands mid-way along the first
+#: side, so the face is centred and upright in the default image
+_BASE = np.array([-1.0, 1.0, 3.0, 5.0]) / 8.0
 
-    With ``n = 8`` this gives 8 ordered corner sets (two vertex sets, each in four
-    rotations), hence 8 different parameterizations of one mesh.
+
+def default_corners(V, F, reference: int | None = None, front=None, up=None) -> np.ndarray:
+    """The default four corners: the boundary split into four equal arcs with the
+    ``reference`` vertex in the middle of the first (corner 0 → corner 1, the bottom side of
+    the rectangle).
+
+    ``reference`` defaults to the boundary vertex furthest along ``front − up`` (default
+    ``front`` +Z, ``up`` +Y: forward and down, the boundary under the chin of a head open at
+    the neck, or the chin of a face scan), so the face is upright and centred.  Returned in
+    boundary order (counter-clockwise in the map).
     """
-    V, F = check_mesh(V, F)
-    if n < 1:
-        raise ParameterizationError(f"n must be >= 1; got {n}")
-    loops = boundary_loops(F)
-    if len(loops) != 1:
-        raise ParameterizationError(f"need exactly one boundary loop; got {len(loops)}")
-    loop = loops[0]
-    start = _reference(V, loop, reference, front)
-    return [_split(V, loop, start, (k / n + np.arange(4) / 4) % 1.0) for k in range(n)]
+    return corner_sets(V, F, n=1, reference=reference, front=front, up=up)[0]
+
+
+def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=None) -> list[np.ndarray]:
+    """The paper's augmentation: ``n`` different corner sets, each splitting the boundary
+    into four equal arcs, set ``k`` turned ``k / (4n)`` of the boundary further than set 0
+    (:func:`default_corners`).
+
+    With ``n = 8`` the sets are turned by 1/32 of the boundary each, so the eight sets are
+    eight different vertex sets — eight different conformal maps, not rotations of one
+    image.  On a boundary too coarse for that, a set that would repeat an earlier one is
+    moved along the boundary by whole vertices until it differs.
+    """
+    if int(n) != n or n < 1:
+        raise ParameterizationError(f"n must be a positive integer; got {n!r}")
+    V = np.asarray(V, np.float64)
+    loop = _loop(V, F)
+    start = _reference(V, loop, reference, front, up)
+    sets: list[np.ndarray] = []
+    seen: set = set()
+    pos = {int(v): i for i, v in enumerate(loop)}
+    for k in range(int(n)):
+        c = _split(V, loop, start, _BASE + k / (4.0 * n))
+        shift = 0
+        while frozenset(c.tolist()) in seen and shift < len(loop):
+            shift += 1
+            c = np.array([loop[(pos[int(v)] + 1) % len(loop)] for v in c])
+        if frozenset(c.tolist()) in seen:
+            raise ParameterizationError(f"the boundary ({len(loop)} vertices) is too short for {n} different corner sets")
+        seen.add(frozenset(c.tolist()))
+        sets.append(c)
+    return sets

@@ -136,14 +136,21 @@ class RicciFlowResult:
 
 
 def to_unit_square(uv: np.ndarray, width: float, height: float, fit: str = "stretch") -> np.ndarray:
-    """Map a ``[0, width] x [0, height]`` layout into ``[0, 1]^2``."""
+    """Map a ``[0, width] x [0, height]`` layout into ``[0, 1]^2``.
+
+    ``stretch``: each side to 1 (no longer conformal unless the aspect is 1; what the image
+    step does); ``uniform``: scaled to fit, centred (conformal); ``rectangle``: scaled to
+    height 1, ``[0, aspect] x [0, 1]`` (conformal, not inside the unit square when the
+    aspect exceeds 1)."""
+    if fit == "rectangle":
+        return uv / height
     if fit == "stretch":
         return np.clip(uv / np.array([width, height]), 0.0, 1.0)
     if fit == "uniform":
         s = max(width, height)
         off = (np.array([s - width, s - height]) / 2) / s
         return np.clip(uv / s + off, 0.0, 1.0)
-    raise InvalidMeshError(f"fit must be 'stretch' or 'uniform'; got {fit!r}")
+    raise InvalidMeshError(f"fit must be 'stretch', 'uniform' or 'rectangle'; got {fit!r}")
 
 
 def _energy_terms(lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -9,6 +9,7 @@ import pytest
 
 from geoface.errors import InvalidGeometryImageError
 from geoface.gimage import geometry_image, load_gimage, pixel_uv, rasterize_faces, reconstruct, save_gimage
+from geoface.gimage.raster import pixel_grid_uv
 from geoface.gimage.image import Q
 from geoface.synth import irregular_flat_patch, spherical_cap, square_grid
 
@@ -17,15 +18,29 @@ def test_rasterize_covers_every_pixel_once_with_exact_barycentrics():
     V, F = irregular_flat_patch(300, seed=1)
     uv = (V[:, :2] - V[:, :2].min(0)) / np.ptp(V[:, :2], 0)
     N = 64
-    face, bary = rasterize_faces(F, uv, N)
+    for align in (False, True):
+        face, bary = rasterize_faces(F, uv, N, align_corners=align)
+        assert np.allclose(bary[face >= 0].sum(1), 1.0)
+        # barycentric interpolation of the UVs themselves gives back the pixels' sample points
+        ok = face >= 0
+        rec = (uv[F[face[ok]]] * bary[ok][:, :, None]).sum(1)
+        assert np.abs(rec - pixel_grid_uv(N, align)[ok]).max() < 1e-12
+        # the patch's convex hull is the square minus the hull gaps: coverage is high
+        assert ok.mean() > 0.9
+    assert np.array_equal(pixel_grid_uv(N, False), pixel_uv(N))
 
-    assert np.allclose(bary[face >= 0].sum(1), 1.0)
-    # barycentric interpolation of the UVs themselves gives back the pixel centres
-    ok = face >= 0
-    rec = (uv[F[face[ok]]] * bary[ok][:, :, None]).sum(1)
-    assert np.abs(rec - pixel_uv(N)[ok]).max() < 1e-12
-    # the patch's convex hull is the square minus the hull gaps: coverage is high
-    assert ok.mean() > 0.9
+
+def test_aligned_grid_samples_the_square_edges():
+    """Geometry images (format 2) sample the square's edges: a map that fills the square
+    covers every pixel, and the outer ring of pixels is the mesh boundary."""
+    V, F = square_grid(7)
+    N = 16
+    gi = geometry_image(V, F, V[:, :2], N)
+    assert gi.meta["version"] == 2 and gi.align_corners and gi.mask.all()
+    P = gi.positions()
+    assert np.allclose(P[0, :, 1], 1.0) and np.allclose(P[-1, :, 1], 0.0)  # top and bottom rows: y = 1, 0
+    assert np.allclose(P[:, 0, 0], 0.0) and np.allclose(P[:, -1, 0], 1.0)
+    assert np.abs(P[:, :, :2] - gi.sample_uv()).max() < 1e-6
 
 
 def test_flat_square_round_trips_exactly():
@@ -35,9 +50,12 @@ def test_flat_square_round_trips_exactly():
     assert gi.mask.all()
     mesh = reconstruct(gi)
     assert len(mesh.V) == N * N and len(mesh.F) == 2 * (N - 1) ** 2
-    # every vertex sits exactly where the surface maps its pixel centre (one quantisation step)
+    # every vertex sits exactly where the surface maps its pixel (one quantisation step)
     step = 1.0 / Q
-    assert np.abs(mesh.V[:, :2] - mesh.UV).max() <= step
+    j, i = np.round(mesh.UV[:, 0] * N - 0.5).astype(int), np.round((1 - mesh.UV[:, 1]) * N - 0.5).astype(int)
+    assert np.abs(mesh.V[:, :2] - gi.sample_uv()[i, j]).max() <= step
+    # the boundary is sampled: the reconstruction spans the whole square
+    assert np.allclose(mesh.V[:, :2].min(0), 0, atol=step) and np.allclose(mesh.V[:, :2].max(0), 1, atol=step)
     assert np.abs(mesh.V[:, 2]).max() <= 1e-12
     # orientation preserved: normals still +z
     from geoface.mesh.core import face_normals

@@ -107,7 +107,7 @@ def test_warm_start_and_corner_augmentation():
     solver = RicciFlowSolver(V, F)
     sets = corner_sets(V, F, n=8)
     assert len(sets) == 8 and len({tuple(c) for c in sets}) == 8
-    assert len({frozenset(c.tolist()) for c in sets}) == 2  # two vertex sets, four rotations each
+    assert len({frozenset(c.tolist()) for c in sets}) == 8  # eight vertex sets, not rotations
     first = solver.solve(sets[0])
     again = solver.solve(sets[0])  # warm start from the solution: nothing left to do
     assert again.iterations == 0 and np.allclose(again.uv, first.uv, atol=1e-9)
