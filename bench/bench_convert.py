@@ -6,11 +6,18 @@
   points and masses in the same run — the vertices of a head's conformal map with the
   face weighted 2.5×, and 100K clustered points.  Both report the final
   max |w_i - ν_i| / ν_i, measured by our own power diagram at the returned weights.
+* ``real``: ``geoface convert`` with all 8 corner sets on the real meshes of
+  ``../shared/data/meshes`` and on random heads of the ICT-FaceKit model (identities
+  ~ N(0, 1), three random expressions each) — per mesh: vertices, log range of the conformal
+  factor, seconds per stage, OT iterations, folds of the centroid map and of the final map,
+  mean |log area|, face-pixel share, face and whole Hausdorff; and the same OT problem (set 0's
+  conformal map, the face weighted 2.5x) solved by pysdot in the same run.
 * ``claim``: the paper's claim on the procedural head at N = 256 and 512 — reconstruction
   error (Hausdorff and mean distance / bbox diagonal, globally and on the face) and the share
   of face pixels, for conformal vs area-preserving (λ = 1) vs measure-preserving (λ = 2.5).
 
-    python bench/bench_convert.py [--cases convert ot claim] [--sizes 10000 50000 200000]
+    python bench/bench_convert.py [--cases convert ot claim real] [--sizes 10000 50000 200000]
+    python bench/bench_convert.py --cases real --res 256 512 [--meshes face.obj lion.off] [--ict 10]
 """
 
 from __future__ import annotations
@@ -135,15 +142,105 @@ def case_claim(n, resolutions):
                  log_area_abs_mean=st["distortion"]["log_area_abs_mean"])
 
 
+SHARED = REPO.parent / "shared" / "data" / "meshes"
+REAL_MESHES = ["beetle.obj", "spot.obj", "ninjaHead_Low.obj", "face.obj", "decimated-max.obj", "camelhead.off", "lion.off",
+               "male02.obj", "female02.obj"]
+
+
+def real_meshes(names, n_ict):
+    """(name, Mesh, roi mask or "face") for the shared real meshes and ``n_ict`` ICT heads."""
+    from geoface.mesh.io import load_mesh
+    from geoface.synth.ict import ict_head, load_ict_model, random_expression
+
+    for name in names:
+        p = SHARED / name
+        if not p.is_file():
+            p = REPO / "tests" / "data" / "meshes" / name
+        yield name, load_mesh(p), "face"
+    if n_ict:
+        model = load_ict_model()
+        for seed in range(n_ict):
+            rng = np.random.default_rng(1000 + seed)
+            h = ict_head(model, seed=seed, expression=random_expression(rng, model.expression_names))
+            yield f"ict_seed{seed}", h.mesh(), h.face_mask
+
+
+def _ot_problem(mesh, roi):
+    """Set 0's OT problem as convert builds it: conformal sites and masses."""
+    from geoface.mesh.core import vertex_areas
+    from geoface.param.corners import corner_sets
+    from geoface.param.ricci import RicciFlowSolver
+    from geoface.pipeline import face_region
+    from geoface.repair import make_disk
+
+    d = make_disk(mesh.V, mesh.F, quiet=True)
+    r = RicciFlowSolver(d.V, d.F).solve(corner_sets(d.V, d.F, n=1, up=(0, 1, 0))[0], quiet=True)
+    if isinstance(roi, str):
+        m = face_region(r.V)
+    else:
+        m = np.zeros(len(r.V), bool)
+        ok = d.vertex_map >= 0
+        m[: len(ok)][ok] = roi[d.vertex_map[ok]]
+    nu = vertex_areas(r.V, r.F) * np.where(m, 2.5, 1.0)
+    return r.unit_square(), nu / nu.sum()
+
+
+def case_real(names, n_ict, resolutions, augment, pysdot_budget):
+    from geoface.errors import GeofaceError
+    from geoface.param.ot import semi_discrete_ot
+    from geoface.pipeline import ConvertOptions, convert
+
+    for name, mesh, roi in real_meshes(names, n_ict):
+        for res in resolutions:
+            with tempfile.TemporaryDirectory() as tmp:
+                t = time.perf_counter()
+                try:
+                    m = convert(mesh, Path(tmp) / "o", ConvertOptions(res=res, roi=roi, lam=2.5, augment=augment), quiet=True)
+                except GeofaceError as e:
+                    emit(case="real", mesh=name, res=res, failed=str(e), seconds_total=time.perf_counter() - t)
+                    continue
+                total = time.perf_counter() - t
+            sets = m["sets"]
+            st = sets[0]
+            worst = lambda key, sub: max(s[sub][key] for s in sets)  # noqa: E731
+            emit(case="real", mesh=name, res=res, vertices=m["input_vertices"], disk_vertices=m["disk_vertices"],
+                 sets_ok=len(sets), sets_failed=len(m["failed_sets"]),
+                 log_conformal_range=st["ricci"]["log_conformal_factor_range"], seconds_total=total,
+                 seconds_repair=m["seconds"]["repair"], seconds_ricci=st["ricci"]["seconds"], seconds_ot=st["ot"]["seconds"],
+                 seconds_images=st["images_seconds"], seconds_reconstruction=st["reconstruction"]["seconds"],
+                 ot_iterations=st["ot"]["iterations"], power_diagrams=st["ot"]["power_diagrams"], path=st["ot"]["path"],
+                 flipped_before=st["ot"]["flipped_before"], flipped_after_max=worst("flipped", "distortion"),
+                 area_error_before=st["ot"]["area_error_before"], area_error_after=st["ot"]["area_error_after"],
+                 log_area_abs_mean=st["distortion"]["log_area_abs_mean"], face_pixel_share=st.get("roi_pixel_share"),
+                 face_hausdorff=st["reconstruction"].get("face_hausdorff"), hausdorff=st["reconstruction"]["hausdorff"],
+                 hausdorff_max_over_sets=worst("hausdorff", "reconstruction"))
+        P, nu = _ot_problem(mesh, roi)
+        t = time.perf_counter()
+        o = semi_discrete_ot(P, nu, quiet=True)
+        emit(case="real_ot", mesh=name, n=len(P), solver="geoface", seconds=time.perf_counter() - t, iterations=o.iterations,
+             max_rel_error=_residual(P, o.h, nu), mass_range=float(nu.max() / nu.min()))
+        ps = _pysdot(P, nu, pysdot_budget)
+        if ps is None:
+            emit(case="real_ot", mesh=name, solver="pysdot", skipped="pysdot not installed (pip install pysdot==0.2.16)")
+        else:
+            emit(case="real_ot", mesh=name, n=len(P), solver="pysdot", seconds=ps[0], max_rel_error=ps[1], iterations=ps[2])
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", nargs="+", default=["convert", "ot", "claim"])
     ap.add_argument("--sizes", nargs="+", type=int, default=[10000, 50000, 200000])
-    ap.add_argument("--res", type=int, default=512)
+    ap.add_argument("--res", type=int, nargs="+", default=[512])
+    ap.add_argument("--meshes", nargs="+", default=REAL_MESHES, help="real meshes (names in ../shared/data/meshes)")
+    ap.add_argument("--ict", type=int, default=10, help="random ICT-FaceKit heads in the real case")
+    ap.add_argument("--augment", type=int, default=8)
     ap.add_argument("--claim-vertices", type=int, default=50000)
     args = ap.parse_args()
     if "convert" in args.cases:
-        case_convert(args.sizes, args.res)
+        for res in args.res:
+            case_convert(args.sizes, res)
+    if "real" in args.cases:
+        case_real(args.meshes, args.ict, args.res, args.augment, 600)
     if "ot" in args.cases:
         case_ot(600)
     if "claim" in args.cases:
