@@ -32,6 +32,11 @@ its neighbours' targets is then reproduced almost exactly; one outside goes to t
 point of that hull.  The boundary keeps the target's positions, made strictly monotone along
 each side when they are not.
 
+Solving (1) for all vertices is a sparse LU of the whole mesh.  Since the target reproduces
+itself away from the folds, the vertices within a few rings of the folds are solved first
+with the others held at the target; that map is kept when it has no fold (which is checked
+exactly, triangle by triangle), and otherwise the whole system is solved, which cannot fold.
+
 >>> import numpy as np
 >>> from geoface.synth import square_grid
 >>> V, F = square_grid(6)
@@ -56,6 +61,9 @@ __all__ = ["FoldFreeResult", "convex_combination_map", "mean_value_weights", "sq
 
 #: a target angle at a vertex must exceed this (radians) for the vertex to keep its own MVC
 MIN_ANGLE = 1e-9
+#: the local solve: rings of vertices around the folds, and the largest share of the interior
+LOCAL_RINGS = (8, 32)
+LOCAL_SHARE = 0.3
 
 
 @dataclass(frozen=True)
@@ -64,8 +72,11 @@ class FoldFreeResult:
     target_flipped : non-positive triangles of the target; fitted_vertices : interior
     vertices whose weights were fitted by (3) (around the target's folds);
     boundary_adjusted : boundary vertices moved to keep each side monotone;
-    max_displacement : max |uv - target|; rounds : solves (1, or more if rounding flipped
-    a triangle and the weights there were made uniform)."""
+    max_displacement : max |uv - target|; rounds : global solves (0 when the local solve
+    sufficed; more than 1 if rounding flipped a triangle and the weights there were made
+    uniform); solve : ``"local"`` (only the vertices near the folds moved: the map had no
+    fold, so it was kept) or ``"global"`` (the whole system (1): fold-free by Tutte's
+    theorem); solved_vertices : how many vertices the kept solve placed."""
 
     uv: np.ndarray
     flipped: int
@@ -74,6 +85,8 @@ class FoldFreeResult:
     boundary_adjusted: int
     max_displacement: float
     rounds: int
+    solve: str = "global"
+    solved_vertices: int = 0
 
 
 def square_sides(uv: np.ndarray, eps: float = 1e-9) -> np.ndarray:
@@ -286,42 +299,77 @@ def convex_combination_map(F, target, reference, *, max_rounds: int = 4) -> Fold
     # rows: own MVC where the target is fine there, fitted weights (3) elsewhere
     W_fit = _fitted_weights(np.flatnonzero(use_ref), target, W_r)
     W = (sp.diags(np.where(use_ref, 0.0, 1.0)) @ W_t + W_fit).tocsr()
-    uniform = np.zeros(n, bool)
     x = target.copy()
     x[loop] = xb
     A_graph = (abs(W_t) + abs(W_r)).tocsr()
     A_graph.data[:] = 1.0
+    Lam = _normalised(W, inner, A_graph)
+    # first a solve near the folds only (the rest kept at the target, which reproduces itself
+    # there); it is kept when it has no fold, else the whole system (1) is solved
+    moved_b = np.zeros(n, bool)
+    moved_b[loop[np.any(xb != target[loop], axis=1)]] = True
+    seed = use_ref.copy()
+    seed[F[orient * signed_uv_areas(F, target) <= 0].ravel()] = True
+    seed |= moved_b
+    solve = "global"
     rounds = 0
-    for rounds in range(1, max_rounds + 2):
-        Wr = W.copy()
-        if uniform.any():
-            Wr = (sp.diags(np.where(uniform, 0.0, 1.0)) @ Wr + sp.diags(np.where(uniform, 1.0, 0.0)) @ A_graph).tocsr()
-        rs = np.asarray(Wr.sum(1)).ravel()
-        tiny = inner & (rs <= 0)
-        if tiny.any():  # degenerate reference stars (flat triangles): uniform weights there
-            Wr = (sp.diags(np.where(tiny, 0.0, 1.0)) @ Wr + sp.diags(np.where(tiny, 1.0, 0.0)) @ A_graph).tocsr()
-            rs = np.asarray(Wr.sum(1)).ravel()
-        Lam = sp.diags(1.0 / np.where(rs > 0, rs, 1.0)) @ Wr
-        I_idx = np.flatnonzero(inner)
-        B_idx = np.flatnonzero(~inner)
-        Lam = Lam.tocsr()
-        A = sp.identity(len(I_idx), format="csc") - Lam[I_idx][:, I_idx].tocsc()
-        rhs = Lam[I_idx][:, B_idx] @ x[B_idx]
-        lu = spla.splu(A, permc_spec="COLAMD")
-        x[I_idx] = lu.solve(np.ascontiguousarray(rhs))
-        bad = orient * signed_uv_areas(F, x) <= 0
-        if not bad.any():
+    region = seed.copy()
+    grown = 0
+    for rings in LOCAL_RINGS:
+        for _ in range(rings - grown):
+            region |= np.asarray(A_graph @ region.astype(float)).ravel() > 0
+        grown = rings
+        r_in = region & inner
+        if not 0 < r_in.sum() <= LOCAL_SHARE * inner.sum():
             break
-        # rounding flipped a near-degenerate triangle: uniform (Tutte) weights around it
-        ring = np.zeros(n, bool)
-        ring[F[bad].ravel()] = True
-        ring |= np.asarray(A_graph @ ring.astype(float)).ravel() > 0
-        uniform |= ring & inner
+        xl = x.copy()
+        xl[r_in] = _solve(Lam, r_in, xl)
+        if not (orient * signed_uv_areas(F, xl) <= 0).any():
+            x, solve, region = xl, "local", r_in
+            break
+    if solve == "global":
+        uniform = np.zeros(n, bool)
+        for rounds in range(1, max_rounds + 2):
+            L_r = Lam if not uniform.any() else _normalised(W, inner, A_graph, uniform)
+            x[inner] = _solve(L_r, inner, x)
+            bad = orient * signed_uv_areas(F, x) <= 0
+            if not bad.any():
+                break
+            # rounding flipped a near-degenerate triangle: uniform (Tutte) weights around it
+            ring = np.zeros(n, bool)
+            ring[F[bad].ravel()] = True
+            ring |= np.asarray(A_graph @ ring.astype(float)).ravel() > 0
+            uniform |= ring & inner
     flipped = int((orient * signed_uv_areas(F, x) <= 0).sum())
     if flipped:
         raise ParameterizationError(f"internal: {flipped} triangles of a convex-combination map are not positive "
                                     "(floating-point rounding on near-degenerate triangles)")
     return FoldFreeResult(
         uv=x, flipped=0, target_flipped=target_flipped, fitted_vertices=int(use_ref.sum()),
-        boundary_adjusted=moved, max_displacement=float(np.abs(x - target).max()), rounds=rounds,
+        boundary_adjusted=moved, max_displacement=float(np.abs(x - target).max()), rounds=rounds, solve=solve,
+        solved_vertices=int(region.sum() if solve == "local" else inner.sum()),
     )
+
+
+def _normalised(W: sp.csr_matrix, inner: np.ndarray, A_graph: sp.csr_matrix, uniform: np.ndarray | None = None) -> sp.csr_matrix:
+    """Rows of (1) normalised to sum 1; rows in ``uniform`` (and rows with no positive
+    weight, around flat reference triangles) get uniform weights."""
+    n = W.shape[0]
+    u = np.zeros(n, bool) if uniform is None else uniform.copy()
+    rs = np.asarray(W.sum(1)).ravel()
+    u |= inner & (rs <= 0)
+    Wr = W
+    if u.any():
+        Wr = (sp.diags(np.where(u, 0.0, 1.0)) @ W + sp.diags(np.where(u, 1.0, 0.0)) @ A_graph).tocsr()
+        rs = np.asarray(Wr.sum(1)).ravel()
+    return (sp.diags(1.0 / np.where(rs > 0, rs, 1.0)) @ Wr).tocsr()
+
+
+def _solve(Lam: sp.csr_matrix, rows: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Positions of the vertices ``rows`` from (1), the others held at ``x``."""
+    I_idx = np.flatnonzero(rows)
+    O_idx = np.flatnonzero(~rows)
+    L_I = Lam[I_idx]
+    A = sp.identity(len(I_idx), format="csc") - L_I[:, I_idx].tocsc()
+    rhs = L_I[:, O_idx] @ x[O_idx]
+    return spla.splu(A, permc_spec="COLAMD").solve(np.ascontiguousarray(rhs))
