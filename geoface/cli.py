@@ -278,6 +278,15 @@ def cmd_convert(args) -> int:
         if "reconstruction" in st:
             line += f", Hausdorff {100 * st['reconstruction']['hausdorff']:.3f}% of the diagonal"
         print(line)
+        if "ot" in st:
+            ot = st["ot"]
+            how = ("OT centroids as they are (no fold)" if ot["path"] == "ot" else
+                   f"OT centroids, {ot['flipped_before']} folded triangles replaced by the fold-free step "
+                   f"({ot['fitted_vertices']} vertices re-fitted, mean |log cell-area error| "
+                   f"{ot['area_error_before']:.3f} -> {ot['area_error_after']:.3f})")
+            print(f"    map: {how}; {ot['iterations']} Newton steps, {ot['power_diagrams']} power diagrams")
+    for f in m.get("failed_sets", []):
+        print(f"  set {f['corner_set']}: FAILED and skipped: {f['error']}")
     return 0
 
 

@@ -136,9 +136,35 @@ def test_param_writes_uvs_and_metrics(tmp_path, method):
     assert code == 0, err
     assert "quasi-conformal ratio" in stdout
     m = load_mesh(out)
-    assert m.UV is not None and m.UV.min() >= 0 and m.UV.max() <= 1 + 1e-9
+    assert m.UV is not None and m.UV.min() >= 0
     d = json.loads(js.read_text())
     assert d["distortion"]["flipped"] == 0 and d["method"] == method
+    if method == "ricci":  # the conformal rectangle itself: height 1, width = aspect
+        assert abs(m.UV[:, 1].max() - 1) < 1e-9 and abs(m.UV[:, 0].max() - d["aspect"]) < 1e-6
+    else:
+        assert m.UV.max() <= 1 + 1e-9
+
+
+def test_param_writes_the_conformal_rectangle_not_the_stretched_square(tmp_path):
+    """The conformal map is the rectangle: written as is it stays conformal (the coarse
+    grid's PL map: QC mean 1.10); stretched to the square, QC grows to about the aspect
+    ratio (1.68 for aspect 1.66)."""
+    from geoface.synth import disk_grid
+
+    V, F = disk_grid(16)
+    V = V * np.array([2.0, 1.0, 1.0])  # an ellipse: the rectangle is far from square
+    src = tmp_path / "e.ply"
+    save_mesh(src, V=V, F=F)
+    qc = {}
+    for fit in ("rectangle", "stretch"):
+        js = tmp_path / f"{fit}.json"
+        code, _, err = run("param", src, "-o", tmp_path / f"{fit}.obj", "--fit", fit, "--json", js)
+        assert code == 0, err
+        qc[fit] = json.loads(js.read_text())
+    a = qc["rectangle"]["aspect"]
+    assert max(a, 1 / a) > 1.5
+    assert qc["rectangle"]["distortion"]["qc_mean"] < 1.15
+    assert qc["stretch"]["distortion"]["qc_mean"] > 0.95 * max(a, 1 / a)
 
 
 def test_param_refuses_a_closed_mesh_unless_repaired(tmp_path):

@@ -106,3 +106,39 @@ def test_ict_heads_convert(tmp_path):
         share = a[h.face_mask[h.F].all(1)].sum() / a.sum()
         assert st["roi_pixel_share"] > share + 0.1
         assert st["reconstruction"]["face_hausdorff"] < 0.02
+
+
+def test_a_failing_corner_set_is_recorded_and_skipped(tmp_path, monkeypatch):
+    """One corner set that fails does not throw the others away: it is recorded in
+    metrics.json and its folder is absent; only when every set fails does convert fail."""
+    import geoface.param.ricci as ricci
+    from geoface.errors import GeofaceError, ParameterizationError
+    from geoface.synth import procedural_head
+
+    from geoface.mesh.io import Mesh
+
+    h = procedural_head(n_vertices=2000, seed=0)
+    mesh = Mesh(h.V, h.F)
+    solve = ricci.RicciFlowSolver.solve
+    calls = {"n": 0}
+
+    def flaky(self, corners=None, *a, **k):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise ParameterizationError("injected failure")
+        return solve(self, corners, *a, **k)
+
+    monkeypatch.setattr(ricci.RicciFlowSolver, "solve", flaky)
+    m = convert(mesh, tmp_path / "out", ConvertOptions(res=32, augment=3, reconstruct=False, preview=False), quiet=True)
+    assert [st["corner_set"] for st in m["sets"]] == [0, 2]
+    assert m["failed_sets"] == [{"corner_set": 1, "error": "injected failure"}]
+    assert (tmp_path / "out" / "aug0").is_dir() and not (tmp_path / "out" / "aug1").exists()
+    assert json.loads((tmp_path / "out" / "metrics.json").read_text())["failed_sets"][0]["corner_set"] == 1
+
+    def broken(self, *a, **k):
+        raise ParameterizationError("always")
+
+    monkeypatch.setattr(ricci.RicciFlowSolver, "solve", broken)
+    with pytest.raises(GeofaceError, match="every corner set failed"):
+        convert(mesh, tmp_path / "out2", ConvertOptions(res=32, augment=2), quiet=True)
+    assert not (tmp_path / "out2").exists()

@@ -63,6 +63,26 @@ def test_flat_square_round_trips_exactly():
     assert (face_normals(mesh.V, mesh.F)[:, 2] > 0).all()
 
 
+def test_format_1_folders_still_load_with_pixel_centres(tmp_path):
+    """Folders written before the aligned grid (format 1: no ``align_corners``) load, and say
+    their pixels sample UV ((j + 0.5) / N, ...)."""
+    V, F = square_grid(5)
+    gi = geometry_image(V, F, V[:, :2], 16)
+    save_gimage(tmp_path / "gi", gi)
+    meta = json.loads((tmp_path / "gi" / "meta.json").read_text())
+    meta["version"] = 1
+    del meta["align_corners"]
+    (tmp_path / "gi" / "meta.json").write_text(json.dumps(meta))
+    old = load_gimage(tmp_path / "gi")
+    assert not old.align_corners
+    assert np.allclose(old.sample_uv(), pixel_uv(16))
+    assert reconstruct(old).V.shape[0] == 16 * 16
+    meta["version"] = 3
+    (tmp_path / "gi" / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(InvalidGeometryImageError, match="newer"):
+        load_gimage(tmp_path / "gi")
+
+
 def test_png16_round_trip_within_one_step(tmp_path):
     V, F = spherical_cap(1.0, np.pi / 3, 10)
     uv = (V[:, :2] - V[:, :2].min(0)) / np.ptp(V[:, :2], 0)
