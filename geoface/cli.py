@@ -267,7 +267,7 @@ def cmd_convert(args) -> int:
     if roi not in ("face", "none"):
         roi = load_roi(roi, len(mesh.V))
     opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, augment=args.augment, method=args.method,
-                          ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open)
+                          ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front)
     m = convert(mesh, out, opts)
     print(f"{args.input} -> {out}/  ({len(m['sets'])} image set(s) at {args.res}x{args.res}, {m['seconds']['total']:.1f} s)")
     for st in m["sets"]:
@@ -437,7 +437,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", choices=["ot", "conformal"], default="ot", help="measure-preserving (ot, default) or conformal")
     s.add_argument("--ot-tol", type=float, default=1e-3, help="OT tolerance: max relative cell-area error (1e-3)")
     s.add_argument("--smooth", type=int, default=0, help="Laplacian smoothing iterations of the reconstruction")
-    s.add_argument("--up", default="y", help="up axis (for cutting closed heads open)")
+    s.add_argument("--up", default="y", help="up axis: x, y, z, -x, -y, -z (default y): where closed heads are cut open, "
+                   "and which way the face is upright in the image")
+    s.add_argument("--front", default="auto", help="face direction: auto (default: towards the centroid of a --roi mask "
+                   "file, +z without one) or an axis (z, -x, ...)")
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto", help="how to open a closed surface")
     s.set_defaults(func=cmd_convert)
 

@@ -39,7 +39,10 @@ class ConvertOptions:
     paper; 1 = area-preserving); augment : number of corner sets (1..8); method : "ot" or
     "conformal"; ot_tol : OT tolerance; smooth : Laplacian smoothing iterations of the
     reconstruction; up / open : how :func:`geoface.repair.make_disk` cuts closed heads;
-    front : the face direction for the default corners and the face cone;
+    front : the face direction for the default corners and the face cone: ``"auto"``
+    (default: from the centroid of the surface towards the centroid of an explicit ROI mask,
+    e.g. the face mask of ``synth head --meta`` or of an ICT-FaceKit head; +Z without a
+    mask), an axis name (``"z"``, ``"-x"``, ...) or a 3-vector;
     corner_set : convert only corner set ``k`` (0..7) of the 8, written directly in the
     output folder (used by the dataset builder: one item per mesh × corner set); ``augment``
     is then ignored; metrics : write ``metrics.json`` (it holds timings, so a folder without
@@ -55,7 +58,7 @@ class ConvertOptions:
     smooth: int = 0
     up: str = "y"
     open: str = "auto"
-    front: tuple = (0.0, 0.0, 1.0)
+    front: object = "auto"
     reconstruct: bool = True
     preview: bool = True
     corner_set: int | None = None
@@ -76,6 +79,13 @@ class ConvertOptions:
             raise GeofaceError(f"ot_tol must be in (0, 1); got {self.ot_tol!r}")
         if self.corner_set is not None and (int(self.corner_set) != self.corner_set or not 0 <= self.corner_set <= 7):
             raise GeofaceError(f"corner_set must be an integer in 0..7; got {self.corner_set!r}")
+        if not (isinstance(self.front, str) and self.front == "auto"):
+            from .repair.opening import as_axis
+
+            try:
+                as_axis(self.front)
+            except GeofaceError as e:
+                raise GeofaceError(f"front must be 'auto', an axis name or a 3-vector; got {self.front!r}") from e
         if isinstance(self.roi, str) and self.roi not in ("face", "none"):
             raise GeofaceError(f"roi must be 'face', 'none' or a vertex mask; got {self.roi!r}")
         return self
@@ -216,9 +226,31 @@ def _preview(gi, path: Path) -> None:
         raise GeofaceError(f"could not write {path}")
 
 
+def _axis(value, default) -> np.ndarray:
+    from .repair.opening import as_axis
+
+    return np.asarray(default, float) if isinstance(value, str) and value == "auto" else as_axis(value)
+
+
+def _front(opts: ConvertOptions, V: np.ndarray, F: np.ndarray, roi, up: np.ndarray) -> np.ndarray:
+    """The face direction: given, or (``"auto"``) from the surface's area centroid towards
+    the centroid of an explicit ROI mask, made orthogonal to ``up``; +Z otherwise."""
+    if not (isinstance(opts.front, str) and opts.front == "auto"):
+        return _axis(opts.front, (0.0, 0.0, 1.0))
+    if roi is None or isinstance(opts.roi, str) or not roi.any() or roi.all():
+        return np.array([0.0, 0.0, 1.0])
+    from .mesh.core import vertex_areas
+
+    a = vertex_areas(V, F)
+    d = (a[roi, None] * V[roi]).sum(0) / a[roi].sum() - (a[:, None] * V).sum(0) / a.sum()
+    d = d - (d @ up) * up
+    L = np.linalg.norm(d)
+    return d / L if L > 0 else np.array([0.0, 0.0, 1.0])
+
+
 def _roi_mask(opts: ConvertOptions, V0: np.ndarray) -> np.ndarray | None:
     if isinstance(opts.roi, str):
-        return None if opts.roi == "none" else face_region(V0, opts.front)
+        return None if opts.roi == "none" else face_region(V0, _axis(opts.front, (0.0, 0.0, 1.0)))
     m = np.asarray(opts.roi)
     if m.shape != (len(V0),) or m.dtype != bool:
         raise GeofaceError(f"roi mask must be a ({len(V0)},) bool array over the input's vertices")
@@ -261,10 +293,9 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     times["repair"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    from .repair.opening import AXES
-
-    up_vec = np.asarray(AXES[opts.up] if isinstance(opts.up, str) and opts.up in AXES else opts.up, float)
-    all_sets = corner_sets(V, dm.F, n=8, front=np.asarray(opts.front, float), up=up_vec)
+    up_vec = _axis(opts.up, (0.0, 1.0, 0.0))
+    front = _front(opts, V, dm.F, roi, up_vec)
+    all_sets = corner_sets(V, dm.F, n=8, front=front, up=up_vec)
     indices = [opts.corner_set] if opts.corner_set is not None else list(range(opts.augment))
     sets = [all_sets[i] for i in indices]
     times["corners"] = time.perf_counter() - t
@@ -275,6 +306,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         "repair": {"area_before": disk.area_before, "area_after": disk.area_after, "changes": len(disk.changes)},
         "options": {k: (v if not isinstance(v, np.ndarray) else "mask") for k, v in asdict(opts).items()},
         "roi_vertices": int(roi.sum()) if roi is not None else 0,
+        "front": [float(x) for x in front],
         "sets": [],
     }
     out_dir.parent.mkdir(parents=True, exist_ok=True)

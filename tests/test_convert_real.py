@@ -142,3 +142,32 @@ def test_a_failing_corner_set_is_recorded_and_skipped(tmp_path, monkeypatch):
     with pytest.raises(GeofaceError, match="every corner set failed"):
         convert(mesh, tmp_path / "out2", ConvertOptions(res=32, augment=2), quiet=True)
     assert not (tmp_path / "out2").exists()
+
+
+def test_front_is_found_from_the_face_mask(tmp_path):
+    """A head facing +X with its face mask: ``front="auto"`` finds the face direction, and
+    the default corner set puts the face upright and centred (the face pixels' centroid in
+    the middle column); assuming +Z puts it off to one side."""
+    from geoface.mesh.io import Mesh
+    from geoface.synth import procedural_head
+
+    h = procedural_head(n_vertices=4000, seed=2)
+    R = np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]])  # +Z -> +X
+    mesh = Mesh(h.V @ R.T, h.F)
+    cols = {}
+    for front in ("auto", "z"):
+        out = tmp_path / front
+        m = convert(mesh, out, ConvertOptions(res=64, roi=h.face_mask, front=front, reconstruct=False), quiet=True)
+        if front == "auto":
+            assert np.dot(m["front"], [1, 0, 0]) > 0.9
+        from geoface.gimage import load_gimage
+
+        gi = load_gimage(out)
+        # face pixels: where the position is inside the face region's bounding box in 3D
+        P = gi.positions()
+        face_pts = mesh.V[h.face_mask]
+        inside = ((P >= face_pts.min(0)) & (P <= face_pts.max(0))).all(2) & (P[:, :, 0] > face_pts[:, 0].min())
+        jj = np.nonzero(inside)[1]
+        cols[front] = jj.mean() / 63
+    assert abs(cols["auto"] - 0.5) < 0.1, cols
+    assert abs(cols["z"] - 0.5) > abs(cols["auto"] - 0.5)
