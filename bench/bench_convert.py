@@ -54,21 +54,25 @@ def head_mesh(n, seed=0):
     return h, Mesh.from_vertex_uv(h.V, h.F, h.UV, texture=h.texture, colors=h.colors)
 
 
-def case_convert(sizes, res):
+def case_convert(sizes, res, files=()):
+    from geoface.mesh.io import load_mesh
     from geoface.pipeline import ConvertOptions, convert
 
-    for n in sizes:
-        h, mesh = head_mesh(n)
+    jobs = [(f"head{n // 1000}k", n, lambda n=n: head_mesh(n)) for n in sizes]
+    jobs += [(Path(f).name, None, lambda f=f: (None, load_mesh(f))) for f in files]
+    for name, n, make in jobs:
+        h, mesh = make()
+        roi = h.face_mask if h is not None else "face"
         with tempfile.TemporaryDirectory() as tmp:
             t = time.perf_counter()
-            m = convert(mesh, Path(tmp) / "out", ConvertOptions(res=res, roi=h.face_mask, lam=2.5), quiet=True)
+            m = convert(mesh, Path(tmp) / "out", ConvertOptions(res=res, roi=roi, lam=2.5), quiet=True)
             total = time.perf_counter() - t
         st = m["sets"][0]
-        emit(case="convert", vertices=n, res=res, seconds_total=total, seconds_repair=m["seconds"]["repair"],
+        emit(case="convert", mesh=name, vertices=len(mesh.V), res=res, seconds_total=total, seconds_repair=m["seconds"]["repair"],
              seconds_ricci=st["ricci"]["seconds"], seconds_ot=st["ot"]["seconds"], seconds_images=st["images_seconds"],
              seconds_reconstruction=st["reconstruction"]["seconds"], ot_iterations=st["ot"]["iterations"],
              ot_halvings=st["ot"]["halvings"], ot_residual=st["ot"]["residual"], flipped_before=st["ot"]["flipped_before"],
-             flipped_after=st["distortion"]["flipped"], log_area_abs_mean=st["distortion"]["log_area_abs_mean"],
+             flipped_after=st["distortion"]["flipped"], path=st["ot"]["path"], log_area_abs_mean=st["distortion"]["log_area_abs_mean"],
              roi_pixel_share=st["roi_pixel_share"], hausdorff=st["reconstruction"]["hausdorff"],
              mean_distance=st["reconstruction"]["mean"])
 
@@ -229,16 +233,18 @@ def case_real(names, n_ict, resolutions, augment, pysdot_budget):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", nargs="+", default=["convert", "ot", "claim"])
-    ap.add_argument("--sizes", nargs="+", type=int, default=[10000, 50000, 200000])
+    ap.add_argument("--sizes", nargs="*", type=int, default=[10000, 50000, 200000])
     ap.add_argument("--res", type=int, nargs="+", default=[512])
     ap.add_argument("--meshes", nargs="+", default=REAL_MESHES, help="real meshes (names in ../shared/data/meshes)")
     ap.add_argument("--ict", type=int, default=10, help="random ICT-FaceKit heads in the real case")
     ap.add_argument("--augment", type=int, default=8)
+    ap.add_argument("--files", nargs="*", default=[], help="meshes to time in the convert case besides the procedural heads "
+                    "(e.g. the ~134K bust of data_tools/make_dense_bust.py)")
     ap.add_argument("--claim-vertices", type=int, default=50000)
     args = ap.parse_args()
     if "convert" in args.cases:
         for res in args.res:
-            case_convert(args.sizes, res)
+            case_convert(args.sizes, res, args.files)
     if "real" in args.cases:
         case_real(args.meshes, args.ict, args.res, args.augment, 600)
     if "ot" in args.cases:

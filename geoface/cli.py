@@ -267,7 +267,8 @@ def cmd_convert(args) -> int:
     if roi not in ("face", "none"):
         roi = load_roi(roi, len(mesh.V))
     opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, augment=args.augment, method=args.method,
-                          ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front)
+                          ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
+                          corner_set=args.corner_set)
     m = convert(mesh, out, opts)
     print(f"{args.input} -> {out}/  ({len(m['sets'])} image set(s) at {args.res}x{args.res}, {m['seconds']['total']:.1f} s)")
     for st in m["sets"]:
@@ -434,6 +435,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--roi", default="face", help="region magnified by --lam: face (a frontal cone), none, or a mask file (.npy, .txt, .json)")
     s.add_argument("--lam", type=float, default=2.5, help="mass factor on the ROI (paper: 2.5; 1 = area-preserving)")
     s.add_argument("--augment", type=int, default=1, help="number of corner sets, 1..8 (one image set each)")
+    s.add_argument("--corner-set", type=int, default=None, metavar="K",
+                   help="convert with corner set K (0..7) only, written directly in OUT_DIR (0: the default, face "
+                        "upright and centred; 4: the boundary point under the chin at a corner)")
     s.add_argument("--method", choices=["ot", "conformal"], default="ot", help="measure-preserving (ot, default) or conformal")
     s.add_argument("--ot-tol", type=float, default=1e-3, help="OT tolerance: max relative cell-area error (1e-3)")
     s.add_argument("--smooth", type=int, default=0, help="Laplacian smoothing iterations of the reconstruction")
