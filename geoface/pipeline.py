@@ -295,8 +295,8 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     t = time.perf_counter()
     up_vec = _axis(opts.up, (0.0, 1.0, 0.0))
     front = _front(opts, V, dm.F, roi, up_vec)
-    all_sets = corner_sets(V, dm.F, n=8, front=front, up=up_vec)
     indices = [opts.corner_set] if opts.corner_set is not None else list(range(opts.augment))
+    all_sets = corner_sets(V, dm.F, n=8, front=front, up=up_vec, count=max(indices) + 1)
     sets = [all_sets[i] for i in indices]
     times["corners"] = time.perf_counter() - t
 

@@ -83,7 +83,7 @@ def default_corners(V, F, reference: int | None = None, front=None, up=None) -> 
     return corner_sets(V, F, n=1, reference=reference, front=front, up=up)[0]
 
 
-def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=None) -> list[np.ndarray]:
+def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=None, count: int | None = None) -> list[np.ndarray]:
     """The paper's augmentation: ``n`` different corner sets, each splitting the boundary
     into four equal arcs, set ``k`` turned ``k / (4n)`` of the boundary further than set 0
     (:func:`default_corners`).
@@ -91,7 +91,8 @@ def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=N
     With ``n = 8`` the sets are turned by 1/32 of the boundary each, so the eight sets are
     eight different vertex sets — eight different conformal maps, not rotations of one
     image.  On a boundary too coarse for that, a set that would repeat an earlier one is
-    moved along the boundary by whole vertices until it differs.
+    moved along the boundary by whole vertices until it differs.  ``count``: only the first
+    ``count`` of the ``n`` sets (default all).
     """
     if int(n) != n or n < 1:
         raise ParameterizationError(f"n must be a positive integer; got {n!r}")
@@ -101,7 +102,7 @@ def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=N
     sets: list[np.ndarray] = []
     seen: set = set()
     pos = {int(v): i for i, v in enumerate(loop)}
-    for k in range(int(n)):
+    for k in range(int(n) if count is None else min(int(count), int(n))):
         c = _split(V, loop, start, _BASE + k / (4.0 * n))
         shift = 0
         while frozenset(c.tolist()) in seen and shift < len(loop):

@@ -61,3 +61,10 @@ def test_coarse_boundary_still_gives_distinct_sets():
     sets = corner_sets(V, F, n=8)
     assert len({frozenset(c.tolist()) for c in sets}) == 8
     assert all(len(set(c.tolist())) == 4 for c in sets)
+
+
+def test_count_gives_the_first_sets_only():
+    V, F = disk_grid(8)
+    all8 = corner_sets(V, F, n=8)
+    first3 = corner_sets(V, F, n=8, count=3)
+    assert len(first3) == 3 and all(np.array_equal(a, b) for a, b in zip(first3, all8))

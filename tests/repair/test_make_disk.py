@@ -195,3 +195,42 @@ def test_quiet_argument_overrides_the_global_switch(capsys, monkeypatch):
     assert capsys.readouterr().err == ""
     make_disk(V, F)
     assert "make_disk:" in capsys.readouterr().err
+
+
+def test_a_small_hole_is_not_the_opening():
+    """A closed surface with one missing triangle: keeping that hole as the disk boundary
+    would squeeze the whole sphere into a point of the map (and leave 3 boundary vertices
+    for 4 corners). It is filled and the surface cut open at the bottom instead; a real
+    opening (a hemisphere's rim) is kept."""
+    V, F = sphere(1.0, 3)
+    res = make_disk(V, F[1:], up="z")
+    rep = topology_report(res.V, res.F)
+    assert rep.is_disk
+    b = rep.boundary_loop_lengths[0]
+    assert b > 1.0  # a plane cut near the bottom, not the 0.3-long triangle hole
+    assert abs(face_areas(res.V, res.F).sum() - 4 * np.pi) / (4 * np.pi) < 0.05
+    # an opening as large as a hemisphere's rim stays the boundary
+    Vh, Fh = hemisphere(1.0, 12)
+    rh = make_disk(Vh, Fh)
+    assert abs(topology_report(rh.V, rh.F).boundary_loop_lengths[0] - 2 * np.pi) < 0.1
+    # an 8-vertex hole 0.35 sqrt(area) long is an opening by default; min_opening=0.5 refuses it
+    nb = np.unique(F[(F == 0).any(1)])
+    F2 = F[~np.isin(F, nb[:3]).any(1)]
+    kept = make_disk(V, F2, up="z")
+    assert topology_report(kept.V, kept.F).boundary_loop_lengths[0] < 1.3
+    recut = make_disk(V, F2, up="z", min_opening=0.5)
+    assert topology_report(recut.V, recut.F).boundary_loop_lengths[0] > 1.3
+
+
+def test_a_plane_cut_too_small_to_be_an_opening_is_raised():
+    """genus2 lies flat: a cut 2% above its lowest point leaves a 3-vertex opening. The cut
+    is raised until the opening is one (while keeping 90% of the area)."""
+    from geoface.mesh.core import boundary_loops
+
+    V, F = genus2(48)
+    res = make_disk(V, F, up="z")
+    assert_disk(res)
+    loop = boundary_loops(res.F)[0]
+    L = np.linalg.norm(res.V[np.roll(loop, -1)] - res.V[loop], axis=1).sum()
+    assert len(loop) >= 8 and L >= 0.1 * np.sqrt(res.area_after)
+    assert res.area_after >= 0.9 * res.area_before
