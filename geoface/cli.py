@@ -442,7 +442,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--ot-tol", type=float, default=1e-3, help="OT tolerance: max relative cell-area error (1e-3)")
     s.add_argument("--smooth", type=int, default=0, help="Laplacian smoothing iterations of the reconstruction")
     s.add_argument("--up", default="y", help="up axis: x, y, z, -x, -y, -z (default y): where closed heads are cut open, "
-                   "and which way the face is upright in the image")
+                   "and which way the face is upright in the image; auto: from the opening of a surface already open "
+                   "(the neck), else y")
     s.add_argument("--front", default="auto", help="face direction: auto (default: towards the centroid of a --roi mask "
                    "file, +z without one) or an axis (z, -x, ...)")
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto", help="how to open a closed surface")

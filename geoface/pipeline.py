@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import GeofaceError, InvalidMeshError
-from .mesh.core import bbox_diagonal, check_mesh
+from .mesh.core import bbox_diagonal, boundary_loops, check_mesh
 from .mesh.io import Mesh, first_corner_uv
 from .progress import log
 
@@ -38,7 +38,10 @@ class ConvertOptions:
     "none", or a per-input-vertex boolean mask; lam : mass factor on the ROI (2.5 in the
     paper; 1 = area-preserving); augment : number of corner sets (1..8); method : "ot" or
     "conformal"; ot_tol : OT tolerance; smooth : Laplacian smoothing iterations of the
-    reconstruction; up / open : how :func:`geoface.repair.make_disk` cuts closed heads;
+    reconstruction; up / open : how :func:`geoface.repair.make_disk` cuts closed heads, and
+    which way is up in the image; ``up="auto"``: for a surface that is already open, the
+    normal of its opening pointing into the surface (the neck of a head open at the neck,
+    whatever its axes), else +Y;
     front : the face direction for the default corners and the face cone: ``"auto"``
     (default: from the centroid of the surface towards the centroid of an explicit ROI mask,
     e.g. the face mask of ``synth head --meta`` or of an ICT-FaceKit head; +Z without a
@@ -232,6 +235,20 @@ def _axis(value, default) -> np.ndarray:
     return np.asarray(default, float) if isinstance(value, str) and value == "auto" else as_axis(value)
 
 
+def opening_normal(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """The unit normal of the disk's boundary loop (least-squares plane) pointing towards the
+    surface's area centroid: the up direction of a head open at the neck."""
+    from .mesh.core import vertex_areas
+
+    loop = boundary_loops(F)[0]
+    P = V[loop]
+    c = P.mean(0)
+    n = np.linalg.svd(P - c, full_matrices=False)[2][2]
+    a = vertex_areas(V, F)
+    g = (a[:, None] * V).sum(0) / a.sum()
+    return n if (g - c) @ n >= 0 else -n
+
+
 def _front(opts: ConvertOptions, V: np.ndarray, F: np.ndarray, roi, up: np.ndarray) -> np.ndarray:
     """The face direction: given, or (``"auto"``) from the surface's area centroid towards
     the centroid of an explicit ROI mask, made orthogonal to ``up``; +Z otherwise."""
@@ -281,7 +298,8 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
 
     t = time.perf_counter()
     log(f"convert: repairing {len(mesh.V)} vertices to a disk", quiet=quiet)
-    disk = make_disk(mesh.V, mesh.F, up=opts.up, open=opts.open, quiet=quiet)
+    auto_up = isinstance(opts.up, str) and opts.up == "auto"
+    disk = make_disk(mesh.V, mesh.F, up="y" if auto_up else opts.up, open=opts.open, quiet=quiet)
     dm = mesh.with_geometry(disk.V, disk.F, disk.vertex_map, disk.face_map)
     V = dm.V
     colors = dm.colors
@@ -294,6 +312,8 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
 
     t = time.perf_counter()
     up_vec = _axis(opts.up, (0.0, 1.0, 0.0))
+    if auto_up and len(boundary_loops(mesh.F)):
+        up_vec = opening_normal(V, dm.F)
     front = _front(opts, V, dm.F, roi, up_vec)
     indices = [opts.corner_set] if opts.corner_set is not None else list(range(opts.augment))
     all_sets = corner_sets(V, dm.F, n=8, front=front, up=up_vec, count=max(indices) + 1)
@@ -301,7 +321,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     times["corners"] = time.perf_counter() - t
 
     metrics: dict = {
-        "input_vertices": int(len(mesh.V)), "input_faces": int(len(mesh.F)),
+        "input_vertices": int(len(mesh.V)), "input_faces": int(len(mesh.F)), "up": [float(x) for x in up_vec],
         "disk_vertices": int(len(V)), "disk_faces": int(len(dm.F)),
         "repair": {"area_before": disk.area_before, "area_after": disk.area_after, "changes": len(disk.changes)},
         "options": {k: (v if not isinstance(v, np.ndarray) else "mask") for k, v in asdict(opts).items()},

@@ -171,3 +171,19 @@ def test_front_is_found_from_the_face_mask(tmp_path):
         cols[front] = jj.mean() / 63
     assert abs(cols["auto"] - 0.5) < 0.1, cols
     assert abs(cols["z"] - 0.5) > abs(cols["auto"] - 0.5)
+
+
+def test_up_is_found_from_the_neck_opening(tmp_path):
+    """A head scanned z-up and facing -y (a common scanner convention): ``up="auto"`` takes
+    the neck opening's normal, and with the face mask the face comes out upright and
+    centred, as it does for the y-up head."""
+    from geoface.mesh.io import Mesh
+    from geoface.synth import procedural_head
+
+    h = procedural_head(n_vertices=4000, seed=2)
+    R = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # +y -> +z, +z -> -y
+    mesh = Mesh(h.V @ R.T, h.F)
+    m = convert(mesh, tmp_path / "auto", ConvertOptions(res=64, roi=h.face_mask, up="auto", reconstruct=False), quiet=True)
+    assert np.dot(m["up"], [0, 0, 1]) > 0.9 and np.dot(m["front"], [0, -1, 0]) > 0.9
+    ref = convert(Mesh(h.V, h.F), tmp_path / "y", ConvertOptions(res=64, roi=h.face_mask, reconstruct=False), quiet=True)
+    assert m["sets"][0]["corners"] == ref["sets"][0]["corners"]  # the same corners on the same surface
