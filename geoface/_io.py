@@ -1,11 +1,82 @@
-"""Atomic output: write to a temporary file beside the target, then rename."""
+"""Safe output: atomic files and folders with the user's umask, and one output-path policy.
+
+* :func:`atomic_path` / :func:`atomic_dir` write to a temporary beside the target and rename
+  it into place on success; on failure (an exception, SIGINT, SIGTERM) the temporary is
+  removed and the target is untouched.  Results get the user's umask (0644 files, 0755
+  folders under umask 022), not the temporary's 0600/0700.
+* Temporaries are named ``.<target>.geoface-<pid>-<random>``; one left behind by a run that
+  was killed (SIGKILL) is removed by the next run writing the same target.
+* :func:`check_outputs` is the policy every command applies before doing any work: an
+  output may not be an input, lie inside an input folder, contain an input, or collide with
+  another output; an existing output is replaced only when the user says so (``--force``).
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from pathlib import Path
+
+from .errors import GeofaceError
+
+__all__ = ["atomic_path", "atomic_dir", "atomic_write_text", "check_outputs", "default_mode", "OutputError",
+           "clean_stale_temporaries"]
+
+_TAG = "geoface"
+
+
+class OutputError(GeofaceError):
+    """An output path the policy refuses (an input, inside an input, taken, or existing)."""
+
+
+def default_mode(folder: bool = False) -> int:
+    """File (0o666) or folder (0o777) permissions under the process's umask."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return (0o777 if folder else 0o666) & ~mask
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def clean_stale_temporaries(target: str | os.PathLike) -> int:
+    """Remove temporaries of ``target`` left by geoface runs that no longer exist; returns
+    how many were removed."""
+    target = Path(target)
+    folder = target.parent if str(target.parent) else Path(".")
+    if not folder.is_dir():
+        return 0
+    prefix = f".{target.name}.{_TAG}-"
+    removed = 0
+    for p in folder.glob(f"{prefix}*"):
+        try:
+            pid = int(p.name[len(prefix):].split("-", 1)[0])
+        except ValueError:
+            continue
+        if _pid_alive(pid):
+            continue
+        with contextlib.suppress(OSError):
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p)
+            else:
+                p.unlink()
+            removed += 1
+    return removed
+
+
+def _temp_prefix(target: Path) -> str:
+    return f".{target.name}.{_TAG}-{os.getpid()}-"
 
 
 @contextlib.contextmanager
@@ -13,18 +84,21 @@ def atomic_path(target: str | os.PathLike, suffix: str | None = None):
     """Yield a temporary path in the target's folder; rename it onto ``target`` on success.
 
     On any exception the temporary file is removed and ``target`` is untouched, so a
-    failed write never leaves a partial or overwritten output.
+    failed write never leaves a partial or overwritten output.  The result gets the user's
+    umask.
     """
     target = Path(target)
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.exists():
         folder.mkdir(parents=True, exist_ok=True)
+    clean_stale_temporaries(target)
     sfx = suffix if suffix is not None else "".join(target.suffixes[-1:])
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{sfx}", dir=folder)
+    fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(target), suffix=f".tmp{sfx}", dir=folder)
     os.close(fd)
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        os.chmod(tmp_path, default_mode())
         os.replace(tmp_path, target)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -32,7 +106,103 @@ def atomic_path(target: str | os.PathLike, suffix: str | None = None):
         raise
 
 
+@contextlib.contextmanager
+def atomic_dir(target: str | os.PathLike, *, overwrite: bool = False):
+    """Yield a temporary folder beside ``target``; on success it becomes ``target``.
+
+    An existing ``target`` is refused unless ``overwrite``; then it is moved aside and
+    removed only after the new folder is in place.  On failure the temporary folder is
+    removed and ``target`` is untouched.  Folders get the user's umask.
+    """
+    target = Path(target)
+    parent = target.parent if str(target.parent) else Path(".")
+    if target.exists() and not overwrite:
+        raise OutputError(f"{target} exists; pass --force to replace it")
+    parent.mkdir(parents=True, exist_ok=True)
+    clean_stale_temporaries(target)
+    tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(target), dir=parent))
+    try:
+        yield tmp
+        _chmod_tree(tmp)
+        _replace_dir(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _chmod_tree(root: Path) -> None:
+    dmode, fmode = default_mode(True), default_mode(False)
+    os.chmod(root, dmode)
+    for dirpath, dirnames, filenames in os.walk(root):
+        for d in dirnames:
+            os.chmod(os.path.join(dirpath, d), dmode)
+        for f in filenames:
+            p = os.path.join(dirpath, f)
+            if not os.path.islink(p):
+                os.chmod(p, fmode)
+
+
+def _replace_dir(tmp: Path, folder: Path) -> None:
+    """Move the finished folder ``tmp`` onto ``folder``, replacing an old one."""
+    old = None
+    if folder.exists():
+        old = folder.with_name(f".{folder.name}.{_TAG}-{os.getpid()}-old")
+        if old.exists():
+            shutil.rmtree(old, ignore_errors=True)
+        os.replace(folder, old)
+    os.replace(tmp, folder)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
 def atomic_write_text(target: str | os.PathLike, text: str) -> None:
     """Write ``text`` (UTF-8) to ``target`` through :func:`atomic_path`."""
     with atomic_path(target) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+def _resolved(p) -> Path:
+    return Path(os.path.abspath(os.path.expanduser(str(p)))).resolve()
+
+
+def _inside(child: Path, parent: Path) -> bool:
+    try:
+        child.relative_to(parent)
+        return child != parent
+    except ValueError:
+        return False
+
+
+def check_outputs(inputs=(), outputs=(), *, force: bool = False, resumable=()) -> None:
+    """The output-path policy (module docs), applied before any work.
+
+    Parameters
+    ----------
+    inputs : paths the command reads (files or folders); None entries are skipped
+    outputs : paths it writes (files or folders, with their companion files)
+    force : an existing output may be replaced
+    resumable : outputs that may exist without ``force`` (a folder the command resumes)
+    """
+    ins = [(p, _resolved(p)) for p in inputs if p is not None]
+    outs = [(p, _resolved(p)) for p in outputs if p is not None]
+    seen: dict = {}
+    for p, rp in outs:
+        if rp in seen:
+            raise OutputError(f"two outputs are the same file: {seen[rp]} and {p}")
+        seen[rp] = p
+        for q, rq in ins:
+            same = rp == rq
+            if not same and rp.exists() and rq.exists():
+                with contextlib.suppress(OSError):
+                    same = os.path.samefile(rp, rq)
+            if same:
+                raise OutputError(f"refusing to overwrite the input {q}; choose another output")
+            if rq.is_dir() and _inside(rp, rq):
+                raise OutputError(f"the output {p} lies inside the input folder {q}; choose another place")
+            if _inside(rq, rp):
+                raise OutputError(f"the output {p} contains the input {q}; choose another place")
+    res = {_resolved(p) for p in resumable if p is not None}
+    for p, rp in outs:
+        empty_dir = rp.is_dir() and not any(rp.iterdir())
+        if rp.exists() and not empty_dir and not force and rp not in res:
+            raise OutputError(f"{p} exists; pass --force to replace it")

@@ -31,6 +31,22 @@ def _same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
         return False
 
 
+def _mesh_outputs(path) -> list:
+    """A mesh output with the companion files written with it (OBJ: .mtl, texture, normal map)."""
+    if path is None:
+        return []
+    from .mesh.io import companion_names
+
+    return [path, *companion_names(path)]
+
+
+def _guard(args, inputs, outputs, resumable=()) -> None:
+    """The output-path policy (geoface._io.check_outputs), before any work."""
+    from ._io import check_outputs
+
+    check_outputs(inputs, outputs, force=getattr(args, "force", False), resumable=resumable)
+
+
 def _print_json(obj) -> None:
     print(json.dumps(obj, indent=2, default=float))
 
@@ -63,8 +79,7 @@ def cmd_repair(args) -> int:
     from .progress import log
     from .repair import RepairOptions, make_disk
 
-    if _same_file(args.input, args.output):
-        raise GeofaceError(f"refusing to overwrite the input file {args.input}; choose another -o")
+    _guard(args, [args.input], _mesh_outputs(args.output))
     mesh = load_mesh(args.input)
     opts = RepairOptions(
         open=args.open,
@@ -77,7 +92,7 @@ def cmd_repair(args) -> int:
     log(f"repairing {args.input}: {len(mesh.V)} vertices, {len(mesh.F)} faces")
     res = make_disk(mesh.V, mesh.F, opts)
     out = mesh.with_geometry(res.V, res.F, res.vertex_map, res.face_map)
-    save_mesh(args.output, out)
+    save_mesh(args.output, out, overwrite=args.force)
     if args.json:
         _print_json({"input": str(args.input), "output": str(args.output), **res.to_dict()})
     else:
@@ -108,8 +123,7 @@ def cmd_param(args) -> int:
     from .param.ricci import RicciFlowSolver, to_unit_square
     from .progress import log
 
-    if _same_file(args.input, args.output):
-        raise GeofaceError(f"refusing to overwrite the input file {args.input}; choose another -o")
+    _guard(args, [args.input], [*_mesh_outputs(args.output), args.json])
     mesh = load_mesh(args.input)
     V, F = mesh.V, mesh.F
     if args.repair:
@@ -160,7 +174,7 @@ def cmd_param(args) -> int:
     d = metrics.distortion(V, F, uv).summary()
     info["distortion"] = d
     out = Mesh(V, F, UV=uv, FUV=F, colors=mesh.colors, texture=None)
-    save_mesh(args.output, out)
+    save_mesh(args.output, out, overwrite=args.force)
     if args.json:
         from ._io import atomic_write_text
 
@@ -200,6 +214,7 @@ def cmd_synth_head(args) -> int:
     from .mesh.io import Mesh, save_mesh
     from .synth.head import procedural_head
 
+    _guard(args, [], [*_mesh_outputs(args.output), args.meta])
     head = procedural_head(
         n_vertices=args.vertices, seed=args.seed, expression=_parse_expression(args.expression) or None, texture_size=args.texture_size
     )
@@ -208,7 +223,7 @@ def cmd_synth_head(args) -> int:
         mesh = Mesh.from_vertex_uv(head.V, head.F, head.UV, texture=head.texture)
     else:
         mesh = Mesh(head.V, head.F, colors=head.colors)
-    save_mesh(args.output, mesh)
+    save_mesh(args.output, mesh, overwrite=args.force)
     if args.meta:
         from ._io import atomic_write_text
 
@@ -225,6 +240,9 @@ def cmd_synth_head(args) -> int:
     return 0
 
 
+#: synth surface --resolution: up to ~4M triangles
+MAX_SURFACE_RESOLUTION = 2048
+
 SURFACES = ("square", "disk", "flat-irregular", "cap", "hemisphere", "sphere", "cylinder", "torus", "genus2", "mobius")
 
 
@@ -232,7 +250,10 @@ def cmd_synth_surface(args) -> int:
     from .mesh.io import save_mesh
     from .synth import surfaces as S
 
+    _guard(args, [], _mesh_outputs(args.output))
     n = args.resolution
+    if not 2 <= n <= MAX_SURFACE_RESOLUTION:
+        raise GeofaceError(f"--resolution must be in 2..{MAX_SURFACE_RESOLUTION}; got {n}")
     make = {
         "square": lambda: S.square_grid(n),
         "disk": lambda: S.disk_grid(max(n // 2, 1)),
@@ -246,7 +267,7 @@ def cmd_synth_surface(args) -> int:
         "mobius": lambda: S.mobius_strip(2 * n, max(n // 4, 2)),
     }[args.name]
     V, F = make()
-    save_mesh(args.output, V=V, F=F)
+    save_mesh(args.output, V=V, F=F, overwrite=args.force)
     print(f"wrote {args.output}: {args.name}, {len(V)} vertices, {len(F)} faces")
     return 0
 
@@ -258,10 +279,8 @@ def cmd_convert(args) -> int:
 
     out = Path(args.out_dir)
     inp = Path(args.input)
-    if out.exists() and inp.resolve().is_relative_to(out.resolve()):
-        raise GeofaceError(f"the output folder {out} contains the input; choose another")
-    if out.exists() and not out.is_dir():
-        raise GeofaceError(f"{out} exists and is not a folder")
+    roi_file = None if args.roi in ("face", "none") else args.roi
+    _guard(args, [inp, roi_file], [out])
     mesh = load_mesh(inp)
     roi = args.roi
     if roi not in ("face", "none"):
@@ -269,7 +288,7 @@ def cmd_convert(args) -> int:
     opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, augment=args.augment, method=args.method,
                           ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
                           corner_set=args.corner_set)
-    m = convert(mesh, out, opts)
+    m = convert(mesh, out, opts, overwrite=args.force)
     print(f"{args.input} -> {out}/  ({len(m['sets'])} image set(s) at {args.res}x{args.res}, {m['seconds']['total']:.1f} s)")
     for st in m["sets"]:
         d = st["distortion"]
@@ -294,9 +313,10 @@ def cmd_convert(args) -> int:
 def cmd_reconstruct(args) -> int:
     from .gimage import load_gimage, reconstruct, save_reconstruction
 
+    _guard(args, [args.dir], _mesh_outputs(args.output))
     gi = load_gimage(args.dir)
     mesh = reconstruct(gi, smooth=args.smooth)
-    save_reconstruction(args.output, mesh, gi)
+    save_reconstruction(args.output, mesh, gi, overwrite=args.force)
     print(f"{args.dir} -> {args.output}: {len(mesh.V)} vertices, {len(mesh.F)} faces")
     return 0
 
@@ -319,8 +339,8 @@ def cmd_view(args) -> int:
     shot = args.screenshot
     if shot is None and not viz.has_display():
         raise GeofaceError("no display to open a window on; pass --screenshot OUT.png to render off-screen")
-    if shot is not None and _same_file(args.file, shot):
-        raise GeofaceError(f"refusing to overwrite the input file {args.file}; choose another --screenshot")
+    if shot is not None:
+        _guard(args, [args.file], [shot])
     path = Path(args.file)
     if path.is_dir() and not (path / "meta.json").exists() and (path / "aug0" / "meta.json").exists():
         path = path / "aug0"  # `geoface convert --augment K` writes one image set per corner set
@@ -361,12 +381,12 @@ def cmd_dataset_build(args) -> int:
     from .dataset import DatasetOptions, build_dataset
 
     out, inp = Path(args.out_dir), Path(args.in_dir)
-    if inp.is_dir() and out.resolve() == inp.resolve():
-        raise GeofaceError("the output folder must differ from the input folder")
+    # an existing dataset folder is resumed (its manifest records the options it was built with)
+    _guard(args, [inp, args.labels], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
     opts = DatasetOptions(res=args.res, augment=args.augment, roi=args.roi, lam=args.lam, method=args.method,
                           ot_tol=args.ot_tol, reconstruct=args.reconstruct, up=args.up, open=args.open)
     s = build_dataset(inp, out, opts, workers=args.workers, scheduler=args.scheduler, labels=args.labels,
-                      retry_failed=args.retry_failed)
+                      retry_failed=args.retry_failed, rebuild=args.force)
     print(f"{out}/: {s['done']} items built, {s['failed']} failed, {s['skipped']} skipped "
           f"({s['seconds']:.1f} s, {s['items_per_minute']:.1f} items/min); manifest {out / 'manifest.jsonl'}")
     for item, err in s["failures"].items():
@@ -389,6 +409,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress output")
+    common.add_argument("--force", action="store_true", default=argparse.SUPPRESS,
+                        help="replace outputs that exist (never an input)")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     _add = sub.add_parser
@@ -522,10 +544,24 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if not hasattr(args, "force"):
+        args.force = False
     from .progress import set_quiet
 
     if args.quiet:
         set_quiet(True)
+    import signal
+
+    terminated = []
+
+    def _on_sigterm(signum, frame):  # like SIGINT: unwind, so temporary outputs are removed
+        terminated.append(signum)
+        raise KeyboardInterrupt
+
+    try:
+        signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not in the main thread (an embedding application)
+        pass
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", GeofaceWarning)
@@ -538,8 +574,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"geoface: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("geoface: interrupted", file=sys.stderr)
-        return 130
+        print("geoface: terminated" if terminated else "geoface: interrupted", file=sys.stderr)
+        return 143 if terminated else 130
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):

@@ -242,8 +242,66 @@ def _executor(workers: int, scheduler: str | None):
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_die_with_parent,
+                               initargs=(os.getpid(),))
     return pool.submit, as_completed, lambda: pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _die_with_parent(parent: int) -> None:
+    """Worker initializer: end this worker when the driver dies (even by SIGKILL), instead
+    of writing on for minutes (Linux: PR_SET_PDEATHSIG; elsewhere a watcher thread)."""
+    import signal
+    import sys
+    import threading
+
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent:  # the driver died before the call above
+        os._exit(1)
+
+    def watch():
+        while True:
+            time.sleep(1.0)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
+OPTIONS_FILE = "options.json"
+
+
+def _record_options(out: Path, opts: DatasetOptions, rebuild: bool) -> bool:
+    """Check ``out``'s recorded options against ``opts`` (all but ``augment``, which only adds
+    or drops items); record them.  Returns True when everything must be built again."""
+    from ._io import atomic_write_text
+
+    cur = {k: v for k, v in asdict(opts).items() if k != "augment"}
+    path = out / OPTIONS_FILE
+    changed = False
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError, OSError) as e:
+            raise GeofaceError(f"{path} is not readable JSON ({e}); pass --force to rebuild the dataset") from None
+        if not isinstance(old, dict):
+            raise GeofaceError(f"{path} is not a JSON object; pass --force to rebuild the dataset")
+        diff = {k: (old.get(k), v) for k, v in cur.items() if old.get(k) != v}
+        if diff:
+            what = ", ".join(f"{k} {a!r} -> {b!r}" for k, (a, b) in diff.items())
+            if not rebuild:
+                raise GeofaceError(f"{out} was built with other options ({what}); pass --force to rebuild every item "
+                                   "with these, or build into another folder")
+            changed = True
+    text = json.dumps(cur, indent=1)
+    if not path.is_file() or path.read_text() != text:  # a resumed run with no change writes nothing
+        atomic_write_text(path, text)
+    return changed
 
 
 def build_dataset(
@@ -255,6 +313,7 @@ def build_dataset(
     scheduler: str | None = None,
     labels: str | os.PathLike | dict | None = None,
     retry_failed: bool = False,
+    rebuild: bool = False,
     quiet: bool | None = None,
 ) -> dict:
     """Convert every mesh in ``in_dir`` × corner set into ``out_dir`` (see module docs).
@@ -270,6 +329,9 @@ def build_dataset(
     labels : labels per mesh stem (a dict, or a ``.jsonl``/``.json`` file); default
         ``in_dir/labels.jsonl`` when present
     retry_failed : try items that failed in an earlier run again
+    rebuild : ``out_dir`` was built with other options (``options.json``): build every item
+        again with these (without it such a run is refused: a resumed build must not mix
+        items made with different options)
 
     Returns
     -------
@@ -289,7 +351,9 @@ def build_dataset(
     if out.exists() and not out.is_dir():
         raise GeofaceError(f"output path exists and is not a folder: {out}")
     out.mkdir(parents=True, exist_ok=True)
-    todo, skipped = _plan(files, out, opts, read_manifest(out), retry_failed)
+    changed = _record_options(out, opts, rebuild)
+    manifest = {} if changed else read_manifest(out)
+    todo, skipped = _plan(files, out, opts, manifest, retry_failed)
     total = len(todo) + len(skipped)
     where = f"Dask scheduler {scheduler}" if scheduler else ("this process" if workers == 1 else f"{workers} processes")
     log(f"dataset: {len(files)} meshes x {opts.augment} corner sets = {total} items; {len(skipped)} already done; "

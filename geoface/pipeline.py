@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -78,6 +77,10 @@ class ConvertOptions:
             raise GeofaceError(f"lam must be positive; got {self.lam!r}")
         if int(self.augment) != self.augment or not 1 <= self.augment <= 8:
             raise GeofaceError(f"augment must be an integer in 1..8; got {self.augment!r}")
+        from .gimage.reconstruct import MAX_SMOOTH
+
+        if int(self.smooth) != self.smooth or not 0 <= self.smooth <= MAX_SMOOTH:
+            raise GeofaceError(f"smooth must be an integer in 0..{MAX_SMOOTH}; got {self.smooth!r}")
         if not (0 < self.ot_tol < 1):
             raise GeofaceError(f"ot_tol must be in (0, 1); got {self.ot_tol!r}")
         if self.corner_set is not None and (int(self.corner_set) != self.corner_set or not 0 <= self.corner_set <= 7):
@@ -274,16 +277,17 @@ def _roi_mask(opts: ConvertOptions, V0: np.ndarray) -> np.ndarray | None:
     return m
 
 
-def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | None = None, *, quiet: bool | None = None) -> dict:
+def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | None = None, *, quiet: bool | None = None,
+            overwrite: bool = True) -> dict:
     """Convert ``mesh`` into geometry images in ``out_dir`` (see module docs).
 
     Writes (per corner set ``k``; directly in ``out_dir`` when ``augment == 1``, else in
     ``out_dir/aug{k}``): ``position.png``, ``normal.png``, ``texture.png``, ``mask.png``,
     ``meta.json``, ``reconstruction.obj`` (+ ``.mtl``, texture, normal map) and
     ``preview.png``; and ``metrics.json`` in ``out_dir``.  The folder appears complete or
-    not at all.  Returns the metrics dict.
+    not at all (files 0644 and folders 0755 under umask 022); an existing ``out_dir`` is
+    replaced only with ``overwrite`` (the CLI's ``--force``).  Returns the metrics dict.
     """
-    from .gimage.image import replace_dir
     from .param.corners import corner_sets
     from .param.ricci import RicciFlowSolver
     from .repair import make_disk
@@ -329,9 +333,11 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         "front": [float(x) for x in front],
         "sets": [],
     }
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp_root = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    try:
+    from ._io import OutputError, atomic_dir
+
+    if out_dir.exists() and not overwrite and not (out_dir.is_dir() and not any(out_dir.iterdir())):
+        raise OutputError(f"{out_dir} exists; pass --force to replace it")
+    with atomic_dir(out_dir, overwrite=True) as tmp_root:
         solver = RicciFlowSolver(V, dm.F)
         failures: list = []
         for pos, (k, corners) in enumerate(zip(indices, sets)):
@@ -355,10 +361,6 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         metrics["seconds"] = {"repair": times["repair"], "corners": times["corners"], "total": time.perf_counter() - t_all}
         if opts.metrics:
             (tmp_root / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        replace_dir(tmp_root, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp_root, ignore_errors=True)
-        raise
     return metrics
 
 

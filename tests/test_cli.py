@@ -173,7 +173,7 @@ def test_param_refuses_a_closed_mesh_unless_repaired(tmp_path):
     assert code == 2 and "not a topological disk" in err and len(err.strip().splitlines()) == 1
     code, _, err = run("param", src, "-o", tmp_path / "s.obj", "--repair", "--corner-set", "3")
     assert code == 0, err
-    code, _, err = run("param", src, "-o", tmp_path / "s.obj", "--repair", "--corners", "1,2")
+    code, _, err = run("param", src, "-o", tmp_path / "s2.obj", "--repair", "--corners", "1,2")
     assert code == 2 and "four" in err
 
 

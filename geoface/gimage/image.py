@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -219,18 +217,15 @@ def _read_png(path: Path) -> np.ndarray:
 
 
 def save_gimage(folder: str | os.PathLike, gi: GeometryImage, *, overwrite: bool = True) -> Path:
-    """Write ``gi`` into ``folder`` (created; replaced as a whole, never left half-written)."""
+    """Write ``gi`` into ``folder`` (created; replaced as a whole, never left half-written;
+    an existing folder is refused when ``overwrite`` is False)."""
+    from .._io import atomic_dir
+
     folder = Path(folder)
     if folder.exists() and not overwrite:
         raise InvalidGeometryImageError(f"{folder} exists")
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
-    try:
+    with atomic_dir(folder, overwrite=True) as tmp:
         write_gimage_files(tmp, gi)
-        replace_dir(tmp, folder)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return folder
 
 
@@ -245,14 +240,12 @@ def write_gimage_files(folder: Path, gi: GeometryImage) -> None:
 
 
 def replace_dir(tmp: Path, folder: Path) -> None:
-    """Move the finished folder ``tmp`` onto ``folder``, replacing an old one."""
-    old = None
-    if folder.exists():
-        old = folder.with_name(f".{folder.name}.old-{os.getpid()}")
-        os.replace(folder, old)
-    os.replace(tmp, folder)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+    """Move the finished folder ``tmp`` onto ``folder``, replacing an old one (files and
+    folders get the user's umask)."""
+    from .._io import _chmod_tree, _replace_dir
+
+    _chmod_tree(Path(tmp))
+    _replace_dir(Path(tmp), Path(folder))
 
 
 def load_gimage(folder: str | os.PathLike) -> GeometryImage:

@@ -18,7 +18,10 @@ from ..errors import InvalidGeometryImageError
 from ..mesh.io import Mesh
 from .image import GeometryImage
 
-__all__ = ["reconstruct", "save_reconstruction", "pixel_uv"]
+__all__ = ["reconstruct", "save_reconstruction", "pixel_uv", "MAX_SMOOTH"]
+
+#: the most Laplacian smoothing iterations (each moves vertices by half the Laplacian)
+MAX_SMOOTH = 1000
 
 
 def pixel_uv(N: int) -> np.ndarray:
@@ -53,8 +56,8 @@ def reconstruct(gi: GeometryImage, *, smooth: int = 0) -> Mesh:
     mask = np.asarray(gi.mask, bool)
     if mask.shape != (N, N):
         raise InvalidGeometryImageError(f"mask must be {N}x{N}")
-    if int(smooth) != smooth or smooth < 0:
-        raise InvalidGeometryImageError(f"smooth must be a non-negative integer; got {smooth!r}")
+    if int(smooth) != smooth or not 0 <= smooth <= MAX_SMOOTH:
+        raise InvalidGeometryImageError(f"smooth must be an integer in 0..{MAX_SMOOTH}; got {smooth!r}")
     P = gi.positions()
     if not np.isfinite(P).all():
         raise InvalidGeometryImageError("position image has non-finite values")
@@ -112,16 +115,23 @@ def reconstruct(gi: GeometryImage, *, smooth: int = 0) -> Mesh:
     return Mesh(V, F, UV=UV, FUV=F.copy(), colors=colors, texture=texture)
 
 
-def save_reconstruction(path: str | os.PathLike, mesh: Mesh, gi: GeometryImage | None = None) -> None:
+def save_reconstruction(path: str | os.PathLike, mesh: Mesh, gi: GeometryImage | None = None, *,
+                        overwrite: bool = True) -> None:
     """Write a reconstruction; for OBJ also the texture (via the MTL) and, when the image has
-    normals, an 8-bit object-space normal map ``<stem>_normal.png`` named in the MTL."""
-    from ..mesh.io import save_mesh
+    normals, an 8-bit object-space normal map ``<stem>_normal.png`` named in the MTL.  With
+    ``overwrite=False`` nothing is written if the mesh or any of its files exists."""
+    from .._io import OutputError
+    from ..mesh.io import companion_names, save_mesh
 
     path = Path(path)
+    if not overwrite:
+        for p in [path, *companion_names(path)]:
+            if p.exists():
+                raise OutputError(f"{p} exists; pass --force to replace it")
     if path.suffix.lower() == ".obj" and mesh.texture is not None:
         # with a texture OBJ keeps UVs + image; keep vertex colours out of the OBJ
         mesh = Mesh(mesh.V, mesh.F, UV=mesh.UV, FUV=mesh.FUV, texture=mesh.texture)
-    save_mesh(path, mesh)
+    save_mesh(path, mesh, overwrite=overwrite)
     if path.suffix.lower() == ".obj" and gi is not None and gi.has("normal"):
         from .._io import atomic_path
         from .image import _cv2

@@ -17,6 +17,10 @@ from ..errors import InvalidMeshError
 from ..tol import tol
 
 
+#: the largest coordinate magnitude accepted (its square and sums of squares stay finite)
+MAX_COORDINATE = 1e150
+
+
 def check_mesh(V, F, *, allow_empty: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Validate and convert mesh arrays once, at a public entry point.
 
@@ -60,6 +64,9 @@ def check_mesh(V, F, *, allow_empty: bool = False) -> tuple[np.ndarray, np.ndarr
     bad = ~np.isfinite(V).all(axis=1)
     if bad.any():
         raise InvalidMeshError(f"V has {int(bad.sum())} vertices with NaN or infinite coordinates (first: {int(np.flatnonzero(bad)[0])})")
+    if len(V) and float(np.abs(V).max()) > MAX_COORDINATE:
+        raise InvalidMeshError(f"coordinates reach {float(np.abs(V).max()):.3g}: beyond {MAX_COORDINATE:g} squared distances "
+                               "overflow; rescale the mesh")
     if len(F):
         lo, hi = int(F.min()), int(F.max())
         if lo < 0 or hi >= len(V):

@@ -155,6 +155,8 @@ def load_mesh(path: str | os.PathLike, *, weld: bool = True) -> Mesh:
         raise MeshFormatError(f"no such file: {path}")
     if path.stat().st_size == 0:
         raise MeshFormatError(f"file is empty: {path}")
+    if ext == "obj":
+        _check_obj_indices(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -263,17 +265,57 @@ def _to_trimesh(mesh: Mesh, ext: str):
     return tm, dropped
 
 
-def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=None, colors=None, UV=None) -> None:
+def _check_obj_indices(path: Path) -> None:
+    """OBJ indices are 1-based (negative: relative to the end); 0 is invalid, and trimesh
+    would read it as the last vertex."""
+    import re
+
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as exc:
+        raise MeshFormatError(f"cannot read {path.name}: {exc}") from None
+    m = re.search(r"^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?=[/ \t\r]|$)", text, re.M)
+    if m:
+        line = text.count("\n", 0, m.start()) + 1
+        raise MeshFormatError(f"{path.name}, line {line}: face index 0 (OBJ indices start at 1)")
+
+
+def companion_names(path: str | os.PathLike) -> list[Path]:
+    """The files that belong to a mesh file and are written with it: for OBJ the MTL, the
+    texture and the normal map, all named after the mesh (``head.obj`` → ``head.mtl``,
+    ``head.png``, ``head_normal.png``); none for other formats."""
+    path = Path(path)
+    if _ext(path) != "obj":
+        return []
+    return [path.with_suffix(".mtl"), path.with_suffix(".png"), path.with_name(f"{path.stem}_normal.png")]
+
+
+def _obj_digits(V: np.ndarray) -> int:
+    """Decimals that keep ~9 significant digits of the largest coordinate (8 fixed
+    decimals would write a head scaled by 1e-9 as all zeros)."""
+    m = float(np.abs(V).max()) if len(V) else 1.0
+    if not np.isfinite(m) or m == 0.0:
+        return 8
+    return int(np.clip(9 - np.floor(np.log10(m)), 8, 340))
+
+
+def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=None, colors=None, UV=None,
+              overwrite: bool = True) -> None:
     """Write a mesh atomically (temp file + rename); format from the extension.
 
     Give either a :class:`Mesh` or bare arrays (``V``, ``F`` and optional per-vertex
     ``colors``/``UV``).  What each format keeps: OBJ and GLB — UVs + texture, or vertex
     colours; PLY — UVs (no image) or vertex colours; OFF, STL — geometry only.
     Attributes a format cannot hold are reported with a :class:`GeofaceWarning`, never
-    dropped silently.  PLY, STL and GLB store coordinates as float32.
-    OBJ files with a texture also get their ``.mtl`` and image beside them.
+    dropped silently.  PLY, STL and GLB store coordinates as float32; OBJ keeps about 9
+    significant digits whatever the scale.
+    OBJ files with a texture also get their ``.mtl`` and image beside them, named after the
+    mesh (:func:`companion_names`), so meshes in one folder never share (or clobber) a texture.
+    ``overwrite=False`` refuses (``OutputError``) to replace the file or any of its companions.
     """
     import trimesh
+
+    from .._io import OutputError
 
     path = Path(path)
     ext = _ext(path)
@@ -281,6 +323,8 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
         if V is None or F is None:
             raise InvalidMeshError("save_mesh needs a Mesh or V and F")
         mesh = Mesh.from_vertex_uv(V, F, UV, colors=colors)
+    if not np.isfinite(mesh.V).all() or np.abs(mesh.V).max(initial=0.0) > 1e300:
+        raise InvalidMeshError("vertex coordinates must be finite and below 1e300 in magnitude")
     tm, dropped = _to_trimesh(mesh, ext)
     if dropped:
         warnings.warn(f"{path.name}: .{ext} cannot store {', '.join(dropped)}; not written", GeofaceWarning, stacklevel=2)
@@ -288,13 +332,17 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
         from trimesh.exchange.obj import export_obj
 
         mtl = f"{path.stem}.mtl"
-        result = export_obj(tm, include_texture=True, include_normals=False, mtl_name=mtl, return_texture=True)
+        result = export_obj(tm, include_texture=True, include_normals=False, mtl_name=mtl, return_texture=True,
+                            digits=_obj_digits(mesh.V))
         text, files = result if isinstance(result, tuple) else (result, {})
+        files = _name_companions(path, files)
+        _refuse_existing([path, *(path.parent / n for n in files)], overwrite, OutputError)
         with _atomic_group(path, files) as (tmp_main, tmp_files):
             Path(tmp_main).write_text(text)
             for name, data in files.items():
                 Path(tmp_files[name]).write_bytes(data)
         return
+    _refuse_existing([path], overwrite, OutputError)
     data = trimesh.exchange.export.export_mesh(tm, file_obj=None, file_type=ext)
     if isinstance(data, dict):  # gltf returns several files
         with _atomic_group(path, {k: v for k, v in data.items() if k != "model.gltf"}) as (tmp_main, tmp_files):
@@ -307,8 +355,37 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
         Path(tmp).write_bytes(data if isinstance(data, bytes) else data.encode())
 
 
+def _refuse_existing(paths, overwrite: bool, error) -> None:
+    if overwrite:
+        return
+    for p in paths:
+        if Path(p).exists():
+            raise error(f"{p} exists; pass --force to replace it")
+
+
+def _name_companions(path: Path, files: dict) -> dict:
+    """trimesh names textures after materials (``material_0.png``): rename them after the
+    mesh and point the MTL at the new names."""
+    images = [k for k in files if not k.endswith(".mtl")]
+    ren = {}
+    for i, k in enumerate(images):
+        ext = Path(k).suffix or ".png"
+        ren[k] = f"{path.stem}{ext}" if len(images) == 1 else f"{path.stem}_{i}{ext}"
+    out = {}
+    for k, data in files.items():
+        if k.endswith(".mtl"):
+            text = data.decode("utf-8") if isinstance(data, bytes) else data
+            for old, new in ren.items():
+                text = text.replace(f" {old}", f" {new}")
+            out[k] = text.encode("utf-8")
+        else:
+            out[ren[k]] = data
+    return out
+
+
 class _atomic_group:
-    """Write a main file and its side files to temporaries, then rename them all."""
+    """Write a main file and its side files to temporaries, then rename them all (with the
+    user's umask)."""
 
     def __init__(self, main: Path, side: dict):
         self.main = main
@@ -317,16 +394,24 @@ class _atomic_group:
     def __enter__(self):
         import tempfile
 
+        from .._io import _temp_prefix, clean_stale_temporaries
+
         self.main.parent.mkdir(parents=True, exist_ok=True)
         self.tmps = {}
         for key, target in [("__main__", self.main), *self.side.items()]:
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+            clean_stale_temporaries(target)
+            fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(target), suffix=".tmp", dir=target.parent)
             os.close(fd)
             self.tmps[key] = Path(tmp)
         return self.tmps["__main__"], {k: v for k, v in self.tmps.items() if k != "__main__"}
 
     def __exit__(self, exc_type, exc, tb):
+        from .._io import default_mode
+
         if exc_type is None:
+            mode = default_mode()
+            for tmp in self.tmps.values():
+                os.chmod(tmp, mode)
             for name, target in self.side.items():
                 os.replace(self.tmps[name], target)
             os.replace(self.tmps["__main__"], self.main)

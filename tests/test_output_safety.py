@@ -1,0 +1,239 @@
+"""Nothing a user owns is lost: companion files named after their mesh, one output-path
+policy (--force to replace), the user's umask, leftovers cleaned, SIGTERM like SIGINT, and
+bad values as one line with exit code 2."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geoface.mesh.io import Mesh, load_mesh, save_mesh
+
+
+def run(*args, cwd=None, umask=None):
+    pre = None if umask is None else (lambda: os.umask(umask))
+    p = subprocess.run([sys.executable, "-m", "geoface", "--quiet", *map(str, args)], capture_output=True, text=True,
+                       cwd=cwd, preexec_fn=pre)
+    return p.returncode, p.stdout, p.stderr
+
+
+def digest(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def one_line_error(code, err):
+    return code == 2 and err.startswith("geoface: error:") and len(err.strip().splitlines()) == 1
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    """The `make demo` sequence in a temporary folder: head, convert, reconstruct."""
+    d = tmp_path_factory.mktemp("demo")
+    assert run("synth", "head", "-o", d / "head.obj", "--vertices", "3000", "--seed", "0", "--meta", d / "head.json")[0] == 0
+    before = digest(d)
+    assert run("convert", d / "head.obj", d / "head_gim", "--res", "64", "--roi", d / "head.json")[0] == 0
+    code, _, err = run("reconstruct", d / "head_gim", "-o", d / "head_reconstructed.obj")
+    assert code == 0, err
+    return d, before
+
+
+def test_demo_sequence_keeps_the_head_texture(demo):
+    d, before = demo
+    after = digest(d)
+    for name, h in before.items():  # head.obj, head.mtl, head.png, head.json: untouched
+        assert after[name] == h, name
+    # each mesh has its own companions, named after it
+    assert (d / "head.png").is_file() and (d / "head_reconstructed.png").is_file()
+    assert (d / "head_reconstructed_normal.png").is_file() and not (d / "material_0.png").exists()
+    assert "map_Kd head.png" in (d / "head.mtl").read_text()
+    assert "map_Kd head_reconstructed.png" in (d / "head_reconstructed.mtl").read_text()
+    m = load_mesh(d / "head.obj")
+    assert m.texture is not None and m.texture.shape[0] >= 256  # the head's own texture, not a 2x2 placeholder
+
+
+def test_param_writes_its_own_texture_name(demo, tmp_path):
+    d, _ = demo
+    h = digest(d)
+    code, _, err = run("param", d / "head.obj", "-o", tmp_path / "head_uv.obj")
+    assert code == 0, err
+    assert digest(d) == h
+
+
+def test_existing_outputs_need_force(demo, tmp_path):
+    d, _ = demo
+    out = tmp_path / "mydata"
+    out.mkdir()
+    (out / "precious.txt").write_text("mine")
+    code, _, err = run("convert", d / "head.obj", out, "--res", "16")
+    assert one_line_error(code, err) and "--force" in err
+    assert (out / "precious.txt").read_text() == "mine"
+    # an empty folder is not "existing data"
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert run("convert", d / "head.obj", empty, "--res", "16")[0] == 0
+    # --force replaces, atomically
+    code, _, err = run("convert", d / "head.obj", out, "--res", "16", "--force")
+    assert code == 0, err
+    assert not (out / "precious.txt").exists() and (out / "meta.json").is_file()
+    # a mesh output and its companions
+    mesh_out = tmp_path / "disk.obj"
+    assert run("repair", d / "head.obj", "-o", mesh_out)[0] == 0
+    h = digest(tmp_path)
+    code, _, err = run("repair", d / "head.obj", "-o", mesh_out)
+    assert one_line_error(code, err) and digest(tmp_path) == h
+    (tmp_path / "x.png").write_bytes(b"a user's picture")
+    code, _, err = run("param", d / "head.obj", "-o", tmp_path / "x.obj")  # x.png would be x.obj's texture
+    assert one_line_error(code, err) and "x.png" in err
+    assert (tmp_path / "x.png").read_bytes() == b"a user's picture"
+
+
+@pytest.mark.parametrize("case", ["json_is_input", "meta_is_output", "screenshot_in_input_folder", "output_in_input_folder",
+                                  "same_output_twice"])
+def test_an_output_may_not_be_an_input(demo, tmp_path, case):
+    d, _ = demo
+    h = digest(d)
+    args = {
+        "json_is_input": ("param", d / "head.obj", "-o", tmp_path / "u.obj", "--json", d / "head.obj"),
+        "meta_is_output": ("synth", "head", "-o", tmp_path / "o.obj", "--meta", tmp_path / "o.obj", "--vertices", "1000"),
+        "screenshot_in_input_folder": ("view", d / "head_gim", "--screenshot", d / "head_gim" / "position.png"),
+        "output_in_input_folder": ("reconstruct", d / "head_gim", "-o", d / "head_gim" / "rec.obj"),
+        "same_output_twice": ("param", d / "head.obj", "-o", tmp_path / "u.obj", "--json", tmp_path / "u.mtl"),
+    }[case]
+    code, _, err = run(*args)
+    assert one_line_error(code, err), err
+    assert digest(d) == h
+    assert not (tmp_path / "o.obj").exists() and not (tmp_path / "u.obj").exists()
+
+
+def test_outputs_get_the_users_umask(demo, tmp_path):
+    d, _ = demo
+    code, _, err = run("convert", d / "head.obj", tmp_path / "out", "--res", "16", "--augment", "2", umask=0o022)
+    assert code == 0, err
+    assert run("reconstruct", tmp_path / "out" / "aug0", "-o", tmp_path / "rec.obj", umask=0o022)[0] == 0
+    assert run("synth", "head", "-o", tmp_path / "h.obj", "--vertices", "1000", "--meta", tmp_path / "h.json", umask=0o022)[0] == 0
+    for p in [tmp_path / "out", tmp_path / "out" / "aug0"]:
+        assert p.stat().st_mode & 0o777 == 0o755, p
+    files = [*(tmp_path / "out").rglob("*.*"), *tmp_path.glob("rec*"), *tmp_path.glob("h.*")]
+    assert len(files) > 10
+    for p in files:
+        if p.is_file():
+            assert p.stat().st_mode & 0o777 == 0o644, p
+    code, _, err = run("synth", "head", "-o", tmp_path / "g.obj", "--vertices", "1000", umask=0o077)
+    assert (tmp_path / "g.obj").stat().st_mode & 0o777 == 0o600
+
+
+def test_tiny_and_huge_coordinates(tmp_path):
+    from geoface.synth import procedural_head
+
+    h = procedural_head(n_vertices=1000, seed=0)
+    small = Mesh(h.V * 1e-9, h.F)
+    save_mesh(tmp_path / "tiny.obj", small)
+    back = load_mesh(tmp_path / "tiny.obj")
+    assert np.abs(back.V - small.V).max() <= 1e-8 * np.abs(small.V).max()  # not all zeros
+    code, _, err = run("inspect", tmp_path / "tiny.obj")
+    assert code == 0, err
+    big = tmp_path / "big.obj"
+    big.write_text("v 1e300 0 0\nv 0 1e300 0\nv 0 0 1e300\nf 1 2 3\n")
+    for verb in (("inspect", big), ("repair", big, "-o", tmp_path / "r.obj"), ("convert", big, tmp_path / "c")):
+        code, _, err = run(*verb)
+        assert one_line_error(code, err) and "rescale" in err, err
+    zero = tmp_path / "zero.obj"
+    zero.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n")
+    code, _, err = run("inspect", zero)
+    assert one_line_error(code, err) and "start at 1" in err
+
+
+def test_bounds_on_work(tmp_path):
+    code, _, err = run("synth", "surface", "sphere", "-o", tmp_path / "s.obj", "--resolution", "1000000000")
+    assert one_line_error(code, err) and "resolution" in err
+    code, _, err = run("synth", "head", "-o", tmp_path / "h.obj", "--vertices", "1000")
+    code, _, err = run("convert", tmp_path / "h.obj", tmp_path / "c", "--res", "16", "--smooth", "1000000000")
+    assert one_line_error(code, err) and "smooth" in err and not (tmp_path / "c").exists()
+
+
+def test_dataset_rerun_with_other_options_is_refused(tmp_path):
+    heads = tmp_path / "heads"
+    heads.mkdir()
+    for s in range(2):
+        assert run("synth", "head", "-o", heads / f"h{s}.obj", "--vertices", "1000", "--seed", s)[0] == 0
+    out = tmp_path / "ds"
+    code, _, err = run("dataset", "build", heads, out, "--res", "16", "--augment", "1", "--workers", "1")
+    assert code == 0, err
+    h = digest(out)
+    code, _, err = run("dataset", "build", heads, out, "--res", "32", "--augment", "1", "--workers", "1")
+    assert one_line_error(code, err) and "res 16 -> 32" in err
+    assert digest(out) == h
+    # more corner sets with the same options resume (the first items are kept)
+    code, out_text, err = run("dataset", "build", heads, out, "--res", "16", "--augment", "2", "--workers", "1")
+    assert code == 0 and "2 items built" in out_text, (out_text, err)
+    code, out_text, err = run("dataset", "build", heads, out, "--res", "32", "--augment", "1", "--workers", "1", "--force")
+    assert code == 0 and "2 items built" in out_text, (out_text, err)
+    from geoface.gimage import load_gimage
+
+    assert load_gimage(out / "h0" / "aug0").resolution == 32
+    assert json.loads((out / "options.json").read_text())["res"] == 32
+
+
+def _big_head(tmp_path) -> Path:
+    p = tmp_path / "big.obj"
+    assert run("synth", "head", "-o", p, "--vertices", "60000")[0] == 0
+    return p
+
+
+def _our_processes(marker: str) -> list[int]:
+    out = subprocess.run(["ps", "-eo", "pid,args"], capture_output=True, text=True).stdout
+    return [int(line.split()[0]) for line in out.splitlines()[1:] if marker in line and "ps -eo" not in line]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_killed_convert_leaves_nothing_behind(tmp_path, sig):
+    src = _big_head(tmp_path)
+    out = tmp_path / "killed_out"
+    p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", "convert", str(src), str(out), "--res", "512"])
+    time.sleep(4.0)  # inside the pipeline by now
+    p.send_signal(sig)
+    p.wait(timeout=5)
+    assert p.returncode == (143 if sig == signal.SIGTERM else -9)
+    leftovers = [x for x in tmp_path.iterdir() if x.name.startswith(".killed_out")]
+    if sig == signal.SIGTERM:
+        assert leftovers == [] and not out.exists()
+    # after SIGKILL a temporary may remain; the next run of the same output removes it
+    code, _, err = run("convert", src, out, "--res", "16")
+    assert code == 0, err
+    assert [x for x in tmp_path.iterdir() if x.name.startswith(".killed_out")] == []
+
+
+def test_killed_dataset_build_stops_its_workers(tmp_path):
+    heads = tmp_path / "heads_k"
+    heads.mkdir()
+    for s in range(4):
+        assert run("synth", "head", "-o", heads / f"k{s}.obj", "--vertices", "20000", "--seed", s)[0] == 0
+    out = tmp_path / "ds_killed"
+    p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", "dataset", "build", str(heads), str(out), "--res", "256",
+                          "--augment", "4", "--workers", "2"])
+    time.sleep(8.0)
+    p.send_signal(signal.SIGKILL)
+    p.wait(timeout=5)
+    deadline = time.time() + 5.0
+    while time.time() < deadline and _our_processes("multiprocessing.spawn"):
+        time.sleep(0.2)
+    # the workers of this build (spawned children) are gone
+    alive = [pid for pid in _our_processes("multiprocessing.spawn") if _parent(pid) == p.pid or _parent(pid) == 1]
+    assert alive == []
+
+
+def _parent(pid: int) -> int:
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().split()[3])
+    except (OSError, ValueError, IndexError):
+        return -1
