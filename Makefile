@@ -48,26 +48,27 @@ test: $(STAMP)
 
 demo: $(STAMP)
 	@mkdir -p $(OUT)
+	@# the demo replaces its own outputs in $(OUT) (--force); geoface refuses to replace files otherwise
 	@echo "== the procedural head (smiling), 20K vertices"
-	$(VENV)/bin/geoface synth head -o $(OUT)/head.obj --vertices 20000 --seed 0 --expression smile=0.6 --meta $(OUT)/head.json
+	$(VENV)/bin/geoface synth head -o $(OUT)/head.obj --vertices 20000 --seed 0 --expression smile=0.6 --meta $(OUT)/head.json --force
 	$(VENV)/bin/geoface inspect $(OUT)/head.obj
 	@echo "== a messy scan of it: holes, near-duplicate vertices, debris, a non-manifold fin"
 	$(PY) data_tools/make_messy_head.py $(OUT)/messy_head.ply --vertices 20000 --seed 0
 	$(VENV)/bin/geoface inspect $(OUT)/messy_head.ply
-	$(VENV)/bin/geoface repair $(OUT)/messy_head.ply -o $(OUT)/messy_head_disk.ply
+	$(VENV)/bin/geoface repair $(OUT)/messy_head.ply -o $(OUT)/messy_head_disk.ply --force
 	@echo "== the same, closed at the neck: cut open at the lowest plane"
 	$(PY) data_tools/make_messy_head.py $(OUT)/closed_head.ply --vertices 20000 --seed 1 --closed
-	$(VENV)/bin/geoface repair $(OUT)/closed_head.ply -o $(OUT)/closed_head_disk.ply --open plane
+	$(VENV)/bin/geoface repair $(OUT)/closed_head.ply -o $(OUT)/closed_head_disk.ply --open plane --force
 	@echo "== a genus-2 surface: handles cut and capped, then opened"
-	$(VENV)/bin/geoface synth surface genus2 -o $(OUT)/genus2.obj
-	$(VENV)/bin/geoface repair $(OUT)/genus2.obj -o $(OUT)/genus2_disk.obj --up z --open cap
+	$(VENV)/bin/geoface synth surface genus2 -o $(OUT)/genus2.obj --force
+	$(VENV)/bin/geoface repair $(OUT)/genus2.obj -o $(OUT)/genus2_disk.obj --up z --open cap --force
 	@echo "== the head to geometry images (Ricci flow, OT with the face magnified 2.5x) and back"
-	$(VENV)/bin/geoface convert $(OUT)/head.obj $(OUT)/head_gim --res 256 --roi $(OUT)/head.json --lam 2.5
-	$(VENV)/bin/geoface reconstruct $(OUT)/head_gim -o $(OUT)/head_reconstructed.obj
+	$(VENV)/bin/geoface convert $(OUT)/head.obj $(OUT)/head_gim --res 256 --roi $(OUT)/head.json --lam 2.5 --force
+	$(VENV)/bin/geoface reconstruct $(OUT)/head_gim -o $(OUT)/head_reconstructed.obj --force
 	@echo "== look at it (off-screen pyvista): the head, its UV distortion, the geometry images"
-	$(VENV)/bin/geoface view $(OUT)/head.obj --screenshot $(OUT)/head.png
-	$(VENV)/bin/geoface view $(OUT)/head_reconstructed.obj --screenshot $(OUT)/head_reconstructed.png
-	$(VENV)/bin/geoface view $(OUT)/head_gim --screenshot $(OUT)/head_gim_montage.png
+	$(VENV)/bin/geoface view $(OUT)/head.obj --screenshot $(OUT)/head.png --force
+	$(VENV)/bin/geoface view $(OUT)/head_reconstructed.obj --screenshot $(OUT)/head_reconstructed.png --force
+	$(VENV)/bin/geoface view $(OUT)/head_gim --screenshot $(OUT)/head_gim_montage.png --force
 	@echo "== a small labelled dataset: 6 synthetic heads x 2 corner sets, 2 worker processes"
 	$(PY) data_tools/make_synthetic_heads.py $(OUT)/heads --count 6 --vertices 3000 --seed 0
 	$(VENV)/bin/geoface dataset build $(OUT)/heads $(OUT)/dataset --res 128 --augment 2 --workers 2

@@ -41,10 +41,19 @@ def _mesh_outputs(path) -> list:
 
 
 def _guard(args, inputs, outputs, resumable=()) -> None:
-    """The output-path policy (geoface._io.check_outputs), before any work."""
+    """The output-path policy (geoface._io.check_outputs), before any work.  An input mesh
+    counts with the files it references (its MTL, texture, normal map)."""
     from ._io import check_outputs
+    from .mesh.io import companion_names
 
-    check_outputs(inputs, outputs, force=getattr(args, "force", False), resumable=resumable)
+    ins = []
+    for p in inputs:
+        if p is None:
+            continue
+        ins.append(p)
+        if Path(p).is_file():
+            ins += [c for c in companion_names(p) if c.exists()]
+    check_outputs(ins, outputs, force=getattr(args, "force", False), resumable=resumable)
 
 
 def _print_json(obj) -> None:

@@ -53,10 +53,10 @@ def test_demo_sequence_keeps_the_head_texture(demo):
     for name, h in before.items():  # head.obj, head.mtl, head.png, head.json: untouched
         assert after[name] == h, name
     # each mesh has its own companions, named after it
-    assert (d / "head.png").is_file() and (d / "head_reconstructed.png").is_file()
+    assert (d / "head_texture.png").is_file() and (d / "head_reconstructed_texture.png").is_file()
     assert (d / "head_reconstructed_normal.png").is_file() and not (d / "material_0.png").exists()
-    assert "map_Kd head.png" in (d / "head.mtl").read_text()
-    assert "map_Kd head_reconstructed.png" in (d / "head_reconstructed.mtl").read_text()
+    assert "map_Kd head_texture.png" in (d / "head.mtl").read_text()
+    assert "map_Kd head_reconstructed_texture.png" in (d / "head_reconstructed.mtl").read_text()
     m = load_mesh(d / "head.obj")
     assert m.texture is not None and m.texture.shape[0] >= 256  # the head's own texture, not a 2x2 placeholder
 
@@ -91,10 +91,13 @@ def test_existing_outputs_need_force(demo, tmp_path):
     h = digest(tmp_path)
     code, _, err = run("repair", d / "head.obj", "-o", mesh_out)
     assert one_line_error(code, err) and digest(tmp_path) == h
-    (tmp_path / "x.png").write_bytes(b"a user's picture")
-    code, _, err = run("param", d / "head.obj", "-o", tmp_path / "x.obj")  # x.png would be x.obj's texture
-    assert one_line_error(code, err) and "x.png" in err
-    assert (tmp_path / "x.png").read_bytes() == b"a user's picture"
+    (tmp_path / "x_texture.png").write_bytes(b"a user's picture")
+    code, _, err = run("synth", "head", "-o", tmp_path / "x.obj", "--vertices", "1000")  # x.obj's texture
+    assert one_line_error(code, err) and "x_texture.png" in err
+    assert (tmp_path / "x_texture.png").read_bytes() == b"a user's picture"
+    # a screenshot may not replace the texture of the mesh it shows, even with --force
+    code, _, err = run("view", d / "head.obj", "--screenshot", d / "head_texture.png", "--force")
+    assert one_line_error(code, err)
 
 
 @pytest.mark.parametrize("case", ["json_is_input", "meta_is_output", "screenshot_in_input_folder", "output_in_input_folder",

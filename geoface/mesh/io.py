@@ -283,11 +283,11 @@ def _check_obj_indices(path: Path) -> None:
 def companion_names(path: str | os.PathLike) -> list[Path]:
     """The files that belong to a mesh file and are written with it: for OBJ the MTL, the
     texture and the normal map, all named after the mesh (``head.obj`` → ``head.mtl``,
-    ``head.png``, ``head_normal.png``); none for other formats."""
+    ``head_texture.png``, ``head_normal.png``); none for other formats."""
     path = Path(path)
-    if _ext(path) != "obj":
+    if path.suffix.lower() != ".obj":
         return []
-    return [path.with_suffix(".mtl"), path.with_suffix(".png"), path.with_name(f"{path.stem}_normal.png")]
+    return [path.with_suffix(".mtl"), path.with_name(f"{path.stem}_texture.png"), path.with_name(f"{path.stem}_normal.png")]
 
 
 def _obj_digits(V: np.ndarray) -> int:
@@ -370,7 +370,7 @@ def _name_companions(path: Path, files: dict) -> dict:
     ren = {}
     for i, k in enumerate(images):
         ext = Path(k).suffix or ".png"
-        ren[k] = f"{path.stem}{ext}" if len(images) == 1 else f"{path.stem}_{i}{ext}"
+        ren[k] = f"{path.stem}_texture{ext}" if len(images) == 1 else f"{path.stem}_texture{i}{ext}"
     out = {}
     for k, data in files.items():
         if k.endswith(".mtl"):
