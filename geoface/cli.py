@@ -56,6 +56,44 @@ def _guard(args, inputs, outputs, resumable=()) -> None:
     check_outputs(ins, outputs, force=getattr(args, "force", False), resumable=resumable)
 
 
+#: the neural commands' inputs and outputs (argument names), for the output-path policy;
+#: the geometry commands apply it in their own functions (they know their companion files)
+_PATHS = {
+    ("ddpm", "train"): (("data_dir",), ("output",)),
+    ("ddpm", "sample"): (("run_dir",), ("output",)),
+    ("texture", "synth"): ((), ("output",)),
+    ("texture", "train"): (("data_dir",), ("output",)),
+    ("texture", "reconstruct"): (("photo", "model", "mesh", "camera"), ("output",)),
+    ("splat", "fit"): (("mesh",), ("output", "renders")),
+    ("hmd", "synth"): ((), ("output",)),
+    ("hmd", "train"): (("reg_dir",), ("output",)),
+    ("hmd", "remove"): (("model_dir", "usage_dir"), ("output",)),
+    ("hmd", "eval"): (("model_dir", "usage_dir"), ("json",)),
+    ("talk", "synth"): ((), ("output",)),
+    ("talk", "train"): (("data_dir",), ("output",)),
+    ("talk", "animate"): (("model_dir", "audio", "poses"), ("output",)),
+    ("talk", "eval"): (("model_dir", "data_dir"), ("json",)),
+}
+
+
+def _guard_by_table(args) -> None:
+    """The output-path policy for the commands in :data:`_PATHS`.  A DDPM run folder with a
+    checkpoint is resumed with ``--resume``; model folders the command refuses to replace on
+    its own terms (hmd, talk) are left to it."""
+    key = (getattr(args, "command", None), getattr(args, "what", None))
+    if key not in _PATHS:
+        return
+    ins, outs = _PATHS[key]
+    inputs = [getattr(args, a, None) for a in ins]
+    outputs = [getattr(args, a, None) for a in outs]
+    resumable = []
+    if key == ("ddpm", "train") and getattr(args, "resume", False):
+        resumable = outputs
+    if key[0] in ("hmd", "talk") and key[1] in ("train", "remove", "animate"):
+        resumable = outputs  # these check their model/frames folders themselves (--force)
+    _guard(args, inputs, outputs, resumable=resumable)
+
+
 def _print_json(obj) -> None:
     print(json.dumps(obj, indent=2, default=float))
 
@@ -575,6 +613,7 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("always", GeofaceWarning)
             warnings.showwarning = _show_warning
+            _guard_by_table(args)
             return int(args.func(args) or 0)
     except GeofaceError as exc:
         print(f"geoface: error: {exc}", file=sys.stderr)

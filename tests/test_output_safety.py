@@ -240,3 +240,34 @@ def _parent(pid: int) -> int:
         return int(Path(f"/proc/{pid}/stat").read_text().split()[3])
     except (OSError, ValueError, IndexError):
         return -1
+
+
+@pytest.mark.parametrize("case", ["texture_train_into_its_data", "ddpm_train_over_a_run", "hmd_eval_json_in_model",
+                                  "talk_eval_json_in_model", "splat_fit_over_input", "ddpm_sample_over_folder"])
+def test_neural_commands_keep_what_exists(tmp_path, case):
+    """The neural commands follow the same output policy, before any heavy import."""
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "sample_000.npz").write_bytes(b"a training sample")
+    model = tmp_path / "model"
+    model.mkdir()
+    (model / "config.json").write_text('{"format": "x"}')
+    (model / "model.safetensors").write_bytes(b"weights")
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "checkpoint").mkdir()
+    (run_dir / "checkpoint" / "state.json").write_text("{}")
+    cloud = tmp_path / "chead.ply"
+    cloud.write_bytes(b"ply\n")
+    args = {
+        "texture_train_into_its_data": ("texture", "train", data, "-o", data),
+        "ddpm_train_over_a_run": ("ddpm", "train", data, "-o", run_dir),
+        "hmd_eval_json_in_model": ("hmd", "eval", model, data, "--json", model / "config.json"),
+        "talk_eval_json_in_model": ("talk", "eval", model, data, "--json", model / "config.json"),
+        "splat_fit_over_input": ("splat", "fit", cloud, "-o", cloud),
+        "ddpm_sample_over_folder": ("ddpm", "sample", run_dir, "a head", "-o", data),
+    }[case]
+    before = digest(tmp_path)
+    code, _, err = run(*args)
+    assert one_line_error(code, err), err
+    assert digest(tmp_path) == before

@@ -48,11 +48,13 @@ def test_synth_train_reconstruct_end_to_end(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv,msg", [
-    (["texture", "reconstruct", "{tmp}/missing.png", "--model", "{tmp}", "-o", "{tmp}/o"], "no such file"),
-    (["texture", "train", "{tmp}", "-o", "{tmp}/m", "--epochs", "3,3"], "--epochs"),
-    (["texture", "train", "{tmp}", "-o", "{tmp}/m"], "no *.npz"),
+    (["texture", "reconstruct", "{tmp}/in/missing.png", "--model", "{tmp}/in", "-o", "{tmp}/o"], "no such file"),
+    (["texture", "train", "{tmp}/in", "-o", "{tmp}/m", "--epochs", "3,3"], "--epochs"),
+    (["texture", "train", "{tmp}/in", "-o", "{tmp}/m"], "no *.npz"),
+    (["texture", "train", "{tmp}/in", "-o", "{tmp}/in/m"], "inside the input folder"),
 ])
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, msg):
+    (tmp_path / "in").mkdir()
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
     assert main(argv) == 2
     err = capsys.readouterr().err
