@@ -16,6 +16,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import GeofaceError, GeofaceWarning, InvalidMeshError
+from ._args import SEED, number
 
 
 class _Parser(argparse.ArgumentParser):
@@ -474,10 +475,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto",
                    help="how to open a closed surface (default auto: plane cut near the bottom if closed)")
     s.add_argument("--up", default="y", help="up axis: x, y, z, -x, -y, -z (default y)")
-    s.add_argument("--height", type=float, default=0.02, help="plane cut height as a fraction of the extent along up (0.02)")
-    s.add_argument("--cap-area", type=float, default=0.02, help="area fraction removed by --open cap (0.02)")
-    s.add_argument("--target-vertices", type=int, default=None, help="remesh to about this many vertices")
-    s.add_argument("--min-component-area", type=float, default=None, help="drop components below this area fraction")
+    s.add_argument("--height", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.02, help="plane cut height as a fraction of the extent along up (0.02)")
+    s.add_argument("--cap-area", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.02, help="area fraction removed by --open cap (0.02)")
+    s.add_argument("--target-vertices", type=number(int, 16, 10_000_000), default=None, help="remesh to about this many vertices")
+    s.add_argument("--min-component-area", type=number(float, 0, 1, hi_open=True), default=None, help="drop components below this area fraction")
     s.add_argument("--json", action="store_true", help="print the report and changes as JSON")
     s.set_defaults(func=cmd_repair)
 
@@ -487,11 +488,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", choices=["ricci", "harmonic", "lscm"], default="ricci",
                    help="ricci: conformal map to a rectangle (default); harmonic: to the square by arc length; lscm: free boundary")
     s.add_argument("--corners", default=None, help="four boundary vertex indices I,J,K,L in boundary order")
-    s.add_argument("--corner-set", type=int, default=None, help="one of the 8 augmentation corner sets (0..7)")
+    s.add_argument("--corner-set", type=number(int, 0, 7), default=None, help="one of the 8 augmentation corner sets (0..7)")
     s.add_argument("--fit", choices=["rectangle", "uniform", "stretch"], default="rectangle",
                    help="ricci: write the conformal rectangle itself, height 1 (default), fit it into the unit square "
                         "keeping its aspect (uniform), or stretch it to the square (no longer conformal)")
-    s.add_argument("--tolerance", type=float, default=1e-9, help="curvature tolerance of the flow (radians)")
+    s.add_argument("--tolerance", type=number(float, 0, 1, lo_open=True), default=1e-9, help="curvature tolerance of the flow (radians)")
     s.add_argument("--repair", action="store_true", help="run make_disk first")
     s.add_argument("--up", default="y", help="up axis for --repair")
     s.add_argument("--json", default=None, metavar="M.json", help="write the metrics as JSON")
@@ -500,16 +501,16 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("convert", help="mesh -> geometry images (+ reconstruction, preview, metrics)")
     s.add_argument("input")
     s.add_argument("out_dir")
-    s.add_argument("--res", type=int, default=512, help="image resolution N (default 512)")
+    s.add_argument("--res", type=number(int, 4, 8192), default=512, help="image resolution N (default 512)")
     s.add_argument("--roi", default="face", help="region magnified by --lam: face (a frontal cone), none, or a mask file (.npy, .txt, .json)")
-    s.add_argument("--lam", type=float, default=2.5, help="mass factor on the ROI (paper: 2.5; 1 = area-preserving)")
-    s.add_argument("--augment", type=int, default=1, help="number of corner sets, 1..8 (one image set each)")
-    s.add_argument("--corner-set", type=int, default=None, metavar="K",
+    s.add_argument("--lam", type=number(float, 0, 1000, lo_open=True), default=2.5, help="mass factor on the ROI (paper: 2.5; 1 = area-preserving)")
+    s.add_argument("--augment", type=number(int, 1, 8), default=1, help="number of corner sets, 1..8 (one image set each)")
+    s.add_argument("--corner-set", type=number(int, 0, 7), default=None, metavar="K",
                    help="convert with corner set K (0..7) only, written directly in OUT_DIR (0: the default, face "
                         "upright and centred; 4: the boundary point under the chin at a corner)")
     s.add_argument("--method", choices=["ot", "conformal"], default="ot", help="measure-preserving (ot, default) or conformal")
-    s.add_argument("--ot-tol", type=float, default=1e-3, help="OT tolerance: max relative cell-area error (1e-3)")
-    s.add_argument("--smooth", type=int, default=0, help="Laplacian smoothing iterations of the reconstruction")
+    s.add_argument("--ot-tol", type=number(float, 0, 1, lo_open=True, hi_open=True), default=1e-3, help="OT tolerance: max relative cell-area error (1e-3)")
+    s.add_argument("--smooth", type=number(int, 0, 1000), default=0, help="Laplacian smoothing iterations of the reconstruction")
     s.add_argument("--up", default="y", help="up axis: x, y, z, -x, -y, -z (default y): where closed heads are cut open, "
                    "and which way the face is upright in the image; auto: from the opening of a surface already open "
                    "(the neck), else y")
@@ -521,7 +522,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("reconstruct", help="geometry-image folder -> textured mesh")
     s.add_argument("dir")
     s.add_argument("-o", "--output", required=True, help="output mesh (obj writes .mtl, texture and normal map too)")
-    s.add_argument("--smooth", type=int, default=0, help="Laplacian smoothing iterations")
+    s.add_argument("--smooth", type=number(int, 0, 1000), default=0, help="Laplacian smoothing iterations")
     s.set_defaults(func=cmd_reconstruct)
 
     s = sub.add_parser("view", help="show a mesh or geometry-image folder (or render it to a PNG)")
@@ -537,15 +538,15 @@ def build_parser() -> argparse.ArgumentParser:
     b = _verbs(s, common).add_parser("build", help="every mesh x corner set -> a geometry-image folder (resumable, parallel)")
     b.add_argument("in_dir", help="folder of meshes (optional <stem>.json face masks, labels.jsonl)")
     b.add_argument("out_dir")
-    b.add_argument("--res", type=int, default=512, help="image resolution N (default 512)")
-    b.add_argument("--augment", type=int, default=8, help="corner sets per mesh, 1..8 (default 8)")
-    b.add_argument("--workers", type=int, default=None, help="local worker processes (default: the number of cores; 1 = serial)")
+    b.add_argument("--res", type=number(int, 4, 8192), default=512, help="image resolution N (default 512)")
+    b.add_argument("--augment", type=number(int, 1, 8), default=8, help="corner sets per mesh, 1..8 (default 8)")
+    b.add_argument("--workers", type=number(int, 1, 1024), default=None, help="local worker processes (default: the number of cores; 1 = serial)")
     b.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a Dask scheduler (tcp://host:port) instead of the local pool")
     b.add_argument("--labels", default=None, help="labels/prompts per mesh stem (.jsonl or .json; default IN_DIR/labels.jsonl)")
     b.add_argument("--roi", choices=["auto", "face", "none"], default="auto", help="auto: <stem>.json face mask when present, else the face cone")
-    b.add_argument("--lam", type=float, default=2.5, help="mass factor on the ROI (2.5)")
+    b.add_argument("--lam", type=number(float, 0, 1000, lo_open=True), default=2.5, help="mass factor on the ROI (2.5)")
     b.add_argument("--method", choices=["ot", "conformal"], default="ot")
-    b.add_argument("--ot-tol", type=float, default=1e-3)
+    b.add_argument("--ot-tol", type=number(float, 0, 1, lo_open=True, hi_open=True), default=1e-3)
     b.add_argument("--reconstruct", action="store_true", help="also write reconstruction.obj and its error")
     b.add_argument("--retry-failed", action="store_true", help="try items that failed in an earlier run again")
     b.add_argument("--strict", action="store_true", help="exit code 1 when any item failed")
@@ -573,24 +574,27 @@ def build_parser() -> argparse.ArgumentParser:
     ss = _verbs(s, common)
     h = ss.add_parser("head", help="the procedural expressive head")
     h.add_argument("-o", "--output", required=True)
-    h.add_argument("--vertices", type=int, default=20000)
-    h.add_argument("--seed", type=int, default=0)
+    h.add_argument("--vertices", type=number(int, 1000, 200_000), default=20000)
+    h.add_argument("--seed", type=SEED, default=0)
     h.add_argument("--expression", default=None, help="e.g. smile=0.8,jaw_open=0.3")
-    h.add_argument("--texture-size", type=int, default=512)
+    h.add_argument("--texture-size", type=number(int, 16, 8192), default=512)
     h.add_argument("--meta", default=None, help="also write identity, expression, landmarks and face mask as JSON")
     h.set_defaults(func=cmd_synth_head)
     a = ss.add_parser("surface", help="an analytic surface")
     a.add_argument("name", choices=SURFACES)
     a.add_argument("-o", "--output", required=True)
-    a.add_argument("--resolution", type=int, default=24)
-    a.add_argument("--seed", type=int, default=0)
+    a.add_argument("--resolution", type=number(int, 2, 2048), default=24)
+    a.add_argument("--seed", type=SEED, default=0)
     a.set_defaults(func=cmd_synth_surface)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:  # a usage error (one line already printed), --help or --version
+        return int(e.code or 0) if not isinstance(e.code, str) else 2
     if not hasattr(args, "force"):
         args.force = False
     from .progress import set_quiet

@@ -32,7 +32,7 @@ def digest(folder: Path) -> dict:
 
 
 def one_line_error(code, err):
-    return code == 2 and err.startswith("geoface: error:") and len(err.strip().splitlines()) == 1
+    return code == 2 and err.startswith("geoface") and ": error: " in err and len(err.strip().splitlines()) == 1
 
 
 @pytest.fixture(scope="module")
@@ -271,3 +271,29 @@ def test_neural_commands_keep_what_exists(tmp_path, case):
     code, _, err = run(*args)
     assert one_line_error(code, err), err
     assert digest(tmp_path) == before
+
+
+@pytest.mark.parametrize("argv", [
+    ("ddpm", "sample", "r", "p", "-o", "o", "--guidance", "nan"),
+    ("ddpm", "sample", "r", "p", "-o", "o", "--guidance", "-1"),
+    ("ddpm", "train", "d", "-o", "r", "--batch", "0"),
+    ("ddpm", "train", "d", "-o", "r", "--lr", "nan"),
+    ("talk", "synth", "o", "--fps", "nan"),
+    ("talk", "synth", "o", "--fps", "0"),
+    ("talk", "animate", "m", "--audio", "a.wav", "-o", "o", "--fps", "-5"),
+    ("talk", "train", "d", "-o", "m", "--stage-scale", "0"),
+    ("hmd", "synth", "o", "--motion", "nan"),
+    ("hmd", "train", "r", "-o", "m", "--ema", "1.2"),
+    ("splat", "fit", "m.ply", "-o", "o.ply", "--threads", "-1"),
+    ("texture", "train", "d", "-o", "m", "--k", "0"),
+    ("convert", "a.obj", "o", "--smooth", "1000000000"),
+    ("convert", "a.obj", "o", "--res", "3"),
+    ("convert", "a.obj", "o", "--lam", "inf"),
+    ("synth", "surface", "torus", "-o", "t.obj", "--resolution", "1000000000"),
+    ("synth", "head", "-o", "h.obj", "--seed", "-3"),
+    ("dataset", "build", "i", "o", "--workers", "0"),
+])
+def test_numeric_options_have_ranges(tmp_path, argv):
+    code, _, err = run(*argv, cwd=tmp_path)
+    assert code == 2 and "error: argument" in err and len(err.strip().splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []

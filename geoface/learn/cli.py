@@ -8,8 +8,24 @@ import argparse
 from pathlib import Path
 
 from geoface.errors import GeofaceError
+from geoface._args import SEED, number
 
 __all__ = ["register", "cmd_ddpm_train", "cmd_ddpm_sample"]
+
+
+def _device(name):
+    """``--device``: cpu or cuda[:k]; cuda only where torch sees a GPU (one line otherwise)."""
+    if name is None or name == "cpu":
+        return name
+    if not (name == "cuda" or (name.startswith("cuda:") and name[5:].isdigit())):
+        raise GeofaceError(f"--device must be cpu, cuda or cuda:K; got {name!r}")
+    import torch
+
+    if not torch.cuda.is_available():
+        raise GeofaceError(f"--device {name}: torch sees no CUDA GPU on this machine; use --device cpu")
+    if ":" in name and int(name[5:]) >= torch.cuda.device_count():
+        raise GeofaceError(f"--device {name}: there are {torch.cuda.device_count()} CUDA devices")
+    return name
 
 
 def _quiet(args):
@@ -26,7 +42,7 @@ def cmd_ddpm_train(args) -> int:
                      checkpoint_every=args.checkpoint_every, augment=not args.no_augment)
     if args.tiny:  # CPU smoke-test model
         cfg.block_out_channels, cfg.layers_per_block, cfg.norm_num_groups, cfg.attention_head_dim = (16, 32), 1, 8, 8
-    last = train(args.data_dir, args.output, cfg, resume=args.resume, device=args.device, quiet=_quiet(args))
+    last = train(args.data_dir, args.output, cfg, resume=args.resume, device=_device(args.device), quiet=_quiet(args))
     print(f"{args.output}/checkpoint: step {last['step']}, loss {last['loss']:.4f} "
           + " ".join(f"{k} {v:.4f}" for k, v in last["losses"].items()))
     return 0
@@ -41,7 +57,7 @@ def cmd_ddpm_sample(args) -> int:
         raise GeofaceError("-n and --steps must be >= 1")
     run = load_run(args.run_dir)
     x = sample(run, args.prompt, n=args.n, steps=args.steps, scheduler=args.scheduler,
-               guidance=args.guidance, seed=args.seed, device=args.device, quiet=_quiet(args))
+               guidance=args.guidance, seed=args.seed, device=_device(args.device), quiet=_quiet(args))
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     for k, gi in enumerate(to_geometry_images(x, run.state)):
@@ -69,13 +85,13 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t = sd.add_parser("train", parents=[common], help="train or resume a DDPM run on a geometry-image dataset")
     t.add_argument("data_dir", help="dataset folder (manifest.jsonl from `geoface dataset build`, or folders with meta.json)")
     t.add_argument("-o", "--output", required=True, metavar="RUN_DIR")
-    t.add_argument("--res", type=int, default=64, help="training resolution (divides the image resolution)")
-    t.add_argument("--steps", type=int, default=10000, help="total optimisation steps")
-    t.add_argument("--batch", type=int, default=8)
-    t.add_argument("--lr", type=float, default=1e-4)
+    t.add_argument("--res", type=number(int, 8, 1024), default=64, help="training resolution (divides the image resolution)")
+    t.add_argument("--steps", type=number(int, 1, 100_000_000), default=10000, help="total optimisation steps")
+    t.add_argument("--batch", type=number(int, 1, 4096), default=8)
+    t.add_argument("--lr", type=number(float, 0, 1, lo_open=True), default=1e-4)
     t.add_argument("--text-encoder", default="minilm", help="minilm | clip:PATH | hash[:DIM]")
-    t.add_argument("--checkpoint-every", type=int, default=500)
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--checkpoint-every", type=number(int, 1, 100_000_000), default=500)
+    t.add_argument("--seed", type=SEED, default=0)
     t.add_argument("--device", default=None, help="cpu | cuda (default: cuda when available)")
     t.add_argument("--no-augment", action="store_true")
     t.add_argument("--tiny", action="store_true", help="a very small UNet (smoke tests)")
@@ -84,11 +100,11 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     p = sd.add_parser("sample", parents=[common], help="sample geometry images + meshes for a prompt")
     p.add_argument("run_dir")
     p.add_argument("prompt")
-    p.add_argument("-n", type=int, default=4)
-    p.add_argument("--steps", type=int, default=50)
+    p.add_argument("-n", type=number(int, 1, 10_000), default=4)
+    p.add_argument("--steps", type=number(int, 1, 100_000_000), default=50)
     p.add_argument("--scheduler", choices=["ddpm", "ddim"], default="ddim")
-    p.add_argument("--guidance", type=float, default=3.0)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--guidance", type=number(float, 0, 100), default=3.0)
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--device", default="cpu")
     p.add_argument("-o", "--output", required=True, metavar="OUT_DIR")
     p.set_defaults(func=cmd_ddpm_sample)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from geoface.errors import GeofaceError
+from geoface._args import SEED, number
 
 __all__ = ["register"]
 
@@ -129,30 +130,30 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     sd.required = True
     p = sd.add_parser("synth", parents=[common], help="write synthetic (photo, maps, UV, normal) samples")
     p.add_argument("output", metavar="OUT_DIR")
-    p.add_argument("--count", type=int, default=8)
-    p.add_argument("--res", type=int, default=512, help="photo resolution")
-    p.add_argument("--map-res", type=int, default=None, help="UV-map resolution (default max(res, 1024))")
-    p.add_argument("--vertices", type=int, default=20000)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--count", type=number(int, 1, 100_000), default=8)
+    p.add_argument("--res", type=number(int, 16, 8192), default=512, help="photo resolution")
+    p.add_argument("--map-res", type=number(int, 16, 16384), default=None, help="UV-map resolution (default max(res, 1024))")
+    p.add_argument("--vertices", type=number(int, 1000, 200_000), default=20000)
+    p.add_argument("--seed", type=SEED, default=0)
     p.set_defaults(func=cmd_synth)
     t = sd.add_parser("train", parents=[common], help="train predictor, GDE and HFDR in turn")
     t.add_argument("data_dir")
     t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
-    t.add_argument("--gde-res", type=int, default=256, help="resolution of the predictor and GDE (paper: 1024)")
-    t.add_argument("--k", type=int, default=4, help="HFDR patches per side")
+    t.add_argument("--gde-res", type=number(int, 16, 4096), default=256, help="resolution of the predictor and GDE (paper: 1024)")
+    t.add_argument("--k", type=number(int, 1, 64), default=4, help="HFDR patches per side")
     t.add_argument("--epochs", default="20,20,20", help="epochs of predictor, GDE, HFDR")
-    t.add_argument("--lr", type=float, default=1e-3)
-    t.add_argument("--batch", type=int, default=4)
+    t.add_argument("--lr", type=number(float, 0, 1, lo_open=True), default=1e-3)
+    t.add_argument("--batch", type=number(int, 1, 4096), default=4)
     t.add_argument("--no-hash", action="store_true", help="GDE without the UV hash encoding (ablation)")
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--seed", type=SEED, default=0)
     t.set_defaults(func=cmd_train)
     r = sd.add_parser("reconstruct", parents=[common], help="albedo, micronormal, specular maps of a photo")
     r.add_argument("photo")
     r.add_argument("--model", required=True, metavar="MODEL_DIR")
     r.add_argument("--mesh", default=None, help="a mesh with UVs to project the maps into")
     r.add_argument("--camera", default=None, metavar="CAM.json", help="K, R, t of the photo's camera (OpenCV)")
-    r.add_argument("--uv-size", type=int, default=1024)
-    r.add_argument("--k", type=int, default=None, help="patches per side (default: the model's)")
+    r.add_argument("--uv-size", type=number(int, 16, 16384), default=1024)
+    r.add_argument("--k", type=number(int, 1, 64), default=None, help="patches per side (default: the model's)")
     r.add_argument("--no-refine", action="store_true", help="GDE maps upsampled (baseline), no HFDR")
     r.add_argument("-o", "--output", required=True, metavar="OUT_DIR")
     r.set_defaults(func=cmd_reconstruct)

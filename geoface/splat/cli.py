@@ -8,6 +8,7 @@ import argparse
 from pathlib import Path
 
 from geoface.errors import GeofaceError
+from geoface._args import SEED, number
 
 __all__ = ["register", "cmd_splat_fit"]
 
@@ -76,13 +77,13 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     f = sd.add_parser("fit", parents=[common], help="fit 3D Gaussians to synthetic views of a coloured mesh")
     f.add_argument("mesh", help="mesh with per-vertex colours (e.g. from `geoface synth head -o head.ply`)")
     f.add_argument("-o", "--output", required=True, metavar="OUT.ply", help="3DGS PLY to write")
-    f.add_argument("--views", type=int, default=24, help="training views on three orbit rings (24)")
-    f.add_argument("--res", type=int, default=128, help="image side in pixels (128)")
-    f.add_argument("--iters", type=int, default=1500, help="optimisation steps (1500)")
-    f.add_argument("--sh-degree", type=int, default=0, help="spherical-harmonics degree 0..3 (0)")
-    f.add_argument("--seed", type=int, default=0)
-    f.add_argument("--heldout", type=int, default=4, help="held-out views for the PSNR report (4)")
-    f.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
+    f.add_argument("--views", type=number(int, 1, 1000), default=24, help="training views on three orbit rings (24)")
+    f.add_argument("--res", type=number(int, 8, 4096), default=128, help="image side in pixels (128)")
+    f.add_argument("--iters", type=number(int, 1, 10_000_000), default=1500, help="optimisation steps (1500)")
+    f.add_argument("--sh-degree", type=number(int, 0, 3), default=0, help="spherical-harmonics degree 0..3 (0)")
+    f.add_argument("--seed", type=SEED, default=0)
+    f.add_argument("--heldout", type=number(int, 0, 1000), default=4, help="held-out views for the PSNR report (4)")
+    f.add_argument("--threads", type=number(int, 1, 1024), default=None, help="torch CPU threads (default: torch's)")
     f.add_argument("--no-densify", action="store_true", help="no clone/split/prune")
     f.add_argument("--renders", default=None, metavar="DIR", help="write held-out ground truth | fit PNGs here")
     f.set_defaults(func=cmd_splat_fit)

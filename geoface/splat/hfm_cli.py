@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 from geoface.errors import GeofaceError
+from geoface._args import SEED, number
 
 __all__ = ["register"]
 
@@ -110,29 +111,29 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     hs.required = True
     s = hs.add_parser("synth", parents=[common], help="write synthetic registration and usage videos")
     s.add_argument("output", metavar="OUT_DIR")
-    s.add_argument("--frames", type=int, default=200, help="frames in the whole sequence (200)")
-    s.add_argument("--heldout", type=float, default=0.2, help="last fraction that becomes the usage video (0.2)")
-    s.add_argument("--res", type=int, default=128, help="image side in pixels (128)")
-    s.add_argument("--vertices", type=int, default=8000, help="procedural head vertices (8000)")
-    s.add_argument("--motion", type=float, default=1.0, help="head motion scale (1; 0 = still)")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--frames", type=number(int, 2, 100_000), default=200, help="frames in the whole sequence (200)")
+    s.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.2, help="last fraction that becomes the usage video (0.2)")
+    s.add_argument("--res", type=number(int, 16, 4096), default=128, help="image side in pixels (128)")
+    s.add_argument("--vertices", type=number(int, 1000, 200_000), default=8000, help="procedural head vertices (8000)")
+    s.add_argument("--motion", type=number(float, 0, 100), default=1.0, help="head motion scale (1; 0 = still)")
+    s.add_argument("--seed", type=SEED, default=0)
     s.set_defaults(func=cmd_hmd_synth)
     t = hs.add_parser("train", parents=[common], help="register a person from an unoccluded video folder")
     t.add_argument("reg_dir", metavar="REG_DIR")
     t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
-    t.add_argument("--iters", type=int, default=2000, help="optimisation steps (2000)")
-    t.add_argument("--warmup", type=float, default=0.2,
+    t.add_argument("--iters", type=number(int, 1, 10_000_000), default=2000, help="optimisation steps (2000)")
+    t.add_argument("--warmup", type=number(float, 0, 1, hi_open=True), default=0.2,
                    help="fraction of the steps that trains the Gaussians alone before the networks (0.2)")
-    t.add_argument("--ema", type=float, default=0.99, metavar="DECAY",
+    t.add_argument("--ema", type=number(float, 0, 1, hi_open=True), default=0.99, metavar="DECAY",
                    help="save the moving average of the weights over the steps after density control, with this "
                         "decay per step (0.99; 0 saves the last step's weights)")
     t.add_argument("--ablation", choices=sorted(ABLATION_NAMES), default="full")
     t.add_argument("--vgg-weights", default=None, metavar="FILE",
                    help="local VGG-16 feature weights (.safetensors or .pth) for the perceptual term")
-    t.add_argument("--y-split", type=float, default=None, help="upper/lower split height y_t (default: meta.json)")
+    t.add_argument("--y-split", type=number(float), default=None, help="upper/lower split height y_t (default: meta.json)")
     t.add_argument("--no-densify", action="store_true", help="no clone/split/prune")
-    t.add_argument("--threads", type=int, default=None, help="torch CPU threads")
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--threads", type=number(int, 1, 1024), default=None, help="torch CPU threads")
+    t.add_argument("--seed", type=SEED, default=0)
     t.set_defaults(func=cmd_hmd_train)
     r = hs.add_parser("remove", parents=[common], help="restore the full face in a headset video (streams, reports FPS)")
     r.add_argument("model_dir", metavar="MODEL_DIR")

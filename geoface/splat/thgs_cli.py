@@ -13,6 +13,7 @@ from geoface.errors import GeofaceError
 __all__ = ["register"]
 
 from geoface.splat.hfm_cli import _quiet  # noqa: E402  (argparse only, no torch)
+from geoface._args import SEED, number
 
 
 def cmd_talk_synth(args) -> int:
@@ -81,34 +82,34 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     hs.required = True
     s = hs.add_parser("synth", parents=[common], help="write a synthetic talking-head data folder")
     s.add_argument("output", metavar="OUT_DIR")
-    s.add_argument("--seconds", type=float, default=8.0)
-    s.add_argument("--fps", type=float, default=25.0)
-    s.add_argument("--res", type=int, default=128)
-    s.add_argument("--vertices", type=int, default=6000)
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seconds", type=number(float, 0, 3600, lo_open=True), default=8.0)
+    s.add_argument("--fps", type=number(float, 0, 240, lo_open=True), default=25.0)
+    s.add_argument("--res", type=number(int, 16, 4096), default=128)
+    s.add_argument("--vertices", type=number(int, 1000, 200_000), default=6000)
+    s.add_argument("--seed", type=SEED, default=0)
     s.set_defaults(func=cmd_talk_synth)
     t = hs.add_parser("train", parents=[common], help="fit a talking avatar to a data folder")
     t.add_argument("data_dir", metavar="DATA_DIR")
     t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
-    t.add_argument("--iters", type=int, default=3000)
-    t.add_argument("--stage-scale", type=float, default=None,
+    t.add_argument("--iters", type=number(int, 1, 10_000_000), default=3000)
+    t.add_argument("--stage-scale", type=number(float, 0, 100, lo_open=True), default=None,
                    help="factor on the paper's stage starts 1.5K/15K/25K/50K (default iters/60000)")
     t.add_argument("--no-leb", action="store_true", help="ablation: no learnable expression blendshapes")
     t.add_argument("--no-saam", action="store_true", help="ablation: no spatial audio attention")
-    t.add_argument("--heldout", type=float, default=0.2, help="last fraction of frames kept out of training (0.2)")
-    t.add_argument("--threads", type=int, default=None)
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.2, help="last fraction of frames kept out of training (0.2)")
+    t.add_argument("--threads", type=number(int, 1, 1024), default=None)
+    t.add_argument("--seed", type=SEED, default=0)
     t.set_defaults(func=cmd_talk_train)
     a = hs.add_parser("animate", parents=[common], help="drive a trained avatar by speech (frames, FPS)")
     a.add_argument("model_dir", metavar="MODEL_DIR")
     a.add_argument("--audio", required=True, help="WAV file, or .npy/.npz per-frame features")
     a.add_argument("--poses", default=None, help=".npz with rot [T, J, 3], transl [T, 3], expr [T, K]")
-    a.add_argument("--fps", type=float, default=25.0)
+    a.add_argument("--fps", type=number(float, 0, 240, lo_open=True), default=25.0)
     a.add_argument("-o", "--output", required=True, metavar="OUT_DIR")
     a.set_defaults(func=cmd_talk_animate)
     e = hs.add_parser("eval", parents=[common], help="held-out PSNR/SSIM, mouth error, lip sync, FPS")
     e.add_argument("model_dir", metavar="MODEL_DIR")
     e.add_argument("data_dir", metavar="DATA_DIR")
-    e.add_argument("--heldout", type=float, default=None, help="default: the fraction used in training")
+    e.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=None, help="default: the fraction used in training")
     e.add_argument("--json", default=None, metavar="FILE")
     e.set_defaults(func=cmd_talk_eval)

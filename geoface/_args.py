@@ -1,0 +1,48 @@
+"""Typed, ranged command-line numbers: ``--fps nan``, ``--batch 0`` or ``--smooth 1e9`` are
+one-line usage errors (exit code 2), never a traceback or a run that cannot end."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+__all__ = ["number", "SEED"]
+
+
+def number(kind: type = float, lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
+           hi_open: bool = False):
+    """An argparse ``type`` for a finite ``int`` or ``float`` in a range.
+
+    >>> number(int, 1, 8)("3"), number(float, 0, lo_open=True)("0.5")
+    (3, 0.5)
+    """
+    what = "an integer" if kind is int else "a finite number"
+    bounds = []
+    if lo is not None:
+        bounds.append(f"{'>' if lo_open else '>='} {lo:g}")
+    if hi is not None:
+        bounds.append(f"{'<' if hi_open else '<='} {hi:g}")
+    desc = what + (" " + " and ".join(bounds) if bounds else "")
+
+    def parse(text: str):
+        try:
+            if kind is int:
+                v = int(text, 10)
+            else:
+                v = float(text)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(f"must be {desc}; got {text!r}") from None
+        if kind is float and not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"must be {desc}; got {text!r}")
+        if lo is not None and (v < lo or (lo_open and v == lo)):
+            raise argparse.ArgumentTypeError(f"must be {desc}; got {text!r}")
+        if hi is not None and (v > hi or (hi_open and v == hi)):
+            raise argparse.ArgumentTypeError(f"must be {desc}; got {text!r}")
+        return v
+
+    parse.__name__ = "number"
+    return parse
+
+
+#: random seeds: what NumPy and torch accept everywhere
+SEED = number(int, 0, 2**32 - 1)
