@@ -22,7 +22,40 @@ from pathlib import Path
 from .errors import GeofaceError
 
 __all__ = ["atomic_path", "atomic_dir", "atomic_write_text", "check_outputs", "default_mode", "OutputError",
-           "clean_stale_temporaries"]
+           "clean_stale_temporaries", "image_size", "MAX_IMAGE_PIXELS"]
+
+#: the largest image geoface decodes (a 16384^2 geometry image); a header claiming more is refused
+MAX_IMAGE_PIXELS = 16384 * 16384
+
+
+def image_size(path: str | os.PathLike, *, max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int] | None:
+    """``(width, height)`` from a PNG or JPEG header without decoding the image; raises
+    :class:`GeofaceError` when the header claims more than ``max_pixels`` (decoding a forged
+    60000² header would allocate tens of GB).  None for other formats or a short file."""
+    import struct
+
+    p = Path(path)
+    with open(p, "rb") as fh:
+        head = fh.read(64 * 1024)
+    size = None
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) >= 24 and head[12:16] == b"IHDR":
+        size = struct.unpack(">II", head[16:24])
+    elif head[:2] == b"\xff\xd8":
+        i = 2
+        while i + 9 < len(head):
+            if head[i] != 0xFF:
+                i += 1
+                continue
+            marker = head[i + 1]
+            if marker in (0xC0, 0xC1, 0xC2):
+                h, w = struct.unpack(">HH", head[i + 5:i + 9])
+                size = (w, h)
+                break
+            i += 2 + struct.unpack(">H", head[i + 2:i + 4])[0]
+    if size is not None and size[0] * size[1] > max_pixels:
+        raise GeofaceError(f"{p}: the image claims {size[0]}x{size[1]} pixels, more than geoface decodes "
+                           f"({max_pixels} pixels)")
+    return size
 
 _TAG = "geoface"
 

@@ -130,12 +130,17 @@ def read_manifest(out_dir: str | os.PathLike) -> dict:
     p = Path(out_dir) / MANIFEST
     last: dict = {}
     if p.is_file():
-        for line in p.read_text().splitlines():
+        try:
+            text = p.read_bytes().decode("utf-8")
+        except UnicodeDecodeError:
+            raise GeofaceError(f"{p} is not a text file (not UTF-8); move it away or build into another folder") from None
+        for line in text.splitlines():
             try:
                 row = json.loads(line)
-                last[row["item"]] = row
-            except (json.JSONDecodeError, KeyError, TypeError):
+            except json.JSONDecodeError:
                 continue  # a line cut short by a killed run
+            if isinstance(row, dict) and isinstance(row.get("item"), str):
+                last[row["item"]] = row
     return last
 
 

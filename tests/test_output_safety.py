@@ -297,3 +297,39 @@ def test_numeric_options_have_ranges(tmp_path, argv):
     code, _, err = run(*argv, cwd=tmp_path)
     assert code == 2 and "error: argument" in err and len(err.strip().splitlines()) == 1, err
     assert list(tmp_path.iterdir()) == []
+
+
+def _png_header(path: Path, w: int, h: int) -> None:
+    import struct
+    import zlib
+
+    ihdr = struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0)
+    chunk = b"IHDR" + ihdr
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + struct.pack(">I", len(ihdr)) + chunk + struct.pack(">I", zlib.crc32(chunk)))
+
+
+@pytest.mark.parametrize("case", ["meta_null", "meta_strings", "png_60000", "manifest_binary"])
+def test_corrupt_geometry_image_and_dataset_files(demo, tmp_path, case):
+    import shutil
+
+    d, _ = demo
+    gim = tmp_path / "gim"
+    shutil.copytree(d / "head_gim", gim)
+    if case == "meta_null":
+        (gim / "meta.json").write_text("null")
+    elif case == "meta_strings":
+        meta = json.loads((gim / "meta.json").read_text())
+        meta["version"], meta["bbox_min"] = "2", ["a", "b", "c"]
+        (gim / "meta.json").write_text(json.dumps(meta))
+    elif case == "png_60000":
+        _png_header(gim / "position.png", 60000, 60000)
+    if case == "manifest_binary":
+        data = tmp_path / "ds"
+        data.mkdir()
+        (data / "manifest.jsonl").write_bytes(bytes(range(256)) * 4)
+        code, _, err = run("ddpm", "train", data, "-o", tmp_path / "run", "--steps", "1", "--tiny")
+        assert one_line_error(code, err), err
+        return
+    code, _, err = run("reconstruct", gim, "-o", tmp_path / "rec.obj")
+    assert one_line_error(code, err), err
+    assert not (tmp_path / "rec.obj").exists()

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidGeometryImageError
+from ..errors import GeofaceError, InvalidGeometryImageError
 from ..mesh.core import check_mesh, signed_uv_areas, vertex_normals
 from .raster import interpolate, interpolate_corners, rasterize_faces, sample_texture
 
@@ -204,10 +204,18 @@ def _write_png16(path: Path, rgb: np.ndarray) -> None:
         raise InvalidGeometryImageError(f"could not write {path}")
 
 
-def _read_png(path: Path) -> np.ndarray:
+def _read_png(path: Path, expect: int | None = None) -> np.ndarray:
+    from .._io import image_size
+
     cv2 = _cv2()
     if not path.is_file():
         raise InvalidGeometryImageError(f"missing {path.name} in {path.parent}")
+    try:
+        size = image_size(path)
+    except GeofaceError as e:
+        raise InvalidGeometryImageError(str(e)) from None
+    if expect is not None and size is not None and size != (expect, expect):
+        raise InvalidGeometryImageError(f"{path.name} must be {expect}x{expect}; its header says {size[0]}x{size[1]}")
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise InvalidGeometryImageError(f"{path} is not a readable PNG")
@@ -260,13 +268,26 @@ def load_gimage(folder: str | os.PathLike) -> GeometryImage:
         meta = json.loads(mp.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise InvalidGeometryImageError(f"{mp} is not valid JSON ({e})") from None
+    if not isinstance(meta, dict):
+        raise InvalidGeometryImageError(f"{mp} must hold a JSON object; got {type(meta).__name__}")
     for key in ("version", "resolution", "channels", "bbox_min", "bbox_max"):
         if key not in meta:
             raise InvalidGeometryImageError(f"{mp} lacks '{key}'")
+    if isinstance(meta["version"], bool) or not isinstance(meta["version"], int) or meta["version"] < 1:
+        raise InvalidGeometryImageError(f"{mp}: version must be a positive integer; got {meta['version']!r}")
+    ch = meta["channels"]
+    if not isinstance(ch, list) or not all(isinstance(c, str) for c in ch):
+        raise InvalidGeometryImageError(f"{mp}: channels must be a list of names; got {ch!r}")
+    for key in ("bbox_min", "bbox_max"):
+        b = meta[key]
+        if not isinstance(b, list) or len(b) != 3 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in b):
+            raise InvalidGeometryImageError(f"{mp}: {key} must be three numbers; got {b!r}")
+    if "align_corners" in meta and not isinstance(meta["align_corners"], bool):
+        raise InvalidGeometryImageError(f"{mp}: align_corners must be true or false; got {meta['align_corners']!r}")
     if meta["version"] > FORMAT_VERSION:
         raise InvalidGeometryImageError(f"{mp}: format version {meta['version']} is newer than this geoface ({FORMAT_VERSION})")
     N = meta["resolution"]
-    if not isinstance(N, int) or N < 2:
+    if isinstance(N, bool) or not isinstance(N, int) or not 2 <= N <= 65536:
         raise InvalidGeometryImageError(f"{mp}: bad resolution {N!r}")
     lo, hi = np.asarray(meta["bbox_min"], float), np.asarray(meta["bbox_max"], float)
     if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()) or (hi <= lo).any():
@@ -276,7 +297,7 @@ def load_gimage(folder: str | os.PathLike) -> GeometryImage:
     for name, cn in MODALITIES.items():
         if not all(c in meta["channels"] for c in cn):
             continue
-        img = _read_png(folder / f"{name}.png")
+        img = _read_png(folder / f"{name}.png", expect=N)
         if img.dtype != np.uint16:
             raise InvalidGeometryImageError(f"{name}.png must be 16-bit; got {img.dtype}")
         if img.shape != (N, N, 3):
@@ -287,7 +308,7 @@ def load_gimage(folder: str | os.PathLike) -> GeometryImage:
         raise InvalidGeometryImageError(f"{folder} has no position image")
     mpng = folder / "mask.png"
     if mpng.is_file():
-        m = _read_png(mpng)
+        m = _read_png(mpng, expect=N)
         if m.ndim != 2 or m.shape != (N, N):
             raise InvalidGeometryImageError(f"mask.png must be {N}x{N} grey; got {m.shape}")
         mask = m > 0

@@ -53,14 +53,20 @@ def find_items(data_dir: str | os.PathLike) -> list[tuple[Path, str]]:
     items: list[tuple[Path, str]] = []
     if man.is_file():
         last: dict[str, dict] = {}
-        for n, line in enumerate(man.read_text(encoding="utf-8").splitlines(), 1):
+        try:
+            text = man.read_bytes().decode("utf-8")
+        except UnicodeDecodeError:
+            raise GeofaceError(f"{man} is not a text file (not UTF-8)") from None
+        for n, line in enumerate(text.splitlines(), 1):
             if not line.strip():
                 continue
             try:
                 row = json.loads(line)
             except json.JSONDecodeError as e:
                 raise GeofaceError(f"{man}: line {n} is not JSON ({e})") from None
-            if "item" in row:
+            if not isinstance(row, dict):
+                raise GeofaceError(f"{man}: line {n} is not a JSON object")
+            if isinstance(row.get("item"), str):
                 last[row["item"]] = row
         for name in sorted(last):
             row = last[name]
@@ -70,8 +76,9 @@ def find_items(data_dir: str | os.PathLike) -> list[tuple[Path, str]]:
     else:
         for meta in sorted(root.rglob("meta.json")):
             try:
-                prompt = str(json.loads(meta.read_text(encoding="utf-8")).get("prompt") or "")
-            except (OSError, json.JSONDecodeError):
+                m = json.loads(meta.read_text(encoding="utf-8"))
+                prompt = str(m.get("prompt") or "") if isinstance(m, dict) else ""
+            except (OSError, json.JSONDecodeError, UnicodeDecodeError):
                 prompt = ""
             items.append((meta.parent, prompt))
     if not items:

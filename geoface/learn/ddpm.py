@@ -278,6 +278,9 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
         total = cfg.steps
         cfg = DDPMConfig.load(ckpt / "config.json")
         cfg.steps = total
+    from .data import find_items
+
+    find_items(data_dir)  # a missing or corrupt dataset is reported before the text encoder loads
     accel = Accelerator(cpu=(device in (None, "cpu")) and not torch.cuda.is_available() or device == "cpu")
     text = text_encoder or make_text_encoder(cfg.text_encoder, cache_dir=run_dir / "text_cache",
                                              max_length=cfg.text_max_length)
@@ -292,8 +295,10 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
         ema.shadow = _load_st(ckpt / "ema.safetensors")
         try:
             state = json.loads((ckpt / "state.json").read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as e:
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
             raise CheckpointError(f"{ckpt / 'state.json'} is missing or corrupt ({e})") from None
+        if not isinstance(state, dict) or not isinstance(state.get("step"), int) or not isinstance(state.get("param_groups"), list):
+            raise CheckpointError(f"{ckpt / 'state.json'}: needs an integer 'step' and a list 'param_groups'")
         opt.load_state_dict(_optim_from_tensors(_load_st(ckpt / "optimizer.safetensors"), state["param_groups"]))
         start = int(state["step"])
     sched = build_scheduler(cfg)

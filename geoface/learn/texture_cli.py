@@ -28,6 +28,9 @@ def _read_photo(path) -> np.ndarray:
     p = Path(path)
     if not p.is_file():
         raise GeofaceError(f"{p}: no such file")
+    from geoface._io import image_size
+
+    image_size(p)  # a forged header claiming 60000^2 is refused before decoding
     img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
     if img is None or img.ndim != 3 or img.shape[2] < 3:
         raise GeofaceError(f"{p} is not a readable RGB image")

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from geoface.splat.camera import Camera, look_at
+from geoface.errors import GeofaceError
 from geoface.splat.errors import SplatError
 
 __all__ = ["HMDVideo", "load_video", "lower_face_box", "crop_lower_face", "make_synthetic_hmd",
@@ -84,6 +85,12 @@ class HMDVideo:
 def _read_png(path: Path, rgb=True) -> np.ndarray:
     import cv2
 
+    from geoface._io import image_size
+
+    try:
+        image_size(path)
+    except (GeofaceError, OSError) as e:
+        raise SplatError(f"{path}: {e}") from None
     a = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if a is None:
         raise SplatError(f"{path}: not a readable image")
