@@ -32,6 +32,11 @@ class InvalidGeometryImageError(GeofaceError):
     """A geometry image or its metadata is malformed."""
 
 
+class CheckpointError(GeofaceError):
+    """A model or training-run folder (config, weights, state) is missing, truncated or
+    inconsistent, or a field of its config has the wrong type or range."""
+
+
 class MissingDependencyError(GeofaceError, ImportError):
     """An optional dependency needed by the requested feature is not installed."""
 

@@ -333,3 +333,37 @@ def test_corrupt_geometry_image_and_dataset_files(demo, tmp_path, case):
     code, _, err = run("reconstruct", gim, "-o", tmp_path / "rec.obj")
     assert one_line_error(code, err), err
     assert not (tmp_path / "rec.obj").exists()
+
+
+@pytest.mark.parametrize("case", ["hmd_version_99", "talk_field_type", "hmd_binary_config", "ddpm_field_type",
+                                  "texture_field_type"])
+def test_model_folders_are_validated(tmp_path, case):
+    """A model folder's config is read through one validated schema: a newer format, a field
+    of the wrong type or a binary file is one line naming the file and the field."""
+    m = tmp_path / "m"
+    m.mkdir()
+    (m / "model.safetensors").write_bytes(b"\0" * 16)
+    data = tmp_path / "d"
+    data.mkdir()
+    if case == "hmd_version_99":
+        (m / "config.json").write_text(json.dumps({"format": "geoface-hfm-gs", "version": 99, "config": {}}))
+        argv, want = ("hmd", "eval", m, data), "newer"
+    elif case == "talk_field_type":
+        (m / "config.json").write_text(json.dumps({"format": "geoface-thgs", "version": 1, "config": {"iters": "many"}}))
+        argv, want = ("talk", "eval", m, data), "'iters'"
+    elif case == "hmd_binary_config":
+        (m / "config.json").write_bytes(bytes(range(256)))
+        argv, want = ("hmd", "eval", m, data), "config.json"
+    elif case == "ddpm_field_type":
+        (m / "checkpoint").mkdir()
+        (m / "checkpoint" / "config.json").write_text(json.dumps({"res": "64"}))
+        argv, want = ("ddpm", "sample", m, "a head", "-o", tmp_path / "out"), "'res'"
+    else:
+        (m / "config.json").write_text(json.dumps({"gde_res": [1, 2]}))
+        (tmp_path / "p.png").write_bytes(b"")
+        import cv2
+
+        cv2.imwrite(str(tmp_path / "p.png"), np.zeros((32, 32, 3), np.uint8))
+        argv, want = ("texture", "reconstruct", tmp_path / "p.png", "--model", m, "-o", tmp_path / "out"), "gde_res"
+    code, _, err = run(*argv)
+    assert one_line_error(code, err) and want in err, err

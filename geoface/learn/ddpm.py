@@ -70,16 +70,10 @@ class DDPMConfig:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "DDPMConfig":
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise CheckpointError(f"config.json has unknown keys {unknown}")
-        d = dict(d)
-        for k in ("block_out_channels", "attention_levels"):
-            if d.get(k) is not None:
-                d[k] = tuple(d[k])
-        return cls(**d)
+    def from_dict(cls, d: dict, where: str = "config.json") -> "DDPMConfig":
+        from geoface.nn.config import config_from_dict
+
+        return config_from_dict(cls, d, where=where)
 
     def save(self, path: str | os.PathLike) -> None:
         atomic_write_text(path, self.to_json())
@@ -90,9 +84,10 @@ class DDPMConfig:
         if not path.is_file():
             raise CheckpointError(f"missing {path.name} in {path.parent}")
         try:
-            return cls.from_dict(json.loads(path.read_text(encoding="utf-8")))
-        except (json.JSONDecodeError, TypeError) as e:
+            d = json.loads(path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
             raise CheckpointError(f"{path} is not a valid config ({e})") from None
+        return cls.from_dict(d, where=str(path))
 
 
 def build_unet(cfg: DDPMConfig):

@@ -1,13 +1,9 @@
 """Errors of the neural add-ons (rooted at :class:`geoface.GeofaceError`)."""
 from __future__ import annotations
 
-from geoface.errors import GeofaceError
+from geoface.errors import CheckpointError, GeofaceError
 
 __all__ = ["CheckpointError", "LearnError", "TextEncoderError"]
-
-
-class CheckpointError(GeofaceError):
-    """A training run / checkpoint folder is missing, truncated or inconsistent."""
 
 
 class TextEncoderError(GeofaceError):

@@ -86,11 +86,15 @@ class TextureTrainConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "TextureTrainConfig":
-        d = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
-        d["nets"] = TextureNetConfig.from_dict(d.get("nets", {}))
-        d["epochs"] = tuple(d.get("epochs", (20, 20, 20)))
-        return cls(**d)
+    def from_dict(cls, d: dict, where: str = "config.json") -> "TextureTrainConfig":
+        from geoface.nn.config import config_from_dict
+
+        def nets(v):
+            if not isinstance(v, dict):
+                raise CheckpointError(f"{where}: field 'nets' must be a JSON object; got {v!r}")
+            return TextureNetConfig.from_dict(v, where=f"{where} (nets)")
+
+        return config_from_dict(cls, d, where=where, unknown="ignore", convert_nested={"nets": nets})
 
 
 class TextureModel(torch.nn.Module):

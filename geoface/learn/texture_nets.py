@@ -124,9 +124,10 @@ class TextureNetConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "TextureNetConfig":
-        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
-        return cls(**known)
+    def from_dict(cls, d: dict, where: str = "config.json (nets)") -> "TextureNetConfig":
+        from geoface.nn.config import config_from_dict
+
+        return config_from_dict(cls, d, where=where, unknown="ignore")
 
 
 class NormalUVPredictor(nn.Module):

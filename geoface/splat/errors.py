@@ -1,7 +1,7 @@
 """Errors raised by :mod:`geoface.splat` (subclasses of :class:`geoface.errors.GeofaceError`)."""
 from __future__ import annotations
 
-from geoface.errors import GeofaceError
+from geoface.errors import CheckpointError, GeofaceError
 
 
 class SplatError(GeofaceError):
@@ -14,3 +14,7 @@ class CameraError(SplatError):
 
 class GaussianPlyError(SplatError):
     """A PLY file that is not in the 3DGS layout."""
+
+
+class ModelFolderError(SplatError, CheckpointError):
+    """A saved avatar model folder that cannot be read (a :class:`CheckpointError` too)."""

@@ -98,7 +98,7 @@ import contextlib
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -195,12 +195,12 @@ class HFMConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "HFMConfig":
-        names = {f.name for f in fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise SplatError(f"unknown HFM config keys: {sorted(unknown)}")
-        return cls(**d)
+    def from_dict(cls, d: dict, where: str = "HFM config") -> "HFMConfig":
+        from geoface.nn.config import config_from_dict
+
+        from .errors import ModelFolderError
+
+        return config_from_dict(cls, d, where=where, error=ModelFolderError)
 
 
 # ----------------------------------------------------------------------------- building blocks
@@ -875,14 +875,28 @@ def write_model_dir(out_dir, module: nn.Module, meta: dict) -> Path:
 def read_model_dir(model_dir, fmt: str, what: str) -> tuple[Path, dict, dict]:
     """(folder, config.json, state dict) of a model folder written by :func:`write_model_dir`
     whose config says ``"format": fmt``; any problem is a one-line SplatError."""
+    d, meta = read_model_config(model_dir, fmt, what)
+    return d, meta, _load_state(d / "model.safetensors")
+
+
+def read_model_config(model_dir, fmt: str, what: str) -> tuple[Path, dict]:
+    """(folder, config.json) of a model folder, validated (format, version, a ``config``
+    object) before any weights are read; problems are :class:`ModelFolderError`."""
+    from geoface.nn.config import check_version
+
+    from .errors import ModelFolderError
+
     d = Path(model_dir)
     try:
         meta = json.loads((d / "config.json").read_text())
     except (OSError, ValueError) as e:
-        raise SplatError(f"{d}: not a {what} model folder (config.json: {type(e).__name__})") from None
+        raise ModelFolderError(f"{d}: not a {what} model folder (config.json: {type(e).__name__})") from None
     if not isinstance(meta, dict) or meta.get("format") != fmt:
-        raise SplatError(f"{d}/config.json: not a {what} model")
-    return d, meta, _load_state(d / "model.safetensors")
+        raise ModelFolderError(f"{d}/config.json: not a {what} model")
+    check_version(meta, 1, where=f"{d}/config.json", error=ModelFolderError)
+    if not isinstance(meta.get("config"), dict):
+        raise ModelFolderError(f"{d}/config.json: 'config' must be a JSON object")
+    return d, meta
 
 
 def save_hfm(model: HFMModel, out_dir) -> None:
@@ -901,7 +915,15 @@ def load_hfm(model_dir) -> HFMModel:
     conf.setdefault("mapping_heads", 1)
     if not conf.get("gaussian_mapping", True):  # before the field: the unmapped upper face had its own MLP
         conf.setdefault("unmapped_upper", "separate" if any(k.startswith("mlp_up.") for k in sd) else "shared")
-    cfg = HFMConfig.from_dict(conf)
+    cfg = HFMConfig.from_dict(conf, where=f"{d}/config.json")
+    from .errors import ModelFolderError
+
+    y_split = meta.get("y_split")
+    if isinstance(y_split, bool) or not isinstance(y_split, (int, float)) or not math.isfinite(y_split):
+        raise ModelFolderError(f"{d}/config.json: y_split must be a number; got {y_split!r}")
+    n_meta = meta.get("n_gaussians")
+    if n_meta is not None and (isinstance(n_meta, bool) or not isinstance(n_meta, int)):
+        raise ModelFolderError(f"{d}/config.json: n_gaussians must be an integer; got {n_meta!r}")
     try:
         n = sd["gaussians.means"].shape[0]
         g = Gaussians(sd["gaussians.means"], sd["gaussians.log_scales"], sd["gaussians.quats"],

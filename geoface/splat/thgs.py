@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -237,11 +237,12 @@ class THGSConfig:
         return tuple(int(round(v * s)) for v in PAPER_STAGES)
 
     @classmethod
-    def from_dict(cls, d):
-        names = {f.name for f in fields(cls)}
-        if set(d) - names:
-            raise SplatError(f"unknown THGS config keys {sorted(set(d) - names)}")
-        return cls(**d)
+    def from_dict(cls, d, where: str = "THGS config"):
+        from geoface.nn.config import config_from_dict
+
+        from .errors import ModelFolderError
+
+        return config_from_dict(cls, d, where=where, error=ModelFolderError)
 
 
 class THGSModel(nn.Module):
@@ -403,15 +404,22 @@ def save_thgs(model: THGSModel, out_dir) -> None:
 
 
 def load_thgs(model_dir) -> THGSModel:
-    from geoface.splat.hfm import read_model_dir
+    from geoface.splat.hfm import _load_state, read_model_config
     from geoface.splat.template import Template
 
-    d, meta, sd = read_model_dir(model_dir, "geoface-thgs", "THGS")
+    from .errors import ModelFolderError
+
+    d, meta = read_model_config(model_dir, "geoface-thgs", "THGS")
+    cfg = THGSConfig.from_dict(meta["config"], where=f"{d}/config.json")
+    for key in ("audio_dim", "n_frames"):
+        if isinstance(meta.get(key), bool) or not isinstance(meta.get(key), int) or meta[key] < 0:
+            raise ModelFolderError(f"{d}/config.json: {key} must be a non-negative integer; got {meta.get(key)!r}")
+    sd = _load_state(d / "model.safetensors")
     tpl = Template.load(d / "template.npz")
     try:
         g = Gaussians(sd["gaussians.means"], sd["gaussians.log_scales"], sd["gaussians.quats"],
                       sd["gaussians.opacity_logits"], sd["gaussians.colors"], sd["gaussians.parent"])
-        model = THGSModel(tpl, THGSConfig.from_dict(meta["config"]), int(meta["audio_dim"]), int(meta["n_frames"]), g)
+        model = THGSModel(tpl, cfg, int(meta["audio_dim"]), int(meta["n_frames"]), g)
         model.load_state_dict(sd, strict=True)
     except (KeyError, RuntimeError) as e:
         raise SplatError(f"{d}: weights do not match config.json ({str(e).splitlines()[0][:160]})") from None
