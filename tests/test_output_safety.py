@@ -367,3 +367,51 @@ def test_model_folders_are_validated(tmp_path, case):
         argv, want = ("texture", "reconstruct", tmp_path / "p.png", "--model", m, "-o", tmp_path / "out"), "gde_res"
     code, _, err = run(*argv)
     assert one_line_error(code, err) and want in err, err
+
+
+def test_bad_audio_and_template_are_one_line(tmp_path):
+    """A truncated or 1 Hz WAV, a truncated template.npz: one line, exit 2."""
+    import wave
+
+    from geoface.splat.audio import read_wav
+    from geoface.splat.errors import SplatError
+    from geoface.splat.template import Template
+
+    w = tmp_path / "slow.wav"
+    with wave.open(str(w), "wb") as f:
+        f.setnchannels(1)
+        f.setsampwidth(2)
+        f.setframerate(1)
+        f.writeframes(np.zeros(100, np.int16).tobytes())
+    with pytest.raises(SplatError, match="sample rate 1 Hz"):
+        read_wav(w)
+    good = tmp_path / "good.wav"
+    with wave.open(str(good), "wb") as f:
+        f.setnchannels(1)
+        f.setsampwidth(2)
+        f.setframerate(16000)
+        f.writeframes(np.zeros(16000, np.int16).tobytes())
+    cut = tmp_path / "cut.wav"
+    cut.write_bytes(good.read_bytes()[:30])
+    with pytest.raises(SplatError, match="not a readable WAV"):
+        read_wav(cut)
+    npz = tmp_path / "template.npz"
+    np.savez(npz, V=np.zeros((3, 3)), F=np.zeros((1, 3), int))
+    (tmp_path / "cut.npz").write_bytes(npz.read_bytes()[:40])
+    with pytest.raises(SplatError, match="not a geoface template"):
+        Template.load(tmp_path / "cut.npz")
+
+
+def test_failed_synth_leaves_no_folder(tmp_path, monkeypatch):
+    """talk/hmd/texture synth write into a temporary folder: a failure leaves nothing."""
+    import geoface.splat.thgs_data as td
+    from geoface.cli import main
+
+    def boom(out, **kw):
+        (Path(out) / "frames").mkdir(parents=True)
+        (Path(out) / "frames" / "0000.png").write_bytes(b"partial")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(td, "make_synthetic_talking", boom)
+    assert main(["talk", "synth", str(tmp_path / "talk"), "-q"]) == 130
+    assert list(tmp_path.iterdir()) == []

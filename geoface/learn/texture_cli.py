@@ -63,9 +63,12 @@ def _read_camera(path):
 
 
 def cmd_synth(args) -> int:
+    from geoface._io import atomic_dir
+
     from .skin_synth import make_texture_dataset
-    paths = make_texture_dataset(args.output, args.count, args.res, args.map_res, seed=args.seed,
-                                 vertices=args.vertices, quiet=_quiet(args))
+    with atomic_dir(args.output, overwrite=True) as tmp:  # complete or absent (the output policy ran first)
+        paths = make_texture_dataset(tmp, args.count, args.res, args.map_res, seed=args.seed,
+                                     vertices=args.vertices, quiet=_quiet(args))
     print(f"{args.output}: {len(paths)} samples at {args.res}²")
     return 0
 

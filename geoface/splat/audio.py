@@ -18,16 +18,29 @@ from geoface.splat.errors import SplatError
 
 __all__ = ["read_wav", "log_mel", "audio_features", "envelope"]
 
+#: sample rates read_wav accepts (log-mel features need at least ~100 samples per 10 ms hop)
+MIN_SAMPLE_RATE = 8000
+MAX_SAMPLE_RATE = 384000
+
 
 def read_wav(path) -> tuple[np.ndarray, int]:
     """(mono float64 samples in [-1, 1], sample rate)."""
     from scipy.io import wavfile
 
+    import struct
+    import warnings
+
     try:
-        sr, x = wavfile.read(str(path))
-    except (OSError, ValueError) as e:
-        raise SplatError(f"{path}: not a readable WAV file ({e})") from None
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # scipy warns on chunks it skips
+            sr, x = wavfile.read(str(path))
+    except (OSError, ValueError, EOFError, IndexError, TypeError, struct.error) as e:
+        raise SplatError(f"{path}: not a readable WAV file ({type(e).__name__}: {e})") from None
+    if not MIN_SAMPLE_RATE <= int(sr) <= MAX_SAMPLE_RATE:
+        raise SplatError(f"{path}: sample rate {sr} Hz; speech needs {MIN_SAMPLE_RATE}..{MAX_SAMPLE_RATE} Hz")
     x = np.asarray(x)
+    if x.dtype.kind not in "iuf":
+        raise SplatError(f"{path}: unsupported sample format {x.dtype}")
     if np.issubdtype(x.dtype, np.integer):
         x = x.astype(np.float64) / float(np.iinfo(x.dtype).max)
     x = x.astype(np.float64)

@@ -64,7 +64,10 @@ def cmd_splat_fit(args) -> int:
         save_ply(res.gaussians, tmp)
     print(f"{args.mesh} -> {out}: {res.summary()}")
     if args.renders:
-        paths = write_renders(args.renders, heldout_images(res, mesh.V, mesh.F, mesh.colors))
+        from geoface._io import atomic_dir
+
+        with atomic_dir(args.renders, overwrite=True) as tmp:  # complete or absent
+            paths = write_renders(tmp, heldout_images(res, mesh.V, mesh.F, mesh.colors))
         print(f"  held-out ground truth | fit: {len(paths)} PNGs in {args.renders}")
     return 0
 

@@ -26,9 +26,13 @@ def cmd_hmd_synth(args) -> int:
     out = Path(args.output)
     if out.exists() and any(out.iterdir()):
         raise GeofaceError(f"{out} exists and is not empty; choose a new folder")
-    reg, use = make_synthetic_hmd(out, frames=args.frames, heldout=args.heldout, res=args.res,
-                                  n_vertices=args.vertices, seed=args.seed, motion=args.motion,
-                                  quiet=_quiet(args))
+    from geoface._io import atomic_dir
+
+    with atomic_dir(out, overwrite=True) as tmp:  # complete or absent: a failure leaves nothing
+        reg, use = make_synthetic_hmd(tmp, frames=args.frames, heldout=args.heldout, res=args.res,
+                                      n_vertices=args.vertices, seed=args.seed, motion=args.motion,
+                                      quiet=_quiet(args))
+        reg, use = out / Path(reg).relative_to(tmp), out / Path(use).relative_to(tmp)
     print(f"{reg}: registration video; {use}: usage video with a headset (+ gt/, hmd_masks/)")
     return 0
 

@@ -46,6 +46,9 @@ def save_ply(g: Gaussians, path) -> None:
         with os.fdopen(fd, "wb") as f:
             f.write(header.encode("ascii"))
             f.write(data.tobytes())
+        from geoface._io import default_mode
+
+        os.chmod(tmp, default_mode())  # the user's umask, not mkstemp's 0600
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

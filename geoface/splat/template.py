@@ -13,6 +13,7 @@ weights, expression basis, head mask and mouth region — and their loaders.
 """
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -94,7 +95,7 @@ class Template:
             with np.load(path, allow_pickle=False) as d:
                 return cls(d["V"], d["F"], d["joints"], d["parents"], d["weights"], d["expr_basis"],
                            d["head_mask"], d["mouth_box"], [str(s) for s in d["joint_names"]], int(d["jaw"]))
-        except (OSError, KeyError, ValueError) as e:
+        except (OSError, KeyError, ValueError, EOFError, TypeError, IndexError, zipfile.BadZipFile) as e:
             raise SplatError(f"{path}: not a geoface template ({type(e).__name__}: {e})") from None
 
 

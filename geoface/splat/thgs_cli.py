@@ -22,8 +22,11 @@ def cmd_talk_synth(args) -> int:
     out = Path(args.output)
     if out.exists() and any(out.iterdir()):
         raise GeofaceError(f"{out} exists and is not empty; choose a new folder")
-    make_synthetic_talking(out, seconds=args.seconds, fps=args.fps, res=args.res, n_vertices=args.vertices,
-                           seed=args.seed, quiet=_quiet(args))
+    from geoface._io import atomic_dir
+
+    with atomic_dir(out, overwrite=True) as tmp:  # complete or absent: a failure leaves nothing
+        make_synthetic_talking(tmp, seconds=args.seconds, fps=args.fps, res=args.res, n_vertices=args.vertices,
+                               seed=args.seed, quiet=_quiet(args))
     print(f"{out}: synthetic talking head, {args.seconds:g} s at {args.fps:g} fps, {args.res}² (audio.wav, poses.npz)")
     return 0
 
