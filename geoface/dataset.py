@@ -241,15 +241,27 @@ def _executor(workers: int, scheduler: str | None):
             client = distributed.Client(scheduler, timeout="20s")
         except (OSError, TimeoutError, ValueError) as e:
             raise GeofaceError(f"cannot connect to the Dask scheduler {scheduler}: {e}") from None
-        return (lambda fn, *a: client.submit(fn, *a, pure=False)), distributed.as_completed, client.close
+        return (lambda fn, *a: client.submit(fn, *a, pure=False)), distributed.as_completed, lambda interrupted=False: client.close()
     if workers == 1:  # in this process, one item at a time as the driver asks for results
-        return _Deferred, iter, lambda: None
+        return _Deferred, iter, lambda interrupted=False: None
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_die_with_parent,
                                initargs=(os.getpid(),))
-    return pool.submit, as_completed, lambda: pool.shutdown(wait=True, cancel_futures=True)
+    def close(interrupted: bool = False) -> None:
+        if interrupted:  # do not wait for running items: end the workers now (the temporary
+            # folders of their unfinished items are removed by the next run that builds them)
+            procs = list((getattr(pool, "_processes", None) or {}).values())
+            for proc in procs:
+                proc.kill()
+            for proc in procs:
+                proc.join(timeout=2.0)
+            pool.shutdown(wait=False, cancel_futures=True)
+        else:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+    return pool.submit, as_completed, close
 
 
 def _die_with_parent(parent: int) -> None:
@@ -268,6 +280,11 @@ def _die_with_parent(parent: int) -> None:
             pass
     if os.getppid() != parent:  # the driver died before the call above
         os._exit(1)
+
+    def on_term(signum, frame):  # unwind: the item's temporary folder is removed on the way out
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, on_term)
 
     def watch():
         while True:
@@ -391,8 +408,10 @@ def build_dataset(
                         failures[item] = row["error"]
                     log(f"dataset [{n}/{len(todo)}] {item}: {row['status']} ({row['seconds']:.1f} s)"
                         + (f" - {row['error']}" if row["error"] else ""), quiet=quiet)
-        finally:
-            close()
+        except BaseException:
+            close(interrupted=True)  # SIGINT, SIGTERM, a driver error: the workers stop now
+            raise
+        close()
     seconds = time.perf_counter() - t0
     summary = {
         "items": total, "done": done, "failed": failed, "skipped": len(skipped), "seconds": seconds,

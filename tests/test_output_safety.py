@@ -415,3 +415,34 @@ def test_failed_synth_leaves_no_folder(tmp_path, monkeypatch):
     monkeypatch.setattr(td, "make_synthetic_talking", boom)
     assert main(["talk", "synth", str(tmp_path / "talk"), "-q"]) == 130
     assert list(tmp_path.iterdir()) == []
+
+
+def test_terminated_dataset_build_stops_within_seconds(tmp_path):
+    heads = tmp_path / "heads_t"
+    heads.mkdir()
+    for s in range(3):
+        assert run("synth", "head", "-o", heads / f"t{s}.obj", "--vertices", "20000", "--seed", s)[0] == 0
+    out = tmp_path / "ds_term"
+    p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", "dataset", "build", str(heads), str(out), "--res", "256",
+                          "--augment", "4", "--workers", "2"])
+    time.sleep(8.0)
+    t = time.time()
+    p.send_signal(signal.SIGTERM)
+    p.wait(timeout=10)
+    assert time.time() - t < 5.0 and p.returncode == 143
+    assert [pid for pid in _our_processes("multiprocessing.spawn") if _parent(pid) in (p.pid, 1)] == []
+    # a rerun finishes the build and leaves no temporary folder of the interrupted one
+    code, _, err = run("dataset", "build", heads, out, "--res", "256", "--augment", "4", "--workers", "2")
+    assert code == 0, err
+    assert [x for x in out.rglob(".*geoface-*")] == []
+
+
+def test_device_cuda_without_a_gpu_is_one_line(tmp_path):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    (tmp_path / "data").mkdir()
+    code, _, err = run("ddpm", "train", tmp_path / "data", "-o", tmp_path / "run", "--device", "cuda", "--steps", "1")
+    assert one_line_error(code, err) and "CUDA" in err, err
+    assert not (tmp_path / "run").exists()

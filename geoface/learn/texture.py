@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import os
 import time
+import zipfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -51,7 +52,7 @@ def load_sample(path) -> dict:
         with np.load(path) as z:
             d = {k: z[k].astype(np.float32) / 65535.0 for k in KEYS}
             d["mask"] = z["mask"].astype(bool)
-    except (OSError, ValueError, KeyError) as e:
+    except (OSError, ValueError, KeyError, EOFError, TypeError, zipfile.BadZipFile) as e:
         raise LearnError(f"{path} is not a texture sample ({type(e).__name__}: {e})") from None
     H, W = d["mask"].shape
     for k, c in KEYS.items():
@@ -128,9 +129,14 @@ class TextureModel(torch.nn.Module):
         from safetensors.torch import load_file
         model_dir = Path(model_dir)
         try:
-            cfg = TextureTrainConfig.from_dict(json.loads((model_dir / "config.json").read_text(encoding="utf-8")))
-        except (OSError, json.JSONDecodeError, TypeError) as e:
+            meta = json.loads((model_dir / "config.json").read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
             raise CheckpointError(f"{model_dir}/config.json is missing or corrupt ({e})") from None
+        if isinstance(meta, dict) and "version" in meta:
+            from geoface.nn.config import check_version
+
+            check_version(meta, 1, where=f"{model_dir}/config.json")
+        cfg = TextureTrainConfig.from_dict(meta, where=f"{model_dir}/config.json")
         m = cls(cfg)
         try:
             m.load_state_dict(load_file(str(model_dir / "model.safetensors")), strict=True)
