@@ -216,25 +216,6 @@ def test_killed_convert_leaves_nothing_behind(tmp_path, sig):
     assert [x for x in tmp_path.iterdir() if x.name.startswith(".killed_out")] == []
 
 
-def test_killed_dataset_build_stops_its_workers(tmp_path):
-    heads = tmp_path / "heads_k"
-    heads.mkdir()
-    for s in range(4):
-        assert run("synth", "head", "-o", heads / f"k{s}.obj", "--vertices", "20000", "--seed", s)[0] == 0
-    out = tmp_path / "ds_killed"
-    p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", "dataset", "build", str(heads), str(out), "--res", "256",
-                          "--augment", "4", "--workers", "2"])
-    time.sleep(8.0)
-    p.send_signal(signal.SIGKILL)
-    p.wait(timeout=5)
-    deadline = time.time() + 5.0
-    while time.time() < deadline and _our_processes("multiprocessing.spawn"):
-        time.sleep(0.2)
-    # the workers of this build (spawned children) are gone
-    alive = [pid for pid in _our_processes("multiprocessing.spawn") if _parent(pid) == p.pid or _parent(pid) == 1]
-    assert alive == []
-
-
 def _parent(pid: int) -> int:
     try:
         return int(Path(f"/proc/{pid}/stat").read_text().split()[3])
@@ -417,22 +398,26 @@ def test_failed_synth_leaves_no_folder(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_terminated_dataset_build_stops_within_seconds(tmp_path):
-    heads = tmp_path / "heads_t"
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_killed_dataset_build_stops_its_workers(tmp_path, sig):
+    """SIGTERM or SIGKILL of the driver: no worker of ours is alive within 5 s, and a rerun
+    finishes the build and leaves no temporary folder of the interrupted one."""
+    heads = tmp_path / "heads"
     heads.mkdir()
     for s in range(3):
         assert run("synth", "head", "-o", heads / f"t{s}.obj", "--vertices", "20000", "--seed", s)[0] == 0
-    out = tmp_path / "ds_term"
-    p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", "dataset", "build", str(heads), str(out), "--res", "256",
-                          "--augment", "4", "--workers", "2"])
+    out = tmp_path / "ds"
+    argv = ("dataset", "build", heads, out, "--res", "256", "--augment", "4", "--workers", "2")
+    p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", *map(str, argv)])
     time.sleep(8.0)
     t = time.time()
-    p.send_signal(signal.SIGTERM)
+    p.send_signal(sig)
     p.wait(timeout=10)
-    assert time.time() - t < 5.0 and p.returncode == 143
-    assert [pid for pid in _our_processes("multiprocessing.spawn") if _parent(pid) in (p.pid, 1)] == []
-    # a rerun finishes the build and leaves no temporary folder of the interrupted one
-    code, _, err = run("dataset", "build", heads, out, "--res", "256", "--augment", "4", "--workers", "2")
+    assert p.returncode == (143 if sig == signal.SIGTERM else -9)
+    while time.time() - t < 5.0 and [q for q in _our_processes("multiprocessing.spawn") if _parent(q) in (p.pid, 1)]:
+        time.sleep(0.2)
+    assert time.time() - t < 5.0
+    code, _, err = run(*argv)
     assert code == 0, err
     assert [x for x in out.rglob(".*geoface-*")] == []
 
