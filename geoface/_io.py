@@ -22,7 +22,7 @@ from pathlib import Path
 from .errors import GeofaceError
 
 __all__ = ["atomic_path", "atomic_dir", "atomic_write_text", "check_outputs", "default_mode", "OutputError",
-           "clean_stale_temporaries", "image_size", "MAX_IMAGE_PIXELS"]
+           "clean_stale_temporaries", "image_size", "occupied", "MAX_IMAGE_PIXELS"]
 
 #: the largest image geoface decodes (a 16384^2 geometry image); a header claiming more is refused
 MAX_IMAGE_PIXELS = 16384 * 16384
@@ -69,6 +69,15 @@ def default_mode(folder: bool = False) -> int:
     mask = os.umask(0)
     os.umask(mask)
     return (0o777 if folder else 0o666) & ~mask
+
+
+def occupied(path: Path) -> bool:
+    """Whether ``path`` holds something a write would replace: a file, or a folder that is
+    not empty (an empty folder may become an output)."""
+    path = Path(path)
+    if path.is_dir():
+        return any(path.iterdir())
+    return path.exists()
 
 
 def _pid_alive(pid: int) -> bool:
@@ -143,13 +152,13 @@ def atomic_path(target: str | os.PathLike, suffix: str | None = None):
 def atomic_dir(target: str | os.PathLike, *, overwrite: bool = False):
     """Yield a temporary folder beside ``target``; on success it becomes ``target``.
 
-    An existing ``target`` is refused unless ``overwrite``; then it is moved aside and
-    removed only after the new folder is in place.  On failure the temporary folder is
+    An existing ``target`` (see :func:`occupied`) is refused unless ``overwrite``; then it is
+    moved aside and removed only after the new folder is in place.  On failure the temporary folder is
     removed and ``target`` is untouched.  Folders get the user's umask.
     """
     target = Path(target)
     parent = target.parent if str(target.parent) else Path(".")
-    if target.exists() and not overwrite:
+    if occupied(target) and not overwrite:
         raise OutputError(f"{target} exists; pass --force to replace it")
     parent.mkdir(parents=True, exist_ok=True)
     clean_stale_temporaries(target)
@@ -236,6 +245,5 @@ def check_outputs(inputs=(), outputs=(), *, force: bool = False, resumable=()) -
                 raise OutputError(f"the output {p} contains the input {q}; choose another place")
     res = {_resolved(p) for p in resumable if p is not None}
     for p, rp in outs:
-        empty_dir = rp.is_dir() and not any(rp.iterdir())
-        if rp.exists() and not empty_dir and not force and rp not in res:
+        if occupied(rp) and not force and rp not in res:
             raise OutputError(f"{p} exists; pass --force to replace it")

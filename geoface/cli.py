@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import warnings
 from pathlib import Path
@@ -22,14 +21,6 @@ from ._args import SEED, number
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, exit code 2 (argparse's own code for usage errors)
         self.exit(2, f"{self.prog}: error: {message}\n")
-
-
-def _same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
-    pa, pb = Path(a), Path(b)
-    try:
-        return pb.exists() and pa.exists() and os.path.samefile(pa, pb)
-    except OSError:
-        return False
 
 
 def _mesh_outputs(path) -> list:

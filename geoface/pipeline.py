@@ -333,11 +333,9 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         "front": [float(x) for x in front],
         "sets": [],
     }
-    from ._io import OutputError, atomic_dir
+    from ._io import atomic_dir
 
-    if out_dir.exists() and not overwrite and not (out_dir.is_dir() and not any(out_dir.iterdir())):
-        raise OutputError(f"{out_dir} exists; pass --force to replace it")
-    with atomic_dir(out_dir, overwrite=True) as tmp_root:
+    with atomic_dir(out_dir, overwrite=overwrite) as tmp_root:
         solver = RicciFlowSolver(V, dm.F)
         failures: list = []
         for pos, (k, corners) in enumerate(zip(indices, sets)):

@@ -358,20 +358,19 @@ def test_bad_audio_and_template_are_one_line(tmp_path):
     from geoface.splat.errors import SplatError
     from geoface.splat.template import Template
 
+    def write_wav(path, rate, n):
+        with wave.open(str(path), "wb") as f:
+            f.setnchannels(1)
+            f.setsampwidth(2)
+            f.setframerate(rate)
+            f.writeframes(np.zeros(n, np.int16).tobytes())
+
     w = tmp_path / "slow.wav"
-    with wave.open(str(w), "wb") as f:
-        f.setnchannels(1)
-        f.setsampwidth(2)
-        f.setframerate(1)
-        f.writeframes(np.zeros(100, np.int16).tobytes())
+    write_wav(w, 1, 100)
     with pytest.raises(SplatError, match="sample rate 1 Hz"):
         read_wav(w)
     good = tmp_path / "good.wav"
-    with wave.open(str(good), "wb") as f:
-        f.setnchannels(1)
-        f.setsampwidth(2)
-        f.setframerate(16000)
-        f.writeframes(np.zeros(16000, np.int16).tobytes())
+    write_wav(good, 16000, 16000)
     cut = tmp_path / "cut.wav"
     cut.write_bytes(good.read_bytes()[:30])
     with pytest.raises(SplatError, match="not a readable WAV"):

@@ -247,15 +247,6 @@ def write_gimage_files(folder: Path, gi: GeometryImage) -> None:
     (folder / "meta.json").write_text(json.dumps(gi.meta, indent=2))
 
 
-def replace_dir(tmp: Path, folder: Path) -> None:
-    """Move the finished folder ``tmp`` onto ``folder``, replacing an old one (files and
-    folders get the user's umask)."""
-    from .._io import _chmod_tree, _replace_dir
-
-    _chmod_tree(Path(tmp))
-    _replace_dir(Path(tmp), Path(folder))
-
-
 def load_gimage(folder: str | os.PathLike) -> GeometryImage:
     """Read a geometry-image folder, validating sizes, bit depth and metadata."""
     folder = Path(folder)

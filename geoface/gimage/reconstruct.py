@@ -25,9 +25,10 @@ MAX_SMOOTH = 1000
 
 
 def pixel_uv(N: int) -> np.ndarray:
-    """``(N, N, 2)`` UV of every pixel centre."""
-    j, i = np.meshgrid(np.arange(N), np.arange(N))
-    return np.stack([(j + 0.5) / N, 1.0 - (i + 0.5) / N], -1)
+    """``(N, N, 2)`` UV of every pixel centre (the texture-image grid)."""
+    from .raster import pixel_grid_uv
+
+    return pixel_grid_uv(N, align_corners=False)
 
 
 def _laplacian_smooth(V, F, iterations, fixed):
@@ -121,13 +122,10 @@ def save_reconstruction(path: str | os.PathLike, mesh: Mesh, gi: GeometryImage |
     normals, an 8-bit object-space normal map ``<stem>_normal.png`` named in the MTL.  With
     ``overwrite=False`` nothing is written if the mesh or any of its files exists."""
     from .._io import OutputError
-    from ..mesh.io import companion_names, save_mesh
+    from ..mesh.io import _refuse_existing, companion_names, save_mesh
 
     path = Path(path)
-    if not overwrite:
-        for p in [path, *companion_names(path)]:
-            if p.exists():
-                raise OutputError(f"{p} exists; pass --force to replace it")
+    _refuse_existing([path, *companion_names(path)], overwrite, OutputError)
     if path.suffix.lower() == ".obj" and mesh.texture is not None:
         # with a texture OBJ keeps UVs + image; keep vertex colours out of the OBJ
         mesh = Mesh(mesh.V, mesh.F, UV=mesh.UV, FUV=mesh.FUV, texture=mesh.texture)

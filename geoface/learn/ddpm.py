@@ -273,14 +273,12 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
         total = cfg.steps
         cfg = DDPMConfig.load(ckpt / "config.json")
         cfg.steps = total
-    from .data import find_items
-
-    find_items(data_dir)  # a missing or corrupt dataset is reported before the text encoder loads
+    # the dataset first: a missing or corrupt one is reported before the text encoder loads
+    ds = GImageDataset(data_dir, res=cfg.res, augment=cfg.augment, seed=cfg.seed)
     accel = Accelerator(cpu=(device in (None, "cpu")) and not torch.cuda.is_available() or device == "cpu")
     text = text_encoder or make_text_encoder(cfg.text_encoder, cache_dir=run_dir / "text_cache",
                                              max_length=cfg.text_max_length)
     cfg.cross_attention_dim = int(text.dim)
-    ds = GImageDataset(data_dir, res=cfg.res, augment=cfg.augment, seed=cfg.seed)
     torch.manual_seed(cfg.seed)
     unet = build_unet(cfg)
     opt = torch.optim.AdamW(unet.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)

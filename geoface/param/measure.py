@@ -82,8 +82,7 @@ def _snap(uv_new: np.ndarray, bnd: np.ndarray, sides: np.ndarray) -> np.ndarray:
 def area_error(F: np.ndarray, uv: np.ndarray, nu: np.ndarray) -> float:
     """Mean |log(a_i / ν_i)| of per-vertex UV areas (⅓ of adjacent triangles, normalised)
     against target masses ``nu`` (normalised)."""
-    a = np.abs(signed_uv_areas(F, uv))
-    va = np.bincount(F.ravel(), np.repeat(a / 3.0, 3), minlength=len(nu))
+    va = vertex_areas(np.column_stack([uv, np.zeros(len(uv))]), F)
     va = va / va.sum()
     nu = nu / nu.sum()
     return float(np.mean(np.abs(np.log(np.maximum(va, 1e-300) / nu))))

@@ -94,11 +94,12 @@ def _apply_hessian(e: np.ndarray, c: np.ndarray, x: np.ndarray) -> np.ndarray:
     return np.bincount(e[:, 0], t, minlength=n) - np.bincount(e[:, 1], t, minlength=n)
 
 
-def transport_hessian(points: np.ndarray, pd: PowerDiagram) -> sp.csr_matrix:
-    """The Jacobian ``∂w/∂h`` (eq. 8), a weighted graph Laplacian."""
+def transport_hessian(points: np.ndarray, pd: PowerDiagram, weights: np.ndarray | None = None) -> sp.csr_matrix:
+    """The Jacobian ``∂w/∂h`` (eq. 8), a weighted graph Laplacian (``weights``: the edges'
+    ``|e_ij| / (2 |p_i - p_j|)`` when the caller has them)."""
     n = len(points)
     e = pd.edges
-    c = _hessian_weights(points, pd)
+    c = _hessian_weights(points, pd) if weights is None else weights
     H = sp.coo_matrix((np.concatenate([-c, -c]), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))), shape=(n, n)).tocsr()
     H = H + sp.diags(np.asarray(-H.sum(1)).ravel())
     return H.tocsr()
@@ -198,13 +199,13 @@ def semi_discrete_ot(
         g = pd.area - target
         res = _rel_residual(pd.area, target)
         while res > stol and iterations < max_iterations:
-            H = transport_hessian(Pr, pd)
+            c_e = _hessian_weights(Pr, pd)
+            H = transport_hessian(Pr, pd, c_e)
             d = np.zeros(len(Pr))
             Hf = H[free][:, free]
             d[free] = solver.solve(Hf, -g[free])
             # iterative refinement: sites 1e-10 apart need the differences of d to ~1e-20
             # while d itself is ~1e-9 (a weakly coupled cluster moves as one)
-            c_e = _hessian_weights(Pr, pd)
             for _ in range(REFINEMENT_STEPS):
                 r = -g - _apply_hessian(pd.edges, c_e, d)
                 d[free] += solver.resolve(r[free])
