@@ -279,6 +279,44 @@ def cmd_synth_head(args) -> int:
     return 0
 
 
+def cmd_synth_ict(args) -> int:
+    from .mesh.io import Mesh, save_mesh
+    from .synth.ict import load_ict_model
+
+    _guard(args, [args.model], [*_mesh_outputs(args.output), args.meta])
+    model = load_ict_model(args.model)
+    parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
+    identity = args.seed if args.identity is None else _parse_weights(args.identity)
+    head = model.head(identity, _parse_expression(args.expression), parts, n_identity=args.n_identity)
+    save_mesh(args.output, Mesh(head.V, head.F, UV=head.UV, FUV=head.FUV), overwrite=args.force)
+    if args.meta:
+        from ._io import atomic_write_text
+
+        atomic_write_text(args.meta, json.dumps({**head.meta(), "seed": None if args.identity else args.seed}, indent=1))
+    expr = ", ".join(f"{k}={v:g}" for k, v in head.expression.items()) or "neutral"
+    print(f"wrote {args.output}: {len(head.V)} vertices, {len(head.F)} faces ({', '.join(head.parts)}; "
+          f"identity {'weights' if args.identity else f'seed {args.seed}'}; {expr})")
+    return 0
+
+
+def _parse_weights(text: str) -> list:
+    try:
+        return [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise GeofaceError(f"--identity must be comma-separated numbers; got {text!r}") from None
+
+
+def cmd_synth_pack_ict(args) -> int:
+    from .synth.ict import load_ict_model, pack_ict
+
+    _guard(args, [args.clone], [args.output])
+    out = pack_ict(args.clone, args.output, overwrite=args.force, quiet=bool(args.quiet))
+    m = load_ict_model(out)
+    print(f"wrote {out}: {len(m.vertices)} vertices, {m.n_identities} identity modes, {len(m.expression_names)} "
+          f"expressions, regions {', '.join(m.available_regions)} ({out.stat().st_size / 2**20:.1f} MB)")
+    return 0
+
+
 #: synth surface --resolution: up to ~4M triangles
 MAX_SURFACE_RESOLUTION = 2048
 
@@ -416,21 +454,57 @@ def cmd_view(args) -> int:
 
 
 # --------------------------------------------------------------------------- main
-def cmd_dataset_build(args) -> int:
-    from .dataset import DatasetOptions, build_dataset
+def _dataset_options(b) -> None:
+    """The conversion and scheduling flags that ``dataset build`` and ``dataset ict`` share."""
+    b.add_argument("--res", type=number(int, 4, 8192), default=512, help="image resolution N (default 512)")
+    b.add_argument("--augment", type=number(int, 1, 8), default=8, help="corner sets per mesh, 1..8 (default 8)")
+    b.add_argument("--workers", type=number(int, 1, 1024), default=None, help="local worker processes (default: the number of cores; 1 = serial)")
+    b.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a Dask scheduler (tcp://host:port) instead of the local pool")
+    b.add_argument("--lam", type=number(float, 0, 1000, lo_open=True), default=2.5, help="mass factor on the ROI (2.5)")
+    b.add_argument("--method", choices=["ot", "conformal"], default="ot")
+    b.add_argument("--ot-tol", type=number(float, 0, 1, lo_open=True, hi_open=True), default=1e-3)
+    b.add_argument("--reconstruct", action="store_true", help="also write reconstruction.obj and its error")
+    b.add_argument("--retry-failed", action="store_true", help="try items that failed in an earlier run again")
+    b.add_argument("--strict", action="store_true", help="exit code 1 when any item failed")
+    b.add_argument("--up", default="y")
+    b.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto")
 
-    out, inp = Path(args.out_dir), Path(args.in_dir)
-    # an existing dataset folder is resumed (its manifest records the options it was built with)
-    _guard(args, [inp, args.labels], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
-    opts = DatasetOptions(res=args.res, augment=args.augment, roi=args.roi, lam=args.lam, method=args.method,
-                          ot_tol=args.ot_tol, reconstruct=args.reconstruct, up=args.up, open=args.open)
-    s = build_dataset(inp, out, opts, workers=args.workers, scheduler=args.scheduler, labels=args.labels,
-                      retry_failed=args.retry_failed, rebuild=args.force)
+
+def _dataset_report(args, out: Path, s: dict) -> int:
     print(f"{out}/: {s['done']} items built, {s['failed']} failed, {s['skipped']} skipped "
           f"({s['seconds']:.1f} s, {s['items_per_minute']:.1f} items/min); manifest {out / 'manifest.jsonl'}")
     for item, err in s["failures"].items():
         print(f"  failed {item}: {err}")
     return 1 if (args.strict and s["failed"]) else 0
+
+
+def _dataset_opts(args):
+    from .dataset import DatasetOptions
+
+    return DatasetOptions(res=args.res, augment=args.augment, roi=args.roi, lam=args.lam, method=args.method,
+                          ot_tol=args.ot_tol, reconstruct=args.reconstruct, up=args.up, open=args.open)
+
+
+def cmd_dataset_build(args) -> int:
+    from .dataset import build_dataset
+
+    out, inp = Path(args.out_dir), Path(args.in_dir)
+    # an existing dataset folder is resumed (its manifest records the options it was built with)
+    _guard(args, [inp, args.labels], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
+    s = build_dataset(inp, out, _dataset_opts(args), workers=args.workers, scheduler=args.scheduler, labels=args.labels,
+                      retry_failed=args.retry_failed, rebuild=args.force)
+    return _dataset_report(args, out, s)
+
+
+def cmd_dataset_ict(args) -> int:
+    from .dataset import build_ict_dataset
+
+    out = Path(args.out_dir)
+    _guard(args, [args.model], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
+    s = build_ict_dataset(out, args.count, _dataset_opts(args), seed=args.seed, model=args.model, mix_share=args.mix_share,
+                          heldout_share=args.heldout_share, workers=args.workers, scheduler=args.scheduler,
+                          retry_failed=args.retry_failed, rebuild=args.force)
+    return _dataset_report(args, out, s)
 
 
 def _verbs(parser, common):
@@ -526,24 +600,24 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("dataset", help="build geometry-image datasets from folders of meshes")
-    b = _verbs(s, common).add_parser("build", help="every mesh x corner set -> a geometry-image folder (resumable, parallel)")
+    dv = _verbs(s, common)
+    b = dv.add_parser("build", help="every mesh x corner set -> a geometry-image folder (resumable, parallel)")
     b.add_argument("in_dir", help="folder of meshes (optional <stem>.json face masks, labels.jsonl)")
     b.add_argument("out_dir")
-    b.add_argument("--res", type=number(int, 4, 8192), default=512, help="image resolution N (default 512)")
-    b.add_argument("--augment", type=number(int, 1, 8), default=8, help="corner sets per mesh, 1..8 (default 8)")
-    b.add_argument("--workers", type=number(int, 1, 1024), default=None, help="local worker processes (default: the number of cores; 1 = serial)")
-    b.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a Dask scheduler (tcp://host:port) instead of the local pool")
     b.add_argument("--labels", default=None, help="labels/prompts per mesh stem (.jsonl or .json; default IN_DIR/labels.jsonl)")
     b.add_argument("--roi", choices=["auto", "face", "none"], default="auto", help="auto: <stem>.json face mask when present, else the face cone")
-    b.add_argument("--lam", type=number(float, 0, 1000, lo_open=True), default=2.5, help="mass factor on the ROI (2.5)")
-    b.add_argument("--method", choices=["ot", "conformal"], default="ot")
-    b.add_argument("--ot-tol", type=number(float, 0, 1, lo_open=True, hi_open=True), default=1e-3)
-    b.add_argument("--reconstruct", action="store_true", help="also write reconstruction.obj and its error")
-    b.add_argument("--retry-failed", action="store_true", help="try items that failed in an earlier run again")
-    b.add_argument("--strict", action="store_true", help="exit code 1 when any item failed")
-    b.add_argument("--up", default="y")
-    b.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto")
+    _dataset_options(b)
     b.set_defaults(func=cmd_dataset_build)
+    b = dv.add_parser("ict", help="labelled real heads of the ICT-FaceKit model -> geometry images (resumable, parallel)")
+    b.add_argument("out_dir")
+    b.add_argument("--count", type=number(int, 1, 10_000_000), required=True, help="number of heads (one identity each)")
+    b.add_argument("--seed", type=SEED, default=0, help="draws identities, expressions, prompts and the split")
+    b.add_argument("--model", default=None, help="the ICT-FaceKit model (.npz or a clone; default: the copy shipped with geoface)")
+    b.add_argument("--mix-share", type=number(float, 0, 1), default=0.3, help="share of random ARKit mixes (the rest: named presets)")
+    b.add_argument("--heldout-share", type=number(float, 0, 1), default=0.2, help="share of identities labelled split=heldout")
+    b.add_argument("--roi", choices=["auto", "face", "none"], default="auto", help="auto: the model's face area")
+    _dataset_options(b)
+    b.set_defaults(func=cmd_dataset_ict)
 
     from .learn.cli import register as register_ddpm  # argparse only: torch loads inside the commands
     from .learn.texture_cli import register as register_texture
@@ -571,6 +645,21 @@ def build_parser() -> argparse.ArgumentParser:
     h.add_argument("--texture-size", type=number(int, 16, 8192), default=512)
     h.add_argument("--meta", default=None, help="also write identity, expression, landmarks and face mask as JSON")
     h.set_defaults(func=cmd_synth_head)
+    i = ss.add_parser("ict", help="a real head of the ICT-FaceKit morphable model (identity, expression, parts)")
+    i.add_argument("-o", "--output", required=True)
+    i.add_argument("--seed", type=SEED, default=0, help="draws the identity weights ~ N(0, 1)")
+    i.add_argument("--identity", default=None, metavar="W1,W2,...", help="identity weights instead of --seed (0,0 = the mean head)")
+    i.add_argument("--n-identity", type=number(int, 0, 100), default=None, help="with --seed: draw only the first N modes")
+    i.add_argument("--expression", default=None, help="ARKit blendshapes, e.g. mouthSmile_L=1,jawOpen=0.3 (weights in [0, 1])")
+    i.add_argument("--parts", default="skin", help="skin (default: face, head and neck), face, head, eyes, teeth, mouth, "
+                   "eye_extras or all; comma-separated")
+    i.add_argument("--model", default=None, help="the model (.npz or an ICT-FaceKit clone; default: the copy shipped with geoface)")
+    i.add_argument("--meta", default=None, help="also write weights, landmarks, face mask and regions as JSON (--roi for convert)")
+    i.set_defaults(func=cmd_synth_ict)
+    k = ss.add_parser("pack-ict", help="pack an ICT-FaceKit clone (FaceXModel/ OBJs) into one .npz")
+    k.add_argument("clone", help="the clone (or its FaceXModel folder)")
+    k.add_argument("-o", "--output", required=True, metavar="MODEL.npz")
+    k.set_defaults(func=cmd_synth_pack_ict)
     a = ss.add_parser("surface", help="an analytic surface")
     a.add_argument("name", choices=SURFACES)
     a.add_argument("-o", "--output", required=True)

@@ -38,12 +38,12 @@ from pathlib import Path
 from .errors import GeofaceError
 from .progress import log
 
-__all__ = ["DatasetOptions", "build_dataset", "find_meshes", "load_labels", "read_manifest", "MESH_SUFFIXES"]
+__all__ = ["DatasetOptions", "build_dataset", "build_ict_dataset", "find_meshes", "load_labels", "read_manifest", "MESH_SUFFIXES"]
 
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
 MANIFEST = "manifest.jsonl"
-#: files that make an item folder complete
-ITEM_FILES = ("position.png", "normal.png", "texture.png", "mask.png", "meta.json")
+#: files that make an item folder complete (``texture.png`` only where the mesh has colours or a texture)
+ITEM_FILES = ("position.png", "normal.png", "mask.png", "meta.json")
 
 
 @dataclass(frozen=True)
@@ -177,8 +177,24 @@ def _summary_metrics(m: dict) -> dict:
     return out
 
 
-def run_item(mesh_path: str, out_folder: str, corner_set: int, options: DatasetOptions) -> dict:
-    """Convert one mesh × corner set into ``out_folder``; never raises: returns a status dict.
+def _item_mesh(source, roi: str):
+    """The mesh and region of interest of one item's source: a mesh file (its face mask from
+    ``<stem>.json`` beside it) or an ICT-FaceKit head spec (:func:`geoface.synth.ict_data.ict_specs`)."""
+    if isinstance(source, dict):
+        from .synth.ict_data import head_from_spec
+
+        head = head_from_spec(source)
+        return head.mesh(), (None if roi == "none" else ("face" if roi == "face" else head.face_mask))
+    from .mesh.io import load_mesh
+
+    mesh = load_mesh(source)
+    return mesh, _item_roi(Path(source), len(mesh.V), roi)
+
+
+def run_item(source, out_folder: str, corner_set: int, options: DatasetOptions) -> dict:
+    """Convert one source (a mesh path, or an ICT head spec dict) × corner set into
+    ``out_folder``; never raises: returns a status dict (with the item's ``bbox``, the
+    mesh-unit box its position image is normalised to).
 
     Runs with single-threaded BLAS so the output does not depend on the worker it ran on.
     """
@@ -188,14 +204,14 @@ def run_item(mesh_path: str, out_folder: str, corner_set: int, options: DatasetO
         from ._lazy import lazy_import
 
         threadpool_limits = lazy_import("threadpoolctl", "dataset building").threadpool_limits
-        from .mesh.io import load_mesh
         from .pipeline import convert
 
         with threadpool_limits(limits=1):
-            mesh = load_mesh(mesh_path)
-            roi = _item_roi(Path(mesh_path), len(mesh.V), options.roi)
+            mesh, roi = _item_mesh(source, options.roi)
             m = convert(mesh, out_folder, options.convert_options(corner_set, roi), quiet=True)
         row["metrics"] = _summary_metrics(m)
+        meta = json.loads((Path(out_folder) / "meta.json").read_text())
+        row["bbox"] = {"min": meta["bbox_min"], "max": meta["bbox_max"]}
     except GeofaceError as e:
         row.update(status="failed", error=f"{type(e).__name__}: {e}")
     except Exception as e:  # a bug or an unexpected library error: record it, keep going
@@ -205,19 +221,20 @@ def run_item(mesh_path: str, out_folder: str, corner_set: int, options: DatasetO
     return row
 
 
-def _plan(files, out_dir: Path, options: DatasetOptions, done: dict, retry_failed: bool):
+def _plan(sources, out_dir: Path, options: DatasetOptions, done: dict, retry_failed: bool):
+    """``sources``: ``(stem, source)`` pairs; returns the items to build and those to skip."""
     todo, skipped = [], []
-    for p in files:
+    for stem, src in sources:
         for k in range(options.augment):
-            item = f"{p.stem}/aug{k}"
+            item = f"{stem}/aug{k}"
             prev = done.get(item)
-            folder = out_dir / p.stem / f"aug{k}"
+            folder = out_dir / stem / f"aug{k}"
             if prev is not None and prev.get("status") == "ok" and _complete(folder):
                 skipped.append(item)
             elif prev is not None and prev.get("status") == "failed" and not retry_failed:
                 skipped.append(item)
             else:
-                todo.append((item, p, k, folder))
+                todo.append((item, stem, src, k, folder))
     return todo, skipped
 
 
@@ -298,12 +315,15 @@ def _die_with_parent(parent: int) -> None:
 OPTIONS_FILE = "options.json"
 
 
-def _record_options(out: Path, opts: DatasetOptions, rebuild: bool) -> bool:
+def _record_options(out: Path, opts: DatasetOptions, rebuild: bool, source: dict | None = None) -> bool:
     """Check ``out``'s recorded options against ``opts`` (all but ``augment``, which only adds
-    or drops items); record them.  Returns True when everything must be built again."""
+    or drops items) and ``source`` (what the items are made from, for generated datasets);
+    record them.  Returns True when everything must be built again."""
     from ._io import atomic_write_text
 
     cur = {k: v for k, v in asdict(opts).items() if k != "augment"}
+    if source is not None:
+        cur["source"] = source
     path = out / OPTIONS_FILE
     changed = False
     if path.is_file():
@@ -314,6 +334,7 @@ def _record_options(out: Path, opts: DatasetOptions, rebuild: bool) -> bool:
         if not isinstance(old, dict):
             raise GeofaceError(f"{path} is not a JSON object; pass --force to rebuild the dataset")
         diff = {k: (old.get(k), v) for k, v in cur.items() if old.get(k) != v}
+        diff.update({k: (v, None) for k, v in old.items() if k not in cur})
         if diff:
             what = ", ".join(f"{k} {a!r} -> {b!r}" for k, (a, b) in diff.items())
             if not rebuild:
@@ -362,23 +383,74 @@ def build_dataset(
     """
     opts = (options or DatasetOptions()).validate()
     files = find_meshes(in_dir)
+    if labels is None and (Path(in_dir) / "labels.jsonl").is_file():
+        labels = Path(in_dir) / "labels.jsonl"
+    lab = labels if isinstance(labels, dict) or labels is None else load_labels(labels)
+    sources = [(p.stem, str(p)) for p in files]
+    return _build(sources, out_dir, opts, lab, None, workers=workers, scheduler=scheduler, retry_failed=retry_failed,
+                  rebuild=rebuild, quiet=quiet, what=f"{len(files)} meshes")
+
+
+def build_ict_dataset(
+    out_dir: str | os.PathLike,
+    count: int,
+    options: DatasetOptions | None = None,
+    *,
+    seed: int = 0,
+    model: str | os.PathLike | None = None,
+    mix_share: float = 0.3,
+    heldout_share: float = 0.2,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    retry_failed: bool = False,
+    rebuild: bool = False,
+    quiet: bool | None = None,
+) -> dict:
+    """A labelled dataset of ``count`` real heads of the ICT-FaceKit model (identities ``~ N(0,
+    I)``, preset expressions and random ARKit mixes, prompts from measured traits: see
+    :mod:`geoface.synth.ict_data`) converted like :func:`build_dataset` (same options, workers,
+    Dask scheduler, resumption).  The heads are made in the workers from small specs; no mesh
+    files are written.  The face mask of the model is the region of interest (``roi="auto"``).
+    Manifest rows carry ``labels`` (``expression_name``, ``split`` by identity, traits) and
+    ``prompt``; ``heads.jsonl`` in ``out_dir`` lists every head's weights and labels."""
+    from ._io import atomic_write_text
+    from .synth.ict import find_model
+    from .synth.ict_data import ict_specs
+
+    opts = (options or DatasetOptions()).validate()
+    path = find_model(model)
+    specs = ict_specs(count, seed=seed, model_path=str(path), mix_share=mix_share, heldout_share=heldout_share)
+    source = {"kind": "ict-facekit", "count": int(count), "seed": int(seed), "mix_share": float(mix_share),
+              "heldout_share": float(heldout_share), "model": str(path)}
+    out = Path(out_dir)
+    sources = [(sp["name"], {"model": str(path), "identity": sp["identity"], "expression": sp["expression"]}) for sp in specs]
+    labels = {sp["name"]: sp["labels"] for sp in specs}
+
+    def write_heads():
+        atomic_write_text(out / "heads.jsonl", "".join(json.dumps({"name": sp["name"], **sp}) + "\n" for sp in specs))
+
+    return _build(sources, out, opts, labels, source, workers=workers, scheduler=scheduler, retry_failed=retry_failed,
+                  rebuild=rebuild, quiet=quiet, what=f"{count} ICT-FaceKit heads", before=write_heads)
+
+
+def _build(sources, out_dir, opts: DatasetOptions, lab: dict | None, source: dict | None, *, workers, scheduler,
+           retry_failed: bool, rebuild: bool, quiet, what: str, before=None) -> dict:
     if workers is None:
         workers = max(1, os.cpu_count() or 1)
     if int(workers) != workers or workers < 1:
         raise GeofaceError(f"workers must be a positive integer; got {workers!r}")
-    if labels is None and (Path(in_dir) / "labels.jsonl").is_file():
-        labels = Path(in_dir) / "labels.jsonl"
-    lab = labels if isinstance(labels, dict) or labels is None else load_labels(labels)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise GeofaceError(f"output path exists and is not a folder: {out}")
     out.mkdir(parents=True, exist_ok=True)
-    changed = _record_options(out, opts, rebuild)
+    changed = _record_options(out, opts, rebuild, source)
+    if before is not None:
+        before()
     manifest = {} if changed else read_manifest(out)
-    todo, skipped = _plan(files, out, opts, manifest, retry_failed)
+    todo, skipped = _plan(sources, out, opts, manifest, retry_failed)
     total = len(todo) + len(skipped)
     where = f"Dask scheduler {scheduler}" if scheduler else ("this process" if workers == 1 else f"{workers} processes")
-    log(f"dataset: {len(files)} meshes x {opts.augment} corner sets = {total} items; {len(skipped)} already done; "
+    log(f"dataset: {what} x {opts.augment} corner sets = {total} items; {len(skipped)} already done; "
         f"{len(todo)} to build on {where}", quiet=quiet)
     t0 = time.perf_counter()
     done = failed = 0
@@ -387,18 +459,18 @@ def build_dataset(
         submit, as_completed, close = _executor(int(workers), scheduler)
         try:
             futures = {}
-            for item, p, k, folder in todo:
-                futures[submit(run_item, str(p), str(folder), k, opts)] = (item, p, k)
+            for item, stem, src, k, folder in todo:
+                futures[submit(run_item, src, str(folder), k, opts)] = (item, stem, src, k)
             with open(out / MANIFEST, "a", encoding="utf-8") as manifest:
                 for n, fut in enumerate(as_completed(list(futures)), 1):
-                    item, p, k = futures[fut]
-                    row = {"item": item, "mesh": p.name, "corner_set": k}
+                    item, stem, src, k = futures[fut]
+                    row = {"item": item, "mesh": Path(src).name if isinstance(src, str) else stem, "corner_set": k}
                     row.update(fut.result())
                     row["options"] = asdict(opts)
-                    if lab is not None and p.stem in lab:
-                        row["labels"] = lab[p.stem]
-                        if "prompt" in lab[p.stem]:
-                            row["prompt"] = lab[p.stem]["prompt"]
+                    if lab is not None and stem in lab:
+                        row["labels"] = lab[stem]
+                        if "prompt" in lab[stem]:
+                            row["prompt"] = lab[stem]["prompt"]
                     manifest.write(json.dumps(row) + "\n")
                     manifest.flush()
                     if row["status"] == "ok":
@@ -406,7 +478,10 @@ def build_dataset(
                     else:
                         failed += 1
                         failures[item] = row["error"]
-                    log(f"dataset [{n}/{len(todo)}] {item}: {row['status']} ({row['seconds']:.1f} s)"
+                    el = time.perf_counter() - t0
+                    eta = el / n * (len(todo) - n)
+                    log(f"dataset [{n}/{len(todo)}] {item}: {row['status']} ({row['seconds']:.1f} s; "
+                        f"{60 * n / max(el, 1e-9):.1f} items/min, ETA {_clock(eta)})"
                         + (f" - {row['error']}" if row["error"] else ""), quiet=quiet)
         except BaseException:
             close(interrupted=True)  # SIGINT, SIGTERM, a driver error: the workers stop now
@@ -419,3 +494,8 @@ def build_dataset(
     }
     log(f"dataset: {done} built, {failed} failed, {len(skipped)} skipped in {seconds:.1f} s", quiet=quiet)
     return summary
+
+
+def _clock(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"

@@ -42,3 +42,92 @@ def log(message: str, quiet: bool | None = None) -> None:
     q = QUIET if quiet is None else quiet
     if not q:
         print(message, file=sys.stderr, flush=True)
+
+
+def _clock(seconds: float) -> str:
+    s = int(round(max(0.0, seconds)))
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
+
+
+class StepProgress:
+    """Progress of a long loop of steps, with rate and time left, wherever it runs.
+
+    On a terminal: a live bar (rich).  Elsewhere — a notebook, a log file, a job scheduler —
+    one line on stderr after the first step and then every ``every`` seconds, e.g.
+    ``ddpm train: step 120/3600 (3%), 1.92 steps/s, ETA 30:12, loss 0.1234``; a final line
+    when closed.  Silent when quiet.
+
+    >>> bar = StepProgress(3, "demo", quiet=True)
+    >>> for _ in range(3):
+    ...     bar.update(loss=0.5)
+    >>> bar.close()
+    """
+
+    def __init__(self, total: int, description: str = "", *, start: int = 0, unit: str = "steps", every: float = 10.0,
+                 quiet: bool | None = None, stream=None):
+        import time
+
+        self.total, self.description, self.unit, self.every = int(total), description, unit, float(every)
+        self.start = self.n = int(start)
+        self.quiet = QUIET if quiet is None else quiet
+        self.stream = stream if stream is not None else sys.stderr
+        self.t0 = self._last = time.perf_counter()
+        self._printed_first = False
+        self.postfix: dict = {}
+        self._rich = None
+        if not self.quiet and stream is None and sys.stderr.isatty():
+            try:
+                from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+            except ImportError:  # pragma: no cover
+                pass
+            else:
+                self._rich = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                      TextColumn("{task.fields[rate]}"), TimeRemainingColumn(), TextColumn("{task.fields[post]}"),
+                                      transient=True)
+                self._rich.start()
+                self._task = self._rich.add_task(description, total=self.total, completed=self.start, rate="", post="")
+
+    @property
+    def rate(self) -> float:
+        import time
+
+        el = time.perf_counter() - self.t0
+        return (self.n - self.start) / el if el > 0 else 0.0
+
+    def line(self) -> str:
+        r = self.rate
+        eta = (self.total - self.n) / r if r > 0 else float("nan")
+        pct = 100.0 * self.n / self.total if self.total else 100.0
+        post = "".join(f", {k} {v:.4g}" if isinstance(v, float) else f", {k} {v}" for k, v in self.postfix.items())
+        eta_s = _clock(eta) if eta == eta else "?"
+        return f"{self.description}: {self.unit[:-1] if self.unit.endswith('s') else self.unit} {self.n}/{self.total} ({pct:.0f}%), {r:.3g} {self.unit}/s, ETA {eta_s}{post}"
+
+    def update(self, n: int = 1, **postfix) -> None:
+        import time
+
+        self.n += int(n)
+        self.postfix.update(postfix)
+        if self.quiet:
+            return
+        if self._rich is not None:
+            post = " ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in self.postfix.items())
+            self._rich.update(self._task, completed=self.n, rate=f"{self.rate:.3g} {self.unit}/s", post=post)
+            return
+        now = time.perf_counter()
+        if not self._printed_first or now - self._last >= self.every:
+            self._printed_first, self._last = True, now
+            print(self.line(), file=self.stream, flush=True)
+
+    def close(self) -> None:
+        if self._rich is not None:
+            self._rich.stop()
+            self._rich = None
+        elif not self.quiet and self.n > self.start:
+            print(self.line(), file=self.stream, flush=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False

@@ -35,16 +35,19 @@ def _quiet(args):
 def cmd_ddpm_train(args) -> int:
     from .ddpm import DDPMConfig, train
 
-    if args.res < 8 or args.steps < 1 or args.batch < 1 or args.lr <= 0:
-        raise GeofaceError("--res must be >= 8, --steps and --batch >= 1, --lr > 0")
-    cfg = DDPMConfig(res=args.res, steps=args.steps, batch_size=args.batch, lr=args.lr,
-                     text_encoder=args.text_encoder, seed=args.seed,
-                     checkpoint_every=args.checkpoint_every, augment=not args.no_augment)
-    if args.tiny:  # CPU smoke-test model
-        cfg.block_out_channels, cfg.layers_per_block, cfg.norm_num_groups, cfg.attention_head_dim = (16, 32), 1, 8, 8
-    last = train(args.data_dir, args.output, cfg, resume=args.resume, device=_device(args.device), quiet=_quiet(args))
+    if args.res < 8 or args.steps < 1 or args.batch < 1:
+        raise GeofaceError("--res must be >= 8, --steps and --batch >= 1")
+    kw = dict(res=args.res, steps=args.steps, batch_size=args.batch, text_encoder=args.text_encoder, seed=args.seed,
+              checkpoint_every=args.checkpoint_every, augment=not args.no_augment)
+    if args.lr is not None:
+        kw["lr"] = args.lr
+    cfg = DDPMConfig.preset("tiny" if args.tiny else args.model, **kw)
+    last = train(args.data_dir, args.output, cfg, resume=args.resume, device=_device(args.device), quiet=_quiet(args),
+                 max_seconds=None if args.max_minutes is None else 60.0 * args.max_minutes,
+                 loader_workers=args.loader_workers, cache_mb=args.cache_mb)
     print(f"{args.output}/checkpoint: step {last['step']}, loss {last['loss']:.4f} "
-          + " ".join(f"{k} {v:.4f}" for k, v in last["losses"].items()))
+          + " ".join(f"{k} {v:.4f}" for k, v in last["losses"].items())
+          + f" ({last['steps_per_second']:.2f} steps/s)")
     return 0
 
 
@@ -88,13 +91,22 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--res", type=number(int, 8, 1024), default=64, help="training resolution (divides the image resolution)")
     t.add_argument("--steps", type=number(int, 1, 100_000_000), default=10000, help="total optimisation steps")
     t.add_argument("--batch", type=number(int, 1, 4096), default=8)
-    t.add_argument("--lr", type=number(float, 0, 1, lo_open=True), default=1e-4)
+    t.add_argument("--model", choices=["small", "base", "tiny"], default="small",
+                   help="model size: small (default; 5.9 M parameters, what the README's results use), base "
+                        "(paper-sized, for a GPU), tiny (smoke tests)")
+    t.add_argument("--lr", type=number(float, 0, 1, lo_open=True), default=None, help="learning rate (default: the preset's)")
+    t.add_argument("--max-minutes", type=number(float, 0, 1e7, lo_open=True), default=None,
+                   help="stop after this much wall-clock time (a checkpoint is written there)")
+    t.add_argument("--loader-workers", type=number(int, 0, 256), default=0,
+                   help="processes decoding items in the background (0: the training process)")
+    t.add_argument("--cache-mb", type=number(float, 0, 1e7), default=256.0,
+                   help="decoded items kept in memory, megabytes (the dataset is read lazily)")
     t.add_argument("--text-encoder", default="minilm", help="minilm | clip:PATH | hash[:DIM]")
     t.add_argument("--checkpoint-every", type=number(int, 1, 100_000_000), default=500)
     t.add_argument("--seed", type=SEED, default=0)
     t.add_argument("--device", default=None, help="cpu | cuda (default: cuda when available)")
     t.add_argument("--no-augment", action="store_true")
-    t.add_argument("--tiny", action="store_true", help="a very small UNet (smoke tests)")
+    t.add_argument("--tiny", action="store_true", help="the same as --model tiny")
     t.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint")
     t.set_defaults(func=cmd_ddpm_train)
     p = sd.add_parser("sample", parents=[common], help="sample geometry images + meshes for a prompt")

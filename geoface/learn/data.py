@@ -2,28 +2,41 @@
 
 Each item is a dict:
 
-* ``image``  ``[9, R, R]`` float32: position, normal, texture channels stacked, scaled from
-  [0, 1] to [-1, 1]; uncovered pixels are 0.
+* ``image``  ``[C, R, R]`` float32: the modalities (position, normal and, where every item has
+  one, texture) stacked, 3 channels each, in about [-1, 1]; uncovered pixels are 0.
 * ``mask``   ``[1, R, R]`` float32 coverage (1 = valid pixel).
 * ``prompt`` str (``""`` when none is known).
 * ``index``  int.
+
+**One position normalisation for the whole dataset** (:class:`Normalization`): positions are
+decoded to mesh units from each item's box and mapped by one centre and one scale — the
+centre and the largest half-extent of the union of the items' boxes — so head proportions and
+sizes survive (a per-item box would stretch every head to the same cube).  The boxes come from
+the manifest rows (``bbox``, written by ``geoface dataset build``) or, for older datasets and
+plain folder trees, from each item's ``meta.json``.  Normals and texture map ``[0, 1] → [-1, 1]``.
+
+**Lazy**: items are read from disk when asked for; at most ``cache_mb`` of decoded items are
+kept (float16, least recently used first), so memory stays bounded whatever the dataset size.
 
 Sources: ``DATA_DIR/manifest.jsonl`` (see :mod:`geoface.dataset`: rows with ``status == "ok"``,
 item folder ``DATA_DIR/<item>``, optional ``prompt``; the last row of an item wins) or, with no
 manifest, every folder below ``DATA_DIR`` holding a ``meta.json`` (prompt from
 ``meta["prompt"]`` if present).
 
-Augmentation (seeded; the paper's rigid augmentation) acts in the **normalised** [-1, 1]
-position space (per-axis bbox), so it is rigid there, not necessarily in mesh units: a random
-rotation about the vertical (y) axis by up to ``max_angle`` degrees, a uniform scale in
-``scale_range`` and a translation up to ``max_shift``; normals get the same rotation and stay
-unit. Values may leave [-1, 1] slightly; they are not clipped.
+Augmentation (seeded; the paper's rigid augmentation) acts in the normalised space, which is
+isotropic, so it is rigid in mesh units too: a rotation about the vertical (y) axis by up to
+``max_angle`` degrees, a uniform scale in ``scale_range`` and a translation up to
+``max_shift``; normals get the same rotation and stay unit.
+
+:class:`ShardSampler` draws item indices for one process of a distributed run: its own shard
+of the items and its own seed.
 """
 from __future__ import annotations
 
 import json
 import math
 import os
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,7 +45,8 @@ import torch
 
 from geoface.errors import GeofaceError
 
-__all__ = ["GImageDataset", "AugmentOptions", "find_items", "area_resize", "rigid_augment", "CHANNELS"]
+__all__ = ["GImageDataset", "AugmentOptions", "Normalization", "ShardSampler", "Item", "find_items", "area_resize",
+           "rigid_augment", "CHANNELS"]
 
 CHANNELS = ("position", "normal", "texture")
 
@@ -44,13 +58,64 @@ class AugmentOptions:
     scale_range: tuple = (0.9, 1.0)  # uniform scale
 
 
-def find_items(data_dir: str | os.PathLike) -> list[tuple[Path, str]]:
-    """``(folder, prompt)`` pairs in a stable (sorted) order."""
+@dataclass(frozen=True)
+class Item:
+    folder: Path
+    prompt: str
+    bbox: tuple | None = None  # ((3,), (3,)) mesh-unit box of the position image, when the manifest has it
+
+
+@dataclass(frozen=True)
+class Normalization:
+    """``normalised = (p - center) / scale`` for positions ``p`` in mesh units."""
+
+    center: tuple
+    scale: float
+
+    @classmethod
+    def from_boxes(cls, lo: np.ndarray, hi: np.ndarray) -> "Normalization":
+        lo, hi = np.min(np.asarray(lo, np.float64), axis=0), np.max(np.asarray(hi, np.float64), axis=0)
+        scale = float(np.max(hi - lo) / 2)
+        if not np.isfinite(scale) or scale <= 0:
+            raise GeofaceError("the dataset's position boxes are empty or not finite")
+        return cls(tuple(float(x) for x in (lo + hi) / 2), scale)
+
+    def to_dict(self) -> dict:
+        return {"center": list(self.center), "scale": self.scale}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Normalization":
+        try:
+            c = [float(x) for x in d["center"]]
+            s = float(d["scale"])
+        except (KeyError, TypeError, ValueError):
+            raise GeofaceError(f"a normalisation needs 'center' (3 numbers) and 'scale'; got {d!r}") from None
+        if len(c) != 3 or not np.isfinite(c).all() or not (np.isfinite(s) and s > 0):
+            raise GeofaceError(f"bad normalisation {d!r}")
+        return cls(tuple(c), s)
+
+    def box(self) -> tuple[list, list]:
+        """The cube ``center ± scale`` (where normalised -1 and 1 land), as bbox_min / bbox_max."""
+        c = np.asarray(self.center)
+        return (c - self.scale).tolist(), (c + self.scale).tolist()
+
+
+def _bbox_of(row: dict):
+    b = row.get("bbox")
+    if isinstance(b, dict) and isinstance(b.get("min"), list) and isinstance(b.get("max"), list):
+        lo, hi = np.asarray(b["min"], np.float64), np.asarray(b["max"], np.float64)
+        if lo.shape == hi.shape == (3,) and np.isfinite(lo).all() and np.isfinite(hi).all():
+            return tuple(lo.tolist()), tuple(hi.tolist())
+    return None
+
+
+def find_items(data_dir: str | os.PathLike) -> list[Item]:
+    """The dataset's items (folder, prompt, box when the manifest has it) in a stable (sorted) order."""
     root = Path(data_dir)
     if not root.is_dir():
         raise GeofaceError(f"data folder not found: {root}")
     man = root / "manifest.jsonl"
-    items: list[tuple[Path, str]] = []
+    items: list[Item] = []
     if man.is_file():
         last: dict[str, dict] = {}
         try:
@@ -72,7 +137,7 @@ def find_items(data_dir: str | os.PathLike) -> list[tuple[Path, str]]:
             row = last[name]
             folder = root / name
             if row.get("status") == "ok" and (folder / "meta.json").is_file():
-                items.append((folder, str(row.get("prompt") or "")))
+                items.append(Item(folder, str(row.get("prompt") or ""), _bbox_of(row)))
     else:
         for meta in sorted(root.rglob("meta.json")):
             try:
@@ -80,7 +145,7 @@ def find_items(data_dir: str | os.PathLike) -> list[tuple[Path, str]]:
                 prompt = str(m.get("prompt") or "") if isinstance(m, dict) else ""
             except (OSError, json.JSONDecodeError, UnicodeDecodeError):
                 prompt = ""
-            items.append((meta.parent, prompt))
+            items.append(Item(meta.parent, prompt))
     if not items:
         raise GeofaceError(f"no geometry images found in {root} (need manifest.jsonl rows with status 'ok' "
                            "or folders with meta.json)")
@@ -104,7 +169,7 @@ def area_resize(image: np.ndarray, mask: np.ndarray, res: int) -> tuple[np.ndarr
 
 def rigid_augment(x: torch.Tensor, mask: torch.Tensor, gen: torch.Generator,
                   opts: AugmentOptions = AugmentOptions()) -> torch.Tensor:
-    """Rotate/scale/shift positions (channels 0-2) and rotate normals (3-5) of ``x [9, R, R]`` in [-1, 1]."""
+    """Rotate/scale/shift positions (channels 0-2) and rotate normals (3-5) of ``x [C, R, R]``."""
     u = torch.rand(5, generator=gen, dtype=torch.float64)
     a = math.radians(opts.max_angle) * (2 * float(u[0]) - 1)
     lo, hi = opts.scale_range
@@ -122,49 +187,166 @@ def rigid_augment(x: torch.Tensor, mask: torch.Tensor, gen: torch.Generator,
 
 
 class GImageDataset(torch.utils.data.Dataset):
-    """Geometry images as ``[9, R, R]`` tensors in [-1, 1] + mask + prompt (see module doc)."""
+    """Geometry images as ``[C, R, R]`` tensors + mask + prompt (see module doc).
+
+    Parameters
+    ----------
+    data_dir : dataset folder
+    res : training resolution (divides the image resolution; None = as stored)
+    augment, seed, augment_options : rigid augmentation (seeded per draw)
+    normalization : positions' :class:`Normalization` (default: computed from this dataset's
+        boxes; pass a run's own to decode or to train on a second dataset in the same frame)
+    modalities : the modalities to stack (default: position and normal, plus texture when
+        every item has one)
+    cache_mb : decoded items kept in memory, at most this many megabytes (0 = none)
+    """
 
     def __init__(self, data_dir: str | os.PathLike, res: int | None = None, augment: bool = False,
-                 seed: int = 0, augment_options: AugmentOptions = AugmentOptions(), preload: bool = True):
+                 seed: int = 0, augment_options: AugmentOptions = AugmentOptions(),
+                 normalization: Normalization | None = None, modalities: tuple | None = None, cache_mb: float = 256.0):
+        self.root = Path(data_dir)
         self.items = find_items(data_dir)
         self.res, self.augment, self.seed, self.aug_opts = res, augment, int(seed), augment_options
         self.epoch = 0
-        self._cache: dict[int, tuple[torch.Tensor, torch.Tensor, dict]] = {}
-        if preload:
-            for i in range(len(self.items)):
-                self._load(i)
+        self._cache: OrderedDict = OrderedDict()
+        self._cache_bytes, self._cache_limit = 0, int(max(0.0, float(cache_mb)) * 2**20)
+        self.normalization = normalization or self._dataset_normalization()
+        self.modalities = tuple(modalities) if modalities is not None else self._common_modalities()
+        bad = [m for m in self.modalities if m not in CHANNELS]
+        if bad or self.modalities[:2] != ("position", "normal"):
+            raise GeofaceError(f"modalities must start with position, normal (then texture); got {self.modalities}")
 
     def __len__(self) -> int:
         return len(self.items)
 
     @property
-    def prompts(self) -> list[str]:
-        return [p for _, p in self.items]
+    def channels(self) -> int:
+        return 3 * len(self.modalities)
 
-    def _load(self, i: int):
-        if i not in self._cache:
-            from geoface.gimage import load_gimage
-            gi = load_gimage(self.items[i][0])
-            img = np.concatenate([gi.modality(m) for m in CHANNELS], axis=0).astype(np.float32)
-            mask = np.asarray(gi.mask, bool)
-            if self.res is not None:
-                img, mask = area_resize(img, mask, int(self.res))
-            x = torch.from_numpy(img * 2.0 - 1.0) * torch.from_numpy(mask.astype(np.float32))
-            self._cache[i] = (x, torch.from_numpy(mask.astype(np.float32))[None], gi.meta)
-        return self._cache[i]
+    @property
+    def prompts(self) -> list[str]:
+        return [it.prompt for it in self.items]
+
+    def _meta(self, i: int) -> dict:
+        p = self.items[i].folder / "meta.json"
+        try:
+            m = json.loads(p.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise GeofaceError(f"cannot read {p}: {e}") from None
+        if not isinstance(m, dict):
+            raise GeofaceError(f"{p} must hold a JSON object")
+        return m
+
+    def _box(self, i: int):
+        if self.items[i].bbox is not None:
+            return self.items[i].bbox
+        m = self._meta(i)
+        try:
+            return tuple(float(x) for x in m["bbox_min"]), tuple(float(x) for x in m["bbox_max"])
+        except (KeyError, TypeError, ValueError):
+            raise GeofaceError(f"{self.items[i].folder / 'meta.json'} has no valid bbox_min / bbox_max") from None
+
+    def _dataset_normalization(self) -> Normalization:
+        boxes = [self._box(i) for i in range(len(self))]
+        return Normalization.from_boxes([b[0] for b in boxes], [b[1] for b in boxes])
+
+    def _common_modalities(self) -> tuple:
+        # the manifest does not list channels: look at a few items, and fail late (in _load) on
+        # an item that lacks what these have
+        probe = sorted({0, len(self) // 2, len(self) - 1})
+        have = [set(self._meta(i).get("channels", [])) for i in probe]
+        tex = all({"tr", "tg", "tb"} <= h or {"r", "g", "b"} <= h for h in have)
+        return ("position", "normal", "texture") if tex and all(self._has_texture(i) for i in probe) else ("position", "normal")
+
+    def _has_texture(self, i: int) -> bool:
+        from geoface.gimage.image import MODALITIES
+
+        ch = self._meta(i).get("channels", [])
+        return all(c in ch for c in MODALITIES["texture"])
+
+    def _decode(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        from geoface.gimage import load_gimage
+
+        gi = load_gimage(self.items[i].folder)
+        try:
+            parts = [gi.modality(m) for m in self.modalities]
+        except GeofaceError as e:
+            raise GeofaceError(f"{self.items[i].folder}: {e} (the dataset's other items have {', '.join(self.modalities)})") from None
+        img = np.concatenate(parts, axis=0).astype(np.float32)
+        mask = np.asarray(gi.mask, bool)
+        # positions to mesh units (this item's box), then to the dataset frame
+        lo, hi = (np.asarray(b, np.float64) for b in (gi.meta["bbox_min"], gi.meta["bbox_max"]))
+        nz = self.normalization
+        scale = ((hi - lo) / (2 * nz.scale))[:, None, None]
+        off = ((lo - np.asarray(nz.center)) / nz.scale)[:, None, None]
+        img[0:3] = (img[0:3] * 2 * scale + off).astype(np.float32)
+        img[3:] = img[3:] * 2.0 - 1.0
+        if self.res is not None:
+            img, mask = area_resize(img, mask, int(self.res))
+        return img * mask[None], mask
+
+    def _load(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
+        hit = self._cache.get(i)
+        if hit is not None:
+            self._cache.move_to_end(i)
+            x, m = hit
+            return torch.from_numpy(x.astype(np.float32)), torch.from_numpy(m.astype(np.float32))[None]
+        img, mask = self._decode(i)
+        if self._cache_limit:
+            x16, m8 = img.astype(np.float16), mask.astype(np.uint8)
+            size = x16.nbytes + m8.nbytes
+            if size <= self._cache_limit:
+                self._cache[i] = (x16, m8)
+                self._cache_bytes += size
+                while self._cache_bytes > self._cache_limit:
+                    _, (a, b) = self._cache.popitem(last=False)
+                    self._cache_bytes -= a.nbytes + b.nbytes
+            img = x16.astype(np.float32)  # the same values whether or not the item came from the cache
+        return torch.from_numpy(img), torch.from_numpy(mask.astype(np.float32))[None]
 
     def meta(self, i: int) -> dict:
-        return self._load(i)[2]
+        return self._meta(i)
 
     def bbox_stats(self) -> dict:
-        """Union bbox of all items (for turning samples back into meshes)."""
-        lo = np.min([self.meta(i)["bbox_min"] for i in range(len(self))], axis=0)
-        hi = np.max([self.meta(i)["bbox_max"] for i in range(len(self))], axis=0)
-        return {"bbox_min": lo.tolist(), "bbox_max": hi.tolist()}
+        """The cube of the dataset normalisation as ``bbox_min``/``bbox_max`` (what decodes a
+        sample in [-1, 1] back to mesh units), and the normalisation itself."""
+        lo, hi = self.normalization.box()
+        return {"bbox_min": lo, "bbox_max": hi, "normalization": self.normalization.to_dict(),
+                "modalities": list(self.modalities)}
 
-    def __getitem__(self, i: int) -> dict:
-        x, mask, _ = self._load(i)
+    def __getitem__(self, key) -> dict:
+        """``key``: an index, or ``(index, draw)`` from :class:`ShardSampler` (the draw seeds
+        the augmentation, so every draw of an item is augmented differently and reproducibly)."""
+        i, draw = (int(key[0]), int(key[1])) if isinstance(key, (tuple, list)) else (int(key), None)
+        x, mask = self._load(i)
         if self.augment:
-            g = torch.Generator().manual_seed(self.seed * 1_000_003 + self.epoch * 7919 + int(i))
+            s = self.seed * 1_000_003 + (self.epoch * 7919 + i if draw is None else draw * 2_654_435_761 + i)
+            g = torch.Generator().manual_seed(s % (2**63))
             x = rigid_augment(x, mask[0], g, self.aug_opts)
-        return {"image": x, "mask": mask, "prompt": self.items[i][1], "index": int(i)}
+        return {"image": x, "mask": mask, "prompt": self.items[i].prompt, "index": i}
+
+
+class ShardSampler(torch.utils.data.Sampler):
+    """Endless ``(index, draw)`` pairs for process ``rank`` of ``world``: indices drawn
+    uniformly (with replacement) from the items ``rank, rank + world, ...``, from a generator
+    seeded by ``(seed, rank)``; ``draw`` counts up from ``start`` (a resumed run continues the
+    stream).  Every process thus sees its own items in its own order."""
+
+    def __init__(self, n: int, *, rank: int = 0, world: int = 1, seed: int = 0, start: int = 0):
+        if not 0 <= rank < world:
+            raise GeofaceError(f"rank must be in 0..{world - 1}; got {rank}")
+        self.shard = np.arange(rank, n, world)
+        if len(self.shard) == 0:
+            raise GeofaceError(f"{n} items cannot be shared among {world} processes")
+        self.rank, self.world, self.seed, self.start = rank, world, int(seed), int(start)
+
+    def __iter__(self):
+        rng = np.random.default_rng([self.seed, self.rank, self.start])
+        draw = self.start * self.world + self.rank
+        while True:
+            for i in rng.integers(0, len(self.shard), 1024):
+                yield int(self.shard[i]), draw
+                draw += self.world
+
+    def __len__(self) -> int:  # one pass over the shard (the stream itself is endless)
+        return len(self.shard)

@@ -65,6 +65,16 @@ class DDPMConfig:
     checkpoint_every: int = 500
     augment: bool = True
     seed: int = 0
+    # the stacked modalities (channels = 3 per modality); a dataset without texture trains on
+    # position + normal (6 channels)
+    modalities: tuple[str, ...] = ("position", "normal", "texture")
+
+    @classmethod
+    def preset(cls, name: str = "small", **overrides) -> "DDPMConfig":
+        """A named model size (:data:`PRESETS`) with ``overrides`` applied."""
+        if name not in PRESETS:
+            raise CheckpointError(f"unknown model preset {name!r}; presets are {', '.join(PRESETS)}")
+        return cls(**{**PRESETS[name], **overrides})
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
@@ -88,6 +98,19 @@ class DDPMConfig:
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
             raise CheckpointError(f"{path} is not a valid config ({e})") from None
         return cls.from_dict(d, where=str(path))
+
+
+#: named model sizes.  ``small`` (the command line's default, 5.9 M parameters with a 384-d text
+#: encoder) is the one the README's results are measured with; ``base`` is the paper-sized
+#: layout (for a GPU); ``tiny`` is for smoke tests.
+PRESETS = {
+    "tiny": dict(block_out_channels=(16, 32), layers_per_block=1, attention_head_dim=8, norm_num_groups=8,
+                 attention_levels=(1,)),
+    "small": dict(block_out_channels=(32, 64, 96, 128), layers_per_block=1, attention_head_dim=8, norm_num_groups=8,
+                  attention_levels=(2, 3), lr=3e-4, ema_decay=0.995),
+    "base": dict(block_out_channels=(64, 128, 256, 256), layers_per_block=2, attention_head_dim=8, norm_num_groups=32,
+                 attention_levels=(1, 2, 3), lr=1e-4, ema_decay=0.999),
+}
 
 
 def build_unet(cfg: DDPMConfig):
@@ -127,11 +150,12 @@ def build_scheduler(cfg: DDPMConfig, kind: str = "ddpm", clip: float | None = No
     raise CheckpointError(f"scheduler must be 'ddpm' or 'ddim'; got {kind!r}")
 
 
-def ddpm_loss(eps_pred: torch.Tensor,  # [B, 9, N, N]
-              eps: torch.Tensor,       # [B, 9, N, N]
+def ddpm_loss(eps_pred: torch.Tensor,  # [B, C, N, N]
+              eps: torch.Tensor,       # [B, C, N, N]
+              modalities=("position", "normal", "texture"),
               ) -> tuple[torch.Tensor, dict]:
-    """Eq. (12): sum over modalities of the L1 error on epsilon."""
-    parts = {m: (eps_pred[:, s] - eps[:, s]).abs().mean() for m, s in MODALITY_SLICES.items()}
+    """Eq. (12): sum over modalities (3 channels each, in ``modalities`` order) of the L1 error on epsilon."""
+    parts = {m: (eps_pred[:, 3 * k:3 * k + 3] - eps[:, 3 * k:3 * k + 3]).abs().mean() for k, m in enumerate(modalities)}
     return sum(parts.values()), {m: float(v.detach()) for m, v in parts.items()}
 
 
@@ -248,33 +272,56 @@ def _embed(text, prompts: list[str]) -> torch.Tensor:
 
 def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConfig, *,
           resume: bool = False, device: str | None = None, quiet: bool | None = None,
-          text_encoder=None, max_seconds: float | None = None) -> dict:
-    """Train (or resume) a run; returns ``{"step", "loss", "losses"}`` of the last step.
+          text_encoder=None, max_seconds: float | None = None, loader_workers: int = 0,
+          cache_mb: float = 256.0) -> dict:
+    """Train (or resume) a run; returns ``{"step", "loss", "losses", "steps_per_second"}`` of the last step.
 
     ``resume=True`` continues from ``RUN_DIR/checkpoint`` (its config wins over ``cfg`` except
     ``steps``, the new total).  ``max_seconds``: a wall-clock budget; training stops after the
-    step that exceeds it and saves a checkpoint there.  Progress goes through
-    :func:`geoface.progress.progress`.
+    step that exceeds it and saves a checkpoint there.  Checkpoints every
+    ``cfg.checkpoint_every`` steps.
+
+    Data: items are read lazily (``cache_mb`` of decoded items kept, see
+    :class:`geoface.learn.data.GImageDataset`) in one position frame for the whole dataset,
+    stored in the checkpoint's ``state.json`` (``normalization``) and used to decode samples.
+    Under ``accelerate launch`` each process draws from its own shard of the items with its
+    own seed (:class:`geoface.learn.data.ShardSampler`); ``loader_workers`` processes decode
+    items in the background (0 = in the training process).
+
+    Progress: :class:`geoface.progress.StepProgress` (a bar on a terminal, a line every 10 s
+    elsewhere) with steps/s, the time left and the loss.
     """
     import time
     from accelerate import Accelerator
     from safetensors.torch import load_file  # noqa: F401  (fail early if missing)
 
-    from geoface.progress import progress
+    from geoface.progress import StepProgress, log
 
-    from .data import GImageDataset
+    from .data import GImageDataset, Normalization, ShardSampler
     from .text import make_text_encoder
 
     run_dir = Path(run_dir)
     ckpt = run_dir / "checkpoint"
     start = 0
     state: dict = {}
+    norm = None
     if resume and ckpt.is_dir():
         total = cfg.steps
         cfg = DDPMConfig.load(ckpt / "config.json")
         cfg.steps = total
+        try:
+            state = json.loads((ckpt / "state.json").read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise CheckpointError(f"{ckpt / 'state.json'} is missing or corrupt ({e})") from None
+        if not isinstance(state, dict) or not isinstance(state.get("step"), int) or not isinstance(state.get("param_groups"), list):
+            raise CheckpointError(f"{ckpt / 'state.json'}: needs an integer 'step' and a list 'param_groups'")
+        if isinstance(state.get("normalization"), dict):  # keep the frame the run was trained in
+            norm = Normalization.from_dict(state["normalization"])
     # the dataset first: a missing or corrupt one is reported before the text encoder loads
-    ds = GImageDataset(data_dir, res=cfg.res, augment=cfg.augment, seed=cfg.seed)
+    ds = GImageDataset(data_dir, res=cfg.res, augment=cfg.augment, seed=cfg.seed, normalization=norm,
+                       modalities=tuple(cfg.modalities) if resume and state else None, cache_mb=cache_mb)
+    cfg.modalities = tuple(ds.modalities)
+    cfg.channels = ds.channels
     accel = Accelerator(cpu=(device in (None, "cpu")) and not torch.cuda.is_available() or device == "cpu")
     text = text_encoder or make_text_encoder(cfg.text_encoder, cache_dir=run_dir / "text_cache",
                                              max_length=cfg.text_max_length)
@@ -286,53 +333,66 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
     if resume and ckpt.is_dir():
         _load_state_dict(unet, _load_st(ckpt / "model.safetensors"), ckpt / "model.safetensors")
         ema.shadow = _load_st(ckpt / "ema.safetensors")
-        try:
-            state = json.loads((ckpt / "state.json").read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise CheckpointError(f"{ckpt / 'state.json'} is missing or corrupt ({e})") from None
-        if not isinstance(state, dict) or not isinstance(state.get("step"), int) or not isinstance(state.get("param_groups"), list):
-            raise CheckpointError(f"{ckpt / 'state.json'}: needs an integer 'step' and a list 'param_groups'")
         opt.load_state_dict(_optim_from_tensors(_load_st(ckpt / "optimizer.safetensors"), state["param_groups"]))
         start = int(state["step"])
     sched = build_scheduler(cfg)
     run_dir.mkdir(parents=True, exist_ok=True)
-    extra = {"data_dir": str(data_dir), **ds.bbox_stats(), "prompts": sorted(set(ds.prompts))}
+    extra = {"data_dir": str(data_dir), **ds.bbox_stats(), "prompts": sorted(set(ds.prompts)), "items": len(ds)}
     unet, opt = accel.prepare(unet, opt)
     dev = accel.device
-    g = torch.Generator().manual_seed(cfg.seed * 7_777 + start)
+    rank, world = accel.process_index, accel.num_processes
+    # each process: its own shard, its own data order, its own noise
+    sampler = ShardSampler(len(ds), rank=rank, world=world, seed=cfg.seed, start=start * cfg.batch_size)
+    loader = torch.utils.data.DataLoader(ds, batch_size=cfg.batch_size, sampler=sampler, num_workers=int(loader_workers),
+                                         collate_fn=_collate, persistent_workers=loader_workers > 0)
+    batches = iter(loader)
+    g = torch.Generator().manual_seed((cfg.seed * 7_777 + start) * 1_000 + rank)
     empty = _embed(text, [""])
-    last = {"step": start, "loss": float("nan"), "losses": {}}
-    n = len(ds)
+    last = {"step": start, "loss": float("nan"), "losses": {}, "steps_per_second": 0.0}
     t_start = time.perf_counter()
-    for step in progress(range(start, cfg.steps), "ddpm train", total=cfg.steps - start, quiet=quiet):
-        ds.epoch = (step * cfg.batch_size) // n
-        idx = torch.randint(0, n, (cfg.batch_size,), generator=g).tolist()
-        items = [ds[i] for i in idx]
-        x0 = torch.stack([it["image"] for it in items]).to(dev)
-        prompts = [it["prompt"] for it in items]
-        cond = _embed(text, prompts)
-        drop = torch.rand(len(prompts), generator=g) < cfg.cfg_dropout  # CFG: drop the prompt
-        cond = torch.where(drop[:, None, None], empty.expand_as(cond), cond).to(dev)
-        eps = torch.randn(x0.shape, generator=g).to(dev)
-        t = torch.randint(0, cfg.num_train_timesteps, (x0.shape[0],), generator=g).to(dev)
-        xt = sched.add_noise(x0, eps, t)  # q(x_t | x_0)
-        unet.train()
-        pred = unet(xt, t, encoder_hidden_states=cond).sample
-        loss, parts = ddpm_loss(pred, eps)
-        opt.zero_grad(set_to_none=True)
-        accel.backward(loss)
-        opt.step()
-        ema.update(accel.unwrap_model(unet), step)
-        last = {"step": step + 1, "loss": float(loss.detach()), "losses": parts}
-        out_of_time = max_seconds is not None and time.perf_counter() - t_start > max_seconds
-        if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == cfg.steps or out_of_time:
-            if accel.is_main_process:
-                save_checkpoint(ckpt, cfg, accel.unwrap_model(unet), ema, opt, step + 1, extra)
-        if out_of_time:
-            break
+    params = sum(p.numel() for p in accel.unwrap_model(unet).parameters())
+    log(f"ddpm train: {len(ds)} items ({', '.join(ds.modalities)}) at {cfg.res}x{cfg.res}, {params / 1e6:.1f} M parameters, "
+        f"batch {cfg.batch_size}, steps {start}..{cfg.steps} on {dev}" + (f", {world} processes" if world > 1 else ""),
+        quiet=quiet if accel.is_main_process else True)
+    bar = StepProgress(cfg.steps, "ddpm train", start=start, quiet=quiet if accel.is_main_process else True)
+    try:
+        for step in range(start, cfg.steps):
+            batch = next(batches)
+            x0 = batch["image"].to(dev)
+            prompts = batch["prompt"]
+            cond = _embed(text, prompts)
+            drop = torch.rand(len(prompts), generator=g) < cfg.cfg_dropout  # CFG: drop the prompt
+            cond = torch.where(drop[:, None, None], empty.expand_as(cond), cond).to(dev)
+            eps = torch.randn(x0.shape, generator=g).to(dev)
+            t = torch.randint(0, cfg.num_train_timesteps, (x0.shape[0],), generator=g).to(dev)
+            xt = sched.add_noise(x0, eps, t)  # q(x_t | x_0)
+            unet.train()
+            pred = unet(xt, t, encoder_hidden_states=cond).sample
+            loss, parts = ddpm_loss(pred, eps, cfg.modalities)
+            opt.zero_grad(set_to_none=True)
+            accel.backward(loss)
+            opt.step()
+            ema.update(accel.unwrap_model(unet), step)
+            last = {"step": step + 1, "loss": float(loss.detach()), "losses": parts, "steps_per_second": bar.rate}
+            bar.update(loss=last["loss"])
+            out_of_time = max_seconds is not None and time.perf_counter() - t_start > max_seconds
+            if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == cfg.steps or out_of_time:
+                if accel.is_main_process:
+                    save_checkpoint(ckpt, cfg, accel.unwrap_model(unet), ema, opt, step + 1, extra)
+            if out_of_time:
+                break
+    finally:
+        bar.close()
+        del batches
+    last["steps_per_second"] = bar.rate
     if start >= cfg.steps and not ckpt.is_dir():
         save_checkpoint(ckpt, cfg, accel.unwrap_model(unet), ema, opt, start, extra)
     return last
+
+
+def _collate(items: list[dict]) -> dict:
+    return {"image": torch.stack([it["image"] for it in items]), "mask": torch.stack([it["mask"] for it in items]),
+            "prompt": [it["prompt"] for it in items], "index": [it["index"] for it in items]}
 
 
 # ---------------------------------------------------------------- sampling
@@ -371,11 +431,15 @@ def sample(run: DiffusionRun, prompt: str, n: int = 4, steps: int = 50, schedule
 
 
 def to_geometry_images(x: torch.Tensor, state: dict) -> list:
-    """Samples ``[n, 9, R, R]`` → :class:`geoface.gimage.GeometryImage` (clamped to [0, 1] here)."""
+    """Samples ``[n, C, R, R]`` → :class:`geoface.gimage.GeometryImage` (clamped to [0, 1] here),
+    positions in mesh units through the run's dataset normalisation (``state``'s box)."""
     import numpy as np
 
     from geoface.gimage import GeometryImage
     from geoface.gimage.image import FORMAT_VERSION, MODALITIES
+    mods = list(state.get("modalities") or ["position", "normal", "texture"][: x.shape[1] // 3])
+    if 3 * len(mods) != x.shape[1]:
+        raise CheckpointError(f"samples have {x.shape[1]} channels; the run's modalities are {mods}")
     out = []
     for s in x:
         img = ((s.float() + 1) / 2).clamp(0, 1).numpy().astype(np.float32)
@@ -383,7 +447,9 @@ def to_geometry_images(x: torch.Tensor, state: dict) -> list:
         mask = (nrm.norm(dim=0) > 0.5).numpy()
         img = img * mask[None]
         meta = {"bbox_min": list(state["bbox_min"]), "bbox_max": list(state["bbox_max"]),
-                "channels": [c for m in ("position", "normal", "texture") for c in MODALITIES[m]],
+                "channels": [c for m in mods for c in MODALITIES[m]],
                 "resolution": int(img.shape[-1]), "version": FORMAT_VERSION, "align_corners": True, "source": "geoface.learn.ddpm"}
+        if "normalization" in state:
+            meta["normalization"] = state["normalization"]
         out.append(GeometryImage(img, mask, meta))
     return out

@@ -24,7 +24,7 @@ def test_plain_folder_tree(tmp_path):
     from .conftest import make_gimage_dataset
     make_gimage_dataset(tmp_path, n_items=2, manifest=False)
     items = find_items(tmp_path)
-    assert len(items) == 2 and items[0][1] == ""
+    assert len(items) == 2 and items[0].prompt == ""
     with pytest.raises(GeofaceError, match="not found"):
         find_items(tmp_path / "nope")
 
