@@ -72,7 +72,15 @@ demo: $(STAMP)
 	@echo "== a small labelled dataset: 6 synthetic heads x 2 corner sets, 2 worker processes"
 	$(PY) data_tools/make_synthetic_heads.py $(OUT)/heads --count 6 --vertices 3000 --seed 0
 	$(VENV)/bin/geoface dataset build $(OUT)/heads $(OUT)/dataset --res 128 --augment 2 --workers 2
-	@echo "outputs in $(OUT)/ (see $(OUT)/head_gim/preview.png, $(OUT)/*.png, $(OUT)/dataset/manifest.jsonl)"
+	@echo "== three real heads (the ICT-FaceKit model, shipped with geoface) to geometry images, beside the procedural one"
+	$(VENV)/bin/geoface synth ict -o $(OUT)/ict_smile.obj --seed 1 --expression mouthSmile_L=0.9,mouthSmile_R=0.9 --meta $(OUT)/ict_smile.json --force
+	$(VENV)/bin/geoface synth ict -o $(OUT)/ict_jaw.obj --seed 2 --expression jawOpen=0.6,browInnerUp_L=0.7,browInnerUp_R=0.7 --meta $(OUT)/ict_jaw.json --force
+	$(VENV)/bin/geoface synth ict -o $(OUT)/ict_wink.obj --seed 3 --expression eyeBlink_L=1,mouthSmile_L=0.5 --meta $(OUT)/ict_wink.json --force
+	for h in ict_smile ict_jaw ict_wink; do \
+		$(VENV)/bin/geoface convert $(OUT)/$$h.obj $(OUT)/$${h}_gim --res 256 --roi $(OUT)/$$h.json --lam 2.5 --force || exit 1; \
+		$(VENV)/bin/geoface view $(OUT)/$${h}_gim --screenshot $(OUT)/$${h}_gim_montage.png --force || exit 1; \
+	done
+	@echo "outputs in $(OUT)/ (see $(OUT)/head_gim/preview.png, $(OUT)/ict_*_gim/preview.png, $(OUT)/*.png, $(OUT)/dataset/manifest.jsonl)"
 
 bench: $(STAMP)
 	GEOFACE_QUIET=1 $(PY) bench/bench_repair.py

@@ -149,6 +149,7 @@ def main() -> int:
     ap.add_argument("--data", type=Path, help="a `geoface dataset ict` output")
     ap.add_argument("--res", type=int, default=64, help="training resolution (divides the dataset's)")
     ap.add_argument("--run", type=Path, help="existing trained run; default: train one")
+    ap.add_argument("--run-dir", type=Path, help="where a run trained here is written (default OUT/run)")
     ap.add_argument("--minutes", type=float, default=60.0, help="training budget (wall clock)")
     ap.add_argument("--steps", type=int, default=1_000_000, help="training step cap")
     ap.add_argument("--model", default="small", help="DDPM preset (small, base, tiny)")
@@ -212,7 +213,7 @@ def run(a) -> int:
         train_dir = write_split(a.data, rows, tr, work / "train_data")
         cfg = DDPMConfig.preset(a.model, res=a.res, text_encoder=a.text, batch_size=a.batch, steps=a.steps,
                                 checkpoint_every=200, seed=a.seed, augment=bool(a.augment))
-        run_dir = a.out / "run" if not a.quick else work / "run"
+        run_dir = a.run_dir or (a.out / "run" if not a.quick else work / "run")
         t = time.perf_counter()
         last = train(train_dir, run_dir, cfg, device=a.device, quiet=True, max_seconds=60 * a.minutes)
         info = {"steps": last["step"], "seconds": time.perf_counter() - t, "steps_per_second": last["steps_per_second"],

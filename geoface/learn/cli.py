@@ -44,7 +44,8 @@ def cmd_ddpm_train(args) -> int:
     cfg = DDPMConfig.preset("tiny" if args.tiny else args.model, **kw)
     last = train(args.data_dir, args.output, cfg, resume=args.resume, device=_device(args.device), quiet=_quiet(args),
                  max_seconds=None if args.max_minutes is None else 60.0 * args.max_minutes,
-                 loader_workers=args.loader_workers, cache_mb=args.cache_mb)
+                 loader_workers=args.loader_workers, cache_mb=args.cache_mb,
+                 gradient_checkpointing=args.gradient_checkpointing)
     print(f"{args.output}/checkpoint: step {last['step']}, loss {last['loss']:.4f} "
           + " ".join(f"{k} {v:.4f}" for k, v in last["losses"].items())
           + f" ({last['steps_per_second']:.2f} steps/s)")
@@ -107,6 +108,8 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--device", default=None, help="cpu | cuda (default: cuda when available)")
     t.add_argument("--no-augment", action="store_true")
     t.add_argument("--tiny", action="store_true", help="the same as --model tiny")
+    t.add_argument("--gradient-checkpointing", action="store_true",
+                   help="recompute activations in the backward pass: less memory, about a third more time per step")
     t.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint")
     t.set_defaults(func=cmd_ddpm_train)
     p = sd.add_parser("sample", parents=[common], help="sample geometry images + meshes for a prompt")

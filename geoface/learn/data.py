@@ -10,7 +10,7 @@ Each item is a dict:
 
 **One position normalisation for the whole dataset** (:class:`Normalization`): positions are
 decoded to mesh units from each item's box and mapped by one centre and one scale — the
-centre and the largest half-extent of the union of the items' boxes — so head proportions and
+centre and 1.05 × the largest half-extent of the union of the items' boxes — so head proportions and
 sizes survive (a per-item box would stretch every head to the same cube).  The boxes come from
 the manifest rows (``bbox``, written by ``geoface dataset build``) or, for older datasets and
 plain folder trees, from each item's ``meta.json``.  Normals and texture map ``[0, 1] → [-1, 1]``.
@@ -72,10 +72,14 @@ class Normalization:
     center: tuple
     scale: float
 
+    #: the union box's largest half-extent is mapped to 1 / MARGIN: the data lie in about
+    #: [-0.95, 0.95], which leaves samples room before the [-1, 1] clamp
+    MARGIN = 1.05
+
     @classmethod
     def from_boxes(cls, lo: np.ndarray, hi: np.ndarray) -> "Normalization":
         lo, hi = np.min(np.asarray(lo, np.float64), axis=0), np.max(np.asarray(hi, np.float64), axis=0)
-        scale = float(np.max(hi - lo) / 2)
+        scale = float(np.max(hi - lo) / 2) * cls.MARGIN
         if not np.isfinite(scale) or scale <= 0:
             raise GeofaceError("the dataset's position boxes are empty or not finite")
         return cls(tuple(float(x) for x in (lo + hi) / 2), scale)
