@@ -255,18 +255,16 @@ class GImageDataset(torch.utils.data.Dataset):
         return Normalization.from_boxes([b[0] for b in boxes], [b[1] for b in boxes])
 
     def _common_modalities(self) -> tuple:
-        # the manifest does not list channels: look at a few items, and fail late (in _load) on
-        # an item that lacks what these have
+        # the manifest does not list channels: look at a few items (an item that lacks what
+        # these have fails when it is read, naming itself)
         probe = sorted({0, len(self) // 2, len(self) - 1})
-        have = [set(self._meta(i).get("channels", [])) for i in probe]
-        tex = all({"tr", "tg", "tb"} <= h or {"r", "g", "b"} <= h for h in have)
-        return ("position", "normal", "texture") if tex and all(self._has_texture(i) for i in probe) else ("position", "normal")
+        return ("position", "normal", "texture") if all(self._has_texture(i) for i in probe) else ("position", "normal")
 
     def _has_texture(self, i: int) -> bool:
         from geoface.gimage.image import MODALITIES
 
         ch = self._meta(i).get("channels", [])
-        return all(c in ch for c in MODALITIES["texture"])
+        return isinstance(ch, list) and all(c in ch for c in MODALITIES["texture"])
 
     def _decode(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         from geoface.gimage import load_gimage
