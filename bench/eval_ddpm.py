@@ -157,7 +157,8 @@ def main() -> int:
     ap.add_argument("--augment", action="store_true", help="train with rigid augmentation")
     ap.add_argument("--text", default="minilm", help="text encoder: minilm | clip:PATH | hash[:DIM]")
     ap.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
-    ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    ap.add_argument("--threads", type=int, default=1, help="torch CPU threads for training")
+    ap.add_argument("--eval-threads", type=int, default=None, help="torch CPU threads for sampling and judging (default: --threads)")
     ap.add_argument("--samples-per-prompt", type=int, default=16)
     ap.add_argument("--sample-steps", type=int, default=50)
     ap.add_argument("--guidance", type=float, default=3.0)
@@ -226,6 +227,7 @@ def run(a) -> int:
         run_dir = a.run
         if (run_dir / "train_info.json").is_file():
             emit(case="train", reused=True, **json.loads((run_dir / "train_info.json").read_text(encoding="utf-8")))
+    torch.set_num_threads(int(a.eval_threads or a.threads))
     drun = load_run(run_dir)
     cfg = drun.config
     if "normalization" not in drun.state:
