@@ -177,7 +177,7 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
     ``maps`` [H,W,7] (albedo, micronormal, specular looked up through the pixel's UV),
     ``uv`` [H,W,2], ``normal`` [H,W,3] (camera-space geometric normal, encoded n/2 + ½),
     and ``mask`` [H,W] bool (pixels the mesh covers)."""
-    from geoface.splat.render_mesh import rasterize_mesh
+    from geoface.nn.render_mesh import rasterize_mesh
 
     V, F, UV = np.asarray(V, np.float64), np.asarray(F, np.int64), np.asarray(UV, np.float64)
     if normals is None:
@@ -213,7 +213,7 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
 
 
 def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, vertices: int) -> None:
-    from geoface.splat.camera import look_at
+    from geoface.nn.camera import look_at
     from geoface.synth import procedural_head
 
     from .texture import save_sample

@@ -22,8 +22,8 @@ import torch.nn.functional as Fnn
 from torch import Tensor, nn
 
 from .errors import LearnError
-from .hashenc import HashEncoding
-from .losses import laplacian_loss
+from geoface.nn.hashenc import HashEncoding
+from geoface.nn.losses import laplacian_loss
 
 MAPS = {"albedo": slice(0, 3), "micronormal": slice(3, 6), "specular": slice(6, 7)}
 N_MAPS = 7

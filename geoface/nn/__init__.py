@@ -1,4 +1,12 @@
-"""Pieces shared by the neural consumers (:mod:`geoface.learn`, :mod:`geoface.splat`).
+"""Pieces shared by the neural consumers (:mod:`geoface.learn`, :mod:`geoface.splat`), so that
+neither imports the other:
 
-:mod:`geoface.nn.config` reads saved configurations through one validated path (torch-free).
+* :mod:`geoface.nn.hashenc` — multiresolution hash encodings (dense, 2D UV, tri-plane);
+* :mod:`geoface.nn.losses` — SSIM / D-SSIM and the Laplacian loss;
+* :mod:`geoface.nn.camera` — pinhole cameras (OpenCV convention), ``look_at``, ``orbit``;
+* :mod:`geoface.nn.render_mesh` — ground-truth renders of coloured or textured meshes (numpy);
+* :mod:`geoface.nn.config` — saved configurations read through one validated path;
+* :mod:`geoface.nn.errors` — ``NNError``, ``RenderError``, ``CameraError``.
+
+Only ``hashenc`` and ``losses`` need torch; it is imported by those modules alone.
 """

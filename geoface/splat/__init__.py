@@ -9,13 +9,13 @@ from __future__ import annotations
 import importlib
 
 _NAMES = {
-    "Camera": "camera", "look_at": "camera", "orbit": "camera",
+    "Camera": "geoface.nn.camera", "look_at": "geoface.nn.camera", "orbit": "geoface.nn.camera",
     "Gaussians": "gaussians", "GaussianTensors": "gaussians", "eval_sh": "gaussians",
     "covariance": "gaussians",
     "save_ply": "ply", "load_ply": "ply",
     "rasterize": "rasterizer", "rasterize_reference": "rasterizer",
     "DensityConfig": "density", "DensityStrategy": "density", "make_optimizer": "density",
-    "render_mesh": "render_mesh", "rasterize_mesh": "render_mesh", "MeshRender": "render_mesh",
+    "render_mesh": "geoface.nn.render_mesh", "rasterize_mesh": "geoface.nn.render_mesh", "MeshRender": "geoface.nn.render_mesh",
     "FitConfig": "fit", "FitResult": "fit", "fit_mesh": "fit",
     "SplatError": "errors", "CameraError": "errors", "GaussianPlyError": "errors",
 }
@@ -24,5 +24,6 @@ __all__ = sorted(_NAMES)
 
 def __getattr__(name):
     if name in _NAMES:
-        return getattr(importlib.import_module(f"geoface.splat.{_NAMES[name]}"), name)
+        mod = _NAMES[name]
+        return getattr(importlib.import_module(mod if "." in mod else f"geoface.splat.{mod}"), name)
     raise AttributeError(f"module 'geoface.splat' has no attribute {name!r}")

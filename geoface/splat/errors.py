@@ -1,15 +1,16 @@
 """Errors raised by :mod:`geoface.splat` (subclasses of :class:`geoface.errors.GeofaceError`)."""
 from __future__ import annotations
 
-from geoface.errors import CheckpointError, GeofaceError
+from geoface.errors import CheckpointError
+from geoface.nn.errors import CameraError, RenderError
+
+__all__ = ["SplatError", "CameraError", "GaussianPlyError", "ModelFolderError"]
 
 
-class SplatError(GeofaceError):
-    """Bad input to the Gaussian-splatting toolkit (shapes, cameras, files)."""
-
-
-class CameraError(SplatError):
-    """A camera that cannot be built (degenerate look-at, non-positive focal length...)."""
+class SplatError(RenderError):
+    """Bad input to the Gaussian-splatting toolkit (shapes, files, avatar options).  Cameras and
+    mesh renders (:mod:`geoface.nn.camera`, :mod:`geoface.nn.render_mesh`) raise
+    :class:`geoface.nn.errors.CameraError` / ``RenderError``, of which this is a sibling."""
 
 
 class GaussianPlyError(SplatError):

@@ -4,13 +4,13 @@ Pipeline:
   1. cameras: ``views`` training cameras on orbit rings at ``elevations`` around the mesh's
      bounding sphere (framed to fill the image), and ``heldout`` cameras at azimuths *and*
      elevations between the training ones;
-  2. ground truth: :func:`geoface.splat.render_mesh.render_mesh` (albedo colours, supersampled
+  2. ground truth: :func:`geoface.nn.render_mesh.render_mesh` (albedo colours, supersampled
      edges) stored premultiplied, so any background can be composited per iteration;
   3. init: :meth:`Gaussians.from_mesh` (THGS: one Gaussian per vertex);
   4. optimise one random view per step with Adam, one named param group per attribute
      (3DGS learning rates; means scaled by the scene extent with exponential decay from
      ``lr_means`` to ``lr_means_final``), loss ``(1 − λ)·L1 + λ·D-SSIM`` (3DGS eq. 7) with
-     D-SSIM = (1 − SSIM)/2 from :func:`geoface.learn.losses.dssim` (11×11 Gaussian window);
+     D-SSIM = (1 − SSIM)/2 from :func:`geoface.nn.losses.dssim` (11×11 Gaussian window);
   5. density control (:class:`geoface.splat.density.DensityStrategy`, 3DGS clone/split/prune)
      on a schedule scaled to ``iters``.
 
@@ -36,12 +36,12 @@ from typing import Callable, Literal
 import numpy as np
 import torch
 
-from geoface.splat.camera import Camera, orbit
+from geoface.nn.camera import Camera, orbit
 from geoface.splat.density import DensityConfig, DensityStrategy, make_optimizer
 from geoface.splat.errors import SplatError
 from geoface.splat.gaussians import Gaussians
 from geoface.splat.rasterizer import rasterize
-from geoface.splat.render_mesh import render_mesh
+from geoface.nn.render_mesh import render_mesh
 
 __all__ = ["FitConfig", "FitResult", "fit_mesh", "fit_cameras", "psnr", "ssim_masked", "heldout_images"]
 
@@ -255,7 +255,7 @@ def fit_mesh(V, F, colors, cfg: FitConfig | None = None,
     >>> res = fit_mesh(head.V, head.F, head.colors, FitConfig(iters=300))   # doctest: +SKIP
     >>> print(res.summary())                                                  # doctest: +SKIP
     """
-    from geoface.learn.losses import dssim
+    from geoface.nn.losses import dssim
     from geoface.progress import progress as bar
 
     cfg = cfg or FitConfig()

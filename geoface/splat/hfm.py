@@ -754,7 +754,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     model.safetensors) and returns a summary (loss history, seconds, Gaussians, keys).
     ``callback(step, model, average)``, when given, runs after every step (``average``: the
     :class:`WeightAverage` once it has started, else None), e.g. to score the model as it trains."""
-    from geoface.learn.losses import dssim
+    from geoface.nn.losses import dssim
     from geoface.progress import progress as bar
     from geoface.splat.hfm_data import load_video
     from geoface.splat.rasterizer import rasterize

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoface.splat.camera import Camera, look_at
+from geoface.nn.camera import Camera, look_at
 from geoface.errors import GeofaceError
 from geoface.splat.errors import SplatError
 
@@ -291,7 +291,7 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
     (yaw ±8°, pitch ±4°, roll ±3°, a few millimetres of translation; 0 = a still head).
     """
     from geoface.progress import progress
-    from geoface.splat.render_mesh import render_mesh
+    from geoface.nn.render_mesh import render_mesh
     from geoface.synth.head import HeadModel
 
     if frames < 5 or not 0 < heldout < 1:

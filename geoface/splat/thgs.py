@@ -173,7 +173,7 @@ class SpatialAudioAttention(nn.Module):
     def __init__(self, box, audio_dim: int, *, margin: float = 0.02, hidden: int = 64, audio_hidden: int = 32,
                  levels: int = 8, features: int = 2, log2_table: int = 12, memory: int = 64, seed: int = 0):
         super().__init__()
-        from geoface.learn.hashenc import TriPlaneHashEncoding
+        from geoface.nn.hashenc import TriPlaneHashEncoding
 
         lo = np.asarray(box, np.float64)[0] - margin
         hi = np.asarray(box, np.float64)[1] + margin
@@ -326,7 +326,7 @@ def _split(n: int, heldout: float):
 
 def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=None, log=print) -> dict:
     """Fit a THGS avatar to a talking data folder (first 1 − heldout of the frames)."""
-    from geoface.learn.losses import dssim
+    from geoface.nn.losses import dssim
     from geoface.progress import progress as bar
     from geoface.splat.density import make_optimizer
     from geoface.splat.rasterizer import rasterize

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoface.splat.camera import Camera, look_at
+from geoface.nn.camera import Camera, look_at
 from geoface.splat.errors import SplatError
 from geoface.splat.hfm_data import _camera_from_json, _read_png, _write_png, camera_to_json
 from geoface.splat.template import Template
@@ -142,7 +142,7 @@ def make_synthetic_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res:
     from scipy.io import wavfile
 
     from geoface.progress import progress
-    from geoface.splat.render_mesh import render_mesh
+    from geoface.nn.render_mesh import render_mesh
     from geoface.splat.template import procedural_template
     from geoface.synth.head import EXPRESSION_NAMES, HeadModel
     import torch

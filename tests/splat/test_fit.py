@@ -3,7 +3,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from geoface.learn.losses import dssim, ssim  # noqa: E402  (the D-SSIM term of the fit loss)
+from geoface.nn.losses import dssim, ssim  # noqa: E402  (the D-SSIM term of the fit loss)
 from geoface.splat.fit import FitConfig, fit_cameras, fit_mesh, psnr  # noqa: E402
 
 

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from geoface.splat.camera import Camera, look_at
-from geoface.splat.errors import SplatError
-from geoface.splat.render_mesh import rasterize_mesh, render_mesh
+from geoface.nn.camera import Camera, look_at
+from geoface.nn.errors import RenderError
+from geoface.nn.render_mesh import rasterize_mesh, render_mesh
 
 
 def _axis_camera(W=40, H=30, f=20.0):
@@ -118,11 +118,11 @@ def _scale_cam(c, s):
 def test_errors_name_the_argument():
     cam = _axis_camera()
     V = np.array([[0.0, 0, 1], [1, 0, 1], [0, 1, 1]])
-    with pytest.raises(SplatError, match="colors"):
+    with pytest.raises(RenderError, match="colors"):
         render_mesh(V, [[0, 1, 2]], cam, np.ones((2, 3)))
-    with pytest.raises(SplatError, match="shading"):
+    with pytest.raises(RenderError, match="shading"):
         render_mesh(V, [[0, 1, 2]], cam, shading="phong")
-    with pytest.raises(SplatError, match="F indexes"):
+    with pytest.raises(RenderError, match="F indexes"):
         render_mesh(V, [[0, 1, 3]], cam)
-    with pytest.raises(SplatError, match="uv"):
+    with pytest.raises(RenderError, match="uv"):
         render_mesh(V, [[0, 1, 2]], cam, texture=np.zeros((4, 4, 3)))

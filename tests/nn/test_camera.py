@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from geoface.errors import GeofaceError
-from geoface.splat.camera import Camera, look_at, orbit
+from geoface.nn.camera import Camera, look_at, orbit
 
 
 def test_look_at_centres_target_and_up_is_image_up():

@@ -22,7 +22,7 @@ import math
 import torch
 from torch import Tensor, nn
 
-from .errors import LearnError
+from geoface.nn.errors import NNError
 
 PRIMES = (1, 2654435761, 805459861)
 
@@ -117,12 +117,12 @@ class HashEncoding(nn.Module):
                  base_res: int = 16, max_res: int = 1024, init_scale: float = 1e-4, seed: int | None = None):
         super().__init__()
         if dim not in (1, 2, 3):
-            raise LearnError(f"dim must be 1, 2 or 3; got {dim}")
+            raise NNError(f"dim must be 1, 2 or 3; got {dim}")
         if levels < 1 or features < 1 or not 1 <= log2_table <= 26:
-            raise LearnError(f"levels and features must be >= 1 and log2_table in 1..26; got "
+            raise NNError(f"levels and features must be >= 1 and log2_table in 1..26; got "
                              f"levels={levels}, features={features}, log2_table={log2_table}")
         if not 1 <= base_res <= max_res:
-            raise LearnError(f"need 1 <= base_res <= max_res; got base_res={base_res}, max_res={max_res}")
+            raise NNError(f"need 1 <= base_res <= max_res; got base_res={base_res}, max_res={max_res}")
         self.dim, self.levels, self.features = dim, levels, features
         self.resolutions = level_resolutions(levels, base_res, max_res)
         g = torch.Generator().manual_seed(seed) if seed is not None else None
@@ -135,7 +135,7 @@ class HashEncoding(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:  # [..., dim] -> [..., out_dim]
         if x.shape[-1] != self.dim:
-            raise LearnError(f"expected points with {self.dim} coordinates; got shape {tuple(x.shape)}")
+            raise NNError(f"expected points with {self.dim} coordinates; got shape {tuple(x.shape)}")
         return hash_encode(x.to(self.tables.dtype), self.tables, self.resolutions)
 
 
@@ -150,7 +150,7 @@ class TriPlaneHashEncoding(nn.Module):
         super().__init__()
         lo, hi = (torch.as_tensor(b, dtype=torch.float32).reshape(3) for b in bbox)
         if not bool((hi > lo).all()):
-            raise LearnError(f"bbox max must exceed min on every axis; got {lo.tolist()} .. {hi.tolist()}")
+            raise NNError(f"bbox max must exceed min on every axis; got {lo.tolist()} .. {hi.tolist()}")
         self.register_buffer("lo", lo)
         self.register_buffer("hi", hi)
         self.planes = nn.ModuleList(

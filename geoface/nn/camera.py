@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geoface.splat.errors import CameraError
+from geoface.nn.errors import CameraError
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from geoface.learn.losses import dssim, laplacian, laplacian_loss, ssim  # noqa: E402
+from geoface.nn.losses import dssim, laplacian, laplacian_loss, ssim  # noqa: E402
 
 
 def test_laplacian_loss_zero_for_identical_and_for_low_frequency_error():

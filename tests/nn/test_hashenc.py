@@ -4,8 +4,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from geoface.learn.errors import LearnError  # noqa: E402
-from geoface.learn.hashenc import (HashEncoding, TriPlaneHashEncoding, hash_encode,  # noqa: E402
+from geoface.nn.errors import NNError  # noqa: E402
+from geoface.nn.hashenc import (HashEncoding, TriPlaneHashEncoding, hash_encode,  # noqa: E402
                                    hash_encode_reference, level_resolutions)
 
 
@@ -84,14 +84,14 @@ def test_triplane_shape_and_box():
     y = x.clone()
     y[..., 2] = 0.3
     torch.testing.assert_close(enc(x)[..., :6], enc(y)[..., :6])
-    with pytest.raises(LearnError):
+    with pytest.raises(NNError):
         TriPlaneHashEncoding(((0, 0, 0), (1, 0, 1)))
 
 
 def test_bad_arguments():
-    with pytest.raises(LearnError):
+    with pytest.raises(NNError):
         HashEncoding(dim=4)
-    with pytest.raises(LearnError):
+    with pytest.raises(NNError):
         HashEncoding(2, base_res=64, max_res=16)
-    with pytest.raises(LearnError, match="2 coordinates"):
+    with pytest.raises(NNError, match="2 coordinates"):
         HashEncoding(2)(torch.rand(3, 3))

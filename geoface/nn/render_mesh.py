@@ -1,6 +1,6 @@
 """Ground-truth renders of coloured meshes: a small vectorised numpy z-buffer.
 
-For every pixel centre (``(j + 0.5, i + 0.5)``, the :class:`~geoface.splat.camera.Camera`
+For every pixel centre (``(j + 0.5, i + 0.5)``, the :class:`~geoface.nn.camera.Camera`
 convention) the nearest triangle is found by enumerating the pixels of each triangle's
 bounding box (:func:`geoface.gimage.raster.bbox_pixels`, shared with the UV rasterizer and the
 projection z-buffer) and keeping, per pixel, the candidate with the smallest camera depth.
@@ -19,8 +19,8 @@ from typing import Literal
 import numpy as np
 
 from geoface.gimage.raster import bbox_pixels, sample_texture
-from geoface.splat.camera import Camera
-from geoface.splat.errors import SplatError
+from geoface.nn.camera import Camera
+from geoface.nn.errors import RenderError
 
 __all__ = ["MeshRender", "rasterize_mesh", "render_mesh"]
 
@@ -58,13 +58,13 @@ def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_0
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     if V.ndim != 2 or V.shape[1] != 3:
-        raise SplatError(f"V must have shape (n, 3); got {V.shape}")
+        raise RenderError(f"V must have shape (n, 3); got {V.shape}")
     if F.ndim != 2 or F.shape[1] != 3:
-        raise SplatError(f"F must have shape (m, 3); got {F.shape}")
+        raise RenderError(f"F must have shape (m, 3); got {F.shape}")
     if len(F) and (F.min() < 0 or F.max() >= len(V)):
-        raise SplatError(f"F indexes vertices out of range [0, {len(V)})")
+        raise RenderError(f"F indexes vertices out of range [0, {len(V)})")
     if not isinstance(camera, Camera):
-        raise SplatError(f"camera must be a geoface.splat.Camera; got {type(camera).__name__}")
+        raise RenderError(f"camera must be a geoface.nn.camera.Camera; got {type(camera).__name__}")
     H, W = camera.height, camera.width
     uv, z = camera.project(V)
     x, y, zf = uv[F, 0] - 0.5, uv[F, 1] - 0.5, z[F]  # bbox_pixels: pixel centres at integers
@@ -133,15 +133,15 @@ def render_mesh(V, F, camera: Camera, colors=None, *, uv=None, fuv=None, texture
     ((32, 32, 3), 3.0)
     """
     if shading not in SHADINGS:
-        raise SplatError(f"shading must be one of {SHADINGS}; got {shading!r}")
+        raise RenderError(f"shading must be one of {SHADINGS}; got {shading!r}")
     s = int(supersample)
     if s < 1:
-        raise SplatError(f"supersample must be >= 1; got {supersample!r}")
+        raise RenderError(f"supersample must be >= 1; got {supersample!r}")
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     bg = np.asarray(background, dtype=np.float64).reshape(-1)
     if bg.shape != (3,):
-        raise SplatError(f"background must be an RGB triple; got shape {bg.shape}")
+        raise RenderError(f"background must be an RGB triple; got shape {bg.shape}")
     cam = _scaled(camera, s) if s > 1 else camera
     face, bary, depth = rasterize_mesh(V, F, cam)
     hit = face >= 0
@@ -149,18 +149,18 @@ def render_mesh(V, F, camera: Camera, colors=None, *, uv=None, fuv=None, texture
     b = bary[hit]
     if texture is not None:
         if uv is None:
-            raise SplatError("texture needs uv (per-vertex, or with fuv per corner)")
+            raise RenderError("texture needs uv (per-vertex, or with fuv per corner)")
         UV = np.asarray(uv, dtype=np.float64)
         FUV = F if fuv is None else np.asarray(fuv, dtype=np.int64)
         if UV.ndim != 2 or UV.shape[1] != 2 or FUV.shape != F.shape:
-            raise SplatError(f"uv must have shape (k, 2) and fuv the shape of F; got {UV.shape}, {FUV.shape}")
+            raise RenderError(f"uv must have shape (k, 2) and fuv the shape of F; got {UV.shape}, {FUV.shape}")
         tex = np.asarray(texture)
         scale = 255.0 if tex.dtype == np.uint8 else 1.0
         col = sample_texture(tex, (UV[FUV[f]] * b[:, :, None]).sum(1))[:, :3] / scale
     elif colors is not None:
         C = np.asarray(colors, dtype=np.float64)
         if C.ndim != 2 or C.shape[0] != len(V) or C.shape[1] not in (3, 4):
-            raise SplatError(f"colors must have shape ({len(V)}, 3) or ({len(V)}, 4); got {C.shape}")
+            raise RenderError(f"colors must have shape ({len(V)}, 3) or ({len(V)}, 4); got {C.shape}")
         col = (C[F[f], :3] * b[:, :, None]).sum(1)
     else:
         col = np.full((len(f), 3), 0.8)

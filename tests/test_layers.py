@@ -1,0 +1,96 @@
+"""The architecture's layers (docs/architecture.md): every ``geoface`` import, top-level or inside
+a function, points down the list; the geometry core never imports torch."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PKG = Path(__file__).resolve().parents[1] / "geoface"
+
+#: rank of each top-level module or package; a module may import only lower ranks (same rank:
+#: siblings that must not know each other, e.g. learn and splat)
+RANKS = {
+    "errors": 0, "tol": 0.1, "_io": 0.2, "_args": 0.2, "_lazy": 0.2, "progress": 0.3, "": 0.5,
+    "mesh": 1, "synth": 2, "repair": 2.5, "param": 3, "gimage": 4, "uvmap": 5, "viz": 5.5,
+    "pipeline": 6, "dataset": 6.5, "nn": 7, "learn": 8, "splat": 8, "cli": 9, "__main__": 10,
+}
+GEOMETRY_CORE = ("mesh", "repair", "param", "gimage", "uvmap")
+
+
+def _module_name(path: Path, root: Path = PKG) -> tuple[str, bool]:
+    parts = list(path.relative_to(root.parent).with_suffix("").parts)
+    is_pkg = parts[-1] == "__init__"
+    return ".".join(parts[:-1] if is_pkg else parts), is_pkg
+
+
+def _top(name: str) -> str:
+    parts = name.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def imports(path: Path, root: Path = PKG) -> list[tuple[str, int]]:
+    """(absolute module name, line) of every import in ``path``, relative ones resolved."""
+    mod, is_pkg = _module_name(path, root)
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out += [(a.name, node.lineno) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = mod.split(".") if is_pkg else mod.split(".")[:-1]
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+                out += [(f"{target}.{a.name}" if not node.module else target, node.lineno) for a in node.names]
+            else:
+                out.append((node.module or "", node.lineno))
+    return out
+
+
+def test_every_module_has_a_layer():
+    tops = {p.stem if p.parent == PKG else p.relative_to(PKG).parts[0] for p in PKG.rglob("*.py")}
+    tops = {"" if t == "__init__" else t for t in tops}
+    assert tops <= set(RANKS), f"modules without a layer in this test: {sorted(tops - set(RANKS))}"
+
+
+def violations(root: Path = PKG) -> list[str]:
+    bad = []
+    for path in sorted(root.rglob("*.py")):
+        mod, _ = _module_name(path, root)
+        src = _top(mod)
+        for name, line in imports(path, root):
+            if not name.startswith("geoface"):
+                continue
+            dst = _top(name)
+            if dst == "__version__":
+                dst = ""
+            if dst != src and not RANKS[dst] < RANKS[src]:
+                bad.append(f"{path.relative_to(root.parent)}:{line} ({src or 'geoface'}) imports {name}")
+    return bad
+
+
+def test_imports_point_down_the_layers():
+    bad = violations()
+    assert not bad, "imports against the layers:\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("package", GEOMETRY_CORE)
+def test_geometry_core_never_imports_torch(package):
+    hits = [f"{p.relative_to(PKG.parent)}:{line}" for p in (PKG / package).rglob("*.py")
+            for name, line in imports(p) if name.split(".")[0] in ("torch", "diffusers", "accelerate")]
+    assert not hits, hits
+
+
+def test_the_check_sees_a_violation(tmp_path):
+    """The checker is not vacuous: lazy imports from splat into learn (inside a function, absolute
+    or relative) and from the geometry core up into learn are found."""
+    root = tmp_path / "geoface"
+    (root / "splat").mkdir(parents=True)
+    (root / "param").mkdir()
+    (root / "splat" / "x.py").write_text("def f():\n    from geoface.learn import ddpm\n    from ..learn.data import G\n"
+                                         "    from geoface.nn import losses\n")
+    (root / "param" / "y.py").write_text("import numpy\nfrom .. import learn\n")
+    assert violations(root) == ["geoface/param/y.py:2 (param) imports geoface.learn",
+                                "geoface/splat/x.py:2 (splat) imports geoface.learn",
+                                "geoface/splat/x.py:3 (splat) imports geoface.learn.data"]
