@@ -28,7 +28,7 @@ from .errors import (
 )
 from .tol import tol
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 
 def __getattr__(name):  # lazy subpackages: geoface.mesh, geoface.repair, geoface.synth, ...
