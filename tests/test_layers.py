@@ -94,3 +94,60 @@ def test_the_check_sees_a_violation(tmp_path):
     assert violations(root) == ["geoface/param/y.py:2 (param) imports geoface.learn",
                                 "geoface/splat/x.py:2 (splat) imports geoface.learn",
                                 "geoface/splat/x.py:3 (splat) imports geoface.learn.data"]
+
+
+def module_graph(root: Path = PKG) -> dict[str, set[str]]:
+    """Module → the geoface modules it imports (packages' ``__init__`` included, lazy imports too)."""
+    files = {_module_name(p, root)[0]: p for p in root.rglob("*.py")}
+    graph = {}
+    for mod, path in files.items():
+        deps = set()
+        for name, _ in imports(path, root):
+            while name and name not in files:  # "geoface.nn.losses.dssim" -> "geoface.nn.losses"
+                name = name.rpartition(".")[0]
+            if name and name != mod and not mod.startswith(name + "."):  # a module's own package is no cycle
+                deps.add(name)
+        graph[mod] = deps
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Import cycles between modules (Tarjan's strongly connected components of size > 1)."""
+    index, low, stack, on, out, n = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = n[0]
+        n[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_cycles_between_modules():
+    found = cycles(module_graph())
+    assert not found, f"modules importing each other: {found}"
+
+
+def test_cycle_finder_finds_one():
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []

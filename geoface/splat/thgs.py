@@ -36,52 +36,12 @@ from torch import Tensor, nn
 from geoface.mesh.core import vertex_normals
 from geoface.splat.errors import SplatError
 from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat, rotmat_to_quat_torch
+from geoface.splat.kinematics import axis_angle_to_matrix, joint_transforms
 
 __all__ = ["axis_angle_to_matrix", "joint_transforms", "VoxelSkinning", "lbs", "rotmat_to_quat_torch",
            "ExpressionBlendshapes", "SpatialAudioAttention", "ExternalAttention", "mouth_gaussians",
            "THGSConfig", "THGSModel", "train_thgs", "save_thgs", "load_thgs", "evaluate_thgs", "render_frames",
            "mouth_openness", "animate"]
-
-
-def axis_angle_to_matrix(w: Tensor) -> Tensor:  # [..., 3] -> [..., 3, 3] (Rodrigues, smooth at 0)
-    th2 = (w * w).sum(-1, keepdim=True)[..., None]
-    K = torch.zeros(w.shape[:-1] + (3, 3), dtype=w.dtype, device=w.device)
-    x, y, z = w.unbind(-1)
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 0] = -z, y, z
-    K[..., 1, 2], K[..., 2, 0], K[..., 2, 1] = -x, -y, x
-    small = th2 < 1e-8
-    safe = torch.where(small, torch.ones_like(th2), th2)  # no 0/0 in the unused branch's gradient
-    th = torch.sqrt(safe)
-    a = torch.where(small, 1 - th2 / 6, torch.sin(th) / th)
-    b = torch.where(small, 0.5 - th2 / 24, (1 - torch.cos(th)) / safe)
-    eye = torch.eye(3, dtype=w.dtype, device=w.device).expand(K.shape)
-    return eye + a * K + b * (K @ K)
-
-
-def joint_transforms(joints: Tensor, parents, rot: Tensor, transl: Tensor | None = None) -> Tensor:
-    """[J, 4, 4] transforms A_j mapping rest-pose points bound to joint j to the posed ones.
-
-    ``joints`` [J, 3] rest positions, ``parents`` (J,) (−1 root, parents first), ``rot`` [J, 3]
-    local axis-angle rotations about each joint, ``transl`` [3] root translation."""
-    J = len(joints)
-    R = axis_angle_to_matrix(rot)
-    G = []
-    for j in range(J):
-        p = int(parents[j])
-        t = joints[j] - (joints[p] if p >= 0 else 0.0)
-        L = torch.eye(4, dtype=joints.dtype, device=joints.device)
-        L = L.clone()
-        L[:3, :3] = R[j]
-        L[:3, 3] = t
-        G.append(L if p < 0 else G[p] @ L)
-    G = torch.stack(G)
-    if transl is not None:
-        G = G.clone()
-        G[:, :3, 3] = G[:, :3, 3] + transl
-    # A_j = G_j · G_j(0)⁻¹ with G_j(0) a pure translation by the rest joint position
-    A = G.clone()
-    A[:, :3, 3] = G[:, :3, 3] - (G[:, :3, :3] @ joints[..., None])[..., 0]
-    return A
 
 
 class VoxelSkinning(nn.Module):

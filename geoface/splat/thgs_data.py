@@ -147,7 +147,7 @@ def make_synthetic_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res:
     from geoface.synth.head import EXPRESSION_NAMES, HeadModel
     import torch
 
-    from geoface.splat.thgs import joint_transforms
+    from geoface.splat.kinematics import joint_transforms
 
     out = Path(out)
     (out / "frames").mkdir(parents=True, exist_ok=True)
