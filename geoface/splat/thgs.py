@@ -355,7 +355,7 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
 
 
 def save_thgs(model: THGSModel, out_dir) -> None:
-    from geoface.splat.hfm import write_model_dir
+    from geoface.splat.model_dir import write_model_dir
 
     out = write_model_dir(out_dir, model, {"format": "geoface-thgs", "version": 1, "config": asdict(model.cfg),
                                            "audio_dim": int(model.audio_ref.shape[0]),
@@ -364,7 +364,7 @@ def save_thgs(model: THGSModel, out_dir) -> None:
 
 
 def load_thgs(model_dir) -> THGSModel:
-    from geoface.splat.hfm import _load_state, read_model_config
+    from geoface.splat.model_dir import _load_state, read_model_config
     from geoface.splat.template import Template
 
     from .errors import ModelFolderError

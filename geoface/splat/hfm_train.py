@@ -1,0 +1,243 @@
+"""Registering a person with HFM-GS: the VGG perceptual loss, training on an unoccluded video,
+saving and loading the model folder (:mod:`geoface.splat.hfm`)."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from geoface.splat.density import DensityConfig, make_optimizer
+from geoface.splat.errors import SplatError
+from geoface.splat.gaussians import Gaussians
+from geoface.nn.average import WeightAverage
+from geoface.splat.hfm_blocks import SegregationStrategy, boundary_loss
+from geoface.splat.hfm_model import HFMConfig, HFMModel
+from geoface.splat.model_dir import _load_state, read_model_dir, write_model_dir
+
+
+# ----------------------------------------------------------------------------- VGG perceptual
+_VGG16 = [64, 64, "M", 128, 128, "M", 256, 256, 256]  # up to relu3_3
+
+
+class VGGPerceptual(nn.Module):
+    """L1 between VGG-16 features (relu1_2, relu2_2, relu3_3) of ImageNet-normalised images.
+
+    ``weights``: a local file (safetensors, or a torch state dict read with weights_only=True)
+    holding torchvision's ``vgg16().features`` parameters (``features.N.weight``/``.bias`` or
+    ``N.weight``); nothing is downloaded."""
+
+    def __init__(self, weights):
+        super().__init__()
+        layers, c = [], 3
+        for v in _VGG16:
+            if v == "M":
+                layers.append(nn.MaxPool2d(2))
+            else:
+                layers += [nn.Conv2d(c, v, 3, padding=1), nn.ReLU(inplace=False)]
+                c = v
+        self.features = nn.Sequential(*layers)
+        self.taps = {3, 8, 15}
+        sd = _load_state(weights)
+        sd = {k[len("features."):] if k.startswith("features.") else k: v for k, v in sd.items()}
+        own = self.features.state_dict()
+        missing = [k for k in own if k not in sd]
+        if missing:
+            raise SplatError(f"{weights}: not VGG-16 feature weights (missing {missing[:3]})")
+        try:
+            self.features.load_state_dict({k: sd[k] for k in own})
+        except RuntimeError as e:
+            raise SplatError(f"{weights}: VGG-16 weights of the wrong shape ({str(e).splitlines()[0]})") from None
+        self.requires_grad_(False)
+        self.register_buffer("mean", torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1))
+        self.register_buffer("std", torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1))
+
+    def forward(self, a: Tensor, b: Tensor) -> Tensor:  # [B, 3, H, W] in [0, 1]
+        x = torch.cat([a, b]).sub(self.mean).div(self.std)
+        loss = x.new_zeros(())
+        for i, layer in enumerate(self.features):
+            x = layer(x)
+            if i in self.taps:
+                fa, fb = x.chunk(2)
+                loss = loss + (fa - fb).abs().mean()
+        return loss
+
+
+# ----------------------------------------------------------------------------- training
+def _frames_tensors(video, crop):
+    imgs = torch.tensor(video.frames, dtype=torch.float32)
+    crops = torch.tensor(video.crops(crop), dtype=torch.float32)
+    return imgs, crops, torch.tensor(video.boxes())
+
+
+def _pose(video, t):
+    """Frame ``t``'s tracked head pose (R, t, pivot) or None."""
+    if video.poses is None:
+        return None
+    R, tr, piv = video.poses
+    return R[t], tr[t], piv
+
+
+def build_model(video, cfg: HFMConfig) -> HFMModel:
+    """Canonical Gaussians from the registration head mesh (one per vertex, THGS init)."""
+    from geoface.mesh.io import load_mesh
+
+    if video.mesh_path is None:
+        raise SplatError("the registration folder has no head mesh (head.ply / head.obj)")
+    m = load_mesh(video.mesh_path)
+    C = getattr(m, "colors", None)
+    if C is None:
+        raise SplatError(f"{video.mesh_path}: the head mesh needs vertex colours")
+    g = Gaussians.from_mesh(m.V, m.F, np.clip(np.asarray(C)[:, :3], 0, 1), opacity=cfg.init_opacity)
+    y_t = cfg.y_split if cfg.y_split is not None else video.y_split
+    return HFMModel(g, cfg, y_t)
+
+
+def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice | None = None,
+              progress=None, log=print, callback=None) -> dict:
+    """Register a person from an unoccluded video folder; saves ``out_dir`` (config.json,
+    model.safetensors) and returns a summary (loss history, seconds, Gaussians, keys).
+    ``callback(step, model, average)``, when given, runs after every step (``average``: the
+    :class:`WeightAverage` once it has started, else None), e.g. to score the model as it trains."""
+    from geoface.nn.losses import dssim
+    from geoface.progress import progress as bar
+    from geoface.splat.hfm_data import load_video
+    from geoface.splat.rasterizer import rasterize
+
+    cfg = cfg or HFMConfig()
+    if cfg.threads:
+        torch.set_num_threads(int(cfg.threads))
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    video = load_video(reg_dir, need_mesh=True, frames=frames)
+    model = build_model(video, cfg)
+    cam = video.camera
+    imgs, crops, boxes = _frames_tensors(video, cfg.crop)
+    vgg = None
+    if cfg.lambda_vgg > 0:
+        if cfg.vgg_weights:
+            vgg = VGGPerceptual(cfg.vgg_weights)
+        elif log:
+            log("hfm: no VGG weights given (--vgg-weights): training without the perceptual term")
+    g = model.gaussians
+    extent = float(model.scale) * 2
+    opt = make_optimizer(g, {"means": cfg.lr_means * extent, "log_scales": 5e-3, "quats": 1e-3,
+                             "opacity_logits": 2.5e-2, "colors": 2.5e-3}, eps=1e-15)
+    nets = [p for n, p in model.named_parameters() if not n.startswith("gaussians.")]
+    # Adam's usual ε for the networks: the 3DGS ε = 1e-15 turns the tiny, noisy gradients of
+    # barely-used weights into full-size steps and kills ReLU units
+    opt.add_param_group({"params": nets, "lr": cfg.lr_nets, "name": "nets", "eps": 1e-8})
+    # static warm-up: the networks start from the identity deformation (zero last layers) and stay
+    # frozen until the Gaussians fit the average face; trained from the first step, the encoder
+    # tends to collapse θ to a constant while the residual is still dominated by the static fit
+    # (seen on the synthetic head for one model seed in two), and the avatar never follows expressions
+    n_warm = int(cfg.warmup * cfg.iters)
+    for p in nets:
+        p.requires_grad_(n_warm == 0)
+    strategy = None
+    if cfg.densify:
+        every = min(100, max(10, cfg.iters // 10))
+        dcfg = DensityConfig(refine_start=max(100, cfg.iters // 10) - 1, refine_stop=int(0.6 * cfg.iters),
+                             refine_every=every, reset_every=0, max_gaussians=2 * len(g))
+        strategy = SegregationStrategy(dcfg, extent, model.y_split, cfg.margin, model.upper_mask())
+    history, order = [], []
+    # the weights are averaged once the networks train and density control has stopped
+    ema_start = max(n_warm, strategy.cfg.refine_stop if strategy is not None else 0) if cfg.ema > 0 else cfg.iters
+    average = None
+    t0 = time.perf_counter()
+    bg = torch.zeros(3)
+    steps = range(cfg.iters)
+    if not callable(progress):
+        steps = bar(steps, "registering (HFM-GS)", total=cfg.iters, quiet=None if progress is None else not progress)
+    for it in steps:
+        if it == n_warm and n_warm:
+            for p in nets:
+                p.requires_grad_(True)
+        if not order:
+            order = list(rng.permutation(len(imgs)))
+        f = int(order.pop())
+        if it % cfg.key_every == 0:
+            model.refresh_keys()
+        gt = imgs[f]
+        gd = model(crops[f:f + 1], boxes[f:f + 1], _pose(video, f))
+        rgb, alpha, depth, info = rasterize(gd, cam, background=bg, return_info=True)
+        l1 = (rgb - gt).abs().mean()
+        a, b = rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None]
+        ds = dssim(a, b)
+        loss = (1 - cfg.lambda_rgb) * l1 + cfg.lambda_rgb * ds
+        if vgg is not None:
+            loss = loss + cfg.lambda_vgg * vgg(a, b)
+        ls = boundary_loss(g.means[:, 1], strategy.upper if strategy is not None else model.upper_mask(),
+                           model.y_split)
+        loss = loss + cfg.lambda_split * ls
+        if strategy is not None:
+            strategy.step_pre_backward(info)
+        loss.backward()
+        opt.step()
+        opt.zero_grad(set_to_none=True)
+        rec = {"step": it, "loss": float(loss.detach()), "l1": float(l1.detach()), "n": len(g), "nets": it >= n_warm}
+        if strategy is not None:
+            counts = strategy.step_post_backward(g, opt, info, it)
+            if counts["cloned"] or counts["split"] or counts["pruned"]:
+                rec.update(cloned=counts["cloned"], split=counts["split"], pruned=counts["pruned"], n=len(g))
+                model.refresh_keys()
+        if it >= ema_start:
+            if average is None:
+                average = WeightAverage(model, cfg.ema)
+            average.update(model)
+        history.append(rec)
+        if callable(progress) and (it % 50 == 0 or it == cfg.iters - 1):
+            progress(it, rec)
+        if callback is not None:
+            callback(it, model, average)
+    if average is not None:
+        average.copy_to(model)
+        model.refresh_keys()  # W_gm of the averaged weights
+    model.refit_statistics(crops, boxes)  # the mapping's input statistics, for the final weights
+    seconds = time.perf_counter() - t0
+    save_hfm(model, out_dir)
+    return {"seconds": seconds, "frames": len(imgs), "warmup_steps": n_warm,
+            "averaged_steps": average.steps if average is not None else 0, "history": history, "n_gaussians": len(g), "n_upper": int(model.upper_mask().sum()),
+            "dropped_children": strategy.dropped if strategy is not None else 0, "vgg": vgg is not None}
+
+
+def save_hfm(model: HFMModel, out_dir) -> None:
+    write_model_dir(out_dir, model, {"format": "geoface-hfm-gs", "version": 1, "config": model.cfg.to_dict(),
+                                     "y_split": model.y_split, "n_gaussians": len(model.gaussians)})
+
+
+def load_hfm(model_dir) -> HFMModel:
+    """Load a model folder; any problem is a one-line SplatError."""
+    d, meta, sd = read_model_dir(model_dir, "geoface-hfm-gs", "HFM-GS")
+    conf = dict(meta["config"])
+    conf.setdefault("map_norm", False)  # folders written before the field read p_L raw
+    conf.setdefault("detach_lower", False)  # and trained the lower networks through the mapping
+    conf.setdefault("upsample", "params")  # before the field: W_dist spread the keys' deformations
+    conf.setdefault("feat_norm", False)  # and MLP_mapping read f_U as W_gm gave it
+    conf.setdefault("mapping_heads", 1)
+    if not conf.get("gaussian_mapping", True):  # before the field: the unmapped upper face had its own MLP
+        conf.setdefault("unmapped_upper", "separate" if any(k.startswith("mlp_up.") for k in sd) else "shared")
+    cfg = HFMConfig.from_dict(conf, where=f"{d}/config.json")
+    from .errors import ModelFolderError
+
+    y_split = meta.get("y_split")
+    if isinstance(y_split, bool) or not isinstance(y_split, (int, float)) or not math.isfinite(y_split):
+        raise ModelFolderError(f"{d}/config.json: y_split must be a number; got {y_split!r}")
+    n_meta = meta.get("n_gaussians")
+    if n_meta is not None and (isinstance(n_meta, bool) or not isinstance(n_meta, int)):
+        raise ModelFolderError(f"{d}/config.json: n_gaussians must be an integer; got {n_meta!r}")
+    try:
+        n = sd["gaussians.means"].shape[0]
+        g = Gaussians(sd["gaussians.means"], sd["gaussians.log_scales"], sd["gaussians.quats"],
+                      sd["gaussians.opacity_logits"], sd["gaussians.colors"], sd.get("gaussians.parent"))
+        model = HFMModel(g, cfg, meta["y_split"], sd["center"], sd["scale"])
+        model.load_state_dict(sd, strict=True)
+    except (KeyError, RuntimeError, SplatError) as e:
+        raise SplatError(f"{d}: model weights do not match config.json ({str(e).splitlines()[0][:160]})") from None
+    if n != meta.get("n_gaussians", n):
+        raise SplatError(f"{d}: {n} Gaussians in the weights, config.json says {meta['n_gaussians']}")
+    model.eval()
+    model.refresh_keys()
+    return model
