@@ -18,9 +18,27 @@ from .errors import GeofaceError, GeofaceWarning, InvalidMeshError
 from ._args import SEED, number
 
 
+#: options whose value may be a negative axis ("--up -z"), which argparse would take for a flag
+_AXIS_OPTIONS = ("--up", "--front")
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, exit code 2 (argparse's own code for usage errors)
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        import sys
+
+        args = list(sys.argv[1:] if args is None else args)
+        out, k = [], 0
+        while k < len(args):  # "--up -z" -> "--up=-z"
+            if args[k] in _AXIS_OPTIONS and k + 1 < len(args) and args[k + 1] in ("-x", "-y", "-z"):
+                out.append(f"{args[k]}={args[k + 1]}")
+                k += 2
+            else:
+                out.append(args[k])
+                k += 1
+        return super().parse_known_args(out, namespace)
 
 
 def _mesh_outputs(path) -> list:
