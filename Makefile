@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.geoface-installed
 OUT    := demo_out
 
-.PHONY: install cgal cgal-headers cholmod test demo bench clean distclean
+.PHONY: install cgal cgal-headers cholmod test demo bench docs clean distclean
 
 install: $(STAMP)
 
@@ -45,6 +45,13 @@ cholmod:
 
 test: $(STAMP)
 	GEOFACE_QUIET=1 $(PY) -m pytest -q -n 2 tests
+
+# The documentation site in site/ (offline; warnings are errors): the guides in docs/, the
+# command-line reference and the API reference generated from the code.
+docs: $(STAMP)
+	GEOFACE_QUIET=1 $(PY) data_tools/gen_docs.py
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict -q
+	@echo "documentation in site/index.html"
 
 demo: $(STAMP)
 	@mkdir -p $(OUT)

@@ -8,6 +8,8 @@ traversed twice and is homologically trivial), which leaves a simple cycle in th
 non-trivial homology class, hence non-separating.  Cutting it and capping both sides
 lowers the genus by exactly one.
 
+Examples
+--------
 >>> from geoface.synth import torus
 >>> V, F = torus(1.0, 0.3, 32, 12)
 >>> res = remove_handles(V, F)

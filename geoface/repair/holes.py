@@ -33,15 +33,24 @@ def minimal_area_triangulation(P: np.ndarray, forbid: np.ndarray | None = None, 
 
     Parameters
     ----------
-    P : (n, 3) polygon vertices in boundary order
-    forbid : (n, n) bool, optional — chords that must not be used (edges the mesh already
-        has); returns None when every triangulation would need one
-    edge_normals : (n, 3), optional — unit normal of the mesh face on polygon edge
-        ``(i, i+1)`` (row ``n-1``: edge ``(n-1, 0)``); zero rows impose nothing
+    P : (n, 3) array
+        Polygon vertices in boundary order.
+    forbid : (n, n) bool array, optional
+        Chords that must not be used (edges the mesh already has).
+    edge_normals : (n, 3) array, optional
+        Unit normal of the mesh face on polygon edge ``(i, i+1)`` (row ``n-1``: edge
+        ``(n-1, 0)``); zero rows impose nothing.
 
-    Returns ``(n - 2, 3)`` local indices; triangles ``(i, k, j)`` with ``i < k < j`` follow
-    the polygon's own direction (the fill uses them reversed).  O(n^3) work, vectorised
-    over one dimension.
+    Returns
+    -------
+    (n - 2, 3) int array or None
+        Local indices; triangles ``(i, k, j)`` with ``i < k < j`` follow the polygon's own
+        direction (the fill uses them reversed). None when every triangulation would need a
+        forbidden chord.
+
+    Notes
+    -----
+    O(n^3) work, vectorised over one dimension.
     """
     n = len(P)
     if n < 3:

@@ -47,6 +47,8 @@ def open_at_plane(V, F, *, up="y", height: float = 0.02, origin=None) -> StepRes
     origin : 3-vector, optional
         A point on the plane; overrides ``height``.
 
+    Notes
+    -----
     Triangles crossing the plane are split exactly (trimesh), so the new boundary is a
     planar curve.  The result may have several loops or components (e.g. four hooves);
     :func:`geoface.repair.make_disk` keeps the largest part and fills the other loops.

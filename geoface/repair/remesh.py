@@ -35,6 +35,8 @@ def remesh(V, F, target_vertices: int, *, method: Method = "isotropic", iteratio
         ``decimate``: quadric edge collapse preserving boundary and topology (keeps
         detail, only reduces).
 
+    Notes
+    -----
     The count is approximate (typically within 10%); remeshing creates new vertices,
     so the vertex map marks all vertices not at an original position as created.
     """

@@ -178,10 +178,15 @@ class Gaussians(_GaussianOps, nn.Module):
 
     Parameters
     ----------
-    means : [N, 3]; log_scales : [N, 3]; quats : [N, 4] (w, x, y, z; normalised in use);
-    opacity_logits : [N]; colors : [N, 3] plain RGB or [N, K, 3] SH coefficients, K ∈ {1,4,9,16}
-    (RGB = max(SH(d) + 0.5, 0), as 3DGS); parent : optional [N] int64 parent-vertex index
-    (a buffer, kept through densification by the density-control code).
+    means : [N, 3]
+    log_scales : [N, 3]
+    quats : [N, 4]
+        (w, x, y, z), normalised in use.
+    opacity_logits : [N]
+    colors : [N, 3] or [N, K, 3]
+        Plain RGB, or SH coefficients with K ∈ {1, 4, 9, 16} (RGB = max(SH(d) + 0.5, 0), as 3DGS).
+    parent : [N] int64, optional
+        Parent-vertex index (a buffer, kept through densification by the density-control code).
     """
 
     def __init__(self, means, log_scales, quats, opacity_logits, colors, parent=None):

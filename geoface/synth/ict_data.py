@@ -19,6 +19,8 @@ Every head gets
 mesh (:func:`head_from_spec`) and its labels; ``geoface dataset ict`` builds them into
 geometry images through :func:`geoface.dataset.build_dataset`.
 
+Examples
+--------
 >>> specs = ict_specs(4, seed=0)                # doctest: +SKIP
 >>> specs[0]["labels"]["prompt"]                # doctest: +SKIP
 'mouth wide open, a narrow face'
