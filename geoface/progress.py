@@ -23,18 +23,32 @@ def set_quiet(on: bool) -> None:
     QUIET = bool(on)
 
 
-def progress(it: Iterable[T], description: str = "", total: int | None = None, quiet: bool | None = None) -> Iterator[T]:
-    """Iterate over ``it`` showing a progress bar on stderr unless quiet."""
+def progress(it: Iterable[T], description: str = "", total: int | None = None, quiet: bool | None = None,
+             unit: str = "steps") -> Iterator[T]:
+    """Iterate over ``it`` showing progress on stderr unless quiet: a live bar on a terminal,
+    elsewhere (a notebook, a log file) a :class:`StepProgress` line with the rate and the time
+    left every 10 seconds."""
     q = QUIET if quiet is None else quiet
-    if q or not sys.stderr.isatty():
+    if q:
         yield from it
         return
+    if total is None and hasattr(it, "__len__"):
+        total = len(it)
+    if sys.stderr.isatty():
+        try:
+            from rich.progress import track
+        except ImportError:  # pragma: no cover
+            pass
+        else:
+            yield from track(it, description=description, total=total, console=None, transient=True)
+            return
+    bar = StepProgress(total or 0, description, unit=unit, quiet=False)
     try:
-        from rich.progress import track
-    except ImportError:  # pragma: no cover
-        yield from it
-        return
-    yield from track(it, description=description, total=total, console=None, transient=True)
+        for x in it:
+            yield x
+            bar.update()
+    finally:
+        bar.close()
 
 
 def log(message: str, quiet: bool | None = None) -> None:
@@ -96,6 +110,9 @@ class StepProgress:
 
     def line(self) -> str:
         r = self.rate
+        if not self.total:  # an iterable of unknown length: count and rate only
+            post = "".join(f", {k} {v:.4g}" if isinstance(v, float) else f", {k} {v}" for k, v in self.postfix.items())
+            return f"{self.description}: {self.n} {self.unit}, {r:.3g} {self.unit}/s{post}"
         eta = (self.total - self.n) / r if r > 0 else float("nan")
         pct = 100.0 * self.n / self.total if self.total else 100.0
         post = "".join(f", {k} {v:.4g}" if isinstance(v, float) else f", {k} {v}" for k, v in self.postfix.items())
