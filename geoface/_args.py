@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["number", "SEED"]
+__all__ = ["number", "SEED", "add_json", "json_to_stdout", "write_json"]
 
 
 def number(kind: type = float, lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
@@ -46,3 +46,30 @@ def number(kind: type = float, lo: float | None = None, hi: float | None = None,
 
 #: random seeds: what NumPy and torch accept everywhere
 SEED = number(int, 0, 2**32 - 1)
+
+
+def add_json(parser: argparse.ArgumentParser, what: str = "the results") -> None:
+    """The one ``--json [PATH]`` of every command: ``--json PATH`` writes ``what`` to PATH (as
+    well as the text), a bare ``--json`` (or ``--json -``) prints it instead of the text."""
+    parser.add_argument("--json", nargs="?", const="-", default=None, metavar="PATH",
+                        help=f"{what} as JSON: written to PATH, or printed instead of the text when PATH is - or left out")
+
+
+def json_to_stdout(args) -> bool:
+    return getattr(args, "json", None) == "-"
+
+
+def write_json(args, obj) -> None:
+    """Print or write ``obj`` as ``--json`` asks (atomically, for a file); nothing without it."""
+    import json
+
+    path = getattr(args, "json", None)
+    if path is None:
+        return
+    text = json.dumps(obj, indent=2, default=float)
+    if path == "-":
+        print(text)
+    else:
+        from ._io import atomic_write_text
+
+        atomic_write_text(path, text + "\n")

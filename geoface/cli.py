@@ -15,7 +15,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import GeofaceError, GeofaceWarning, InvalidMeshError
-from ._args import SEED, number
+from ._args import SEED, add_json, json_to_stdout, number, write_json
 
 
 #: options whose value may be a negative axis ("--up -z"), which argparse would take for a flag
@@ -63,6 +63,7 @@ def _guard(args, inputs, outputs, resumable=()) -> None:
         ins.append(p)
         if Path(p).is_file():
             ins += [c for c in companion_names(p) if c.exists()]
+    outputs = [o for o in outputs if o is not None and o != "-"]  # "--json -": stdout
     check_outputs(ins, outputs, force=getattr(args, "force", False), resumable=resumable)
 
 
@@ -104,15 +105,12 @@ def _guard_by_table(args) -> None:
     _guard(args, inputs, outputs, resumable=resumable)
 
 
-def _print_json(obj) -> None:
-    print(json.dumps(obj, indent=2, default=float))
-
-
 # --------------------------------------------------------------------------- inspect
 def cmd_inspect(args) -> int:
     from .mesh.io import load_mesh
     from .mesh.topology import topology_report
 
+    _guard(args, [args.file], [args.json])
     mesh = load_mesh(args.file)
     rep = topology_report(mesh.V, mesh.F)
     attrs = {
@@ -120,9 +118,8 @@ def cmd_inspect(args) -> int:
         "vertex_colors": mesh.colors is not None,
         "texture": None if mesh.texture is None else list(mesh.texture.shape),
     }
-    if args.json:
-        _print_json({"file": str(args.file), **rep.to_dict(), "attributes": attrs})
-    else:
+    write_json(args, {"file": str(args.file), **rep.to_dict(), "attributes": attrs})
+    if not json_to_stdout(args):
         print(f"{args.file}")
         print(rep.format())
         tex = "none" if attrs["texture"] is None else "x".join(map(str, attrs["texture"]))
@@ -136,7 +133,7 @@ def cmd_repair(args) -> int:
     from .progress import log
     from .repair import RepairOptions, make_disk
 
-    _guard(args, [args.input], _mesh_outputs(args.output))
+    _guard(args, [args.input], [*_mesh_outputs(args.output), args.json])
     mesh = load_mesh(args.input)
     opts = RepairOptions(
         open=args.open,
@@ -150,9 +147,8 @@ def cmd_repair(args) -> int:
     res = make_disk(mesh.V, mesh.F, opts)
     out = mesh.with_geometry(res.V, res.F, res.vertex_map, res.face_map)
     save_mesh(args.output, out, overwrite=args.force)
-    if args.json:
-        _print_json({"input": str(args.input), "output": str(args.output), **res.to_dict()})
-    else:
+    write_json(args, {"input": str(args.input), "output": str(args.output), **res.to_dict()})
+    if not json_to_stdout(args):
         print(f"{args.input} -> {args.output}")
         print(res.summary())
         print(res.report.format())
@@ -232,10 +228,9 @@ def cmd_param(args) -> int:
     info["distortion"] = d
     out = Mesh(V, F, UV=uv, FUV=F, colors=mesh.colors, texture=None)
     save_mesh(args.output, out, overwrite=args.force)
-    if args.json:
-        from ._io import atomic_write_text
-
-        atomic_write_text(args.json, json.dumps(info, indent=2))
+    write_json(args, info)
+    if json_to_stdout(args):
+        return 0
     print(f"{args.input} -> {args.output}  ({args.method}, {info['seconds']:.2f} s)")
     print(
         f"  quasi-conformal ratio: mean {d['qc_mean']:.4f}, p95 {d['qc_p95']:.4f}, max {d['qc_max']:.3g}; "
@@ -549,7 +544,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("inspect", help="print a mesh's topology report")
     s.add_argument("file")
-    s.add_argument("--json", action="store_true", help="machine-readable output")
+    add_json(s, "the report")
     s.set_defaults(func=cmd_inspect)
 
     s = sub.add_parser("repair", help="turn any mesh into a topological disk")
@@ -562,7 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--cap-area", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.02, help="area fraction removed by --open cap (0.02)")
     s.add_argument("--target-vertices", type=number(int, 16, 10_000_000), default=None, help="remesh to about this many vertices")
     s.add_argument("--min-component-area", type=number(float, 0, 1, hi_open=True), default=None, help="drop components below this area fraction")
-    s.add_argument("--json", action="store_true", help="print the report and changes as JSON")
+    add_json(s, "the report and the changes")
     s.set_defaults(func=cmd_repair)
 
     s = sub.add_parser("param", help="parameterize a disk onto the unit square (writes UVs)")
@@ -578,7 +573,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--tolerance", type=number(float, 0, 1, lo_open=True), default=1e-9, help="curvature tolerance of the flow (radians)")
     s.add_argument("--repair", action="store_true", help="run make_disk first")
     s.add_argument("--up", default="y", help="up axis for --repair")
-    s.add_argument("--json", default=None, metavar="M.json", help="write the metrics as JSON")
+    add_json(s, "the metrics")
     s.set_defaults(func=cmd_param)
 
     s = sub.add_parser("convert", help="mesh -> geometry images (+ reconstruction, preview, metrics)")

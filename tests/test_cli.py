@@ -30,6 +30,25 @@ def test_inspect_json_and_text(capsys):
     assert "genus               0" in out and "closed              True" in out
 
 
+def test_json_is_one_option_everywhere(tmp_path, capsys):
+    """--json PATH writes the file beside the text; a bare --json (or -) prints JSON instead."""
+    path = shared_mesh("spot.obj")
+    js = tmp_path / "r.json"
+    assert main(["inspect", str(path), "--json", str(js)]) == 0
+    assert "genus" in capsys.readouterr().out and json.loads(js.read_text())["genus"] == 0
+    assert main(["inspect", str(path), "--json", "-"]) == 0
+    assert json.loads(capsys.readouterr().out)["closed"]
+    assert main(["repair", str(path), "-o", str(tmp_path / "d.obj"), "--json", str(tmp_path / "d.json")]) == 0
+    assert "->" in capsys.readouterr().out and json.loads((tmp_path / "d.json").read_text())["report"]["is_disk"]
+    assert main(["inspect", str(path), "--json", str(js)]) == 2  # an output that exists needs --force
+    from geoface.cli import build_parser
+
+    for argv in (["inspect", "a.obj"], ["repair", "a.obj", "-o", "b.obj"], ["param", "a.obj", "-o", "b.obj"],
+                 ["hmd", "eval", "m", "u"], ["talk", "eval", "m", "d"]):
+        assert build_parser().parse_args(argv + ["--json"]).json == "-"
+        assert build_parser().parse_args(argv + ["--json", "x.json"]).json == "x.json"
+
+
 def test_repair_writes_a_disk_keeping_uvs(tmp_path, capsys):
     out = tmp_path / "spot_disk.obj"
     assert main(["repair", str(shared_mesh("spot.obj")), "-o", str(out), "--json"]) == 0

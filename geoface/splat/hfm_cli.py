@@ -5,11 +5,10 @@ Wired into :mod:`geoface.cli` through :func:`register`; torch loads inside the c
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from geoface.errors import GeofaceError
-from geoface._args import SEED, number
+from geoface._args import SEED, add_json, json_to_stdout, number, write_json
 
 __all__ = ["register"]
 
@@ -91,20 +90,18 @@ def cmd_hmd_eval(args) -> int:
 
     model = load_hfm(args.model_dir)
     res = evaluate_hmd(model, load_video(args.usage_dir))
-    print(f"{args.usage_dir}: face PSNR {res['psnr_face']:.2f} dB SSIM {res['ssim_face']:.4f}; occluded region "
+    say = (lambda *a, **k: None) if json_to_stdout(args) else print
+    say(f"{args.usage_dir}: face PSNR {res['psnr_face']:.2f} dB SSIM {res['ssim_face']:.4f}; occluded region "
           f"PSNR {res['psnr_occluded']:.2f} dB SSIM {res['ssim_occluded']:.4f}; {res['fps']:.1f} FPS "
           f"({res['frames']} frames); expression motion upper {res['upper_motion_mm']:.2f} mm, "
           f"lower {res['lower_motion_mm']:.2f} mm")
     if res.get("expression_frames") == 0:
-        print("expression region: no usage frame has an upper-face expression to score")
+        say("expression region: no usage frame has an upper-face expression to score")
     elif "psnr_expression" in res:
-        print(f"expression region (what brows and lids change, {res['expression_frames']} frames): PSNR "
+        say(f"expression region (what brows and lids change, {res['expression_frames']} frames): PSNR "
               f"{res['psnr_expression']:.2f} dB SSIM {res['ssim_expression']:.4f}; the rest-pose upper face "
               f"scores {res['psnr_expression_rest']:.2f} dB there")
-    if args.json:
-        from geoface._io import atomic_write_text
-
-        atomic_write_text(args.json, json.dumps(res, indent=1))
+    write_json(args, res)
     return 0
 
 
@@ -148,7 +145,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     e = hs.add_parser("eval", parents=[common], help="PSNR/SSIM (whole face, occluded region) and FPS on a usage folder with gt/")
     e.add_argument("model_dir", metavar="MODEL_DIR")
     e.add_argument("usage_dir", metavar="USAGE_DIR")
-    e.add_argument("--json", default=None, metavar="FILE", help="also write the figures as JSON")
+    add_json(e, "the figures")
     e.set_defaults(func=cmd_hmd_eval)
 
 

@@ -5,7 +5,6 @@ Wired into :mod:`geoface.cli` through :func:`register`; torch loads inside the c
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from geoface.errors import GeofaceError
@@ -13,7 +12,7 @@ from geoface.errors import GeofaceError
 __all__ = ["register"]
 
 from geoface.splat.hfm_cli import _quiet  # noqa: E402  (argparse only, no torch)
-from geoface._args import SEED, number
+from geoface._args import SEED, add_json, json_to_stdout, number, write_json
 
 
 def cmd_talk_synth(args) -> int:
@@ -68,13 +67,11 @@ def cmd_talk_eval(args) -> int:
     from .thgs_data import load_talking
 
     res = evaluate_thgs(load_thgs(args.model_dir), load_talking(args.data_dir), args.heldout)
-    print(f"{args.data_dir}: held-out PSNR {res['psnr']:.2f} dB SSIM {res['ssim']:.4f}, mouth PSNR "
+    say = (lambda *a, **k: None) if json_to_stdout(args) else print
+    say(f"{args.data_dir}: held-out PSNR {res['psnr']:.2f} dB SSIM {res['ssim']:.4f}, mouth PSNR "
           f"{res['psnr_mouth']:.2f} dB; lip sync r = {res['lipsync_corr']:.2f} (real frames {res['lipsync_corr_real']:.2f}); "
           f"{res['fps']:.1f} FPS ({res['frames']} frames)")
-    if args.json:
-        from geoface._io import atomic_write_text
-
-        atomic_write_text(args.json, json.dumps(res, indent=1))
+    write_json(args, res)
     return 0
 
 
@@ -114,5 +111,5 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     e.add_argument("model_dir", metavar="MODEL_DIR")
     e.add_argument("data_dir", metavar="DATA_DIR")
     e.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=None, help="default: the fraction used in training")
-    e.add_argument("--json", default=None, metavar="FILE")
+    add_json(e, "the figures")
     e.set_defaults(func=cmd_talk_eval)
