@@ -18,7 +18,7 @@ sys.path.insert(0, str(ROOT))
 DOCS = ROOT / "docs"
 
 #: the public modules, one API page each (private ones, ``_*``, and command-line glue are left out)
-SKIP = re.compile(r"(^|\.)_|\.cli$|_cli$|^geoface\.__main__$")
+SKIP = re.compile(r"(^|\.)_|\.cli(\.|$)|_cli$|^geoface\.__main__$")
 
 
 def public_modules() -> list[str]:

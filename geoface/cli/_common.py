@@ -1,0 +1,93 @@
+"""What every verb shares: the parser class, and the output-path policy applied before any work."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+
+#: options whose value may be a negative axis ("--up -z"), which argparse would take for a flag
+_AXIS_OPTIONS = ("--up", "--front")
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit code 2 (argparse's own code for usage errors)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        import sys
+
+        args = list(sys.argv[1:] if args is None else args)
+        out, k = [], 0
+        while k < len(args):  # "--up -z" -> "--up=-z"
+            if args[k] in _AXIS_OPTIONS and k + 1 < len(args) and args[k + 1] in ("-x", "-y", "-z"):
+                out.append(f"{args[k]}={args[k + 1]}")
+                k += 2
+            else:
+                out.append(args[k])
+                k += 1
+        return super().parse_known_args(out, namespace)
+
+
+def _mesh_outputs(path) -> list:
+    """A mesh output with the companion files written with it (OBJ: .mtl, texture, normal map)."""
+    if path is None:
+        return []
+    from ..mesh.io import companion_names
+
+    return [path, *companion_names(path)]
+
+
+def _guard(args, inputs, outputs, resumable=()) -> None:
+    """The output-path policy (geoface._io.check_outputs), before any work.  An input mesh
+    counts with the files it references (its MTL, texture, normal map)."""
+    from .._io import check_outputs
+    from ..mesh.io import companion_names
+
+    ins = []
+    for p in inputs:
+        if p is None:
+            continue
+        ins.append(p)
+        if Path(p).is_file():
+            ins += [c for c in companion_names(p) if c.exists()]
+    outputs = [o for o in outputs if o is not None and o != "-"]  # "--json -": stdout
+    check_outputs(ins, outputs, force=getattr(args, "force", False), resumable=resumable)
+
+
+#: the neural commands' inputs and outputs (argument names), for the output-path policy;
+#: the geometry commands apply it in their own functions (they know their companion files)
+_PATHS = {
+    ("ddpm", "train"): (("data_dir",), ("output",)),
+    ("ddpm", "sample"): (("run_dir",), ("output",)),
+    ("texture", "synth"): ((), ("output",)),
+    ("texture", "train"): (("data_dir",), ("output",)),
+    ("texture", "reconstruct"): (("photo", "model", "mesh", "camera"), ("output",)),
+    ("splat", "fit"): (("mesh",), ("output", "renders")),
+    ("hmd", "synth"): ((), ("output",)),
+    ("hmd", "train"): (("reg_dir",), ("output",)),
+    ("hmd", "remove"): (("model_dir", "usage_dir"), ("output",)),
+    ("hmd", "eval"): (("model_dir", "usage_dir"), ("json",)),
+    ("talk", "synth"): ((), ("output",)),
+    ("talk", "train"): (("data_dir",), ("output",)),
+    ("talk", "animate"): (("model_dir", "audio", "poses"), ("output",)),
+    ("talk", "eval"): (("model_dir", "data_dir"), ("json",)),
+}
+
+
+def _guard_by_table(args) -> None:
+    """The output-path policy for the commands in :data:`_PATHS`.  A DDPM run folder with a
+    checkpoint is resumed with ``--resume``; model folders the command refuses to replace on
+    its own terms (hmd, talk) are left to it."""
+    key = (getattr(args, "command", None), getattr(args, "what", None))
+    if key not in _PATHS:
+        return
+    ins, outs = _PATHS[key]
+    inputs = [getattr(args, a, None) for a in ins]
+    outputs = [getattr(args, a, None) for a in outs]
+    resumable = []
+    if key == ("ddpm", "train") and getattr(args, "resume", False):
+        resumable = outputs
+    if key[0] in ("hmd", "talk") and key[1] in ("train", "remove", "animate"):
+        resumable = outputs  # these check their model/frames folders themselves (--force)
+    _guard(args, inputs, outputs, resumable=resumable)

@@ -1,0 +1,60 @@
+"""``geoface dataset build | ict``."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .._args import number
+
+from ._common import _guard
+
+def _dataset_options(b) -> None:
+    """The conversion and scheduling flags that ``dataset build`` and ``dataset ict`` share."""
+    b.add_argument("--res", type=number(int, 4, 8192), default=512, help="image resolution N (default 512)")
+    b.add_argument("--augment", type=number(int, 1, 8), default=8, help="corner sets per mesh, 1..8 (default 8)")
+    b.add_argument("--workers", type=number(int, 1, 1024), default=None, help="local worker processes (default: the number of cores; 1 = serial)")
+    b.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a Dask scheduler (tcp://host:port) instead of the local pool")
+    b.add_argument("--lam", type=number(float, 0, 1000, lo_open=True), default=2.5, help="mass factor on the ROI (2.5)")
+    b.add_argument("--method", choices=["ot", "conformal"], default="ot")
+    b.add_argument("--ot-tol", type=number(float, 0, 1, lo_open=True, hi_open=True), default=1e-3)
+    b.add_argument("--reconstruct", action="store_true", help="also write reconstruction.obj and its error")
+    b.add_argument("--retry-failed", action="store_true", help="try items that failed in an earlier run again")
+    b.add_argument("--strict", action="store_true", help="exit code 1 when any item failed")
+    b.add_argument("--up", default="y")
+    b.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto")
+
+
+def _dataset_report(args, out: Path, s: dict) -> int:
+    print(f"{out}/: {s['done']} items built, {s['failed']} failed, {s['skipped']} skipped "
+          f"({s['seconds']:.1f} s, {s['items_per_minute']:.1f} items/min); manifest {out / 'manifest.jsonl'}")
+    for item, err in s["failures"].items():
+        print(f"  failed {item}: {err}")
+    return 1 if (args.strict and s["failed"]) else 0
+
+
+def _dataset_opts(args):
+    from ..dataset import DatasetOptions
+
+    return DatasetOptions(res=args.res, augment=args.augment, roi=args.roi, lam=args.lam, method=args.method,
+                          ot_tol=args.ot_tol, reconstruct=args.reconstruct, up=args.up, open=args.open)
+
+
+def cmd_dataset_build(args) -> int:
+    from ..dataset import build_dataset
+
+    out, inp = Path(args.out_dir), Path(args.in_dir)
+    # an existing dataset folder is resumed (its manifest records the options it was built with)
+    _guard(args, [inp, args.labels], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
+    s = build_dataset(inp, out, _dataset_opts(args), workers=args.workers, scheduler=args.scheduler, labels=args.labels,
+                      retry_failed=args.retry_failed, rebuild=args.force)
+    return _dataset_report(args, out, s)
+
+
+def cmd_dataset_ict(args) -> int:
+    from ..dataset import build_ict_dataset
+
+    out = Path(args.out_dir)
+    _guard(args, [args.model], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
+    s = build_ict_dataset(out, args.count, _dataset_opts(args), seed=args.seed, model=args.model, mix_share=args.mix_share,
+                          heldout_share=args.heldout_share, workers=args.workers, scheduler=args.scheduler,
+                          retry_failed=args.retry_failed, rebuild=args.force)
+    return _dataset_report(args, out, s)

@@ -1,0 +1,251 @@
+"""``geoface inspect | repair | param | convert | reconstruct | view``."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import GeofaceError
+from .._args import json_to_stdout, write_json
+
+from ._common import _guard, _mesh_outputs
+
+# --------------------------------------------------------------------------- inspect
+def cmd_inspect(args) -> int:
+    from ..mesh.io import load_mesh
+    from ..mesh.topology import topology_report
+
+    _guard(args, [args.file], [args.json])
+    mesh = load_mesh(args.file)
+    rep = topology_report(mesh.V, mesh.F)
+    attrs = {
+        "uv": mesh.UV is not None,
+        "vertex_colors": mesh.colors is not None,
+        "texture": None if mesh.texture is None else list(mesh.texture.shape),
+    }
+    write_json(args, {"file": str(args.file), **rep.to_dict(), "attributes": attrs})
+    if not json_to_stdout(args):
+        print(f"{args.file}")
+        print(rep.format())
+        tex = "none" if attrs["texture"] is None else "x".join(map(str, attrs["texture"]))
+        print(f"attributes          uv={attrs['uv']}, vertex colours={attrs['vertex_colors']}, texture={tex}")
+    return 0
+
+
+# --------------------------------------------------------------------------- repair
+def cmd_repair(args) -> int:
+    from ..mesh.io import load_mesh, save_mesh
+    from ..progress import log
+    from ..repair import RepairOptions, make_disk
+
+    _guard(args, [args.input], [*_mesh_outputs(args.output), args.json])
+    mesh = load_mesh(args.input)
+    opts = RepairOptions(
+        open=args.open,
+        up=args.up,
+        open_height=args.height,
+        cap_area=args.cap_area,
+        target_vertices=args.target_vertices,
+        min_component_area=args.min_component_area,
+    )
+    log(f"repairing {args.input}: {len(mesh.V)} vertices, {len(mesh.F)} faces")
+    res = make_disk(mesh.V, mesh.F, opts)
+    out = mesh.with_geometry(res.V, res.F, res.vertex_map, res.face_map)
+    save_mesh(args.output, out, overwrite=args.force)
+    write_json(args, {"input": str(args.input), "output": str(args.output), **res.to_dict()})
+    if not json_to_stdout(args):
+        print(f"{args.input} -> {args.output}")
+        print(res.summary())
+        print(res.report.format())
+    return 0
+
+
+# --------------------------------------------------------------------------- param
+def _parse_corners(text: str | None):
+    if not text:
+        return None
+    try:
+        c = [int(x) for x in text.split(",")]
+    except ValueError:
+        raise GeofaceError(f"--corners must be four vertex indices like 12,40,77,103; got {text!r}") from None
+    if len(c) != 4:
+        raise GeofaceError(f"--corners needs exactly four vertex indices; got {len(c)}")
+    return c
+
+
+def cmd_param(args) -> int:
+
+    from ..mesh.io import Mesh, load_mesh, save_mesh
+    from ..mesh.topology import topology_report
+    from ..param import baselines, corners as corner_mod, metrics
+    from ..param.ricci import RicciFlowSolver, to_unit_square
+    from ..progress import log
+
+    _guard(args, [args.input], [*_mesh_outputs(args.output), args.json])
+    mesh = load_mesh(args.input)
+    V, F = mesh.V, mesh.F
+    if args.repair:
+        from ..repair import make_disk
+
+        res = make_disk(V, F, up=args.up)
+        mesh = mesh.with_geometry(res.V, res.F, res.vertex_map, res.face_map)
+        V, F = mesh.V, mesh.F
+    rep = topology_report(V, F)
+    if not rep.is_disk:
+        raise GeofaceError(f"{args.input} is not a topological disk ({rep.components} components, {rep.boundary_loops} boundary loops, genus {rep.genus}); run `geoface repair` first or pass --repair")
+    corners = _parse_corners(args.corners)
+    if corners is None and args.corner_set is not None:
+        sets = corner_mod.corner_sets(V, F, n=8)
+        if not 0 <= args.corner_set < len(sets):
+            raise GeofaceError(f"--corner-set must be in 0..{len(sets) - 1}; got {args.corner_set}")
+        corners = sets[args.corner_set]
+    if corners is None:
+        corners = corner_mod.default_corners(V, F)
+    info = {"input": str(args.input), "output": str(args.output), "method": args.method, "vertices": int(len(V)), "faces": int(len(F))}
+    log(f"param: {args.method} on {len(V)} vertices")
+    if args.method == "ricci":
+        solver = RicciFlowSolver(V, F, tolerance=args.tolerance)
+        r = solver.solve(corners)
+        if not r.converged:
+            raise GeofaceError(f"Ricci flow did not converge (max |K - target| = {r.residual:.3g} after {r.iterations} iterations)")
+        colors = mesh.colors
+        if len(r.V) > len(V):  # boundary edges split by the flow
+            from ..pipeline import _extend_split
+
+            V, _, colors = _extend_split(r.V, r.split_edges, len(V), None, colors)
+            mesh = Mesh(V, r.mesh_F, colors=colors)
+        F = r.F
+        uv = to_unit_square(r.uv, r.width, r.height, args.fit)
+        info.update(iterations=r.iterations, residual=r.residual, seconds=r.seconds, aspect=r.aspect, fit=args.fit,
+                    corners=[int(c) for c in r.corners],
+                    ears_flipped=r.ears_flipped, intrinsic_flips=r.intrinsic_flips, split_boundary_edges=int(len(r.split_edges)))
+        # the conformal map itself (projective per triangle / per piece after intrinsic flips)
+        info["conformal_map_distortion"] = metrics.map_distortion(r.V, r.mesh_F, r.map_points, level=2).summary()
+    elif args.method == "harmonic":
+        uv, t = baselines.timed(baselines.harmonic_rectangle, V, F, corners)
+        info.update(seconds=t, corners=[int(c) for c in corners])
+    else:
+        uv, t = baselines.timed(baselines.lscm, V, F)
+        lo, hi = uv.min(0), uv.max(0)
+        uv = (uv - lo) / (hi - lo).max()
+        info.update(seconds=t)
+    d = metrics.distortion(V, F, uv).summary()
+    info["distortion"] = d
+    out = Mesh(V, F, UV=uv, FUV=F, colors=mesh.colors, texture=None)
+    save_mesh(args.output, out, overwrite=args.force)
+    write_json(args, info)
+    if json_to_stdout(args):
+        return 0
+    print(f"{args.input} -> {args.output}  ({args.method}, {info['seconds']:.2f} s)")
+    print(
+        f"  quasi-conformal ratio: mean {d['qc_mean']:.4f}, p95 {d['qc_p95']:.4f}, max {d['qc_max']:.3g}; "
+        f"|log area ratio| mean {d['log_area_abs_mean']:.3f}; flipped triangles {d['flipped']}"
+    )
+    if args.method == "ricci":
+        print(f"  Newton iterations {info['iterations']}, max |K - target| {info['residual']:.2e}, rectangle aspect {info['aspect']:.4f}")
+        c = info["conformal_map_distortion"]
+        extra = f"; {r.intrinsic_flips} intrinsic flips, {len(r.split_edges)} boundary edges split" if r.intrinsic_flips else ""
+        print(f"  conformal map (sampled): quasi-conformal mean {c['qc_mean']:.4f}, p95 {c['qc_p95']:.4f}; folded triangles {c['flipped']}{extra}")
+    return 0
+
+
+# --------------------------------------------------------------------------- convert / reconstruct
+def cmd_convert(args) -> int:
+    from ..mesh.io import load_mesh
+    from ..pipeline import ConvertOptions, convert, load_roi
+
+    out = Path(args.out_dir)
+    inp = Path(args.input)
+    roi_file = None if args.roi in ("face", "none") else args.roi
+    _guard(args, [inp, roi_file], [out])
+    mesh = load_mesh(inp)
+    roi = args.roi
+    if roi not in ("face", "none"):
+        roi = load_roi(roi, len(mesh.V))
+    opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, augment=args.augment, method=args.method,
+                          ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
+                          corner_set=args.corner_set)
+    m = convert(mesh, out, opts, overwrite=args.force)
+    print(f"{args.input} -> {out}/  ({len(m['sets'])} image set(s) at {args.res}x{args.res}, {m['seconds']['total']:.1f} s)")
+    for st in m["sets"]:
+        d = st["distortion"]
+        line = f"  set {st['corner_set']}: |log area| mean {d['log_area_abs_mean']:.3f}, QC mean {d['qc_mean']:.2f}, flipped {d['flipped']}"
+        if "roi_pixel_share" in st:
+            line += f", ROI pixels {100 * st['roi_pixel_share']:.1f}%"
+        if "reconstruction" in st:
+            line += f", Hausdorff {100 * st['reconstruction']['hausdorff']:.3f}% of the diagonal"
+        print(line)
+        if "ot" in st:
+            ot = st["ot"]
+            how = ("OT centroids as they are (no fold)" if ot["path"] == "ot" else
+                   f"OT centroids, {ot['flipped_before']} folded triangles replaced by the fold-free step "
+                   f"({ot['fitted_vertices']} vertices re-fitted, mean |log cell-area error| "
+                   f"{ot['area_error_before']:.3f} -> {ot['area_error_after']:.3f})")
+            print(f"    map: {how}; {ot['iterations']} Newton steps, {ot['power_diagrams']} power diagrams")
+    for f in m.get("failed_sets", []):
+        print(f"  set {f['corner_set']}: FAILED and skipped: {f['error']}")
+    return 0
+
+
+def cmd_reconstruct(args) -> int:
+    from ..gimage import load_gimage, reconstruct, save_reconstruction
+
+    _guard(args, [args.dir], _mesh_outputs(args.output))
+    gi = load_gimage(args.dir)
+    mesh = reconstruct(gi, smooth=args.smooth)
+    save_reconstruction(args.output, mesh, gi, overwrite=args.force)
+    print(f"{args.dir} -> {args.output}: {len(mesh.V)} vertices, {len(mesh.F)} faces")
+    return 0
+
+
+# --------------------------------------------------------------------------- view
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().replace("x", ",").split(","))
+    except ValueError:
+        raise GeofaceError(f"--size must look like 1024,768; got {text!r}") from None
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        raise GeofaceError(f"--size must be between 16 and 8192 pixels per side; got {text!r}")
+    return w, h
+
+
+def cmd_view(args) -> int:
+    from .. import viz
+
+    size = _parse_size(args.size)
+    shot = args.screenshot
+    if shot is None and not viz.has_display():
+        raise GeofaceError("no display to open a window on; pass --screenshot OUT.png to render off-screen")
+    if shot is not None:
+        _guard(args, [args.file], [shot])
+    path = Path(args.file)
+    if path.is_dir() and not (path / "meta.json").exists() and (path / "aug0" / "meta.json").exists():
+        path = path / "aug0"  # `geoface convert --augment K` writes one image set per corner set
+    if path.is_dir():
+        from ..gimage import load_gimage
+
+        gi = load_gimage(path)
+        if args.uv_distortion:
+            raise GeofaceError("--uv-distortion needs a mesh with UVs; a geometry-image folder has none to measure")
+        what = f"geometry image {gi.resolution}x{gi.resolution}: position | normal | texture | mask | surface"
+        if shot is None:  # interactive: the surface the images encode, textured
+            from ..gimage import reconstruct
+
+            viz.plot_mesh(reconstruct(gi), window_size=size)
+        else:
+            img = viz.gimage_montage(gi, surface=True, screenshot=shot, tile=size[1])
+            size = (img.shape[1], img.shape[0])
+    else:
+        from ..mesh.io import load_mesh
+
+        mesh = load_mesh(path)
+        if args.uv_distortion:
+            if mesh.UV is None:
+                raise GeofaceError(f"{args.file} has no UVs; --uv-distortion needs a parameterized mesh (see `geoface param`)")
+            V2, F2, uv2, _ = viz.split_corner_uvs(mesh.V, mesh.F, mesh.UV, mesh.FUV)  # seams: one vertex per UV
+            viz.plot_uv_distortion(V2, F2, uv2, metric=args.metric, screenshot=shot, window_size=size)
+            what = f"UV {args.metric} distortion"
+        else:
+            viz.plot_mesh(mesh, screenshot=shot, window_size=size)
+            what = "textured mesh" if mesh.texture is not None and mesh.UV is not None else "mesh"
+    if shot is not None:
+        print(f"{args.file} -> {shot}  ({what}, {size[0]}x{size[1]})")
+    return 0
