@@ -310,9 +310,12 @@ def run(a) -> int:
         grid.append(np.concatenate([rs[:cols, 0], real_one[None]], 0))
         if len(a.views) > 1:
             grid2.append(np.concatenate([rs[:cols, 1], real_r[ref_idx[0], 1][None] if len(ref_idx) else rs[:1, 1] * 0], 0))
-    cv2.imwrite(str(a.out / "samples_grid.png"), grid_image(np.stack(grid)))
+    rows_l = [PRESET_PROMPTS[c] for c in classes]
+    cols_l = ["samples"] + [""] * (min(a.grid_columns, n) - 1) + ["real"]
+    cv2.imwrite(str(a.out / "samples_grid.png"), grid_image(np.stack(grid), row_labels=rows_l, col_labels=cols_l))
     if len(a.views) > 1:
-        cv2.imwrite(str(a.out / f"samples_grid_{a.views[1]}.png"), grid_image(np.stack(grid2)))
+        cv2.imwrite(str(a.out / f"samples_grid_{a.views[1]}.png"),
+                    grid_image(np.stack(grid2), row_labels=rows_l, col_labels=cols_l))
     allv = [r["valid_rate"] for r in summary]
     emit(case="summary", res=cfg.res, prompts=len(summary), samples=sum(r["n"] for r in summary),
          valid_rate=float(np.mean(allv)), valid_rate_real=float(np.mean([v.valid for v in real_v])),

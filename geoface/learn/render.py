@@ -127,12 +127,31 @@ def similarity_align(P: np.ndarray, Q: np.ndarray, mask=None) -> np.ndarray:
     return (P - mu_a) @ (s * R).T + mu_b
 
 
-def grid_image(tiles: np.ndarray, *, gap: int = 2) -> np.ndarray:
-    """``tiles (rows, cols, H, W)`` grey in [0, 1] → one ``uint8`` image with ``gap``-pixel white lines."""
+def grid_image(tiles: np.ndarray, *, gap: int = 2, row_labels=None, col_labels=None) -> np.ndarray:
+    """``tiles (rows, cols, H, W)`` grey in [0, 1] → one ``uint8`` image with ``gap``-pixel white
+    lines; ``row_labels`` (one per row) are written in a band on the left, ``col_labels`` (one per
+    column, ``""`` for none) above the columns."""
+    import cv2
+
     t = np.asarray(tiles, np.float32)
     r, c, h, w = t.shape
-    out = np.ones((r * (h + gap) + gap, c * (w + gap) + gap), np.float32)
+    if row_labels is not None and len(row_labels) != r:
+        raise ValueError(f"row_labels: {len(row_labels)} for {r} rows")
+    if col_labels is not None and len(col_labels) != c:
+        raise ValueError(f"col_labels: {len(col_labels)} for {c} columns")
+    font, scale, thick = cv2.FONT_HERSHEY_SIMPLEX, max(0.3, h / 160), 1
+    text_w = lambda s: cv2.getTextSize(s, font, scale, thick)[0][0]  # noqa: E731
+    left = (max(text_w(s) for s in row_labels) + 3 * gap) if row_labels is not None else 0
+    top = (cv2.getTextSize("Ag", font, scale, thick)[0][1] + 4 * gap) if col_labels is not None else 0
+    out = np.ones((top + r * (h + gap) + gap, left + c * (w + gap) + gap), np.float32)
     for i in range(r):
         for j in range(c):
-            out[gap + i * (h + gap): gap + i * (h + gap) + h, gap + j * (w + gap): gap + j * (w + gap) + w] = t[i, j]
-    return np.round(np.clip(out, 0, 1) * 255).astype(np.uint8)
+            y, x = top + gap + i * (h + gap), left + gap + j * (w + gap)
+            out[y: y + h, x: x + w] = t[i, j]
+    img = np.round(np.clip(out, 0, 1) * 255).astype(np.uint8)
+    for i, s in enumerate(row_labels or []):
+        y = top + gap + i * (h + gap) + h // 2 + 4
+        cv2.putText(img, str(s), (gap, y), font, scale, 0, thick, cv2.LINE_AA)
+    for j, s in enumerate(col_labels or []):
+        cv2.putText(img, str(s), (left + gap + j * (w + gap) + 2, top - 2 * gap), font, scale, 0, thick, cv2.LINE_AA)
+    return img

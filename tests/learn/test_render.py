@@ -58,3 +58,15 @@ def test_similarity_align_and_grid():
     assert np.allclose(similarity_align(Pn, Q, m)[10:], Q[10:], atol=1e-9)
     g = grid_image(np.ones((2, 3, 4, 5)) * 0.5, gap=1)
     assert g.shape == (2 * 5 + 1, 3 * 6 + 1) and g.dtype == np.uint8 and g[1, 1] == 128 and g[0, 0] == 255
+
+
+def test_grid_labels_take_a_band_and_must_match():
+    t = np.full((2, 3, 32, 32), 0.5)
+    plain = grid_image(t)
+    lab = grid_image(t, row_labels=["smiling", "pouting"], col_labels=["samples", "", "real"])
+    assert lab.shape[0] > plain.shape[0] and lab.shape[1] > plain.shape[1]
+    band = lab[:, : lab.shape[1] - plain.shape[1]]
+    assert band.min() < 128  # text was written in the left band
+    assert np.all(lab[-plain.shape[0] + 2:, -plain.shape[1] + 2:][:32, :32] == 128)  # the first tile itself is intact
+    with pytest.raises(ValueError, match="row_labels"):
+        grid_image(t, row_labels=["one"])
