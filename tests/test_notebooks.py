@@ -44,10 +44,11 @@ def _set_parameters(nb, values: dict) -> None:
     cell.source = src
 
 
-def test_notebook_stored_without_outputs():
-    nb = nbformat.read(NOTEBOOKS / "01_mesh_to_geometry_image.ipynb", as_version=4)
+@pytest.mark.parametrize("name", ["01_mesh_to_geometry_image.ipynb", "02_real_head.ipynb"])
+def test_notebook_stored_without_outputs(name):
+    nb = nbformat.read(NOTEBOOKS / name, as_version=4)
     assert all(not c.get("outputs") and c.get("execution_count") is None for c in nb.cells if c.cell_type == "code")
-    assert (NOTEBOOKS / "01_mesh_to_geometry_image.ipynb").stat().st_size < 50_000
+    assert (NOTEBOOKS / name).stat().st_size < 50_000
 
 
 def test_mesh_to_geometry_image_notebook_runs(this_python_kernel, tmp_path):
@@ -64,3 +65,17 @@ def test_mesh_to_geometry_image_notebook_runs(this_python_kernel, tmp_path):
     text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
     assert f"KERNEL-PYTHON {sys.executable}" in text  # ran in this interpreter, not some other "python3"
     assert "is disk: True" in text and "Hausdorff" in text
+
+
+def test_real_head_notebook_runs(this_python_kernel, tmp_path):
+    nb = nbformat.read(NOTEBOOKS / "02_real_head.ipynb", as_version=4)
+    _set_parameters(nb, {"RES": "32", "WINDOW": "(200, 200)"})
+    client = nbclient.NotebookClient(nb, kernel_name=this_python_kernel, timeout=300,
+                                     resources={"metadata": {"path": str(tmp_path)}})
+    client.execute()
+    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
+    assert not [o for o in outputs if o.output_type == "error"]
+    images = [o for o in outputs if o.output_type in ("display_data", "execute_result") and "image/png" in o.get("data", {})]
+    assert len(images) >= 4  # the head, position and normal, the rebuilt mesh, three expressions
+    text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
+    assert "100 identity modes, 53 expressions" in text and "flipped triangles 0" in text and "rebuilt from the images" in text
