@@ -46,7 +46,7 @@ import torch
 from geoface.errors import GeofaceError
 
 __all__ = ["GImageDataset", "AugmentOptions", "Normalization", "ShardSampler", "Item", "find_items", "area_resize",
-           "rigid_augment", "CHANNELS"]
+           "rigid_augment", "unit_normals", "CHANNELS"]
 
 CHANNELS = ("position", "normal", "texture")
 
@@ -171,6 +171,18 @@ def area_resize(image: np.ndarray, mask: np.ndarray, res: int) -> tuple[np.ndarr
     return out, cnt > 0
 
 
+def unit_normals(n: np.ndarray, full: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Block-averaged normals ``n (3, r, r)`` back to unit length.  Where a block's normals cancel
+    (a thin fold seen from both sides) the normal of the block's first pixel in ``full (3, N, N)``
+    stands in.  Uncovered pixels stay 0."""
+    r = n.shape[-1]
+    k = full.shape[-1] // r
+    norm = np.linalg.norm(n, axis=0)
+    corner = full[:, ::k, ::k]
+    out = np.where(norm > 1e-3, n / np.maximum(norm, 1e-12), corner / np.maximum(np.linalg.norm(corner, axis=0), 1e-12))
+    return (out * mask[None]).astype(np.float32)
+
+
 def rigid_augment(x: torch.Tensor, mask: torch.Tensor, gen: torch.Generator,
                   opts: AugmentOptions = AugmentOptions()) -> torch.Tensor:
     """Rotate/scale/shift positions (channels 0-2) and rotate normals (3-5) of ``x [C, R, R]``."""
@@ -283,8 +295,12 @@ class GImageDataset(torch.utils.data.Dataset):
         off = ((lo - np.asarray(nz.center)) / nz.scale)[:, None, None]
         img[0:3] = (img[0:3] * 2 * scale + off).astype(np.float32)
         img[3:] = img[3:] * 2.0 - 1.0
-        if self.res is not None:
+        if self.res is not None and self.res != img.shape[-1]:
+            full = img
             img, mask = area_resize(img, mask, int(self.res))
+            if "normal" in self.modalities:  # a block's mean normal is shorter than 1 where it bends
+                k = 3 * list(self.modalities).index("normal")
+                img[k:k + 3] = unit_normals(img[k:k + 3], full[k:k + 3], mask)
         return img * mask[None], mask
 
     def _load(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
