@@ -157,3 +157,41 @@ def test_training_uses_the_dataset_frame_and_decodes_samples_in_it(tmp_path):
     gi = to_geometry_images(x, st)[0]
     P = gi.positions().reshape(-1, 3)
     assert np.allclose(np.linalg.norm(P - [0, 0, 5.0], axis=1), 4.0, rtol=5e-3)
+
+
+def test_downsampled_normals_are_unit_where_the_surface_folds(tmp_path):
+    """A tent (two planes meeting at a 140° fold): each 2×2 block straddling the ridge averages two
+    normals 140° apart, whose mean is 0.34 long — below the |n| > 0.5 coverage rule.  Downsampled
+    items keep unit normals pointing between the two, and every pixel stays covered."""
+    from geoface.gimage import GeometryImage, save_gimage
+    from geoface.learn.data import unit_normals
+
+    N = 16
+    x = (np.arange(N) + 0.5) / N
+    X, Y = np.meshgrid(x, x)
+    a = np.radians(70.0)
+    c = 9 / N  # the ridge between pixels 8 and 9: the 2x2 block of pixels 8-9 straddles it
+    Z = np.abs(X - c) / np.tan(np.pi / 2 - a)
+    side = np.where(X < c, -1.0, 1.0)
+    Nrm = np.stack([side * np.sin(a) * np.ones_like(X), np.zeros_like(X), np.cos(a) * np.ones_like(X)])
+    P = np.stack([X, Y, Z])
+    lo, hi = P.reshape(3, -1).min(1), P.reshape(3, -1).max(1)
+    img = np.concatenate([(P - lo[:, None, None]) / (hi - lo)[:, None, None], (Nrm + 1) / 2]).astype(np.float32)
+    meta = {"bbox_min": lo.tolist(), "bbox_max": hi.tolist(), "channels": ["px", "py", "pz", "nx", "ny", "nz"],
+            "resolution": N, "version": 2, "align_corners": True}
+    save_gimage(tmp_path / "tent" / "aug0", GeometryImage(img, np.ones((N, N), bool), meta))
+    ds = GImageDataset(tmp_path, res=8, cache_mb=0)
+    it = ds[0]
+    n = it["image"][3:6].numpy()
+    assert np.allclose(np.linalg.norm(n, axis=0), 1.0, atol=1e-5) and it["mask"].min() == 1
+    assert np.allclose(n[:, :, 4].T, [0.0, 0.0, 1.0], atol=1e-4)  # the ridge block: straight up, unit
+    assert np.allclose(n[0, :, 3], -np.sin(a), atol=1e-4) and np.allclose(n[0, :, 5], np.sin(a), atol=1e-4)
+    # unit_normals itself, on 3-wide blocks: short means come back unit, between the two sides
+    full = Nrm[:, :15, 1:16].astype(np.float32)  # columns 7-9 in one block: two left of the ridge, one right
+    mean = full.reshape(3, 5, 3, 5, 3).mean(axis=(2, 4))
+    assert np.linalg.norm(mean, axis=0).min() < 0.5
+    u = unit_normals(mean, full, np.ones((5, 5), bool))
+    assert np.allclose(np.linalg.norm(u, axis=0), 1.0, atol=1e-6)
+    assert np.all(u[2] >= np.cos(a) - 1e-6)  # never further from +z than the planes themselves
+    cancel = unit_normals(np.zeros((3, 1, 1), np.float32), full[:, :1, :1], np.ones((1, 1), bool))
+    assert np.allclose(cancel[:, 0, 0], full[:, 0, 0])  # normals that cancel: the block's first pixel stands in
