@@ -110,12 +110,11 @@ class StepProgress:
 
     def line(self) -> str:
         r = self.rate
+        post = "".join(f", {k} {v:.4g}" if isinstance(v, float) else f", {k} {v}" for k, v in self.postfix.items())
         if not self.total:  # an iterable of unknown length: count and rate only
-            post = "".join(f", {k} {v:.4g}" if isinstance(v, float) else f", {k} {v}" for k, v in self.postfix.items())
             return f"{self.description}: {self.n} {self.unit}, {r:.3g} {self.unit}/s{post}"
         eta = (self.total - self.n) / r if r > 0 else float("nan")
-        pct = 100.0 * self.n / self.total if self.total else 100.0
-        post = "".join(f", {k} {v:.4g}" if isinstance(v, float) else f", {k} {v}" for k, v in self.postfix.items())
+        pct = 100.0 * self.n / self.total
         eta_s = _clock(eta) if eta == eta else "?"
         return f"{self.description}: {self.unit[:-1] if self.unit.endswith('s') else self.unit} {self.n}/{self.total} ({pct:.0f}%), {r:.3g} {self.unit}/s, ETA {eta_s}{post}"
 
