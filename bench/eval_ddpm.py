@@ -150,6 +150,8 @@ def main() -> int:
     ap.add_argument("--res", type=int, default=64, help="training resolution (divides the dataset's)")
     ap.add_argument("--run", type=Path, help="existing trained run; default: train one")
     ap.add_argument("--run-dir", type=Path, help="where a run trained here is written (default OUT/run)")
+    ap.add_argument("--resume", action="store_true",
+                    help="continue the run in --run-dir (or OUT/run) for --minutes more, then evaluate it")
     ap.add_argument("--minutes", type=float, default=60.0, help="training budget (wall clock)")
     ap.add_argument("--steps", type=int, default=1_000_000, help="training step cap")
     ap.add_argument("--model", default="small", help="DDPM preset (small, base, tiny)")
@@ -215,9 +217,16 @@ def run(a) -> int:
         cfg = DDPMConfig.preset(a.model, res=a.res, text_encoder=a.text, batch_size=a.batch, steps=a.steps,
                                 checkpoint_every=200, seed=a.seed, augment=bool(a.augment))
         run_dir = a.run_dir or (a.out / "run" if not a.quick else work / "run")
+        before = {}
+        if a.resume:
+            if not (run_dir / "checkpoint" / "state.json").is_file():
+                raise GeofaceError(f"--resume: no checkpoint in {run_dir}")
+            if (run_dir / "train_info.json").is_file():
+                before = json.loads((run_dir / "train_info.json").read_text(encoding="utf-8"))
         t = time.perf_counter()
-        last = train(train_dir, run_dir, cfg, device=a.device, quiet=True, max_seconds=60 * a.minutes)
-        info = {"steps": last["step"], "seconds": time.perf_counter() - t, "steps_per_second": last["steps_per_second"],
+        last = train(train_dir, run_dir, cfg, device=a.device, quiet=True, max_seconds=60 * a.minutes, resume=a.resume)
+        info = {"steps": last["step"], "seconds": time.perf_counter() - t + float(before.get("seconds", 0.0)),
+                "steps_per_second": last["steps_per_second"],
                 "threads": torch.get_num_threads(), "device": a.device, "batch": a.batch, "final_loss": last["loss"],
                 "losses": last["losses"], "model": a.model, "augment": bool(a.augment), "text_encoder": cfg.text_encoder,
                 "train_items": len(tr)}
