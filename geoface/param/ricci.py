@@ -276,9 +276,12 @@ class RicciFlowSolver:
         if self.flips == "always":
             tri = IntrinsicTriangulation(self.F, self.l0)
         # in "auto" mode a fixed triangulation that has not converged after 30 Newton
-        # iterations (they converge in ~5 when a solution exists) is given up for flips
-        cap = min(self.max_iterations, 30) if self.flips == "auto" else self.max_iterations
-        u, ang, F, it, res, history, converged = self._newton(corners, theta, u, tri, quiet, cap)
+        # iterations (they converge in ~5 when a solution exists), or whose line search has
+        # stalled (3 iterations in a row with steps <= 1/16: degenerate triangles block
+        # every full step), is given up for flips
+        auto = self.flips == "auto"
+        cap = min(self.max_iterations, 30) if auto else self.max_iterations
+        u, ang, F, it, res, history, converged = self._newton(corners, theta, u, tri, quiet, cap, stall=3 if auto else 0)
         if self.flips == "auto" and (not converged or _n_degenerate(ang) > 0):
             log(f"ricci: fixed triangulation failed (residual {res:.2e}); retrying with intrinsic Delaunay flips", quiet=quiet)
             tri = IntrinsicTriangulation(self.F, self.l0)
@@ -323,8 +326,12 @@ class RicciFlowSolver:
             mesh_F=self.F.copy(), tracker=None if tri is None or tri.flips == 0 else FlipTracker.from_triangulation(tri),
         )
 
-    def _newton(self, corners, theta, u, tri, quiet, max_iterations):
-        """Damped Newton on E; with ``tri`` the triangulation is kept Delaunay (Ptolemy flips)."""
+    def _newton(self, corners, theta, u, tri, quiet, max_iterations, stall: int = 0):
+        """Damped Newton on E; with ``tri`` the triangulation is kept Delaunay (Ptolemy flips).
+
+        ``stall`` > 0: stop (unconverged) after that many iterations in a row whose step was
+        at most 1/16 — a damped Newton that converges takes full steps within a few iterations."""
+        short = 0
         gauge = int(corners[0])
         u = u - u[gauge]
         free = np.ones(self.n, bool)
@@ -379,6 +386,10 @@ class RicciFlowSolver:
             log(f"ricci: iteration {it}: max |K - target| = {res:.3e}, step {t:g}", quiet=quiet)
             converged = res <= self.tolerance
             if t < 1e-12:
+                break
+            short = short + 1 if t <= 1 / 16 else 0
+            if stall and short >= stall and not converged:
+                log(f"ricci: line search stalled ({short} steps <= 1/16 in a row)", quiet=quiet)
                 break
         return u, ang, F, it, res, history, converged
 

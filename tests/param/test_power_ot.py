@@ -16,10 +16,11 @@ def brute_force_cells(P, w, res=700):
     """Areas and centroids by assigning a fine grid of sample points to the lowest power."""
     g = (np.arange(res) + 0.5) / res
     S = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
-    own = np.empty(len(S), np.int64)
-    for i in range(0, len(S), 50_000):
-        s = S[i:i + 50_000]
-        own[i:i + 50_000] = np.argmin(((s[:, None, :] - P[None]) ** 2).sum(-1) - w[None], 1)
+    # lowest power |s - p|^2 - w = nearest site after lifting p to (p, sqrt(max w - w)) and
+    # s to (s, 0): an exact k-d tree query instead of a dense argmin
+    from scipy.spatial import cKDTree
+    lift = np.sqrt(np.max(w) - w)
+    _, own = cKDTree(np.column_stack([P, lift])).query(np.column_stack([S, np.zeros(len(S))]))
     cnt = np.bincount(own, minlength=len(P))
     cx = np.bincount(own, S[:, 0], len(P)) / np.maximum(cnt, 1)
     cy = np.bincount(own, S[:, 1], len(P)) / np.maximum(cnt, 1)

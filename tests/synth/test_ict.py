@@ -212,7 +212,9 @@ def test_broken_clone_files_are_one_line_errors(tiny_clone):
 @pytest.mark.parametrize("seed", range(20))
 def test_sampled_heads_repair_to_a_disk_and_convert(seed, tmp_path):
     """20 heads of random identities and random expressions: make_disk gives a disk, and the
-    full pipeline (Ricci flow, OT with the face mask magnified) converts it fold-free."""
+    full pipeline (Ricci flow, OT with the face mask magnified) converts it fold-free.  Every
+    head is repaired; one in four (seeds 0, 4, …, 16, still five different identities and
+    expression mixes) also goes through the whole converter, which keeps the suite's time."""
     from geoface.mesh.topology import topology_report
     from geoface.pipeline import ConvertOptions, convert
     from geoface.repair import make_disk
@@ -224,6 +226,8 @@ def test_sampled_heads_repair_to_a_disk_and_convert(seed, tmp_path):
     disk = make_disk(h.V, h.F)
     rep = topology_report(disk.V, disk.F)
     assert rep.components == 1 and rep.boundary_loops == 1 and rep.genus == 0 and rep.nonmanifold_edges == 0
+    if seed % 4:
+        return
     out = convert(h.mesh(), tmp_path / "g", ConvertOptions(res=32, roi=h.face_mask, preview=False, reconstruct=False), quiet=True)
     st = out["sets"][0]
     assert st["distortion"]["flipped"] == 0 and st["coverage"] == 1.0 and st["ot"]["path"].startswith("ot")

@@ -89,12 +89,12 @@ def test_dataset_ict_builds_resumes_and_records_labels(tmp_path):
     from geoface.cli import main
 
     out = tmp_path / "ict"
-    args = ["dataset", "ict", str(out), "--count", "3", "--res", "16", "--augment", "1", "--workers", "1", "-q"]
+    args = ["dataset", "ict", str(out), "--count", "2", "--res", "16", "--augment", "1", "--workers", "1", "-q"]
     assert main(args) == 0
     rows = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
-    assert len(rows) == 3 and all(r["status"] == "ok" for r in rows)
+    assert len(rows) == 2 and all(r["status"] == "ok" for r in rows)
     heads = [json.loads(x) for x in (out / "heads.jsonl").read_text().splitlines()]
-    assert [h["name"] for h in heads] == ["ict_0000", "ict_0001", "ict_0002"]
+    assert [h["name"] for h in heads] == ["ict_0000", "ict_0001"]
     for r in rows:
         lab = r["labels"]
         assert r["prompt"] == lab["prompt"] and lab["split"] in ("train", "heldout") and lab["expression_name"]
@@ -104,7 +104,7 @@ def test_dataset_ict_builds_resumes_and_records_labels(tmp_path):
         assert r["metrics"]["roi_vertices"] == 9409  # the model's face area is the ROI
     before = (out / "manifest.jsonl").read_text()
     assert main(args) == 0 and (out / "manifest.jsonl").read_text() == before  # resumed: nothing to do
-    assert main([*args[:4], "4", *args[5:]]) == 2  # another source (count) is refused ...
-    assert main([*args[:4], "4", *args[5:], "--force"]) == 0  # ... unless rebuilt
+    assert main([*args[:4], "3", *args[5:]]) == 2  # another source (count) is refused ...
+    assert main([*args[:4], "3", *args[5:], "--force"]) == 0  # ... unless rebuilt
     rows = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
-    assert len({r["item"] for r in rows}) == 4
+    assert len({r["item"] for r in rows}) == 3
