@@ -157,6 +157,8 @@ def main() -> int:
     ap.add_argument("--model", default="small", help="DDPM preset (small, base, tiny)")
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--augment", action="store_true", help="train with rigid augmentation")
+    ap.add_argument("--no-standardize", action="store_true",
+                    help="ablation: denoise the raw dataset-frame channels (the paper's set-up) instead of standardised ones")
     ap.add_argument("--text", default="minilm", help="text encoder: minilm | clip:PATH | hash[:DIM]")
     ap.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads for training")
@@ -215,7 +217,8 @@ def run(a) -> int:
     if a.run is None:
         train_dir = write_split(a.data, rows, tr, work / "train_data")
         cfg = DDPMConfig.preset(a.model, res=a.res, text_encoder=a.text, batch_size=a.batch, steps=a.steps,
-                                checkpoint_every=200, seed=a.seed, augment=bool(a.augment))
+                                checkpoint_every=200, seed=a.seed, augment=bool(a.augment),
+                                standardize=not a.no_standardize)
         run_dir = a.run_dir or (a.out / "run" if not a.quick else work / "run")
         before = {}
         if a.resume:
@@ -229,6 +232,7 @@ def run(a) -> int:
                 "steps_per_second": last["steps_per_second"],
                 "threads": torch.get_num_threads(), "device": a.device, "batch": a.batch, "final_loss": last["loss"],
                 "losses": last["losses"], "model": a.model, "augment": bool(a.augment), "text_encoder": cfg.text_encoder,
+                "standardize": cfg.standardize,
                 "train_items": len(tr)}
         (run_dir / "train_info.json").write_text(json.dumps(info), encoding="utf-8")
         emit(case="train", **info)

@@ -38,7 +38,8 @@ def cmd_ddpm_train(args) -> int:
     if args.res < 8 or args.steps < 1 or args.batch < 1:
         raise GeofaceError("--res must be >= 8, --steps and --batch >= 1")
     kw = dict(res=args.res, steps=args.steps, batch_size=args.batch, text_encoder=args.text_encoder, seed=args.seed,
-              checkpoint_every=args.checkpoint_every, augment=not args.no_augment)
+              checkpoint_every=args.checkpoint_every, augment=not args.no_augment,
+              standardize=not args.no_standardize)
     if args.lr is not None:
         kw["lr"] = args.lr
     cfg = DDPMConfig.preset("tiny" if args.tiny else args.model, **kw)
@@ -106,7 +107,10 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--checkpoint-every", type=number(int, 1, 100_000_000), default=500)
     t.add_argument("--seed", type=SEED, default=0)
     t.add_argument("--device", default=None, help="cpu | cuda (default: cuda when available)")
-    t.add_argument("--no-augment", action="store_true")
+    t.add_argument("--no-augment", action="store_true", help="no random rigid motions of the training heads")
+    t.add_argument("--no-standardize", action="store_true",
+                   help="denoise the raw dataset-frame channels (the paper's set-up) instead of per-pixel "
+                        "standardised ones; samples are then rarely valid meshes")
     t.add_argument("--tiny", action="store_true", help="the same as --model tiny")
     t.add_argument("--gradient-checkpointing", action="store_true",
                    help="recompute activations in the backward pass: less memory, about a third more time per step")

@@ -28,6 +28,13 @@ isotropic, so it is rigid in mesh units too: a rotation about the vertical (y) a
 ``max_angle`` degrees, a uniform scale in ``scale_range`` and a translation up to
 ``max_shift``; normals get the same rotation and stay unit.
 
+**Standardisation** (:class:`DataStats`, :func:`data_stats`): heads are alike, so what a
+model must learn is how a head differs from the others, not where a head is.  The diffusion
+model sees ``(x - mean) / std``: the dataset's mean image subtracted and each modality divided
+by one standard deviation of what is left, so the part of the image that varies has unit
+variance whatever the modality, and a denoising error costs ``std`` (a few hundredths) in the
+data space rather than its full size.
+
 :class:`ShardSampler` draws item indices for one process of a distributed run: its own shard
 of the items and its own seed.
 """
@@ -45,8 +52,8 @@ import torch
 
 from geoface.errors import GeofaceError
 
-__all__ = ["GImageDataset", "AugmentOptions", "Normalization", "ShardSampler", "Item", "find_items", "area_resize",
-           "rigid_augment", "unit_normals", "CHANNELS"]
+__all__ = ["GImageDataset", "AugmentOptions", "Normalization", "DataStats", "data_stats", "ShardSampler", "Item",
+           "find_items", "area_resize", "rigid_augment", "unit_normals", "CHANNELS"]
 
 CHANNELS = ("position", "normal", "texture")
 
@@ -200,6 +207,83 @@ def rigid_augment(x: torch.Tensor, mask: torch.Tensor, gen: torch.Generator,
     y[0:3] = p * m
     y[3:6] = n * m
     return y
+
+
+@dataclass(frozen=True)
+class DataStats:
+    """``standardised = (x - mean) / std`` for stacked images ``x [C, R, R]``.
+
+    ``mean`` ``[C, R, R]``: the dataset's mean image; ``std`` ``[C]``: one standard deviation
+    per modality (the same for its three channels) of ``x - mean`` over items and pixels;
+    ``bound``: the largest ``|standardised|`` seen (what sampling clips its x0 estimates to).
+    Stored beside a checkpoint as ``data_stats.safetensors``."""
+
+    mean: np.ndarray
+    std: np.ndarray
+    bound: float
+
+    #: a modality that does not vary at all (one item, a constant channel) is divided by this
+    MIN_STD = 1e-3
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:   # [B, C, R, R] -> standardised
+        m, s = self._tensors(x)
+        return (x - m) / s
+
+    def inverse(self, z: torch.Tensor) -> torch.Tensor:   # standardised -> [B, C, R, R]
+        m, s = self._tensors(z)
+        return z * s + m
+
+    def _tensors(self, x: torch.Tensor):
+        if tuple(x.shape[-3:]) != tuple(self.mean.shape):
+            raise GeofaceError(f"images of shape {tuple(x.shape[-3:])} do not match the data statistics {tuple(self.mean.shape)}")
+        m = torch.from_numpy(self.mean).to(device=x.device, dtype=x.dtype)
+        s = torch.from_numpy(self.std).to(device=x.device, dtype=x.dtype)[:, None, None]
+        return m, s
+
+    def save(self, path: str | os.PathLike) -> None:
+        from safetensors.torch import save_file
+        save_file({"mean": torch.from_numpy(np.ascontiguousarray(self.mean, np.float32)),
+                   "std": torch.from_numpy(np.ascontiguousarray(self.std, np.float32)),
+                   "bound": torch.tensor([float(self.bound)], dtype=torch.float32)}, str(path))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "DataStats":
+        from safetensors.torch import load_file
+        try:
+            t = load_file(str(path))
+            mean, std, bound = t["mean"].numpy(), t["std"].numpy(), float(t["bound"][0])
+        except Exception as e:  # missing keys, truncated file
+            raise GeofaceError(f"{path} is not a valid data statistics file ({type(e).__name__}: {e})") from None
+        if mean.ndim != 3 or std.shape != (mean.shape[0],) or not (np.isfinite(mean).all() and np.isfinite(std).all()
+                                                                   and (std > 0).all() and np.isfinite(bound) and bound > 0):
+            raise GeofaceError(f"{path}: data statistics of the wrong shape or not finite")
+        return cls(mean.astype(np.float32), std.astype(np.float32), bound)
+
+
+def data_stats(ds: "GImageDataset", max_items: int = 1024, seed: int = 0, quiet: bool | None = True) -> DataStats:
+    """:class:`DataStats` of ``ds`` as training sees it (augmented when ``ds.augment``) over at
+    most ``max_items`` items drawn without replacement: the mean image first, then the residual
+    spread, in two passes over the same draws."""
+    from geoface.progress import progress
+
+    n = len(ds)
+    idx = np.arange(n) if n <= max_items else np.sort(np.random.default_rng(seed).choice(n, max_items, replace=False))
+    keys = [(int(i), int(k)) for k, i in enumerate(idx)]  # the draw number seeds the augmentation
+    total = None
+    for key in progress(keys, "data statistics (mean)", quiet=quiet):
+        x = ds[key]["image"].double().numpy()
+        total = x.copy() if total is None else total + x
+    mean = total / len(keys)
+    C = mean.shape[0]
+    sq, peak = np.zeros(C), np.zeros(C)
+    for key in progress(keys, "data statistics (spread)", quiet=quiet):
+        r = ds[key]["image"].double().numpy() - mean
+        sq += (r ** 2).sum(axis=(1, 2))
+        peak = np.maximum(peak, np.abs(r).max(axis=(1, 2)))
+    groups = sq.reshape(-1, 3).sum(axis=1) / (3 * len(keys) * mean.shape[1] * mean.shape[2])
+    std = np.repeat(np.maximum(np.sqrt(groups), DataStats.MIN_STD), 3)
+    bound = float((peak / std).max())
+    return DataStats(mean.astype(np.float32), std.astype(np.float32), max(bound, 1.0))
 
 
 class GImageDataset(torch.utils.data.Dataset):

@@ -53,9 +53,13 @@ def test_train_save_load_sample_deterministic(gimage_dataset, tmp_path):
     run = tmp_path / "run"
     last = train(gimage_dataset, run, tiny(), quiet=True)
     assert last["step"] == 4
-    for f in ("config.json", "model.safetensors", "ema.safetensors", "optimizer.safetensors", "state.json"):
+    for f in ("config.json", "model.safetensors", "ema.safetensors", "optimizer.safetensors", "state.json",
+              "data_stats.safetensors"):
         assert (run / "checkpoint" / f).is_file()
     r1, r2 = load_run(run), load_run(run)
+    st = r1.stats
+    lo = torch.from_numpy(st.mean - st.bound * st.std[:, None, None])
+    hi = torch.from_numpy(st.mean + st.bound * st.std[:, None, None])
     x = torch.randn(1, 9, 8, 8)
     c = r1.text.encode(["a smiling female"])
     torch.testing.assert_close(r1.unet(x, 3, encoder_hidden_states=c).sample,
@@ -65,8 +69,9 @@ def test_train_save_load_sample_deterministic(gimage_dataset, tmp_path):
         b = sample(r2, "a smiling female", n=2, steps=3, scheduler=sch, guidance=2.0, seed=7, quiet=True)
         assert a.shape == (2, 9, 8, 8)
         torch.testing.assert_close(a, b, rtol=0, atol=0)
-        # x0 is clipped to the data range by default: the last step lands on the clipped estimate
-        assert float(a.abs().max()) <= 1 + 1e-5
+        # x0 is clipped to the data range by default (standardised: mean ± bound·std), and the
+        # last step lands on the clipped estimate
+        assert bool(((a >= lo - 1e-5) & (a <= hi + 1e-5)).all())
         u = sample(r1, "a smiling female", n=2, steps=3, scheduler=sch, guidance=2.0, seed=7, quiet=True,
                    clip=None)
         assert u.shape == a.shape and torch.isfinite(u).all()
@@ -115,3 +120,38 @@ def test_attention_levels_and_old_configs(tmp_path):
 def test_time_budget_stops_and_saves(gimage_dataset, tmp_path):
     last = train(gimage_dataset, tmp_path / "run", tiny(steps=100), quiet=True, max_seconds=0.0)
     assert last["step"] == 1 and load_run(tmp_path / "run").state["step"] == 1
+
+
+def test_standardisation_roundtrip_and_old_runs(gimage_dataset, tmp_path):
+    """A run stores its data statistics and samples through them; deleting the file is an
+    error; a config from before standardisation loads unstandardised."""
+    import json
+
+    from geoface.learn.data import DataStats, GImageDataset, data_stats
+    ds = GImageDataset(gimage_dataset, res=8)
+    st = data_stats(ds)
+    X = torch.stack([ds[i]["image"] for i in range(len(ds))])
+    Z = st.forward(X)
+    # each modality of the residual has unit spread and the mean image is the mean
+    assert Z.mean(0).abs().max() < 1e-4
+    for k in range(3):
+        assert abs(float(Z[:, 3 * k:3 * k + 3].pow(2).mean()) - 1.0) < 1e-3
+    assert float(Z.abs().max()) == pytest.approx(st.bound, rel=1e-5)
+    torch.testing.assert_close(st.inverse(Z), X, rtol=0, atol=1e-6)
+    st.save(tmp_path / "s.safetensors")
+    back = DataStats.load(tmp_path / "s.safetensors")
+    assert (back.mean == st.mean).all() and (back.std == st.std).all() and back.bound == pytest.approx(st.bound)
+    with pytest.raises(GeofaceError, match="shape"):
+        st.forward(torch.zeros(1, 9, 4, 4))
+
+    run = tmp_path / "run"
+    train(gimage_dataset, run, tiny(steps=2), quiet=True)
+    (run / "checkpoint" / "data_stats.safetensors").unlink()
+    with pytest.raises(CheckpointError, match="data_stats.safetensors"):
+        load_run(run)
+    d = json.loads((run / "checkpoint" / "config.json").read_text())
+    d.pop("standardize")
+    (run / "checkpoint" / "config.json").write_text(json.dumps(d))
+    old = load_run(run)
+    assert old.config.standardize is False and old.stats is None
+    assert sample(old, "a head", n=1, steps=2, quiet=True).abs().max() <= 1 + 1e-5

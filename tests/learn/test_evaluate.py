@@ -109,11 +109,36 @@ def test_validity_of_a_real_item_and_corruptions(real_gi):
     scrambled = GeometryImage(real_gi.image.copy(), real_gi.mask.copy(), dict(real_gi.meta))
     perm = rng.permutation(16 * 16)
     scrambled.image[0:3] = scrambled.image[0:3].reshape(3, -1)[:, perm].reshape(3, 16, 16)
-    assert mesh_validity(scrambled).reconstructs  # topology survives; only geometry changed
+    sc = mesh_validity(scrambled)
+    assert sc.reconstructs and (sc.components, sc.euler, sc.boundary_loops) == (1, 1, 1)  # topology survives
+    assert not sc.valid and min(sc.folded_faces, sc.self_intersecting_faces) > 0.2 * sc.faces  # ... geometry does not
 
     empty = GeometryImage(real_gi.image.copy(), np.zeros_like(real_gi.mask), dict(real_gi.meta))
     e = mesh_validity(empty)
     assert not e.valid and not e.reconstructs
+
+
+def test_validity_sees_folds_and_self_intersections(real_gi):
+    """A clean disk can still be crumpled: faces turned against the normal channel, or crossing."""
+    from geoface.gimage import GeometryImage
+    v = mesh_validity(real_gi)
+    assert v.folded_faces == 0.0 and v.self_intersecting_faces == 0.0
+
+    flipped = GeometryImage(real_gi.image.copy(), real_gi.mask.copy(), dict(real_gi.meta))
+    flipped.image[3:6] *= -1.0  # normals point inwards: every face is "folded" against them
+    f = mesh_validity(flipped)
+    assert not f.valid and f.folded_faces > 0.95 * f.faces and "fold" in f.reason
+
+    # one vertex dragged past its neighbour two pixels away: a local fold and crossing faces
+    poked = GeometryImage(real_gi.image.copy(), real_gi.mask.copy(), dict(real_gi.meta))
+    P = poked.image[0:3]
+    P[:, 8, 8] += 1.5 * (P[:, 8, 10] - P[:, 8, 8])
+    p = mesh_validity(poked)
+    assert p.reconstructs and (p.components, p.euler, p.boundary_loops) == (1, 1, 1)
+    assert 0 < p.folded_faces < 0.05 * p.faces and 0 < p.self_intersecting_faces < 0.05 * p.faces
+    assert not p.valid and "self-intersecting" in p.reason  # 10 of 450 faces > 2 %
+    assert not mesh_validity(poked, max_folded=0.0, max_self_intersecting=0.0).valid
+    assert mesh_validity(poked, max_self_intersecting=None, max_folded=1.0).valid  # the checks are what caught it
 
 
 # ---------------------------------------------------------------- classifier, split
