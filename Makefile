@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.geoface-installed
 OUT    := demo_out
 
-.PHONY: install cgal cgal-headers cholmod test demo bench docs clean distclean
+.PHONY: install cgal cgal-headers cholmod chromium test demo bench docs notebook notebooks clean distclean
 
 install: $(STAMP)
 
@@ -15,6 +15,7 @@ $(STAMP): pyproject.toml constraints.txt setup.py geoface/param/_native/regular_
 	$(PY) -m pip install --disable-pip-version-check -q -c constraints.txt -e ".[all,dev]"
 	@$(PY) -c "from geoface.param import regular as r; print('CGAL exact power diagrams:', 'built' if r.available() else 'NOT built: ' + r.INSTALL_HINT)"
 	-@$(MAKE) --no-print-directory cholmod
+	-@$(MAKE) --no-print-directory chromium
 	touch $(STAMP)
 
 # Debian packages, best effort (root only): install, and on failure refresh the lists once and retry.
@@ -43,6 +44,12 @@ cholmod:
 		&& echo "CHOLMOD: installed" || echo "CHOLMOD: not available (SciPy SuperLU will be used)"; \
 	else echo "CHOLMOD: SuiteSparse headers not found (SciPy SuperLU will be used)"; fi
 
+# Optional, best effort: a real browser for the web viewer's test (headless Chromium + its driver).
+chromium:
+	@if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then $(call apt_get,chromium chromium-driver); fi
+	@if command -v chromium >/dev/null && command -v chromedriver >/dev/null; then echo "Chromium: installed"; \
+	else echo "Chromium: not available (the web viewer's browser test will be skipped)"; fi
+
 test: $(STAMP)
 	GEOFACE_QUIET=1 $(PY) -m pytest -q -n 2 tests
 
@@ -52,6 +59,15 @@ docs: $(STAMP)
 	GEOFACE_QUIET=1 $(PY) data_tools/gen_docs.py
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict -q
 	@echo "documentation in site/index.html"
+
+# JupyterLab on the tutorials (the `lab` extra, installed on first use)
+notebook: $(STAMP)
+	@$(PY) -c "import jupyterlab" 2>/dev/null || $(PY) -m pip install -q -c constraints.txt -e ".[lab]"
+	$(VENV)/bin/jupyter lab notebooks/
+
+# run every notebook again and store its outputs (what the repository page shows)
+notebooks: $(STAMP)
+	$(PY) data_tools/run_notebooks.py
 
 demo: $(STAMP)
 	@mkdir -p $(OUT)

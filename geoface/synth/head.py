@@ -50,6 +50,7 @@ import numpy as np
 
 from ..errors import InvalidMeshError
 from .head_mesh import _Noise, _Param, _relax, _ring_layout, _snap_landmarks, _stitch, _texture_detail
+from .head_colors import head_colors
 from .head_shape import _dirs, _Shape
 from .head_types import (EXPRESSION_NAMES, LANDMARK_NAMES, MAX_VERTICES, MIN_VERTICES, HeadExpression, HeadIdentity,
                          SynthHead)
@@ -154,7 +155,7 @@ class HeadModel:
         self._landmarks = {k: landmarks[k] for k in LANDMARK_NAMES}
         self._eye_line_y = float(0.5 * (Vn[landmarks["eye_left_center"], 1] + Vn[landmarks["eye_right_center"], 1]))
         self._upper = Vn[:, 1] > self._eye_line_y
-        C, reg = shape.colors(P0, regions=True)
+        C, reg = head_colors(shape, P0, regions=True)
         self._colors0 = _texture_detail(C, reg, P0, self.identity, self._noise, fine=False)
 
     @staticmethod
@@ -199,7 +200,7 @@ class HeadModel:
         return self._shape.centre + self._shape.base(d)[:, None] * d
 
     def _texture_colors(self, P0, e):
-        C, reg = self._shape.colors(P0, e, regions=True)
+        C, reg = head_colors(self._shape, P0, e, regions=True)
         return _texture_detail(C, reg, P0, self.identity, self._noise, fine=True)
 
     def _texture_block(self, rows):
@@ -250,7 +251,7 @@ class HeadModel:
         e = expr.as_array()
         V = self.vertices(expr)
         if e[0] or e[1] or e[5] or e[6]:
-            C, reg = self._shape.colors(self._P0, e, regions=True)
+            C, reg = head_colors(self._shape, self._P0, e, regions=True)
             colors = _texture_detail(C, reg, self._P0, self.identity, self._noise, fine=False)
         else:
             colors = self._colors0.copy()
