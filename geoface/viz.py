@@ -28,14 +28,28 @@ from ._io import atomic_path
 from ._lazy import lazy_import
 from .errors import GeofaceError, InvalidGeometryImageError, InvalidMeshError
 
-__all__ = ["has_display", "to_pyvista", "plot_mesh", "plot_uv_distortion", "gimage_montage", "compare_meshes", "save_png"]
+__all__ = ["has_display", "to_pyvista", "plot_mesh", "turntable", "plot_uv_distortion", "gimage_montage", "compare_meshes",
+           "save_png"]
 
 BACKGROUND = (1.0, 1.0, 1.0)
 DEFAULT_SIZE = (800, 800)
 
 
 def _pv():
-    return lazy_import("pyvista", "geoface.viz")
+    pv = lazy_import("pyvista", "geoface.viz")
+    _quiet_vtk()
+    return pv
+
+
+def _quiet_vtk() -> None:
+    """Off-screen rendering needs no display, but VTK still warns "bad X server connection" on
+    stderr (into notebooks and logs) when DISPLAY is unset; keep VTK's log to real errors."""
+    try:
+        from vtkmodules.vtkCommonCore import vtkLogger
+    except ImportError:  # an older VTK without vtkLogger prints no such warning
+        return
+    if not has_display():
+        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
 
 
 def has_display() -> bool:
@@ -218,7 +232,8 @@ def _add_mesh(pl, mesh_or_VF, texture=None, colors=None, color=None, scalars=Non
 
 
 def plot_mesh(mesh_or_VF, texture=None, *, colors=None, color=None, screenshot=None, window_size=DEFAULT_SIZE,
-              off_screen: bool | None = None, view: str = "xy", show_edges: bool = False) -> np.ndarray:
+              off_screen: bool | None = None, view: str = "front", up=None, face=None,
+              show_edges: bool = False) -> np.ndarray:
     """Render a mesh: textured (per-corner UVs + texture), vertex-coloured, or plain.
 
     Parameters
@@ -229,7 +244,12 @@ def plot_mesh(mesh_or_VF, texture=None, *, colors=None, color=None, screenshot=N
     color : a single colour for an uncoloured mesh
     screenshot : path, optional — write the picture as PNG (implies off-screen)
     window_size : (W, H); off_screen : force on/off (default: automatic)
-    view : camera: "xy" (looking down -z, y up: a head's front), "xz", "yz" or "iso"
+    view : where the camera sits: "front" (the default: facing the mesh, found from the mesh
+        itself, see :func:`geoface.mesh.frame.mesh_frame`), "back", "left", "right", "top",
+        "bottom", "iso"; or a fixed axis view "xy" (looking down -z), "xz", "yz"
+    up : the mesh's up direction ("+y" by default, "+z" for Z-up scans, or three numbers)
+    face : vertex indices (or a vertex mask) of the face region, when known: the front is then
+        where the face is
 
     Returns
     -------
@@ -238,16 +258,62 @@ def plot_mesh(mesh_or_VF, texture=None, *, colors=None, color=None, screenshot=N
     off = _off_screen(off_screen, screenshot)
     pl = _plotter(off, window_size)
     _add_mesh(pl, mesh_or_VF, texture=texture, colors=colors, color=color, show_edges=show_edges)
-    _set_view(pl, view)
+    _set_view(pl, view, mesh_or_VF, up=up, face=face)
     return _finish(pl, screenshot, off)
 
 
-def _set_view(pl, view: str):
-    views = {"xy": pl.view_xy, "xz": pl.view_xz, "yz": pl.view_yz, "iso": pl.view_isometric}
-    if view not in views:
-        raise GeofaceError(f"view must be one of {', '.join(views)}; got {view!r}")
-    views[view]()
+AXIS_VIEWS = ("xy", "xz", "yz")
+
+
+def _set_view(pl, view: str, mesh_or_VF=None, *, up=None, face=None, frame=None):
+    """Point the camera: a named view of the mesh's own frame, or a fixed axis view."""
+    from .mesh.frame import VIEWS, mesh_frame
+
+    if view in AXIS_VIEWS:
+        getattr(pl, f"view_{view}")()
+        pl.reset_camera()
+        return
+    if view not in VIEWS:
+        raise GeofaceError(f"view must be one of {', '.join([*VIEWS, *AXIS_VIEWS])}; got {view!r}")
+    if frame is None:
+        V, F = _unpack_mesh(mesh_or_VF)[:2]
+        if face is None and getattr(mesh_or_VF, "face_mask", None) is not None:  # a SynthHead knows its face
+            face = mesh_or_VF.face_mask
+        frame = mesh_frame(V, F, up=up, face=face)
+    pos, focal, vup = frame.camera(view)
+    pl.camera_position = [tuple(pos), tuple(focal), tuple(vup)]
     pl.reset_camera()
+
+
+def turntable(mesh_or_VF, path, *, seconds: float = 6.0, fps: float = 25.0, window_size=DEFAULT_SIZE, up=None,
+              face=None, elevation: float = 10.0) -> int:
+    """A turn around the mesh, starting in front of it, as an MP4 (``geoface.video``). The camera
+    circles the up axis once, ``elevation`` degrees above the horizon. Returns the frame count."""
+    from .mesh.frame import mesh_frame
+    from .video import write_video
+
+    V, F = _unpack_mesh(mesh_or_VF)[:2]
+    if face is None and getattr(mesh_or_VF, "face_mask", None) is not None:
+        face = mesh_or_VF.face_mask
+    fr = mesh_frame(V, F, up=up, face=face)
+    n = max(2, int(round(float(seconds) * float(fps))))
+    pl = _plotter(True, window_size)
+    _add_mesh(pl, mesh_or_VF)
+    el = np.radians(elevation)
+
+    def frames():
+        try:
+            for k in range(n):
+                a = 2 * np.pi * k / n
+                d = np.cos(el) * (np.cos(a) * fr.front + np.sin(a) * fr.right) + np.sin(el) * fr.up
+                pl.camera_position = [tuple(fr.center + 2.6 * fr.radius * d), tuple(fr.center), tuple(fr.up)]
+                pl.reset_camera_clipping_range()
+                yield np.asarray(pl.screenshot(return_img=True))[..., :3]
+        finally:
+            pl.close()
+
+    write_video(frames(), path, fps=fps)
+    return n
 
 
 def plot_uv_distortion(V, F, uv, metric: str = "qc", *, screenshot=None, window_size=DEFAULT_SIZE, off_screen=None,
@@ -377,15 +443,21 @@ def _distances(A_V, B_V, B_F):
 
 
 def compare_meshes(A, B, *, distance: bool = False, titles=("original", "reconstruction"), screenshot=None,
-                   window_size=(1400, 700), off_screen=None, view: str = "xy", clim=None) -> np.ndarray:
+                   window_size=(1400, 700), off_screen=None, view: str = "front", up=None, clim=None) -> np.ndarray:
     """Two meshes side by side with linked cameras (e.g. original vs reconstruction).
 
     With ``distance=True`` each mesh is coloured by its distance to the other (same
     colour scale on both, in the meshes' units); otherwise textured / coloured as stored.
+    ``view`` and ``up`` as in :func:`plot_mesh`; both cameras take ``A``'s frame.
     """
     off = _off_screen(off_screen, screenshot)
     pl = _plotter(off, window_size, shape=(1, 2))
     A_, B_ = _unpack_mesh(A), _unpack_mesh(B)
+    frame = None
+    if view not in AXIS_VIEWS:
+        from .mesh.frame import mesh_frame
+
+        frame = mesh_frame(A_[0], A_[1], up=up, face=getattr(A, "face_mask", None))
     dA = dB = None
     if distance:
         dA = _distances(A_[0], B_[0], B_[1])
@@ -402,7 +474,7 @@ def compare_meshes(A, B, *, distance: bool = False, titles=("original", "reconst
             _add_mesh(pl, m)
         if title:
             pl.add_text(str(title), font_size=12, color="black")
-        _set_view(pl, view)
+        _set_view(pl, view, frame=frame)
     pl.link_views()
     pl.subplot(0, 0)
     pl.reset_camera()

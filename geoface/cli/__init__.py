@@ -105,13 +105,37 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--smooth", type=number(int, 0, 1000), default=0, help="Laplacian smoothing iterations")
     s.set_defaults(func=cmd_reconstruct)
 
-    s = sub.add_parser("view", help="show a mesh or geometry-image folder (or render it to a PNG)")
-    s.add_argument("file", help="a mesh file, or a geometry-image folder written by `geoface convert`")
+    s = sub.add_parser("view", help="look at meshes, geometry images, splats, avatars: a window, a PNG, a video or a web page")
+    s.add_argument("file", nargs="+", metavar="PATH",
+                   help="a mesh, a geometry-image folder; with --web also a 3DGS .ply or a `talk train` model folder "
+                        "(several: side by side)")
     s.add_argument("--screenshot", default=None, metavar="OUT.png", help="render off-screen to this PNG and exit")
+    s.add_argument("--turntable", default=None, metavar="OUT.mp4",
+                   help="render a turn around the mesh (or the surface of a geometry image) to an MP4 and exit")
+    s.add_argument("--seconds", type=number(float, 0.5, 120), default=6.0, help="length of --turntable (6 s, 25 fps)")
+    s.add_argument("--view", default="front",
+                   choices=["front", "back", "left", "right", "top", "bottom", "iso", "xy", "xz", "yz"],
+                   help="camera: front (default; found from the mesh, whichever axis it was scanned along), back, "
+                        "left, right, top, bottom, iso; or a fixed axis view xy (looking down -z), xz, yz")
+    s.add_argument("--up", default=None, metavar="AXIS",
+                   help="the data's up direction: +y (default), -y, +z, ... or three numbers")
+    s.add_argument("--meta", default=None, metavar="JSON",
+                   help="a `geoface synth --meta` file: its face mask tells the front (default: MESH.json if present)")
     s.add_argument("--uv-distortion", action="store_true", help="show the UV layout coloured by distortion (mesh with UVs)")
     s.add_argument("--metric", choices=["qc", "area"], default="qc", help="distortion measure for --uv-distortion (qc)")
     s.add_argument("--size", default="1024,768", metavar="W,H",
                    help="window / picture size in pixels (1024,768); for a geometry-image montage H is the tile size")
+    w = s.add_argument_group("web viewer (--web)")
+    w.add_argument("--web", action="store_true", help="serve an interactive 3D page (viser) and print its URL")
+    w.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1: this machine only; 0.0.0.0: all)")
+    w.add_argument("--port", type=number(int, 0, 65535), default=8080, help="port (8080)")
+    w.add_argument("--audio", default=None, metavar="WAV|DATA_DIR",
+                   help="drives an avatar: a WAV, or a `talk synth` folder (its poses, audio and frames)")
+    w.add_argument("--fps", type=number(float, 1, 120), default=25.0, help="avatar frame rate (25)")
+    w.add_argument("--exit-after", type=number(float, 0, lo_open=True), default=None, metavar="S",
+                   help="stop the server after S seconds")
+    w.add_argument("--idle-exit", type=number(float, 0, lo_open=True), default=None, metavar="S",
+                   help="stop the server S seconds after the last browser has left")
     s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("dataset", help="build geometry-image datasets from folders of meshes")

@@ -66,11 +66,11 @@ _PATHS = {
     ("splat", "fit"): (("mesh",), ("output", "renders")),
     ("hmd", "synth"): ((), ("output",)),
     ("hmd", "train"): (("reg_dir",), ("output",)),
-    ("hmd", "remove"): (("model_dir", "usage_dir"), ("output",)),
+    ("hmd", "remove"): (("model_dir", "usage_dir"), ("output", "video")),
     ("hmd", "eval"): (("model_dir", "usage_dir"), ("json",)),
     ("talk", "synth"): ((), ("output",)),
     ("talk", "train"): (("data_dir",), ("output",)),
-    ("talk", "animate"): (("model_dir", "audio", "poses"), ("output",)),
+    ("talk", "animate"): (("model_dir", "audio", "poses"), ("output", "video")),
     ("talk", "eval"): (("model_dir", "data_dir"), ("json",)),
 }
 
@@ -89,5 +89,5 @@ def _guard_by_table(args) -> None:
     if key == ("ddpm", "train") and getattr(args, "resume", False):
         resumable = outputs
     if key[0] in ("hmd", "talk") and key[1] in ("train", "remove", "animate"):
-        resumable = outputs  # these check their model/frames folders themselves (--force)
+        resumable = [getattr(args, "output", None)]  # they check their model/frames folders themselves (--force)
     _guard(args, inputs, outputs, resumable=resumable)

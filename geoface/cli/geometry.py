@@ -207,45 +207,99 @@ def _parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _view_face(args, path: Path, n_vertices: int):
+    """The face mask of a mesh from --meta (or MESH.json beside it), when there is one."""
+    import json
+
+    meta = Path(args.meta) if args.meta else path.with_suffix(".json")
+    if not meta.is_file():
+        if args.meta:
+            raise GeofaceError(f"--meta: no such file {meta}")
+        return None
+    try:
+        d = json.loads(meta.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        if args.meta:
+            raise GeofaceError(f"--meta {meta}: not JSON ({e})") from None
+        return None
+    face = d.get("face_mask") if isinstance(d, dict) else None
+    if not face:
+        if args.meta:
+            raise GeofaceError(f"--meta {meta}: no face_mask in it")
+        return None
+    if max(face) >= n_vertices:
+        raise GeofaceError(f"--meta {meta}: its face mask indexes {max(face) + 1} vertices; the mesh has {n_vertices}")
+    return face
+
+
+def _view_web(args) -> int:
+    from ..webview import WebView
+
+    if args.screenshot or args.turntable or args.uv_distortion:
+        raise GeofaceError("--web shows an interactive page; --screenshot, --turntable and --uv-distortion are for "
+                           "off-screen pictures (the page has a UV-distortion colouring of its own)")
+    view = WebView(args.file, host=args.host, port=args.port, up=args.up, audio=args.audio, fps=args.fps,
+                   quiet=True)
+    print(f"geoface view: {view.url}  (open it in a browser; Ctrl-C stops the server)", flush=True)
+    view.serve(exit_after=args.exit_after, idle_exit=args.idle_exit)
+    return 0
+
+
 def cmd_view(args) -> int:
     from .. import viz
 
+    if args.web:
+        return _view_web(args)
+    if len(args.file) != 1:
+        raise GeofaceError("several paths are shown side by side with --web; off-screen, give one path")
+    if args.audio or args.exit_after or args.idle_exit:
+        raise GeofaceError("--audio, --exit-after and --idle-exit belong to --web")
+    if args.screenshot and args.turntable:
+        raise GeofaceError("choose --screenshot or --turntable")
     size = _parse_size(args.size)
-    shot = args.screenshot
-    if shot is None and not viz.has_display():
-        raise GeofaceError("no display to open a window on; pass --screenshot OUT.png to render off-screen")
-    if shot is not None:
-        _guard(args, [args.file], [shot])
-    path = Path(args.file)
+    shot, movie = args.screenshot, args.turntable
+    if shot is None and movie is None and not viz.has_display():
+        raise GeofaceError("no display to open a window on; pass --screenshot OUT.png (or --turntable OUT.mp4, "
+                           "or --web) to look at it another way")
+    if movie is not None and Path(movie).suffix.lower() != ".mp4":
+        raise GeofaceError(f"--turntable: an .mp4 path; got {movie}")
+    path = Path(args.file[0])
+    if shot is not None or movie is not None:
+        _guard(args, [path], [shot or movie])
     if path.is_dir() and not (path / "meta.json").exists() and (path / "aug0" / "meta.json").exists():
         path = path / "aug0"  # `geoface convert --augment K` writes one image set per corner set
     if path.is_dir():
-        from ..gimage import load_gimage
+        from ..gimage import load_gimage, reconstruct
 
         gi = load_gimage(path)
         if args.uv_distortion:
             raise GeofaceError("--uv-distortion needs a mesh with UVs; a geometry-image folder has none to measure")
+        mesh, face = reconstruct(gi), None
         what = f"geometry image {gi.resolution}x{gi.resolution}: position | normal | texture | mask | surface"
-        if shot is None:  # interactive: the surface the images encode, textured
-            from ..gimage import reconstruct
-
-            viz.plot_mesh(reconstruct(gi), window_size=size)
-        else:
+        if shot is not None:
             img = viz.gimage_montage(gi, surface=True, screenshot=shot, tile=size[1])
             size = (img.shape[1], img.shape[0])
+        elif movie is None:  # interactive: the surface the images encode, textured
+            viz.plot_mesh(mesh, window_size=size, view=args.view, up=args.up)
     else:
         from ..mesh.io import load_mesh
 
         mesh = load_mesh(path)
+        face = _view_face(args, path, len(mesh.V))
         if args.uv_distortion:
             if mesh.UV is None:
-                raise GeofaceError(f"{args.file} has no UVs; --uv-distortion needs a parameterized mesh (see `geoface param`)")
+                raise GeofaceError(f"{path} has no UVs; --uv-distortion needs a parameterized mesh (see `geoface param`)")
+            if movie is not None:
+                raise GeofaceError("--turntable turns around the surface; --uv-distortion shows the flat UV layout")
             V2, F2, uv2, _ = viz.split_corner_uvs(mesh.V, mesh.F, mesh.UV, mesh.FUV)  # seams: one vertex per UV
             viz.plot_uv_distortion(V2, F2, uv2, metric=args.metric, screenshot=shot, window_size=size)
             what = f"UV {args.metric} distortion"
-        else:
-            viz.plot_mesh(mesh, screenshot=shot, window_size=size)
-            what = "textured mesh" if mesh.texture is not None and mesh.UV is not None else "mesh"
-    if shot is not None:
-        print(f"{args.file} -> {shot}  ({what}, {size[0]}x{size[1]})")
+        elif movie is None:
+            viz.plot_mesh(mesh, screenshot=shot, window_size=size, view=args.view, up=args.up, face=face)
+            what = ("textured mesh" if mesh.texture is not None and mesh.UV is not None else "mesh") + f", {args.view} view"
+    if movie is not None:
+        n = viz.turntable(mesh, movie, seconds=args.seconds, window_size=size, up=args.up, face=face)
+        print(f"{args.file[0]} -> {movie}  (turntable, {n} frames, {size[0]}x{size[1]})")
+    elif shot is not None:
+        print(f"{args.file[0]} -> {shot}  ({what}, {size[0]}x{size[1]})")
     return 0

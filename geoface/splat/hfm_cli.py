@@ -70,16 +70,36 @@ def cmd_hmd_remove(args) -> int:
     from .hfm import load_hfm, remove_hmd
     from .hfm_data import load_video
 
+    if args.output is None and args.video is None:
+        raise GeofaceError("say where the frames go: -o OUT_DIR (PNG frames) and/or --video OUT.mp4")
+    if args.video is not None and Path(args.video).suffix.lower() != ".mp4":
+        raise GeofaceError(f"--video: an .mp4 path; got {args.video}")
     model = load_hfm(args.model_dir)
     video = load_video(args.usage_dir)
-    out = Path(args.output)
-    if (out / "frames").is_dir() and any((out / "frames").iterdir()) and not args.force:
+    out = None if args.output is None else Path(args.output)
+    if out is not None and (out / "frames").is_dir() and any((out / "frames").iterdir()) and not args.force:
         raise GeofaceError(f"{out}/frames is not empty; use --force to overwrite")
-    _, times = remove_hmd(model, video, out_dir=out, composite=not args.no_composite)
+    composite = not args.no_composite
+    renders, times = remove_hmd(model, video, out_dir=out, composite=composite)
     import numpy as np
 
+    where = [] if out is None else [f"{out}/frames"]
+    if args.video is not None:
+        from geoface.video import write_video
+
+        if composite and video.hmd_masks is not None:
+            frames = (np.where(video.hmd_masks[t][..., None], renders[t], video.frames[t]) for t in range(len(renders)))
+        else:
+            frames = iter(renders)
+        wav = Path(args.usage_dir) / "audio.wav"
+        import json
+
+        meta = json.loads((Path(args.usage_dir) / "meta.json").read_text(encoding="utf-8"))
+        write_video(frames, args.video, fps=args.fps or float(meta.get("fps", 25.0)),
+                    audio=wav if wav.is_file() else None)
+        where.append(str(args.video))
     med = float(np.median(times))
-    print(f"{args.usage_dir} -> {out}/frames: {len(times)} frames, {1 / med:.1f} FPS "
+    print(f"{args.usage_dir} -> {' and '.join(where)}: {len(times)} frames, {1 / med:.1f} FPS "
           f"(median {1000 * med:.1f} ms per frame: crop, encode, deform, render)")
     return 0
 
@@ -139,7 +159,10 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     r = hs.add_parser("remove", parents=[common], help="restore the full face in a headset video (streams, reports FPS)")
     r.add_argument("model_dir", metavar="MODEL_DIR")
     r.add_argument("usage_dir", metavar="USAGE_DIR")
-    r.add_argument("-o", "--output", required=True, metavar="OUT_DIR")
+    r.add_argument("-o", "--output", default=None, metavar="OUT_DIR", help="write the frames as OUT_DIR/frames/*.png")
+    r.add_argument("--video", default=None, metavar="OUT.mp4", help="write an H.264 MP4 (with USAGE_DIR/audio.wav if any)")
+    r.add_argument("--fps", type=number(float, 0, 240, lo_open=True), default=None,
+                   help="frame rate of the video (default: the usage folder's, else 25)")
     r.add_argument("--no-composite", action="store_true", help="write the avatar renders, not frames with the HMD region replaced")
     r.set_defaults(func=cmd_hmd_remove)
     e = hs.add_parser("eval", parents=[common], help="PSNR/SSIM (whole face, occluded region) and FPS on a usage folder with gt/")

@@ -50,14 +50,25 @@ def cmd_talk_train(args) -> int:
 def cmd_talk_animate(args) -> int:
     from .thgs import animate, load_thgs
 
+    if args.output is None and args.video is None:
+        raise GeofaceError("say where the animation goes: -o OUT_DIR (PNG frames) and/or --video OUT.mp4")
+    if args.video is not None and Path(args.video).suffix.lower() != ".mp4":
+        raise GeofaceError(f"--video: an .mp4 path; got {args.video}")
     model = load_thgs(args.model_dir)
-    out = Path(args.output)
-    if (out / "frames").is_dir() and any((out / "frames").iterdir()) and not args.force:
+    out = None if args.output is None else Path(args.output)
+    if out is not None and (out / "frames").is_dir() and any((out / "frames").iterdir()) and not args.force:
         raise GeofaceError(f"{out}/frames is not empty; use --force to overwrite")
     frames, times = animate(model, args.audio, out, poses=args.poses, fps=args.fps)
     import numpy as np
 
-    print(f"{args.audio} -> {out}/frames: {len(frames)} frames, rendered at {1 / float(np.median(times)):.1f} FPS "
+    where = [] if out is None else [f"{out}/frames"]
+    if args.video is not None:
+        from geoface.video import write_video
+
+        wav = args.audio if Path(args.audio).suffix.lower() == ".wav" else None
+        write_video(frames, args.video, fps=args.fps, audio=wav)
+        where.append(f"{args.video}" + (" (with the audio)" if wav else ""))
+    print(f"{args.audio} -> {' and '.join(where)}: {len(frames)} frames, rendered at {1 / float(np.median(times)):.1f} FPS "
           f"(median; mean {len(times) / max(float(times.sum()), 1e-9):.1f})")
     return 0
 
@@ -105,7 +116,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     a.add_argument("--audio", required=True, help="WAV file, or .npy/.npz per-frame features")
     a.add_argument("--poses", default=None, help=".npz with rot [T, J, 3], transl [T, 3], expr [T, K]")
     a.add_argument("--fps", type=number(float, 0, 240, lo_open=True), default=25.0)
-    a.add_argument("-o", "--output", required=True, metavar="OUT_DIR")
+    a.add_argument("-o", "--output", default=None, metavar="OUT_DIR", help="write the frames as OUT_DIR/frames/*.png")
+    a.add_argument("--video", default=None, metavar="OUT.mp4",
+                   help="write an H.264 MP4 at --fps, with the speech when --audio is a WAV")
     a.set_defaults(func=cmd_talk_animate)
     e = hs.add_parser("eval", parents=[common], help="held-out PSNR/SSIM, mouth error, lip sync, FPS")
     e.add_argument("model_dir", metavar="MODEL_DIR")

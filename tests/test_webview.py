@@ -1,0 +1,172 @@
+"""`geoface view --web` in a real browser: headless Chromium (Debian's chromium and
+chromium-driver, which `make install` sets up) opens the page the command serves, and the
+screenshot must show the object — drawn pixels in the middle of the canvas, in its colours.
+The server stops by itself once the browser has left."""
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser", reason="the web viewer needs viser (pip install 'geoface[web]')")
+webdriver = pytest.importorskip("selenium.webdriver", reason="the browser test drives Chromium with selenium")
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+DRIVER = shutil.which("chromedriver")
+if not (CHROMIUM and DRIVER):
+    pytest.skip("needs Debian's chromium and chromium-driver (make install sets them up as root)", allow_module_level=True)
+
+W, H = 1280, 720  # the objects sit in the middle; viser's control panel covers the right 340 pixels
+
+
+@pytest.fixture
+def browser():
+    opts = webdriver.ChromeOptions()
+    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", f"--window-size={W},{H}",
+              "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"):
+        opts.add_argument(a)
+    opts.binary_location = CHROMIUM
+    d = webdriver.Chrome(options=opts, service=webdriver.ChromeService(executable_path=DRIVER))
+    d.set_page_load_timeout(60)
+    yield d
+    try:
+        d.quit()
+    except Exception:  # noqa: BLE001 — already closed by the test
+        pass
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _serve(*paths):
+    """Start `geoface view --web`; return (process, url) once it prints the URL."""
+    port = _free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "geoface", "view", "--web", *map(str, paths), "--port", str(port),
+                             "--exit-after", "240", "--idle-exit", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    got = threading.Event()
+
+    def read():
+        for line in proc.stdout:
+            lines.append(line)
+            if "http://" in line:
+                got.set()
+
+    threading.Thread(target=read, daemon=True).start()
+    if not got.wait(120):
+        proc.kill()
+        pytest.fail("no URL from geoface view --web:\n" + "".join(lines))
+    url = next(w for ln in lines for w in ln.split() if w.startswith("http://"))
+    assert url == f"http://127.0.0.1:{port}"
+    return proc, url, lines
+
+
+def _look(browser, url, ok, timeout=90.0) -> np.ndarray:
+    """Open ``url`` and take screenshots until ``ok(canvas)`` holds (the scene has arrived)."""
+    import cv2
+
+    browser.get(url)
+    t0 = time.monotonic()
+    while True:
+        png = browser.get_screenshot_as_png()
+        img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[..., ::-1].astype(int)
+        canvas = img
+        if ok(canvas) or time.monotonic() - t0 > timeout:
+            return canvas
+        time.sleep(1.0)
+
+
+def _centre(c, frac=0.4):
+    h, w = c.shape[:2]
+    return c[int(h * (1 - frac) / 2): int(h * (1 + frac) / 2), int(w * (1 - frac) / 2): int(w * (1 + frac) / 2)]
+
+
+def _drawn(c):
+    return (np.abs(c - c[2, 2]).sum(-1) > 30)  # differs from the background (top-left corner)
+
+
+def _finish(proc, browser, lines):
+    browser.quit()  # the browser leaves: the server stops by itself (--idle-exit 2)
+    try:
+        assert proc.wait(timeout=60) == 0, "".join(lines)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def test_web_view_of_a_coloured_head(browser, tmp_path):
+    from geoface.mesh.io import Mesh, save_mesh
+    from geoface.synth.ict import ict_head, load_ict_model
+
+    head = ict_head(load_ict_model(), seed=1)
+    colors = np.tile([0.95, 0.45, 0.05, 1.0], (len(head.V), 1))  # orange
+    path = tmp_path / "head.ply"
+    save_mesh(path, Mesh(head.V, head.F, colors=colors))
+    proc, url, lines = _serve(path)
+
+    def orange(c):
+        m = _centre(c)
+        return (m[..., 0] > m[..., 2] + 60) & (m[..., 0] > 80)
+
+    canvas = _look(browser, url, lambda c: orange(c).mean() > 0.08)
+    share = orange(canvas).mean()
+    _finish(proc, browser, lines)
+    assert share > 0.08, f"the head is not drawn in its colour: {share:.3f} of the centre is orange"
+
+
+def test_web_view_of_a_geometry_image_folder(browser, tmp_path):
+    from tests.learn.conftest import make_gimage_dataset
+
+    root = make_gimage_dataset(tmp_path / "gi", n_items=1, N=16)
+    proc, url, lines = _serve(root / "head_000" / "aug0")
+
+    def saturated(c):  # the position image: every hue; the surface: grey
+        m = _centre(c, 0.5)
+        return (m.max(-1) - m.min(-1)) > 90
+
+    canvas = _look(browser, url, lambda c: saturated(c).mean() > 0.03 and _drawn(_centre(c, 0.5)).mean() > 0.1)
+    sat, drawn = saturated(canvas).mean(), _drawn(_centre(canvas, 0.5)).mean()
+    _finish(proc, browser, lines)
+    assert sat > 0.03 and drawn > 0.1, (sat, drawn)
+
+
+def test_web_view_of_gaussian_splats(browser, tmp_path):
+    from geoface.splat.gaussians import Gaussians
+    from geoface.splat.ply import save_ply
+    from geoface.synth.ict import ict_head, load_ict_model
+
+    head = ict_head(load_ict_model(), seed=2)
+    g = Gaussians.from_mesh(head.V, head.F, np.tile([0.1, 0.85, 0.2], (len(head.V), 1)), opacity=0.9)
+    path = tmp_path / "head_gs.ply"
+    save_ply(g, path)
+    proc, url, lines = _serve(path)
+
+    def green(c):
+        m = _centre(c)
+        return (m[..., 1] > m[..., 0] + 50) & (m[..., 1] > m[..., 2] + 50)
+
+    canvas = _look(browser, url, lambda c: green(c).mean() > 0.08)
+    share = green(canvas).mean()
+    _finish(proc, browser, lines)
+    assert share > 0.08, f"the splats are not drawn in their colour: {share:.3f} of the centre is green"
+
+
+def test_web_view_refuses_bad_input(tmp_path, capsys):
+    from geoface.cli import main
+
+    (tmp_path / "empty").mkdir()
+    assert main(["view", "--web", str(tmp_path / "empty"), "--port", str(_free_port())]) == 2
+    assert "neither a geometry image" in capsys.readouterr().err
+    assert main(["view", "--web", str(Path(__file__).parent / "data" / "meshes" / "spot.obj"), "--audio",
+                 str(tmp_path / "x.wav")]) == 2
+    assert "drives an avatar" in capsys.readouterr().err
