@@ -40,7 +40,8 @@ def write(path: Path, text: str) -> None:
 def landing_page() -> str:
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     text = re.sub(r"\]\(docs/", "](", text)
-    return text.replace("](LICENSE)", "](license.md)").replace("](CHANGELOG.md)", "](changelog.md)")
+    return (text.replace("](LICENSE)", "](license.md)").replace("](CHANGELOG.md)", "](changelog.md)")
+            .replace("](CITATION.cff)", "](citation.md)"))
 
 
 def cli_reference() -> str:
@@ -72,6 +73,8 @@ def main(argv=None) -> int:
     write(DOCS / "cli_reference.md", cli_reference())
     write(DOCS / "changelog.md", (ROOT / "CHANGELOG.md").read_text(encoding="utf-8"))
     write(DOCS / "license.md", "# Licence\n\n```text\n" + (ROOT / "LICENSE").read_text(encoding="utf-8") + "```\n")
+    write(DOCS / "citation.md", "# Citing geoface\n\n`CITATION.cff` (GitHub shows it as \"Cite this repository\"):\n\n"
+          "```yaml\n" + (ROOT / "CITATION.cff").read_text(encoding="utf-8") + "```\n")
     api = DOCS / "api"
     mods = public_modules()
     for old in api.glob("*.md"):

@@ -283,7 +283,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
 
     Writes (per corner set ``k``; directly in ``out_dir`` when ``augment == 1``, else in
     ``out_dir/aug{k}``): ``position.png``, ``normal.png``, ``texture.png``, ``mask.png``,
-    ``meta.json``, ``reconstruction.obj`` (+ ``.mtl``, texture, normal map) and
+    ``roi.png`` (8-bit, 255 on the ROI's pixels; with an ROI), ``meta.json``, ``reconstruction.obj`` (+ ``.mtl``, texture, normal map) and
     ``preview.png``; and ``metrics.json`` in ``out_dir``.  The folder appears complete or
     not at all (files 0644 and folders 0755 under umask 022); an existing ``out_dir`` is
     replaced only with ``overwrite`` (the CLI's ``--force``).  Returns the metrics dict.
@@ -418,6 +418,10 @@ def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, op
         st["roi_pixel_share"] = float(face_img[gi.mask].mean())
     st["coverage"] = float(gi.mask.mean())
     write_gimage_files(folder, gi)
+    if face_img is not None:  # where the ROI (the magnified face) lies in the images
+        import cv2
+
+        cv2.imwrite(str(folder / "roi.png"), (face_img & gi.mask).astype(np.uint8) * 255)
     st["images_seconds"] = time.perf_counter() - t
     if opts.reconstruct:
         t = time.perf_counter()

@@ -167,6 +167,8 @@ def test_web_view_refuses_bad_input(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     assert main(["view", "--web", str(tmp_path / "empty"), "--port", str(_free_port())]) == 2
     assert "neither a geometry image" in capsys.readouterr().err
-    assert main(["view", "--web", str(Path(__file__).parent / "data" / "meshes" / "spot.obj"), "--audio",
+    assert main(["view", "--web", str(Path(__file__).parent / "data" / "meshes" / "spot.obj"), "--drive",
                  str(tmp_path / "x.wav")]) == 2
     assert "drives an avatar" in capsys.readouterr().err
+    assert main(["view", str(Path(__file__).parent / "data" / "meshes" / "spot.obj"), "--drive", "x.wav"]) == 2
+    assert "belong to --web" in capsys.readouterr().err

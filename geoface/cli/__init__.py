@@ -107,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("view", help="look at meshes, geometry images, splats, avatars: a window, a PNG, a video or a web page")
     s.add_argument("file", nargs="+", metavar="PATH",
-                   help="a mesh, a geometry-image folder; with --web also a 3DGS .ply or a `talk train` model folder "
+                   help="a mesh, a geometry-image folder; with --web also a 3DGS .ply or an avatar model folder "
                         "(several: side by side)")
     s.add_argument("--screenshot", default=None, metavar="OUT.png", help="render off-screen to this PNG and exit")
     s.add_argument("--turntable", default=None, metavar="OUT.mp4",
@@ -129,9 +129,9 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--web", action="store_true", help="serve an interactive 3D page (viser) and print its URL")
     w.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1: this machine only; 0.0.0.0: all)")
     w.add_argument("--port", type=number(int, 0, 65535), default=8080, help="port (8080)")
-    w.add_argument("--audio", default=None, metavar="WAV|DATA_DIR",
-                   help="drives an avatar: a WAV, or a `talk synth` folder (its poses, audio and frames)")
-    w.add_argument("--fps", type=number(float, 1, 120), default=25.0, help="avatar frame rate (25)")
+    w.add_argument("--drive", default=None, metavar="WAV|DIR",
+                   help="what drives an avatar: a WAV or a `talk synth` folder (talk models), a usage folder (hmd models)")
+    w.add_argument("--fps", type=number(float, 1, 120), default=25.0, help="frame rate of a talking avatar driven by a WAV (25)")
     w.add_argument("--exit-after", type=number(float, 0, lo_open=True), default=None, metavar="S",
                    help="stop the server after S seconds")
     w.add_argument("--idle-exit", type=number(float, 0, lo_open=True), default=None, metavar="S",

@@ -72,6 +72,8 @@ _PATHS = {
     ("talk", "train"): (("data_dir",), ("output",)),
     ("talk", "animate"): (("model_dir", "audio", "poses"), ("output", "video")),
     ("talk", "eval"): (("model_dir", "data_dir"), ("json",)),
+    ("talk", "export"): (("model_dir", "drive"), ("output",)),
+    ("hmd", "export"): (("model_dir", "drive"), ("output",)),
 }
 
 

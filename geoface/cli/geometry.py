@@ -238,7 +238,7 @@ def _view_web(args) -> int:
     if args.screenshot or args.turntable or args.uv_distortion:
         raise GeofaceError("--web shows an interactive page; --screenshot, --turntable and --uv-distortion are for "
                            "off-screen pictures (the page has a UV-distortion colouring of its own)")
-    view = WebView(args.file, host=args.host, port=args.port, up=args.up, audio=args.audio, fps=args.fps,
+    view = WebView(args.file, host=args.host, port=args.port, up=args.up, drive=args.drive, fps=args.fps,
                    quiet=True)
     print(f"geoface view: {view.url}  (open it in a browser; Ctrl-C stops the server)", flush=True)
     view.serve(exit_after=args.exit_after, idle_exit=args.idle_exit)
@@ -252,8 +252,8 @@ def cmd_view(args) -> int:
         return _view_web(args)
     if len(args.file) != 1:
         raise GeofaceError("several paths are shown side by side with --web; off-screen, give one path")
-    if args.audio or args.exit_after or args.idle_exit:
-        raise GeofaceError("--audio, --exit-after and --idle-exit belong to --web")
+    if args.drive or args.exit_after or args.idle_exit:
+        raise GeofaceError("--drive, --exit-after and --idle-exit belong to --web")
     if args.screenshot and args.turntable:
         raise GeofaceError("choose --screenshot or --turntable")
     size = _parse_size(args.size)

@@ -165,6 +165,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="frame rate of the video (default: the usage folder's, else 25)")
     r.add_argument("--no-composite", action="store_true", help="write the avatar renders, not frames with the HMD region replaced")
     r.set_defaults(func=cmd_hmd_remove)
+    from .drive_cli import add_export_parser
+
+    add_export_parser(hs, common, "the registered avatar's", "a usage folder (its frames drive the avatar)", True)
     e = hs.add_parser("eval", parents=[common], help="PSNR/SSIM (whole face, occluded region) and FPS on a usage folder with gt/")
     e.add_argument("model_dir", metavar="MODEL_DIR")
     e.add_argument("usage_dir", metavar="USAGE_DIR")

@@ -120,6 +120,10 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     a.add_argument("--video", default=None, metavar="OUT.mp4",
                    help="write an H.264 MP4 at --fps, with the speech when --audio is a WAV")
     a.set_defaults(func=cmd_talk_animate)
+    from .drive_cli import add_export_parser
+
+    add_export_parser(hs, common, "the talking avatar's",
+                      "a WAV (rest pose) or a `talk synth` folder (its poses); default: the rest pose, silent", False)
     e = hs.add_parser("eval", parents=[common], help="held-out PSNR/SSIM, mouth error, lip sync, FPS")
     e.add_argument("model_dir", metavar="MODEL_DIR")
     e.add_argument("data_dir", metavar="DATA_DIR")

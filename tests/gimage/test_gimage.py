@@ -180,6 +180,12 @@ def test_convert_cli_end_to_end(tmp_path, capsys):
             assert (d / f).is_file(), f
         assert st["distortion"]["flipped"] == 0
         assert st["roi_pixel_share"] > 0.3  # the face (~20% of the area) magnified by 2.5
+        import cv2
+
+        roi = cv2.imread(str(d / "roi.png"), cv2.IMREAD_GRAYSCALE)  # the same share, as an image
+        mask = cv2.imread(str(d / "mask.png"), cv2.IMREAD_GRAYSCALE) > 127
+        assert roi.shape == (64, 64) and set(np.unique(roi)) <= {0, 255}
+        assert abs((roi[mask] > 127).mean() - st["roi_pixel_share"]) < 1e-9
         assert st["reconstruction"]["hausdorff"] < 0.08
     gi = load_gimage(out / "aug1")
     assert gi.meta["corners"] != load_gimage(out / "aug0").meta["corners"]

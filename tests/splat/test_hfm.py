@@ -1,6 +1,7 @@
 """HFM-GS: mapping weights, key sampling, W_dist, segregation, identity at init, training, I/O."""
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 from dataclasses import replace
@@ -671,6 +672,16 @@ def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
     assert not (tmp_path / "m4" / "model.safetensors").exists()
     assert main(["hmd", "remove", str(md), str(use), "-o", str(tmp_path / "out")]) == 0
     assert len(list((tmp_path / "out" / "frames").glob("*.png"))) == 2
+    if importlib.util.find_spec("imageio_ffmpeg"):  # the same as a video (frames composited)
+        from geoface.video import probe_video
+
+        assert main(["hmd", "remove", str(md), str(use), "--video", str(tmp_path / "out.mp4"), "--fps", "10"]) == 0
+        v = probe_video(tmp_path / "out.mp4")
+        assert v["frames"] == 2 and v["fps"] == 10 and abs(v["seconds"] - 0.2) < 0.02 and not v["audio"]
+    # the avatar at each frame of the usage video, as standard 3DGS PLY files
+    assert main(["hmd", "export", str(md), "--drive", str(use), "-o", str(tmp_path / "ply")]) == 0
+    assert sorted(p.name for p in (tmp_path / "ply").iterdir()) == ["frame_00000.ply", "frame_00001.ply"]
+    assert main(["hmd", "export", str(md), "-o", str(tmp_path / "ply2")]) == 2  # --drive is required
     assert main(["hmd", "eval", str(md), str(use), "--json", str(tmp_path / "e.json")]) == 0
     assert "psnr_occluded" in json.loads((tmp_path / "e.json").read_text())
     out = capsys.readouterr().out

@@ -1,6 +1,7 @@
 """THGS: templates, voxel LBS, LEB, SAAM, audio features, training and the CLI."""
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 
@@ -261,6 +262,47 @@ def test_cli(talk_dir, tmp_path, capsys):
     assert len(list((tmp_path / "o" / "frames").glob("*.png"))) == 50
     assert main(["talk", "eval", str(md), str(talk_dir), "--json", str(tmp_path / "e.json")]) == 0
     assert "lipsync_corr" in json.loads((tmp_path / "e.json").read_text())
+    # a video with the speech: the right frame count and duration, and an audio stream
+    pytest.importorskip("imageio_ffmpeg")
+    from geoface.video import probe_video
+
+    mp4 = tmp_path / "talk.mp4"
+    assert main(["talk", "animate", str(md), "--audio", str(talk_dir / "audio.wav"), "--video", str(mp4)]) == 0
+    v = probe_video(mp4)
+    assert v["frames"] == 50 and abs(v["seconds"] - 2.0) < 0.05 and v["fps"] == 25 and v["codec"] == "h264"
+    assert v["audio"] and v["audio_codec"] == "aac" and abs(v["duration"] - 2.0) < 0.1
+    assert main(["talk", "animate", str(md), "--audio", str(talk_dir / "audio.wav"), "--video", str(mp4)]) == 2  # exists
+    assert main(["talk", "animate", str(md), "--audio", str(talk_dir / "audio.wav")]) == 2  # nowhere to write
+    # export: standard 3DGS PLY files that load back with the avatar's Gaussians
+    from geoface.splat.drive import avatar_drive
+    from geoface.splat.ply import load_ply
+
+    assert main(["talk", "export", str(md), "-o", str(tmp_path / "rest.ply")]) == 0
+    assert main(["talk", "export", str(md), "--drive", str(talk_dir), "--frames", "0:50:10", "-o", str(tmp_path / "seq")]) == 0
+    files = sorted((tmp_path / "seq").glob("frame_*.ply"))
+    assert [f.name for f in files] == [f"frame_{t:05d}.ply" for t in range(0, 50, 10)]
+    drive = avatar_drive(md, talk_dir)
+    assert drive.n_frames == 50 and drive.frames.shape[0] == 50
+    g20, back = drive.gaussians(20), load_ply(files[2])
+    assert torch.allclose(back.means, g20.means, atol=1e-5) and torch.allclose(back.log_scales, g20.log_scales, atol=1e-5)
+    assert torch.allclose(back.opacity_logits, g20.opacity_logits, atol=1e-5)
+    assert not torch.allclose(load_ply(files[0]).means, back.means)  # the frames differ: the avatar moves
+    assert main(["talk", "export", str(md), "--frames", "7", "-o", str(tmp_path / "x.ply")]) == 2  # rest pose: 1 frame
+    if importlib.util.find_spec("viser"):  # the web viewer serves the animated avatar beside its video
+        import socket
+
+        from geoface.webview import WebView
+
+        with socket.socket() as sk:
+            sk.bind(("127.0.0.1", 0))
+            port = sk.getsockname()[1]
+        view = WebView([md], drive=talk_dir, port=port, quiet=True)
+        try:
+            it = view.items[0]
+            assert it.kind == "avatar" and it.extra["drive"].n_frames == 50 and it.extra["drive"].frames is not None
+            assert view.url == f"http://127.0.0.1:{port}"
+        finally:
+            view.stop()
     assert main(["talk", "animate", str(md), "--audio", str(tmp_path / "none.wav"), "-o", str(tmp_path / "o2")]) == 2
     assert main(["talk", "train", str(tmp_path), "-o", str(tmp_path / "m2")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
