@@ -151,3 +151,10 @@ def test_no_import_cycles_between_modules():
 def test_cycle_finder_finds_one():
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_modules_stay_small():
+    """One idea per module, a few hundred lines (docs/architecture.md): none grows past ~500."""
+    big = {str(p.relative_to(PKG)): n for p in PKG.rglob("*.py")
+           if (n := len(p.read_text(encoding="utf-8").splitlines())) > 550}
+    assert not big, f"modules over 550 lines (split them by concern): {big}"

@@ -75,10 +75,17 @@ def _look(browser, url, ok, timeout=90.0) -> np.ndarray:
     """Open ``url`` and take screenshots until ``ok(canvas)`` holds (the scene has arrived)."""
     import cv2
 
+    from selenium.common.exceptions import TimeoutException
+
     browser.get(url)
     t0 = time.monotonic()
     while True:
-        png = browser.get_screenshot_as_png()
+        try:
+            png = browser.get_screenshot_as_png()
+        except TimeoutException:  # the renderer is busy drawing (software WebGL on a loaded machine)
+            if time.monotonic() - t0 > timeout:
+                raise
+            continue
         img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[..., ::-1].astype(int)
         canvas = img
         if ok(canvas) or time.monotonic() - t0 > timeout:
@@ -147,6 +154,9 @@ def test_web_view_of_gaussian_splats(browser, tmp_path):
 
     head = ict_head(load_ict_model(), seed=2)
     g = Gaussians.from_mesh(head.V, head.F, np.tile([0.1, 0.85, 0.2], (len(head.V), 1)), opacity=0.9)
+    keep = slice(None, None, 4)  # a quarter of them, twice as wide: lighter for software WebGL
+    g = Gaussians(g.means[keep].detach(), g.log_scales[keep].detach() + np.log(2.0), g.quats[keep].detach(),
+                  g.opacity_logits[keep].detach(), g.colors[keep].detach())
     path = tmp_path / "head_gs.ply"
     save_ply(g, path)
     proc, url, lines = _serve(path)

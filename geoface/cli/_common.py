@@ -62,7 +62,7 @@ _PATHS = {
     ("ddpm", "sample"): (("run_dir",), ("output",)),
     ("texture", "synth"): ((), ("output",)),
     ("texture", "train"): (("data_dir",), ("output",)),
-    ("texture", "reconstruct"): (("photo", "model", "mesh", "camera"), ("output",)),
+    ("texture", "reconstruct"): (("photo", "model", "mesh", "camera", "landmarks"), ("output",)),
     ("splat", "fit"): (("mesh",), ("output", "renders")),
     ("hmd", "synth"): ((), ("output",)),
     ("hmd", "train"): (("reg_dir",), ("output",)),

@@ -95,10 +95,29 @@ def cmd_reconstruct(args) -> int:
     from .texture import TextureModel, reconstruct
     if (args.mesh is None) != (args.camera is None):
         raise GeofaceError("--mesh and --camera go together (the camera that took the photo of that mesh)")
+    if args.landmarks and args.mesh:
+        raise GeofaceError("--landmarks fits the ICT head and its camera to the photo; it replaces --mesh and --camera")
     photo = _read_photo(args.photo)
     model = TextureModel.load(args.model)
     mesh = cam = None
-    if args.mesh:
+    fit_msg = ""
+    if args.landmarks:
+        from geoface.mesh.io import Mesh
+        from geoface.synth.ict import load_ict_model
+        from geoface.synth.ict_fit import fit_landmarks, load_landmarks
+        from geoface.uvmap.project import Camera
+
+        L, size = load_landmarks(args.landmarks)
+        H, W = photo.shape[:2]
+        if size is not None and tuple(size) != (W, H):
+            raise GeofaceError(f"{args.landmarks} was written for a {size[0]}x{size[1]} image; {args.photo} is {W}x{H}")
+        ict = load_ict_model()
+        fit = fit_landmarks(ict, L, (W, H), focal=args.focal)
+        head = fit.head(ict)
+        mesh = Mesh(head.V, head.F, UV=head.UV, FUV=head.FUV)
+        cam = Camera(fit.K, fit.R, fit.t)
+        fit_msg = f"; ICT head fitted to the landmarks (RMS {fit.rms_px:.2f} px, focal {fit.focal:.0f} px)"
+    elif args.mesh:
         from geoface.mesh.io import load_mesh
         mesh = load_mesh(args.mesh)
         if mesh.UV is None:
@@ -117,10 +136,10 @@ def cmd_reconstruct(args) -> int:
             img = maps[name] if c == 3 else np.repeat(maps[name], 3, 2)
             res = project_views(mesh, [img.astype(np.float64)], [cam], size=args.uv_size)
             if not (res.weight > 0).any():
-                raise GeofaceError(f"the camera in {args.camera} sees none of {args.mesh} (check R, t and K)")
+                raise GeofaceError(f"the camera sees none of the mesh (check {args.camera or args.landmarks})")
             tex = inpaint(res.texture, res.weight > 0)
             images[f"uv_{name}"] = tex if c == 3 else tex[:, :, :1]
-        msg += f"; UV maps {args.uv_size}² (seen by the camera: {float((res.weight > 0).mean()):.0%} of texels)"
+        msg += f"; UV maps {args.uv_size}² (seen by the camera: {float((res.weight > 0).mean()):.0%} of texels)" + fit_msg
     out = Path(args.output)  # only now: a failure above leaves no partial output
     out.mkdir(parents=True, exist_ok=True)
     for name, img in images.items():
@@ -158,6 +177,11 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     r.add_argument("--model", required=True, metavar="MODEL_DIR")
     r.add_argument("--mesh", default=None, help="a mesh with UVs to project the maps into")
     r.add_argument("--camera", default=None, metavar="CAM.json", help="K, R, t of the photo's camera (OpenCV)")
+    r.add_argument("--landmarks", default=None, metavar="L.json",
+                   help="68 face landmarks of the photo (JSON, .npy, .txt, .pts): fit the ICT head and camera to them "
+                        "and write the maps in its UV layout (instead of --mesh and --camera)")
+    r.add_argument("--focal", type=number(float, 1, 1e6), default=None, metavar="PX",
+                   help="the photo's focal length in pixels, when known (e.g. from EXIF); else estimated")
     r.add_argument("--uv-size", type=number(int, 16, 16384), default=1024)
     r.add_argument("--k", type=number(int, 1, 64), default=None, help="patches per side (default: the model's)")
     r.add_argument("--no-refine", action="store_true", help="GDE maps upsampled (baseline), no HFDR")

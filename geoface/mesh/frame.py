@@ -23,6 +23,9 @@ most scanners; pass ``up`` for Z-up data):
      neighbourhood, large at a nose, lips, eyelids, a snout), its first moment along the axis.
      A face carries the detail; the back of a head is a smooth dome.
 
+A sheet standing upright (thinner than 5 % of its width horizontally: a rectangle, a relief,
+a face mask) is looked at from the side its faces' normals point to.
+
 The result is a heuristic for pictures, not a measurement: it is right on every head, face,
 bust and animal in the test data and on ICT heads at any yaw (see ``tests/mesh/test_frame.py``).
 """
@@ -34,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import GeofaceError
-from .core import check_mesh, face_areas
+from .core import check_mesh, face_areas, face_normals_unnormalized
 
 __all__ = ["MeshFrame", "mesh_frame", "points_frame", "parse_up", "view_direction", "VIEWS"]
 
@@ -141,6 +144,27 @@ def mesh_frame(V, F, *, up=None, face=None, samples: int = 12000, seed: int = 0)
         if len(idx) == 0 or idx.min() < 0 or idx.max() >= len(V):
             raise GeofaceError(f"face region: vertex indices must be in [0, {len(V)}); got {len(idx)} indices")
         return _finish(up, V[idx].mean(0) - P.mean(0), center, radius, "face region")
+    # a sheet standing upright (a rectangle, a relief, a face mask): look at its face, not its edge
+    X = P - P.mean(0)
+    H = X - np.outer(X @ up, up)
+    w, vec = np.linalg.eigh(H.T @ H)
+    order = np.argsort(w)[::-1]
+    if w[order[1]] <= 0.05 ** 2 * w[order[0]]:  # the thinner horizontal extent < 5 % of the wider
+        axis = vec[:, order[1]]
+        n = face_normals_unnormalized(V, F).sum(0)  # where its (oriented) side faces
+        s = float(n @ axis)
+        if abs(s) < 1e-9 * max(float(np.abs(n).sum()), 1e-300):
+            s = float(axis @ _horizontal_basis(up)[1])  # unoriented: the +Z side, as a fixed camera
+        return _finish(up, axis if s >= 0 else -axis, center, radius, "flat, its side")
+    h = X @ up
+    if np.ptp(h) <= 0.05 * 2 * np.sqrt(w[order[0]] / len(X)) * 1.7:  # lying flat: look down on it
+        n = face_normals_unnormalized(V, F).sum(0)
+        top = up if float(n @ up) >= 0 else -up
+        new_up = vec[:, order[0]]  # its longer side upright in the picture (−Z for a square, Y up)
+        if w[order[0]] < 1.1 * w[order[1]]:
+            new_up = _horizontal_basis(up)[0]
+        return MeshFrame(up=new_up, front=top, right=np.cross(new_up, top), center=center, radius=radius,
+                         how="lying flat, from above")
     return _frame_of_samples(P, up, center, radius)
 
 

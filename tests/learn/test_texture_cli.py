@@ -45,6 +45,26 @@ def test_synth_train_reconstruct_end_to_end(tmp_path, capsys):
                  "--mesh", str(tmp_path / "plane.obj"), "--camera", str(tmp_path / "away.json"),
                  "--uv-size", "64", "-o", str(tmp_path / "out2"), "-q"]) == 2
     assert "sees none" in capsys.readouterr().err and not (tmp_path / "out2").exists()
+    # no mesh, no camera: 68 landmarks of the photo; the ICT head is fitted and takes the maps
+    from geoface.synth.ict import load_ict_model
+    from geoface.synth.ict_fit import project
+    ict = load_ict_model()
+    R, f = np.diag([1.0, -1.0, -1.0]), 150.0
+    L = project(ict.neutral[ict.landmarks], R, [0, 0, 60.0], f, (32, 32))  # the mean face, 64 px photo
+    (tmp_path / "lm.json").write_text(json.dumps({"image_size": [64, 64], "landmarks": L.tolist()}))
+    out3 = tmp_path / "out3"
+    assert main(["texture", "reconstruct", str(tmp_path / "photo.png"), "--model", str(model), "--landmarks",
+                 str(tmp_path / "lm.json"), "--focal", "150", "--uv-size", "64", "-o", str(out3), "-q"]) == 0
+    assert "ICT head fitted to the landmarks" in capsys.readouterr().out
+    uv = cv2.imread(str(out3 / "uv_albedo.png"), cv2.IMREAD_UNCHANGED)
+    assert uv.shape == (64, 64, 3) and uv.std() > 0
+    assert main(["texture", "reconstruct", str(tmp_path / "photo.png"), "--model", str(model), "--landmarks",
+                 str(tmp_path / "lm.json"), "--mesh", str(tmp_path / "plane.obj"), "--camera", str(tmp_path / "cam.json"),
+                 "-o", str(tmp_path / "out4"), "-q"]) == 2
+    (tmp_path / "lm2.json").write_text(json.dumps({"image_size": [128, 64], "landmarks": L.tolist()}))
+    assert main(["texture", "reconstruct", str(tmp_path / "photo.png"), "--model", str(model), "--landmarks",
+                 str(tmp_path / "lm2.json"), "-o", str(tmp_path / "out5"), "-q"]) == 2
+    assert "written for a 128x64 image" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("argv,msg", [

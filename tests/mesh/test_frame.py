@@ -104,3 +104,16 @@ def test_view_screenshot_shows_the_face(ict, facing, tmp_path, capfd):
     assert front > 0.35 and back < 0.15 and front > 4 * back  # from behind: only the ears' rims and the neck
     if not __import__("geoface.viz").viz.has_display():  # VTK's warning about the missing X server stays hidden
         assert "X server" not in capfd.readouterr().err
+
+
+def test_flat_meshes_are_seen_face_on():
+    """A sheet standing upright is looked at from the side its normals face; one lying flat, from above."""
+    from geoface.synth.surfaces import square_grid
+
+    V, F = square_grid(8, 1.0)
+    V = np.asarray(V, np.float64)  # in the xy plane, normals +z
+    fr = mesh_frame(V, F)
+    assert np.allclose(fr.front, [0, 0, 1]) and np.allclose(fr.up, [0, 1, 0])
+    assert np.allclose(mesh_frame(V, F[:, ::-1]).front, [0, 0, -1])  # turned over
+    lying = mesh_frame(V[:, [0, 2, 1]], F[:, ::-1])  # in the xz plane, normals +y
+    assert np.allclose(lying.front, [0, 1, 0]) and abs(lying.up @ [0, 1, 0]) < 1e-9
