@@ -43,8 +43,9 @@ class ConvertOptions:
     whatever its axes), else +Y;
     front : the face direction for the default corners and the face cone: ``"auto"``
     (default: from the centroid of the surface towards the centroid of an explicit ROI mask,
-    e.g. the face mask of ``synth head --meta`` or of an ICT-FaceKit head; +Z without a
-    mask), an axis name (``"z"``, ``"-x"``, ...) or a 3-vector;
+    e.g. the face mask of ``synth head --meta`` or of an ICT-FaceKit head; without a mask,
+    where the mesh faces, found by :func:`geoface.mesh.frame.mesh_frame`), an axis name
+    (``"z"``, ``"-x"``, ...) or a 3-vector;
     corner_set : convert only corner set ``k`` (0..7) of the 8, written directly in the
     output folder (used by the dataset builder: one item per mesh × corner set); ``augment``
     is then ignored; metrics : write ``metrics.json`` (it holds timings, so a folder without
@@ -252,13 +253,18 @@ def opening_normal(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return n if (g - c) @ n >= 0 else -n
 
 
-def _front(opts: ConvertOptions, V: np.ndarray, F: np.ndarray, roi, up: np.ndarray) -> np.ndarray:
+def _front(opts: ConvertOptions, V: np.ndarray, F: np.ndarray, roi, up: np.ndarray, seen=None) -> np.ndarray:
     """The face direction: given, or (``"auto"``) from the surface's area centroid towards
-    the centroid of an explicit ROI mask, made orthogonal to ``up``; +Z otherwise."""
+    the centroid of an explicit ROI mask, made orthogonal to ``up``; without a mask, where the
+    input mesh faces (``seen``: :func:`geoface.mesh.frame.mesh_frame`), +Z failing that."""
     if not (isinstance(opts.front, str) and opts.front == "auto"):
         return _axis(opts.front, (0.0, 0.0, 1.0))
     if roi is None or isinstance(opts.roi, str) or not roi.any() or roi.all():
-        return np.array([0.0, 0.0, 1.0])
+        if seen is None:
+            return np.array([0.0, 0.0, 1.0])
+        d = np.asarray(seen, np.float64) - (np.asarray(seen, np.float64) @ up) * up
+        L = np.linalg.norm(d)
+        return d / L if L > 1e-6 else np.array([0.0, 0.0, 1.0])
     from .mesh.core import vertex_areas
 
     a = vertex_areas(V, F)
@@ -268,9 +274,26 @@ def _front(opts: ConvertOptions, V: np.ndarray, F: np.ndarray, roi, up: np.ndarr
     return d / L if L > 0 else np.array([0.0, 0.0, 1.0])
 
 
-def _roi_mask(opts: ConvertOptions, V0: np.ndarray) -> np.ndarray | None:
+def _auto_front(opts: ConvertOptions, mesh: Mesh):
+    """Where the input faces when ``front`` is "auto" and no ROI mask tells it (scans come facing
+    any horizontal direction): :func:`geoface.mesh.frame.mesh_frame` about the given up axis."""
+    if not (isinstance(opts.front, str) and opts.front == "auto") or not isinstance(opts.roi, str):
+        return None
+    from .mesh.frame import mesh_frame
+
+    up = "y" if isinstance(opts.up, str) and opts.up == "auto" else opts.up
+    try:
+        return mesh_frame(mesh.V, mesh.F, up=_axis(up, (0.0, 1.0, 0.0))).front
+    except GeofaceError:  # no area to look at: the repair will say what is wrong
+        return None
+
+
+def _roi_mask(opts: ConvertOptions, V0: np.ndarray, seen=None) -> np.ndarray | None:
     if isinstance(opts.roi, str):
-        return None if opts.roi == "none" else face_region(V0, _axis(opts.front, (0.0, 0.0, 1.0)))
+        if opts.roi == "none":
+            return None
+        front = seen if seen is not None else _axis(opts.front, (0.0, 0.0, 1.0))
+        return face_region(V0, front)
     m = np.asarray(opts.roi)
     if m.shape != (len(V0),) or m.dtype != bool:
         raise GeofaceError(f"roi mask must be a ({len(V0)},) bool array over the input's vertices")
@@ -298,7 +321,8 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     out_dir = Path(out_dir)
     times: dict = {}
     t_all = time.perf_counter()
-    roi0 = _roi_mask(opts, mesh.V)
+    seen = _auto_front(opts, mesh)
+    roi0 = _roi_mask(opts, mesh.V, seen)
 
     t = time.perf_counter()
     log(f"convert: repairing {len(mesh.V)} vertices to a disk", quiet=quiet)
@@ -318,7 +342,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     up_vec = _axis(opts.up, (0.0, 1.0, 0.0))
     if auto_up and len(boundary_loops(mesh.F)):
         up_vec = opening_normal(V, dm.F)
-    front = _front(opts, V, dm.F, roi, up_vec)
+    front = _front(opts, V, dm.F, roi, up_vec, seen)
     indices = [opts.corner_set] if opts.corner_set is not None else list(range(opts.augment))
     all_sets = corner_sets(V, dm.F, n=8, front=front, up=up_vec, count=max(indices) + 1)
     sets = [all_sets[i] for i in indices]

@@ -95,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "and which way the face is upright in the image; auto: from the opening of a surface already open "
                    "(the neck), else y")
     s.add_argument("--front", default="auto", help="face direction: auto (default: towards the centroid of a --roi mask "
-                   "file, +z without one) or an axis (z, -x, ...)")
+                   "file; without one, where the mesh faces: symmetry and detail, as `view` finds it) or an axis (z, -x, ...)")
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto", help="how to open a closed surface")
     s.set_defaults(func=cmd_convert)
 
