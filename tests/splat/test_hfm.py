@@ -682,6 +682,20 @@ def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
     assert main(["hmd", "export", str(md), "--drive", str(use), "-o", str(tmp_path / "ply")]) == 0
     assert sorted(p.name for p in (tmp_path / "ply").iterdir()) == ["frame_00000.ply", "frame_00001.ply"]
     assert main(["hmd", "export", str(md), "-o", str(tmp_path / "ply2")]) == 2  # --drive is required
+    if importlib.util.find_spec("viser"):  # the web viewer animates it beside the headset video
+        import socket
+
+        from geoface.webview import WebView
+
+        with socket.socket() as sk:
+            sk.bind(("127.0.0.1", 0))
+            port = sk.getsockname()[1]
+        view = WebView([md], drive=use, port=port, quiet=True)
+        try:
+            d = view.items[0].extra["drive"]
+            assert d.model_kind == "hfm" and d.n_frames == 2 and d.frames.shape[0] == 2
+        finally:
+            view.stop()
     assert main(["hmd", "eval", str(md), str(use), "--json", str(tmp_path / "e.json")]) == 0
     assert "psnr_occluded" in json.loads((tmp_path / "e.json").read_text())
     out = capsys.readouterr().out
