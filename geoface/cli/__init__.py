@@ -111,7 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(several: side by side)")
     s.add_argument("--screenshot", default=None, metavar="OUT.png", help="render off-screen to this PNG and exit")
     s.add_argument("--turntable", default=None, metavar="OUT.mp4",
-                   help="render a turn around the mesh (or the surface of a geometry image) to an MP4 and exit")
+                   help="render a turn around the mesh (the surface of a geometry image, or a 3DGS .ply) to an MP4 and exit")
     s.add_argument("--seconds", type=number(float, 0.5, 120), default=6.0, help="length of --turntable (6 s, 25 fps)")
     s.add_argument("--view", default="front",
                    choices=["front", "back", "left", "right", "top", "bottom", "iso", "xy", "xz", "yz"],

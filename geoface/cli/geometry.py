@@ -266,6 +266,17 @@ def cmd_view(args) -> int:
     path = Path(args.file[0])
     if shot is not None or movie is not None:
         _guard(args, [path], [shot or movie])
+    from ..webview.items import item_kind
+
+    if path.is_file() and item_kind(path) == "splat":  # Gaussian splats: our rasterizer, off-screen
+        if movie is None:
+            raise GeofaceError(f"{path} holds Gaussian splats: look at them with --turntable OUT.mp4 or --web")
+        from ..splat.drive import splat_turntable
+        from ..splat.ply import load_ply
+
+        n = splat_turntable(load_ply(path), movie, seconds=args.seconds, size=size, up=args.up)
+        print(f"{args.file[0]} -> {movie}  (turntable of the splats, {n} frames, {size[0]}x{size[1]})")
+        return 0
     if path.is_dir() and not (path / "meta.json").exists() and (path / "aug0" / "meta.json").exists():
         path = path / "aug0"  # `geoface convert --augment K` writes one image set per corner set
     if path.is_dir():

@@ -24,7 +24,7 @@ import torch
 
 from geoface.splat.errors import SplatError
 
-__all__ = ["AvatarDrive", "avatar_drive", "avatar_kind", "export_frames", "parse_frames"]
+__all__ = ["AvatarDrive", "avatar_drive", "avatar_kind", "export_frames", "parse_frames", "splat_turntable"]
 
 
 @dataclass
@@ -176,3 +176,33 @@ def export_frames(drive: AvatarDrive, out, frames=None) -> list[Path]:
         save_ply(g, p)
         paths.append(p)
     return paths
+
+
+@torch.no_grad()
+def splat_turntable(gaussians, path, *, seconds: float = 6.0, fps: float = 25.0, size=(512, 512), up=None,
+                    elevation: float = 10.0, background=(1.0, 1.0, 1.0)) -> int:
+    """A turn around Gaussian splats (e.g. a 3DGS PLY), rendered by :func:`geoface.splat.rasterizer.rasterize`
+    and written as an MP4 (``geoface.video``): from the front the splats' centres show
+    (:func:`geoface.mesh.frame.points_frame`), ``elevation`` degrees above the horizon. Returns
+    the frame count."""
+    from geoface.mesh.frame import points_frame
+    from geoface.nn.camera import look_at
+    from geoface.splat.rasterizer import rasterize
+    from geoface.video import write_video
+
+    means = gaussians.means.detach().double().numpy()
+    fr = points_frame(means, up=up)
+    n = max(2, int(round(float(seconds) * float(fps))))
+    W, H = (int(x) for x in size)
+    bg = torch.tensor(background, dtype=torch.float32)
+    el = np.radians(elevation)
+
+    def frames():
+        for k in range(n):
+            a = 2 * np.pi * k / n
+            d = np.cos(el) * (np.cos(a) * fr.front + np.sin(a) * fr.right) + np.sin(el) * fr.up
+            cam = look_at(fr.center + 2.4 * fr.radius * d, fr.center, fr.up, width=W, height=H, fov_y_deg=40.0)
+            yield rasterize(gaussians, cam, background=bg)[0].clamp(0, 1).numpy()
+
+    write_video(frames(), path, fps=fps)
+    return n

@@ -1,0 +1,69 @@
+"""MP4s: frames and audio written and read back exactly (frame count, duration, streams), and
+the turntables of `geoface view` for a mesh and for Gaussian splats."""
+from __future__ import annotations
+
+import wave
+
+import numpy as np
+import pytest
+
+pytest.importorskip("imageio_ffmpeg", reason="videos need imageio-ffmpeg (pip install 'geoface[video]')")
+
+from geoface import GeofaceError  # noqa: E402
+from geoface.cli import main  # noqa: E402
+from geoface.video import probe_video, write_video  # noqa: E402
+
+
+def _wav(path, seconds=2.0, sr=16000):
+    t = np.arange(int(sr * seconds)) / sr
+    with wave.open(str(path), "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(sr)
+        w.writeframes((0.3 * np.sin(2 * np.pi * 440 * t) * 32767).astype(np.int16).tobytes())
+
+
+def test_frames_and_audio_round_trip(tmp_path):
+    frames = [np.full((63, 81, 3), 4 * i, np.uint8) for i in range(40)]  # odd sides: padded by one pixel
+    _wav(tmp_path / "a.wav", seconds=3.0)  # longer than the video: cut to it
+    v = probe_video(write_video(frames, tmp_path / "v.mp4", fps=20, audio=tmp_path / "a.wav"))
+    assert (v["frames"], v["fps"], v["width"], v["height"], v["codec"]) == (40, 20, 82, 64, "h264")
+    assert abs(v["seconds"] - 2.0) < 1e-6 and v["audio"] and abs(v["duration"] - 2.0) < 0.1
+    floats = [np.random.default_rng(0).random((32, 32, 3)) for _ in range(5)]  # float frames in [0, 1]
+    v2 = probe_video(write_video(floats, tmp_path / "f.mp4", fps=5))
+    assert v2["frames"] == 5 and not v2["audio"]
+    with pytest.raises(GeofaceError, match="all be"):
+        write_video([np.zeros((8, 8, 3)), np.zeros((8, 10, 3))], tmp_path / "x.mp4")
+    with pytest.raises(GeofaceError, match=".mp4"):
+        write_video(frames, tmp_path / "x.avi")
+    assert not (tmp_path / "x.mp4").exists() and not list(tmp_path.glob(".x.*"))  # nothing half-written
+
+
+def test_turntables_of_a_mesh_and_of_splats(tmp_path, capsys):
+    pytest.importorskip("pyvista")
+    from geoface.splat.gaussians import Gaussians
+    from geoface.splat.ply import save_ply
+    from geoface.synth.ict import ict_head, load_ict_model
+
+    head = ict_head(load_ict_model(), seed=4)
+    mesh = tmp_path / "head.obj"
+    assert main(["synth", "ict", "-o", str(mesh), "--seed", "4", "-q"]) == 0
+    out = tmp_path / "turn.mp4"
+    assert main(["view", str(mesh), "--turntable", str(out), "--seconds", "1", "--size", "64,48"]) == 0
+    v = probe_video(out)
+    assert (v["frames"], v["width"], v["height"]) == (25, 64, 48)
+    assert main(["view", str(mesh), "--turntable", str(out), "--seconds", "1"]) == 2  # exists: never replaced
+    g = Gaussians.from_mesh(head.V, head.F, np.tile([0.2, 0.7, 0.3], (len(head.V), 1)), opacity=0.9)
+    ply = tmp_path / "head_gs.ply"
+    save_ply(g, ply)
+    assert main(["view", str(ply), "--turntable", str(tmp_path / "gs.mp4"), "--seconds", "0.5", "--size", "48,48"]) == 0
+    assert probe_video(tmp_path / "gs.mp4")["frames"] == 12  # round(0.5 s x 25 fps)
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(tmp_path / "gs.mp4"))
+    size = next(reader)["size"]
+    first = np.frombuffer(next(reader), np.uint8).reshape(size[1], size[0], 3).astype(int)
+    green = (first[..., 1] > first[..., 0] + 40) & (first[..., 1] > first[..., 2] + 40)
+    assert green.mean() > 0.1  # the splats are drawn, in their colour, in the middle of the picture
+    assert main(["view", str(ply), "--screenshot", str(tmp_path / "gs.png")]) == 2
+    assert "Gaussian splats" in capsys.readouterr().err
