@@ -94,6 +94,7 @@ class Judge:
         from geoface.learn.render import HeadRenderer
 
         self.state = state
+        self.support = None  # pixels every training item covers (set once the real items are read)
         nz = Normalization.from_dict(state["normalization"])
         self.ref = ref  # (R*R, 3) mean training head, normalised
         c = np.asarray(nz.center) + np.array([0.0, 0.32, 0.0]) * nz.scale  # the face and the top of the head
@@ -110,6 +111,16 @@ class Judge:
             m = np.linalg.norm(x[3:6].reshape(3, -1).T, axis=1) > 0.5
             out[k, :3] = similarity_align(P, self.ref, m).T.reshape(3, R, R) * m.reshape(R, R)[None]
         return out
+
+    def support_validity(self, X: np.ndarray) -> list:
+        """Validity with the coverage mask completed by the data's support (pixels every training
+        item covers count as covered), the rest as :meth:`__call__`."""
+        import torch
+
+        from geoface.learn import evaluate as ev
+        from geoface.learn.ddpm import to_geometry_images
+
+        return [ev.mesh_validity(g) for g in to_geometry_images(torch.from_numpy(self.align(X)), self.state, self.support)]
 
     def __call__(self, X: np.ndarray):
         """``(renders [n, views, S, S], validity list)`` of normalised images ``X``."""
@@ -258,6 +269,7 @@ def run(a) -> int:
     R = X.shape[-1]
     ref = X[tr, :3].mean(0).reshape(3, -1).T
     judge = Judge(drun.state, ref, a.render_size, a.views)
+    judge.support = M[tr].all(axis=0)  # every training head covers these pixels (all of them for ICT heads)
     real_r, real_v = judge(X)
     emit(case="real_renders", items=len(X), seconds=time.perf_counter() - t,
          valid_rate=float(np.mean([v.valid for v in real_v])), reasons=dict(Counter(v.reason for v in real_v if not v.valid)))
@@ -288,10 +300,11 @@ def run(a) -> int:
     t = time.perf_counter()
     xu = sample(drun, "", n=n, steps=a.sample_steps, guidance=0.0, seed=a.seed + 999, device=a.device, quiet=True)
     ru, vu = judge(xu.numpy())
+    vus = judge.support_validity(xu.numpy())
     pu = ev.predict(clf, ru)
     uncond = Counter(classes[p] for p in pu)
     emit(case="unconditional", n=n, seconds=time.perf_counter() - t, valid_rate=float(np.mean([v.valid for v in vu])),
-         predicted=dict(uncond))
+         valid_rate_support=float(np.mean([v.valid for v in vus])), predicted=dict(uncond))
 
     # ---- samples per preset prompt
     rng = np.random.default_rng(a.seed)
@@ -303,6 +316,7 @@ def run(a) -> int:
         secs = time.perf_counter() - t
         S = x.numpy()
         rs, val = judge(S)
+        val_s = judge.support_validity(S)
         SM = np.linalg.norm(S[:, 3:6], axis=1) > 0.5
         pred = ev.predict(clf, rs)
         same = np.flatnonzero(labels == cls)
@@ -311,6 +325,8 @@ def run(a) -> int:
         rec = dict(case="prompt", prompt=prompt, expression=cls, n=n, sample_seconds=secs,
                    valid_rate=float(np.mean([v.valid for v in val])),
                    invalid_reasons=dict(Counter(v.reason for v in val if not v.valid)),
+                   valid_rate_support=float(np.mean([v.valid for v in val_s])),
+                   invalid_reasons_support=dict(Counter(v.reason for v in val_s if not v.valid)),
                    text_accuracy=float(np.mean(pred == k)), chance=1.0 / len(classes),
                    unconditional_rate=uncond.get(cls, 0) / n, predicted=dict(Counter(classes[p] for p in pred)),
                    vendi_samples=vendi_of(rs, mean_render), vendi_real=vendi_of(real_r[ref_idx], mean_render),
@@ -332,6 +348,8 @@ def run(a) -> int:
     allv = [r["valid_rate"] for r in summary]
     emit(case="summary", res=cfg.res, prompts=len(summary), samples=sum(r["n"] for r in summary),
          valid_rate=float(np.mean(allv)), valid_rate_real=float(np.mean([v.valid for v in real_v])),
+         valid_rate_support=float(np.mean([r["valid_rate_support"] for r in summary])),
+         support_pixels=float(judge.support.mean()),
          text_accuracy_mean=float(np.mean([r["text_accuracy"] for r in summary])),
          unconditional_rate_mean=float(np.mean([r["unconditional_rate"] for r in summary])),
          classifier_held_out_accuracy=acc_ho, chance=1.0 / len(classes),

@@ -482,9 +482,13 @@ def sample(run: DiffusionRun, prompt: str, n: int = 4, steps: int = 50, schedule
     return run.stats.inverse(x) if run.stats is not None else x
 
 
-def to_geometry_images(x: torch.Tensor, state: dict) -> list:
+def to_geometry_images(x: torch.Tensor, state: dict, support=None) -> list:
     """Samples ``[n, C, R, R]`` → :class:`geoface.gimage.GeometryImage` (clamped to [0, 1] here),
-    positions in mesh units through the run's dataset normalisation (``state``'s box)."""
+    positions in mesh units through the run's dataset normalisation (``state``'s box).
+
+    The coverage mask is ``|normal| > 0.5``; ``support`` (a boolean ``[R, R]``, e.g. the pixels
+    that every training item covers) adds pixels known to be covered whatever the sample's
+    normal length there."""
     import numpy as np
 
     from geoface.gimage import GeometryImage
@@ -497,6 +501,8 @@ def to_geometry_images(x: torch.Tensor, state: dict) -> list:
         img = ((s.float() + 1) / 2).clamp(0, 1).numpy().astype(np.float32)
         nrm = s[3:6].float()
         mask = (nrm.norm(dim=0) > 0.5).numpy()
+        if support is not None:
+            mask = mask | np.asarray(support, bool)
         img = img * mask[None]
         meta = {"bbox_min": list(state["bbox_min"]), "bbox_max": list(state["bbox_max"]),
                 "channels": [c for m in mods for c in MODALITIES[m]],
