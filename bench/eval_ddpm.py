@@ -100,8 +100,9 @@ class Judge:
         c = np.asarray(nz.center) + np.array([0.0, 0.32, 0.0]) * nz.scale  # the face and the top of the head
         self.renderer = HeadRenderer(center=c, scale=0.62 * nz.scale, size=size, views=views)
 
-    def align(self, X: np.ndarray) -> np.ndarray:
-        """Positions of ``X [n, C, R, R]`` (normalised) moved onto the reference by a similarity."""
+    def align(self, X: np.ndarray, support=None) -> np.ndarray:
+        """Positions of ``X [n, C, R, R]`` (normalised) moved onto the reference by a similarity;
+        zero outside the coverage mask (``|normal| > 0.5``, or ``support``)."""
         from geoface.learn.render import similarity_align
 
         out = X.copy()
@@ -109,6 +110,8 @@ class Judge:
             R = x.shape[-1]
             P = x[:3].reshape(3, -1).T
             m = np.linalg.norm(x[3:6].reshape(3, -1).T, axis=1) > 0.5
+            if support is not None:
+                m = m | np.asarray(support, bool).reshape(-1)
             out[k, :3] = similarity_align(P, self.ref, m).T.reshape(3, R, R) * m.reshape(R, R)[None]
         return out
 
@@ -120,7 +123,8 @@ class Judge:
         from geoface.learn import evaluate as ev
         from geoface.learn.ddpm import to_geometry_images
 
-        return [ev.mesh_validity(g) for g in to_geometry_images(torch.from_numpy(self.align(X)), self.state, self.support)]
+        return [ev.mesh_validity(g) for g in to_geometry_images(torch.from_numpy(self.align(X, self.support)), self.state,
+                                                                 self.support)]
 
     def __call__(self, X: np.ndarray):
         """``(renders [n, views, S, S], validity list)`` of normalised images ``X``."""
