@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._io import default_mode
 from ._lazy import lazy_import
 from .errors import GeofaceError
 
@@ -79,7 +80,7 @@ def write_video(frames, path, *, fps: float = 25.0, audio=None, quality: float =
             raise GeofaceError("no frames to write")
         writer.close()
         writer = None
-        os.chmod(tmp, 0o666 & ~_umask())
+        os.chmod(tmp, default_mode())
         os.replace(tmp, path)
     finally:
         if writer is not None:
@@ -90,12 +91,6 @@ def write_video(frames, path, *, fps: float = 25.0, audio=None, quality: float =
         if tmp.exists():
             tmp.unlink()
     return path
-
-
-def _umask() -> int:
-    m = os.umask(0)
-    os.umask(m)
-    return m
 
 
 def probe_video(path) -> dict:

@@ -149,17 +149,6 @@ def _trimesh(V, F, *, vertex_colors=None, face_colors=None, uv=None, texture=Non
     return tm
 
 
-def _texture8(T) -> np.ndarray:
-    T = np.asarray(T)
-    if T.dtype == np.uint16:
-        T = (T // 257).astype(np.uint8)
-    elif T.dtype != np.uint8:
-        T = np.round(np.clip(T, 0, 1) * 255).astype(np.uint8)
-    if T.ndim == 2:
-        T = np.repeat(T[..., None], 3, axis=2)
-    return np.ascontiguousarray(T[..., :3])
-
-
 def _boundary_segments(V, F) -> np.ndarray:
     """(k, 2, 3) segments of every boundary edge (edges with one face)."""
     from ..mesh.core import edge_topology
@@ -171,13 +160,10 @@ def _boundary_segments(V, F) -> np.ndarray:
 
 def _gimage_images(gi, folder: Path) -> dict:
     """name → (N, N, 3) uint8 image of a geometry image's modalities, mask and ROI."""
-    tiles = {}
-    for name in ("position", "normal", "texture"):
-        if gi.has(name):
-            t = np.clip(gi.modality(name).transpose(1, 2, 0), 0, 1)
-            tiles[name] = np.round(t * 255).astype(np.uint8)
+    from ..viz import _gimage_tiles
+
+    tiles = dict(_gimage_tiles(gi))
     m = np.asarray(gi.mask, bool)
-    tiles["mask"] = np.repeat((m * 255).astype(np.uint8)[..., None], 3, axis=2)
     roi = Path(folder) / "roi.png"
     if roi.is_file():
         import cv2

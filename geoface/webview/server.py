@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import GeofaceError
-from .items import (_BOUNDARY, _GREY, DEFAULT_PORT, _boundary_segments, _gimage_images, _Item, _load, _texture8,
+from .items import (_BOUNDARY, _GREY, DEFAULT_PORT, _boundary_segments, _gimage_images, _Item, _load,
                     _trimesh, _viser, item_kind, uv_distortion_colors)
 
 __all__ = ["WebView"]
@@ -157,10 +157,10 @@ class WebView:
             mode = colour.value
             legend.content = ""
             if mode == "texture":
-                from ..viz import split_corner_uvs
+                from ..viz import _texture_uint8, split_corner_uvs
 
                 V2, F2, uv2, _ = split_corner_uvs(m.V, m.F, m.UV, m.FUV)
-                tm = _trimesh(V2, F2, uv=uv2, texture=_texture8(m.texture), flat=flat)
+                tm = _trimesh(V2, F2, uv=uv2, texture=_texture_uint8(m.texture), flat=flat)
                 handles["surface"] = srv.scene.add_mesh_trimesh(f"{node}/surface", tm, **place)
             elif mode == "colours":
                 tm = _trimesh(m.V, m.F, vertex_colors=m.colors[:, :3], flat=flat)
@@ -238,11 +238,11 @@ class WebView:
     def _splats(self, node, means, log_scales, quats, opacity_logits, colors, place):
         import torch
 
-        from ..splat.gaussians import covariance
+        from ..splat.gaussians import SH_C0, covariance
 
         with torch.no_grad():
             cov = covariance(log_scales, quats).numpy()
-            rgb = colors if colors.ndim == 2 else colors[:, 0, :] * 0.28209479177387814 + 0.5
+            rgb = colors if colors.ndim == 2 else colors[:, 0, :] * SH_C0 + 0.5
             rgb = rgb.clamp(0, 1).numpy()
             op = torch.sigmoid(opacity_logits).numpy()[:, None]
         return self.server.scene.add_gaussian_splats(
