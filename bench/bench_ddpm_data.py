@@ -132,19 +132,22 @@ def speed(a) -> None:
     from geoface.learn.ddpm import DDPMConfig, build_scheduler, build_unet, ddpm_loss
 
     torch.set_num_threads(a.threads)
-    for res in a.resolutions:
-        cfg = DDPMConfig.preset("small", res=res, cross_attention_dim=384, channels=6, modalities=("position", "normal"))
+    dev = torch.device(a.device)
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
+    for res, patch in [(r, p) for r in a.resolutions for p in a.patch]:
+        cfg = DDPMConfig.preset("small", res=res, cross_attention_dim=384, channels=6, modalities=("position", "normal"),
+                                patch=patch)
         torch.manual_seed(0)
-        unet = build_unet(cfg)
+        unet = build_unet(cfg).to(dev)
         opt = torch.optim.AdamW(unet.parameters(), lr=1e-4)
         sched = build_scheduler(cfg)
         g = torch.Generator().manual_seed(0)
-        x0 = torch.randn(a.batch, cfg.channels, res, res, generator=g)
-        cond = torch.randn(a.batch, 32, 384, generator=g)
+        x0 = torch.randn(a.batch, cfg.channels, res, res, generator=g).to(dev)
+        cond = torch.randn(a.batch, 32, 384, generator=g).to(dev)
 
         def step():
-            eps = torch.randn(x0.shape, generator=g)
-            t = torch.randint(0, 1000, (a.batch,), generator=g)
+            eps = torch.randn(x0.shape, generator=g).to(dev)
+            t = torch.randint(0, 1000, (a.batch,), generator=g).to(dev)
             loss, _ = ddpm_loss(unet(sched.add_noise(x0, eps, t), t, encoder_hidden_states=cond).sample, eps, cfg.modalities)
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -155,11 +158,14 @@ def speed(a) -> None:
         flops = fc.get_total_flops()
         times = []
         for _ in range(a.repeats):
+            sync()
             t = time.perf_counter()
             step()
+            sync()
             times.append(time.perf_counter() - t)
         sec = float(np.median(times))
-        emit(case="speed", res=res, batch=a.batch, threads=a.threads, params=sum(p.numel() for p in unet.parameters()),
+        extra = {"gpu": torch.cuda.get_device_name(dev)} if dev.type == "cuda" else {"threads": a.threads}
+        emit(case="speed", res=res, patch=patch, batch=a.batch, device=dev.type, **extra, params=sum(p.numel() for p in unet.parameters()),
              seconds_per_step=sec, steps_per_second=1 / sec, gflop_per_step=flops / 1e9,
              ops_per_step=ops.n, gpu_estimate_steps_per_second=1.0 / max(flops / (a.gpu_tflops * 1e12), ops.n * a.launch_us * 1e-6),
              gpu_tflops_assumed=a.gpu_tflops, gpu_launch_us_assumed=a.launch_us)
@@ -180,6 +186,8 @@ def main() -> int:
     s = sub.add_parser("speed")
     s.add_argument("--resolutions", type=int, nargs="+", default=[64, 128, 256])
     s.add_argument("--batch", type=int, default=8)
+    s.add_argument("--patch", type=int, nargs="+", default=[1], help="DDPMConfig.patch values to time")
+    s.add_argument("--device", default="cpu", help="cpu | cuda (a measured GPU time instead of the estimate)")
     s.add_argument("--threads", type=int, default=2)
     s.add_argument("--repeats", type=int, default=5)
     s.add_argument("--gpu-tflops", type=float, default=50.0, help="assumed sustained TFLOP/s of a GPU (fp32/TF32 training)")

@@ -152,6 +152,37 @@ def vendi_of(R: np.ndarray, mean: np.ndarray) -> float:
     return ev.vendi_score(ev.cosine_similarity((R - mean[None]).reshape(len(R), -1)))
 
 
+def choose_sampling(a, drun, judge, clf, classes, sample, ev) -> tuple[str, int, float]:
+    """``(scheduler, steps, guidance)``: the ``--select`` setting whose validation samples (seeds
+    from ``a.seed + 10_000``) are most often valid (coverage completed by the support), then
+    best follow their prompt; one ``validation`` line per setting."""
+    from geoface.synth.ict_data import PRESET_PROMPTS
+
+    if not a.select:
+        return "ddim", a.sample_steps, a.guidance
+    scored = []
+    for spec in a.select:
+        try:
+            name, steps, guidance = spec.split(":")
+            setting = (name, int(steps), float(guidance))
+        except ValueError:
+            raise GeofaceError(f"--select: {spec!r} is not SCHED:STEPS:GUIDANCE (e.g. ddim:50:3)") from None
+        t = time.perf_counter()
+        valid, hits = [], []
+        for k, cls in enumerate(classes):
+            x = sample(drun, PRESET_PROMPTS[cls], n=a.val_per_prompt, steps=setting[1], scheduler=setting[0],
+                       guidance=setting[2], seed=a.seed + 10_000 + k, device=a.device, quiet=True).numpy()
+            valid += [v.valid for v in judge.support_validity(x)]
+            hits += list(ev.predict(clf, judge(x)[0]) == k)
+        score = (float(np.mean(valid)), float(np.mean(hits)))
+        scored.append((score, setting))
+        emit(case="validation", setting=spec, n=len(valid), valid_rate_support=score[0], text_accuracy=score[1],
+             seconds=time.perf_counter() - t)
+    best = max(scored, key=lambda s: s[0])[1]
+    emit(case="chosen", scheduler=best[0], steps=best[1], guidance=best[2])
+    return best
+
+
 def build_quick_data(root: Path) -> Path:
     from geoface.dataset import DatasetOptions, build_ict_dataset
     build_ict_dataset(root / "data", 36, DatasetOptions(res=16, augment=1, preview=False), seed=0, mix_share=0.0,
@@ -174,6 +205,12 @@ def main() -> int:
     ap.add_argument("--augment", action="store_true", help="train with rigid augmentation")
     ap.add_argument("--no-standardize", action="store_true",
                     help="ablation: denoise the raw dataset-frame channels (the paper's set-up) instead of standardised ones")
+    ap.add_argument("--patch", type=int, default=1, help="pixel blocks folded into channels (DDPMConfig.patch)")
+    ap.add_argument("--prediction", default="epsilon", help="epsilon | v_prediction | sample")
+    ap.add_argument("--schedule-shift", type=float, default=1.0, help="noise-schedule shift (DDPMConfig.schedule_shift)")
+    ap.add_argument("--stats-per-pixel", action="store_true", help="standardise per pixel (DDPMConfig.stats_per_pixel)")
+    ap.add_argument("--lr-schedule", default="constant", help="constant | cosine (over --steps)")
+    ap.add_argument("--ema-decay", type=float, default=None, help="EMA decay (default: the preset's)")
     ap.add_argument("--text", default="minilm", help="text encoder: minilm | clip:PATH | hash[:DIM]")
     ap.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads for training")
@@ -181,6 +218,11 @@ def main() -> int:
     ap.add_argument("--samples-per-prompt", type=int, default=16)
     ap.add_argument("--sample-steps", type=int, default=50)
     ap.add_argument("--guidance", type=float, default=3.0)
+    ap.add_argument("--select", nargs="+", default=None, metavar="SCHED:STEPS:GUIDANCE",
+                    help="sampling settings to choose from on validation samples (other seeds than the "
+                         "reported ones), e.g. ddim:50:3 ddim:50:1.5 ddpm:200:3; the most valid wins, then "
+                         "the best text control; default: ddim with --sample-steps and --guidance")
+    ap.add_argument("--val-per-prompt", type=int, default=4, help="validation samples per prompt and setting")
     ap.add_argument("--render-size", type=int, default=64)
     ap.add_argument("--views", nargs="+", default=["front", "three_quarter"])
     ap.add_argument("--classifier-epochs", type=int, default=40)
@@ -233,7 +275,10 @@ def run(a) -> int:
         train_dir = write_split(a.data, rows, tr, work / "train_data")
         cfg = DDPMConfig.preset(a.model, res=a.res, text_encoder=a.text, batch_size=a.batch, steps=a.steps,
                                 checkpoint_every=200, seed=a.seed, augment=bool(a.augment),
-                                standardize=not a.no_standardize)
+                                standardize=not a.no_standardize, patch=a.patch, prediction=a.prediction,
+                                schedule_shift=a.schedule_shift, stats_per_pixel=a.stats_per_pixel,
+                                lr_schedule=a.lr_schedule,
+                                **({"ema_decay": a.ema_decay} if a.ema_decay is not None else {}))
         run_dir = a.run_dir or (a.out / "run" if not a.quick else work / "run")
         before = {}
         if a.resume:
@@ -247,7 +292,9 @@ def run(a) -> int:
                 "steps_per_second": last["steps_per_second"],
                 "threads": torch.get_num_threads(), "device": a.device, "batch": a.batch, "final_loss": last["loss"],
                 "losses": last["losses"], "model": a.model, "augment": bool(a.augment), "text_encoder": cfg.text_encoder,
-                "standardize": cfg.standardize,
+                "standardize": cfg.standardize, "patch": cfg.patch, "prediction": cfg.prediction,
+                "schedule_shift": cfg.schedule_shift, "stats_per_pixel": cfg.stats_per_pixel,
+                "lr_schedule": cfg.lr_schedule, "ema_decay": cfg.ema_decay,
                 "train_items": len(tr)}
         (run_dir / "train_info.json").write_text(json.dumps(info), encoding="utf-8")
         emit(case="train", **info)
@@ -299,10 +346,14 @@ def run(a) -> int:
     emit(case="nn_baseline", what="held-out real -> train (aligned RMS, dataset frame)", n=len(ho), mean=float(d_ho.mean()),
          median=float(np.median(d_ho)), min=float(d_ho.min()))
 
+    # ---- sampling settings, chosen on validation samples (seeds the reported samples do not use)
+    sched_name, a.sample_steps, a.guidance = choose_sampling(a, drun, judge, clf, classes, sample, ev)
+
     # ---- unconditional samples: how often each expression comes up unasked
     n = a.samples_per_prompt
     t = time.perf_counter()
-    xu = sample(drun, "", n=n, steps=a.sample_steps, guidance=0.0, seed=a.seed + 999, device=a.device, quiet=True)
+    xu = sample(drun, "", n=n, steps=a.sample_steps, scheduler=sched_name, guidance=0.0, seed=a.seed + 999,
+                device=a.device, quiet=True)
     ru, vu = judge(xu.numpy())
     vus = judge.support_validity(xu.numpy())
     pu = ev.predict(clf, ru)
@@ -316,7 +367,8 @@ def run(a) -> int:
     for k, cls in enumerate(classes):
         prompt = PRESET_PROMPTS[cls]
         t = time.perf_counter()
-        x = sample(drun, prompt, n=n, steps=a.sample_steps, guidance=a.guidance, seed=a.seed + k, device=a.device, quiet=True)
+        x = sample(drun, prompt, n=n, steps=a.sample_steps, scheduler=sched_name, guidance=a.guidance, seed=a.seed + k,
+                   device=a.device, quiet=True)
         secs = time.perf_counter() - t
         S = x.numpy()
         rs, val = judge(S)

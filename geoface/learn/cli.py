@@ -65,7 +65,9 @@ def cmd_ddpm_sample(args) -> int:
                guidance=args.guidance, seed=args.seed, device=_device(args.device), quiet=_quiet(args))
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
-    for k, gi in enumerate(to_geometry_images(x, run.state)):
+    # the pixels every training item covers are covered in every sample (runs that stored them)
+    support = run.stats.support if run.stats is not None else None
+    for k, gi in enumerate(to_geometry_images(x, run.state, support)):
         gi.meta["prompt"] = args.prompt
         folder = save_gimage(out / f"sample_{k:03d}", gi)
         msg = f"{folder}"

@@ -214,13 +214,16 @@ class DataStats:
     """``standardised = (x - mean) / std`` for stacked images ``x [C, R, R]``.
 
     ``mean`` ``[C, R, R]``: the dataset's mean image; ``std`` ``[C]``: one standard deviation
-    per modality (the same for its three channels) of ``x - mean`` over items and pixels;
-    ``bound``: the largest ``|standardised|`` seen (what sampling clips its x0 estimates to).
-    Stored beside a checkpoint as ``data_stats.safetensors``."""
+    per modality (the same for its three channels) of ``x - mean`` over items and pixels, or
+    ``[C, R, R]``: one per modality and pixel (over items); ``bound``: the largest
+    ``|standardised|`` seen (what sampling clips its x0 estimates to); ``support`` ``[R, R]``
+    bool: the pixels every item covers (None when unknown).  Stored beside a checkpoint as
+    ``data_stats.safetensors``."""
 
     mean: np.ndarray
     std: np.ndarray
     bound: float
+    support: np.ndarray | None = None
 
     #: a modality that does not vary at all (one item, a constant channel) is divided by this
     MIN_STD = 1e-3
@@ -237,14 +240,16 @@ class DataStats:
         if tuple(x.shape[-3:]) != tuple(self.mean.shape):
             raise GeofaceError(f"images of shape {tuple(x.shape[-3:])} do not match the data statistics {tuple(self.mean.shape)}")
         m = torch.from_numpy(self.mean).to(device=x.device, dtype=x.dtype)
-        s = torch.from_numpy(self.std).to(device=x.device, dtype=x.dtype)[:, None, None]
-        return m, s
+        s = torch.from_numpy(self.std).to(device=x.device, dtype=x.dtype)
+        return m, (s[:, None, None] if s.ndim == 1 else s)
 
     def save(self, path: str | os.PathLike) -> None:
         from safetensors.torch import save_file
         save_file({"mean": torch.from_numpy(np.ascontiguousarray(self.mean, np.float32)),
                    "std": torch.from_numpy(np.ascontiguousarray(self.std, np.float32)),
-                   "bound": torch.tensor([float(self.bound)], dtype=torch.float32)}, str(path))
+                   "bound": torch.tensor([float(self.bound)], dtype=torch.float32),
+                   **({"support": torch.from_numpy(np.ascontiguousarray(self.support, np.uint8))}
+                      if self.support is not None else {})}, str(path))
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "DataStats":
@@ -252,38 +257,55 @@ class DataStats:
         try:
             t = load_file(str(path))
             mean, std, bound = t["mean"].numpy(), t["std"].numpy(), float(t["bound"][0])
+            support = t["support"].numpy().astype(bool) if "support" in t else None
         except Exception as e:  # missing keys, truncated file
             raise GeofaceError(f"{path} is not a valid data statistics file ({type(e).__name__}: {e})") from None
-        if mean.ndim != 3 or std.shape != (mean.shape[0],) or not (np.isfinite(mean).all() and np.isfinite(std).all()
-                                                                   and (std > 0).all() and np.isfinite(bound) and bound > 0):
+        if (mean.ndim != 3 or std.shape not in ((mean.shape[0],), mean.shape)
+                or (support is not None and support.shape != mean.shape[1:])
+                or not (np.isfinite(mean).all() and np.isfinite(std).all() and (std > 0).all()
+                        and np.isfinite(bound) and bound > 0)):
             raise GeofaceError(f"{path}: data statistics of the wrong shape or not finite")
-        return cls(mean.astype(np.float32), std.astype(np.float32), bound)
+        return cls(mean.astype(np.float32), std.astype(np.float32), bound, support)
 
 
-def data_stats(ds: "GImageDataset", max_items: int = 1024, seed: int = 0, quiet: bool | None = True) -> DataStats:
+def data_stats(ds: "GImageDataset", max_items: int = 1024, seed: int = 0, quiet: bool | None = True,
+               per_pixel: bool = False, floor: float = 0.1) -> DataStats:
     """:class:`DataStats` of ``ds`` as training sees it (augmented when ``ds.augment``) over at
     most ``max_items`` items drawn without replacement: the mean image first, then the residual
-    spread, in two passes over the same draws."""
+    spread, in two passes over the same draws.
+
+    ``per_pixel``: one spread per modality and pixel (over the items), at least ``floor`` times
+    the modality's overall spread, instead of one per modality.  The support is the pixels
+    every drawn item covers."""
     from geoface.progress import progress
 
     n = len(ds)
     idx = np.arange(n) if n <= max_items else np.sort(np.random.default_rng(seed).choice(n, max_items, replace=False))
     keys = [(int(i), int(k)) for k, i in enumerate(idx)]  # the draw number seeds the augmentation
-    total = None
+    total, support = None, None
     for key in progress(keys, "data statistics (mean)", quiet=quiet):
-        x = ds[key]["image"].double().numpy()
+        it = ds[key]
+        x = it["image"].double().numpy()
         total = x.copy() if total is None else total + x
+        m = it["mask"].numpy().reshape(x.shape[1:]) > 0.5
+        support = m if support is None else support & m
     mean = total / len(keys)
     C = mean.shape[0]
-    sq, peak = np.zeros(C), np.zeros(C)
+    sq, peak = np.zeros_like(mean), np.zeros(C)
     for key in progress(keys, "data statistics (spread)", quiet=quiet):
         r = ds[key]["image"].double().numpy() - mean
-        sq += (r ** 2).sum(axis=(1, 2))
+        sq += r ** 2
         peak = np.maximum(peak, np.abs(r).max(axis=(1, 2)))
-    groups = sq.reshape(-1, 3).sum(axis=1) / (3 * len(keys) * mean.shape[1] * mean.shape[2])
+    R2 = mean.shape[1] * mean.shape[2]
+    groups = sq.reshape(C // 3, 3, -1).sum(axis=(1, 2)) / (3 * len(keys) * R2)
     std = np.repeat(np.maximum(np.sqrt(groups), DataStats.MIN_STD), 3)
-    bound = float((peak / std).max())
-    return DataStats(mean.astype(np.float32), std.astype(np.float32), max(bound, 1.0))
+    if not per_pixel:
+        bound = float((peak / std).max())
+    else:  # the bound needs the final spread: a third pass
+        pix = np.sqrt(sq.reshape(C // 3, 3, *mean.shape[1:]).sum(axis=1) / (3 * len(keys)))  # [M, R, R]
+        std = np.repeat(np.maximum(pix, floor * std[::3, None, None]), 3, axis=0)
+        bound = max(float(np.abs((ds[key]["image"].double().numpy() - mean) / std).max()) for key in keys)
+    return DataStats(mean.astype(np.float32), std.astype(np.float32), max(bound, 1.0), support)
 
 
 class GImageDataset(torch.utils.data.Dataset):

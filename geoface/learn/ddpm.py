@@ -41,10 +41,12 @@ from .._io import atomic_write_text
 from .errors import CheckpointError
 
 __all__ = ["DDPMConfig", "build_unet", "build_scheduler", "ddpm_loss", "EMA", "DiffusionRun",
-           "train", "load_run", "sample", "MODALITY_SLICES"]
+           "train", "load_run", "sample", "MODALITY_SLICES", "PatchedUNet", "shifted_cosine_betas", "ddpm_target",
+           "learning_rate"]
 
 MODALITY_SLICES = {"position": slice(0, 3), "normal": slice(3, 6), "texture": slice(6, 9)}
 STATS_FILE = "data_stats.safetensors"
+PREDICTIONS = ("epsilon", "v_prediction", "sample")
 
 
 @dataclass
@@ -79,6 +81,28 @@ class DDPMConfig:
     # denoise (x - mean image) / std per modality (module docs); configs written before this
     # option existed load with False
     standardize: bool = True
+    # what the UNet predicts: "epsilon" (the paper), "v_prediction" or "sample" (x0)
+    prediction: str = "epsilon"
+    # the UNet sees ``patch x patch`` pixel blocks folded into channels (pixel unshuffle): a 64²
+    # image is denoised by a 32² network with 4x the channels (simple diffusion's patching)
+    patch: int = 1
+    # noise-schedule shift (simple diffusion): the cosine schedule's log-SNR lowered by
+    # 2 log(shift), so that a 64² image is as noisy at step t as a 32² one with shift 2
+    schedule_shift: float = 1.0
+    # standardise by one spread per modality and pixel (DataStats) instead of one per modality
+    stats_per_pixel: bool = False
+    # "constant", or "cosine": the learning rate falls from lr to lr/10 over ``steps``
+    lr_schedule: str = "constant"
+
+    def __post_init__(self):
+        if self.prediction not in PREDICTIONS:
+            raise CheckpointError(f"prediction must be one of {', '.join(PREDICTIONS)}; got {self.prediction!r}")
+        if int(self.patch) < 1 or int(self.res) % int(self.patch):
+            raise CheckpointError(f"patch must be a positive divisor of res {self.res}; got {self.patch}")
+        if self.lr_schedule not in ("constant", "cosine"):
+            raise CheckpointError(f"lr_schedule must be 'constant' or 'cosine'; got {self.lr_schedule!r}")
+        if not float(self.schedule_shift) > 0:
+            raise CheckpointError(f"schedule_shift must be positive; got {self.schedule_shift}")
 
     @classmethod
     def preset(cls, name: str = "small", **overrides) -> "DDPMConfig":
@@ -89,7 +113,7 @@ class DDPMConfig:
         if kw.get("attention_levels") == "coarse":
             # self-attention only where the feature map is 16x16 or coarser (and at most the two
             # coarsest levels): its memory grows with the fourth power of the side
-            n, res = len(kw["block_out_channels"]), int(kw.get("res", cls.res))
+            n, res = len(kw["block_out_channels"]), int(kw.get("res", cls.res)) // int(kw.get("patch", 1))
             kw["attention_levels"] = tuple(k for k in range(max(0, n - 2), n) if res >> k <= 16) or (n - 1,)
         return cls(**kw)
 
@@ -141,14 +165,34 @@ def build_unet(cfg: DDPMConfig):
     if bad:
         raise CheckpointError(f"attention_levels must lie in 0..{n - 1}; got {tuple(levels)}")
     attn = [k in set(int(k) for k in levels) for k in range(n)]
-    return UNet2DConditionModel(
-        sample_size=cfg.res, in_channels=cfg.channels, out_channels=cfg.channels,
+    p = int(cfg.patch)
+    unet = UNet2DConditionModel(
+        sample_size=cfg.res // p, in_channels=cfg.channels * p * p, out_channels=cfg.channels * p * p,
         down_block_types=tuple("CrossAttnDownBlock2D" if a else "DownBlock2D" for a in attn),
         mid_block_type="UNetMidBlock2DCrossAttn",
         up_block_types=tuple("CrossAttnUpBlock2D" if a else "UpBlock2D" for a in reversed(attn)),
         block_out_channels=tuple(cfg.block_out_channels), layers_per_block=cfg.layers_per_block,
         cross_attention_dim=cfg.cross_attention_dim, attention_head_dim=cfg.attention_head_dim,
         norm_num_groups=cfg.norm_num_groups)
+    return PatchedUNet(unet, p) if p > 1 else unet
+
+
+class PatchedUNet(torch.nn.Module):
+    """A UNet over ``patch x patch`` pixel blocks: ``x [B, C, R, R]`` is unshuffled to
+    ``[B, C p², R/p, R/p]``, denoised, and shuffled back.  Same call and output as the UNet."""
+
+    def __init__(self, unet: torch.nn.Module, patch: int):
+        super().__init__()
+        self.unet, self.patch = unet, int(patch)
+
+    def forward(self, x, t, encoder_hidden_states=None):
+        from types import SimpleNamespace
+        f = torch.nn.functional
+        y = self.unet(f.pixel_unshuffle(x, self.patch), t, encoder_hidden_states=encoder_hidden_states).sample
+        return SimpleNamespace(sample=f.pixel_shuffle(y, self.patch))
+
+    def enable_gradient_checkpointing(self):
+        self.unet.enable_gradient_checkpointing()
 
 
 def build_scheduler(cfg: DDPMConfig, kind: str = "ddpm", clip: float | None = None):
@@ -160,9 +204,12 @@ def build_scheduler(cfg: DDPMConfig, kind: str = "ddpm", clip: float | None = No
     """
     from diffusers import DDIMScheduler, DDPMScheduler
     on = clip is not None and clip > 0
+    kw = {}
+    if float(cfg.schedule_shift) != 1.0:
+        kw["trained_betas"] = shifted_cosine_betas(cfg.num_train_timesteps, float(cfg.schedule_shift))
     s = DDPMScheduler(num_train_timesteps=cfg.num_train_timesteps, beta_schedule="squaredcos_cap_v2",
-                      prediction_type="epsilon", clip_sample=on,
-                      clip_sample_range=float(clip) if on else 1.0)
+                      prediction_type=cfg.prediction, clip_sample=on,
+                      clip_sample_range=float(clip) if on else 1.0, **kw)
     if kind == "ddpm":
         return s
     if kind == "ddim":
@@ -170,11 +217,39 @@ def build_scheduler(cfg: DDPMConfig, kind: str = "ddpm", clip: float | None = No
     raise CheckpointError(f"scheduler must be 'ddpm' or 'ddim'; got {kind!r}")
 
 
+def shifted_cosine_betas(T: int, shift: float) -> list[float]:
+    """The betas of the cosine schedule (``squaredcos_cap_v2``) with its log-SNR lowered by
+    ``2 log(shift)``: ``alpha_bar' = sigmoid(logit(alpha_bar) - 2 log shift)``."""
+    import math
+
+    def abar(u: float) -> float:
+        a = math.cos((u + 0.008) / 1.008 * math.pi / 2) ** 2
+        if a <= 0.0:
+            return 0.0
+        if a >= 1.0:
+            return 1.0
+        return 1.0 / (1.0 + (1.0 - a) / a * shift * shift)
+    out = []
+    for i in range(T):
+        a0, a1 = abar(i / T), abar((i + 1) / T)
+        out.append(min(1.0 - a1 / a0, 0.999) if a0 > 0 else 0.999)
+    return out
+
+
+def ddpm_target(sched, x0: torch.Tensor, eps: torch.Tensor, t: torch.Tensor, prediction: str) -> torch.Tensor:
+    """What the UNet is trained to output for ``x_t = q(x0, eps, t)``."""
+    if prediction == "epsilon":
+        return eps
+    if prediction == "sample":
+        return x0
+    return sched.get_velocity(x0, eps, t)
+
+
 def ddpm_loss(eps_pred: torch.Tensor,  # [B, C, N, N]
               eps: torch.Tensor,       # [B, C, N, N]
               modalities=("position", "normal", "texture"),
               ) -> tuple[torch.Tensor, dict]:
-    """Eq. (12): sum over modalities (3 channels each, in ``modalities`` order) of the L1 error on epsilon."""
+    """Eq. (12): sum over modalities (3 channels each, in ``modalities`` order) of the L1 error on the prediction target (epsilon in the paper)."""
     parts = {m: (eps_pred[:, 3 * k:3 * k + 3] - eps[:, 3 * k:3 * k + 3]).abs().mean() for k, m in enumerate(modalities)}
     return sum(parts.values()), {m: float(v.detach()) for m, v in parts.items()}
 
@@ -189,13 +264,17 @@ class EMA:
     @torch.no_grad()
     def update(self, model: torch.nn.Module, step: int) -> None:
         d = min(self.decay, (1 + step) / (10 + step))  # warm-up as in diffusers' EMAModel
+        shadow, live = [], []
         for k, v in model.state_dict().items():
             if self.shadow[k].device != v.device:  # the model moved (accelerate, resume on a GPU)
                 self.shadow[k] = self.shadow[k].to(v.device)
             if v.dtype.is_floating_point:
-                self.shadow[k].mul_(d).add_(v.detach().float(), alpha=1 - d)
+                shadow.append(self.shadow[k])
+                live.append(v.detach().float())
             else:
                 self.shadow[k].copy_(v)
+        if shadow:  # shadow = d shadow + (1 - d) live, in a few multi-tensor kernels
+            torch._foreach_lerp_(shadow, live, 1 - d)
 
 
 # ---------------------------------------------------------------- checkpoints
@@ -311,7 +390,7 @@ def _embed(text, prompts: list[str]) -> torch.Tensor:
 def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConfig, *,
           resume: bool = False, device: str | None = None, quiet: bool | None = None,
           text_encoder=None, max_seconds: float | None = None, loader_workers: int = 0,
-          cache_mb: float = 256.0, gradient_checkpointing: bool = False) -> dict:
+          cache_mb: float = 256.0, gradient_checkpointing: bool = False, dataset=None) -> dict:
     """Train (or resume) a run; returns ``{"step", "loss", "losses", "steps_per_second"}`` of the last step.
 
     ``resume=True`` continues from ``RUN_DIR/checkpoint`` (its config wins over ``cfg`` except
@@ -328,6 +407,9 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
 
     Progress: :class:`geoface.progress.StepProgress` (a bar on a terminal, a line every 10 s
     elsewhere) with steps/s, the time left and the loss.
+
+    ``dataset``: train on this :class:`geoface.learn.data.GImageDataset`-like object (items,
+    ``modalities``, ``channels``, ``prompts``, ``bbox_stats()``) instead of reading ``data_dir``.
 
     ``gradient_checkpointing``: recompute the UNet's activations in the backward pass instead
     of keeping them (less memory, about a third more time per step).
@@ -359,13 +441,15 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
         if isinstance(state.get("normalization"), dict):  # keep the frame the run was trained in
             norm = Normalization.from_dict(state["normalization"])
     # the dataset first: a missing or corrupt one is reported before the text encoder loads
-    ds = GImageDataset(data_dir, res=cfg.res, augment=cfg.augment, seed=cfg.seed, normalization=norm,
-                       modalities=tuple(cfg.modalities) if resume and state else None, cache_mb=cache_mb)
+    ds = dataset if dataset is not None else GImageDataset(
+        data_dir, res=cfg.res, augment=cfg.augment, seed=cfg.seed, normalization=norm,
+        modalities=tuple(cfg.modalities) if resume and state else None, cache_mb=cache_mb)
     cfg.modalities = tuple(ds.modalities)
     cfg.channels = ds.channels
     stats = None
     if cfg.standardize:
-        stats = _load_stats(ckpt) if resume and state else data_stats(ds, seed=cfg.seed, quiet=quiet)
+        stats = (_load_stats(ckpt) if resume and state
+                 else data_stats(ds, seed=cfg.seed, quiet=quiet, per_pixel=cfg.stats_per_pixel))
     accel = Accelerator(cpu=(device in (None, "cpu")) and not torch.cuda.is_available() or device == "cpu")
     text = text_encoder or make_text_encoder(cfg.text_encoder, cache_dir=run_dir / "text_cache",
                                              max_length=cfg.text_max_length)
@@ -374,7 +458,9 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
     unet = build_unet(cfg)
     if gradient_checkpointing:
         unet.enable_gradient_checkpointing()
-    opt = torch.optim.AdamW(unet.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    # one fused kernel per step on a GPU instead of a launch per parameter tensor
+    fused = {"fused": True} if accel.device.type == "cuda" else {}
+    opt = torch.optim.AdamW(unet.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, **fused)
     ema = EMA(unet, cfg.ema_decay)
     if resume and ckpt.is_dir():
         _load_state_dict(unet, _load_st(ckpt / "model.safetensors"), ckpt / "model.safetensors")
@@ -415,8 +501,10 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
             t = torch.randint(0, cfg.num_train_timesteps, (x0.shape[0],), generator=g).to(dev)
             xt = sched.add_noise(x0, eps, t)  # q(x_t | x_0)
             unet.train()
+            for group in opt.param_groups:
+                group["lr"] = learning_rate(cfg, step)
             pred = unet(xt, t, encoder_hidden_states=cond).sample
-            loss, parts = ddpm_loss(pred, eps, cfg.modalities)
+            loss, parts = ddpm_loss(pred, ddpm_target(sched, x0, eps, t, cfg.prediction), cfg.modalities)
             opt.zero_grad(set_to_none=True)
             accel.backward(loss)
             opt.step()
@@ -436,6 +524,15 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
     if start >= cfg.steps and not ckpt.is_dir():
         save_checkpoint(ckpt, cfg, accel.unwrap_model(unet), ema, opt, start, extra, stats)
     return last
+
+
+def learning_rate(cfg: DDPMConfig, step: int) -> float:
+    """The learning rate of step ``step`` (0-based) under ``cfg.lr_schedule``."""
+    if cfg.lr_schedule == "constant":
+        return float(cfg.lr)
+    import math
+    u = min(max(step / max(int(cfg.steps) - 1, 1), 0.0), 1.0)
+    return float(cfg.lr) * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * u)))
 
 
 def _collate(items: list[dict]) -> dict:

@@ -80,15 +80,75 @@ def height_to_normal(height: np.ndarray, strength: float) -> np.ndarray:
     return n * 0.5 + 0.5
 
 
+def _aniso_noise(rng, R: int, scale_u: float, scale_v: float) -> np.ndarray:
+    """Smooth noise with features of ``scale_u`` across and ``scale_v`` up the UV square (lines
+    along the longer one); zero mean, unit std, the same field at every resolution."""
+    Gu, Gv = (max(int(np.ceil(4.0 / s)), 4) for s in (scale_u, scale_v))
+    z = ndimage.gaussian_filter(rng.standard_normal((Gv, Gu)), 4.0, mode="wrap")
+    z = ndimage.zoom(z, (R / Gv, R / Gu), order=1, mode="grid-wrap", grid_mode=True)
+    z = np.pad(z, ((0, max(R - z.shape[0], 0)), (0, max(R - z.shape[1], 0))), mode="wrap")[:R, :R]
+    z = z - z.mean()
+    return z / (z.std() + 1e-12)
+
+
+def _regional(p: dict, rng_for, res: int, regions: dict, albedo, height, spec, hair: np.ndarray) -> None:
+    """Region-dependent skin, in place (see :func:`skin_maps`)."""
+    g = {k: np.asarray(regions.get(k, 0.0), np.float64) for k in ("lips", "brows", "eyelids", "nose", "cheeks",
+                                                                     "forehead", "beard")}
+    # lips: redder and darker, no pores, fine vertical lines, shinier
+    lip = albedo * np.array([0.95, 0.62, 0.66])
+    albedo += g["lips"][..., None] * (lip - albedo)
+    height += g["lips"] * _aniso_noise(rng_for(10), res, 0.0015, 0.02) * 1.2e-4
+    spec += 0.15 * g["lips"]
+    # brows: short hair strokes along the brow, dark (the person's hair colour)
+    strokes = _spots(rng_for(11), res, 200_000, 3e-4, (0.5, 1.0))  # hair roots (per unit UV area)
+    strokes = ndimage.gaussian_filter1d(strokes, 2.5e-3 * res, axis=1) * (2.5e-3 * res * np.sqrt(2 * np.pi))
+    strokes = np.clip(strokes / (2 * np.pi * (3e-4 * res) ** 2 + 1e-12) * 0.5, 0, 1) * g["brows"]
+    albedo += strokes[..., None] * 0.85 * (hair - albedo)
+    height += strokes * 1e-4
+    # eyelids: fine horizontal folds, slightly darker and pinker
+    height += g["eyelids"] * _aniso_noise(rng_for(12), res, 0.03, 0.0015) * 1.5e-4
+    albedo *= (1 - g["eyelids"][..., None] * np.array([0.04, 0.10, 0.08]))
+    # forehead: horizontal lines, their depth the person's
+    lines = np.sin(2 * np.pi * (_grid_v(res) / 0.011 + 0.8 * _noise(rng_for(13), res, 0.05)))
+    height += g["forehead"] * p["lines"] * np.clip(lines, -1, 1) * 1.2e-4
+    # T-zone shine; redness on cheeks and nose
+    spec += 0.18 * g["nose"] + 0.08 * g["forehead"] - 0.05 * g["cheeks"]
+    albedo += (0.6 * g["cheeks"] + 0.3 * g["nose"])[..., None] * p["redness"] * np.array([0.10, -0.05, -0.04])
+    # stubble: dense short dark hairs in the beard area
+    if p["stubble"] > 0:
+        st = np.clip(_spots(rng_for(14), res, int(4e5 * p["stubble"]), 2e-4, (0.6, 1.0)), 0, 1.5) * g["beard"]
+        albedo += np.clip(st, 0, 1)[..., None] * 0.7 * (hair - albedo)
+        height += st * 5e-5
+
+
+def _grid_v(res: int) -> np.ndarray:
+    return np.broadcast_to((1.0 - (np.arange(res) + 0.5) / res)[:, None], (res, res))
+
+
 def skin_maps(res: int = 1024, seed: int = 0, *, pore_density: float = 3e5, freckles: float | None = None,
-              redness: float | None = None, tone: int | None = None) -> SkinMaps:
-    """Random skin at ``res``² (see the module docstring).  ``pore_density`` = pores per unit UV area."""
+              redness: float | None = None, tone: int | None = None, regions: dict | None = None) -> SkinMaps:
+    """Random skin at ``res``² (see the module docstring).  ``pore_density`` = pores per unit UV area.
+
+    ``regions``: soft masks ``{name: [res, res]}`` of a face layout
+    (:func:`geoface.learn.skin_regions.ict_uv_regions`).  With them the skin varies by region:
+    pores large and dense on the nose, fewer on the forehead, none on lips and eyelids; lips
+    red, lined and shiny; brows of hair strokes in the person's hair colour; fine folds on the
+    eyelids; horizontal forehead lines; a shiny T-zone; redness and freckles on cheeks and nose;
+    stubble in the beard area for some people.  Without them the skin is the same everywhere."""
     if not 16 <= res <= 8192:
         raise LearnError(f"res must be in 16..8192; got {res}")
+    for k, m in (regions or {}).items():
+        if np.ndim(m) and np.shape(m) != (res, res):
+            raise LearnError(f"region {k!r} is {np.shape(m)}; the maps are {res}x{res}")
     rng = np.random.default_rng(seed)
     p = {"tone": int(rng.integers(len(TONES))) if tone is None else int(tone),
          "freckles": float(rng.uniform(0, 1)) if freckles is None else float(freckles),
          "redness": float(rng.uniform(0.1, 0.6)) if redness is None else float(redness)}
+    # person traits of the regional skin, from their own stream (the draws above stay as they were)
+    traits = np.random.default_rng([seed, 99])
+    p.update(lines=float(traits.uniform(0.1, 1.0)), stubble=float(traits.uniform(0.2, 1.0) if traits.random() < 0.4 else 0.0))
+    hair = np.array([[0.06, 0.04, 0.03], [0.16, 0.10, 0.06], [0.35, 0.24, 0.14], [0.55, 0.42, 0.25]])[traits.integers(4)]
     # every feature draws from its own stream, so counts do not shift the others
     sub = [np.random.default_rng([seed, k]) for k in range(8)]
     base = TONES[p["tone"]] * (1 + 0.04 * rng.standard_normal(3))
@@ -99,16 +159,25 @@ def skin_maps(res: int = 1024, seed: int = 0, *, pore_density: float = 3e5, frec
     red = np.clip(_noise(sub[1], res, 0.08), 0, None) * p["redness"]
     albedo += red[..., None] * np.array([0.10, -0.05, -0.04])
     region = np.clip(_noise(sub[2], res, 0.15) - 0.3, 0, None)  # where freckles gather
+    if regions is not None:  # on the cheeks and the nose
+        region = 1.5 * (np.asarray(regions.get("cheeks", 0.0)) + np.asarray(regions.get("nose", 0.0)))
     n_freck = int(2000 * p["freckles"])
     freck = _spots(sub[3], res, n_freck, 1.5e-3, (0.4, 1.0)) * np.minimum(region, 1.0)
     albedo *= 1 - 0.45 * np.clip(freck, 0, 1)[..., None] * np.array([0.6, 0.8, 1.0])
     pores = _spots(sub[4], res, int(pore_density), 2.5e-4, (0.5, 1.0))
+    if regions is not None:  # density by region; large pores on the nose
+        g = {k: np.asarray(regions.get(k, 0.0)) for k in ("lips", "eyelids", "nose", "forehead", "cheeks")}
+        pores = pores * np.clip(1 - g["lips"] - 0.9 * g["eyelids"] - 0.4 * g["forehead"] + 0.3 * g["cheeks"], 0, None)
+        pores += _spots(sub[4], res, int(pore_density / 3), 4.5e-4, (0.6, 1.0)) * 1.6 * g["nose"]
     pores = np.clip(pores, 0, 1.5)
     albedo *= 1 - 0.12 * pores[..., None]
     wrinkles = _noise(sub[5], res, 0.002) * 0.3
     height = (-pores + wrinkles) * 2e-4  # UV units (1 = the UV square's side)
     micronormal = height_to_normal(height, strength=1.0)
     spec = 0.35 + 0.15 * _noise(sub[6], res, 0.1) - 0.15 * pores + 0.06 * fine
+    if regions is not None:
+        _regional(p, lambda k: np.random.default_rng([seed, k]), res, regions, albedo, height, spec, hair)
+        micronormal = height_to_normal(height, strength=1.0)
     return SkinMaps(np.clip(albedo, 0, 1), height, micronormal, np.clip(spec, 0, 1)[..., None])
 
 

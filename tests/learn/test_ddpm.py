@@ -155,3 +155,107 @@ def test_standardisation_roundtrip_and_old_runs(gimage_dataset, tmp_path):
     old = load_run(run)
     assert old.config.standardize is False and old.stats is None
     assert sample(old, "a head", n=1, steps=2, quiet=True).abs().max() <= 1 + 1e-5
+
+
+def test_patched_unet_is_a_unet_over_pixel_blocks(gimage_dataset, tmp_path):
+    """patch=2: a 16² image through an 8² UNet with 4x the channels; same call, same shape; an
+    output pixel depends on its own block of the input (not just on a shuffled copy)."""
+    torch.manual_seed(0)
+    cfg = tiny(res=16, patch=2)
+    unet = build_unet(cfg)
+    assert unet.unet.config.sample_size == 8 and unet.unet.config.in_channels == 36
+    x = torch.randn(2, 9, 16, 16, requires_grad=True)
+    out = unet(x, torch.tensor([3, 7]), encoder_hidden_states=torch.randn(2, 4, 8)).sample
+    assert out.shape == x.shape
+    out[0, 0, 5, 5].backward()
+    assert x.grad[0, :, 4:6, 4:6].abs().sum() > 0  # its own 2x2 block
+    with pytest.raises(CheckpointError, match="patch"):
+        tiny(res=16, patch=3)
+    with pytest.raises(CheckpointError, match="prediction"):
+        tiny(prediction="noise")
+    # train, reload, sample: the patched model round-trips through a checkpoint
+    run = tmp_path / "run"
+    train(gimage_dataset, run, tiny(res=8, patch=2, prediction="v_prediction", schedule_shift=2.0), quiet=True)
+    r = load_run(run)
+    assert r.config.patch == 2 and r.config.prediction == "v_prediction" and r.config.schedule_shift == 2.0
+    x1 = sample(r, "a head", n=2, steps=3, seed=1, quiet=True)
+    x2 = sample(load_run(run), "a head", n=2, steps=3, seed=1, quiet=True)
+    assert x1.shape == (2, r.config.channels, 8, 8) and torch.equal(x1, x2)
+
+
+def test_shifted_schedule_lowers_log_snr_by_2_log_shift():
+    import math
+
+    import numpy as np
+
+    from geoface.learn.ddpm import build_scheduler, shifted_cosine_betas
+    base = build_scheduler(tiny(num_train_timesteps=1000)).alphas_cumprod.double().numpy()
+    s1 = np.cumprod(1 - np.asarray(shifted_cosine_betas(1000, 1.0)))
+    assert np.allclose(s1, base, rtol=1e-5, atol=1e-9)  # shift 1 = diffusers' squaredcos_cap_v2
+    s2 = build_scheduler(tiny(num_train_timesteps=1000, schedule_shift=2.0)).alphas_cumprod.double().numpy()
+    logit = lambda a: np.log(a / (1 - a))  # noqa: E731
+    k = slice(1, 900)  # away from the capped end
+    assert np.allclose(logit(s2[k]) - logit(base[k]), -2 * math.log(2.0), atol=2e-3)
+
+
+def test_prediction_targets():
+    from geoface.learn.ddpm import build_scheduler, ddpm_target
+    g = torch.Generator().manual_seed(0)
+    x0, eps = torch.randn(3, 9, 8, 8, generator=g), torch.randn(3, 9, 8, 8, generator=g)
+    t = torch.tensor([1, 20, 45])
+    s = build_scheduler(tiny(prediction="v_prediction"))
+    xt = s.add_noise(x0, eps, t)
+    a = s.alphas_cumprod[t].sqrt()[:, None, None, None]
+    b = (1 - s.alphas_cumprod[t]).sqrt()[:, None, None, None]
+    v = ddpm_target(s, x0, eps, t, "v_prediction")
+    assert torch.allclose(v, a * eps - b * x0, atol=1e-6)
+    assert torch.allclose(a * xt - b * v, x0, atol=1e-5)  # x0 recovered from v
+    assert ddpm_target(s, x0, eps, t, "sample") is x0 and ddpm_target(s, x0, eps, t, "epsilon") is eps
+
+
+def test_per_pixel_standardisation_and_support(gimage_dataset, tmp_path):
+    """Per-pixel spreads: every pixel of every modality has unit spread over the items (where the
+    floor does not act); the support is the pixels all items cover and survives a save."""
+    from geoface.learn.data import DataStats, GImageDataset, data_stats
+    ds = GImageDataset(gimage_dataset, res=8)
+    X = torch.stack([ds[i]["image"] for i in range(len(ds))])
+    M = torch.stack([ds[i]["mask"] for i in range(len(ds))])[:, 0] > 0.5
+    st = data_stats(ds, per_pixel=True, floor=0.0)
+    assert st.std.shape == st.mean.shape
+    Z = st.forward(X)
+    spread = Z.pow(2).reshape(len(X), 3, 3, 8, 8).mean(dim=(0, 2))  # per modality and pixel
+    varies = torch.from_numpy(st.std[::3] > DataStats.MIN_STD * 10)
+    assert torch.allclose(spread[varies], torch.ones_like(spread[varies]), atol=1e-3)
+    torch.testing.assert_close(st.inverse(Z), X, rtol=0, atol=1e-5)
+    assert float(Z.abs().max()) == pytest.approx(st.bound, rel=1e-5)
+    assert (st.support == M.all(0).numpy()).all()
+
+    class Holed:  # item 1 misses pixel (2, 3): the support must too
+        def __len__(self):
+            return len(ds)
+
+        def __getitem__(self, key):
+            it = dict(ds[key])
+            if (key[0] if isinstance(key, tuple) else key) == 1:
+                it["mask"] = it["mask"].clone()
+                it["mask"][0, 2, 3] = 0
+            return it
+    holed = data_stats(Holed()).support
+    assert not holed[2, 3] and holed.sum() == st.support.sum() - 1
+    floored = data_stats(ds, per_pixel=True, floor=0.5)
+    glob = data_stats(ds)
+    assert (floored.std >= 0.5 * glob.std[:, None, None] - 1e-7).all()
+    st.save(tmp_path / "s.safetensors")
+    back = DataStats.load(tmp_path / "s.safetensors")
+    assert (back.std == st.std).all() and (back.support == st.support).all()
+
+
+def test_cosine_learning_rate():
+    from geoface.learn.ddpm import learning_rate
+    c = tiny(lr=1e-3, steps=101, lr_schedule="cosine")
+    lrs = [learning_rate(c, s) for s in range(101)]
+    assert lrs[0] == pytest.approx(1e-3) and lrs[-1] == pytest.approx(1e-4) and lrs[50] == pytest.approx(5.5e-4)
+    assert all(a >= b for a, b in zip(lrs, lrs[1:]))
+    assert learning_rate(tiny(lr=1e-3), 77) == 1e-3
+    with pytest.raises(CheckpointError, match="lr_schedule"):
+        tiny(lr_schedule="step")
