@@ -245,7 +245,7 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
     Returns float32 image-space arrays in [0, 1]: ``photo`` [H,W,3] (shaded, see :func:`shade`),
     ``maps`` [H,W,7] (albedo, micronormal, specular looked up through the pixel's UV),
     ``uv`` [H,W,2], ``normal`` [H,W,3] (camera-space geometric normal, encoded n/2 + ½),
-    and ``mask`` [H,W] bool (pixels the mesh covers)."""
+    ``mask`` [H,W] bool (pixels the mesh covers) and ``face`` [H,W] (the triangle seen, -1 for none)."""
     from geoface.nn.render_mesh import rasterize_mesh
 
     V, F, UV = np.asarray(V, np.float64), np.asarray(F, np.int64), np.asarray(UV, np.float64)
@@ -273,7 +273,8 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
     rgb = shade(px[:, 0:3], px[:, 3:6], px[:, 6:7], N, view, lights)
     Ncam = N @ np.asarray(camera.R, np.float64).T
     out = {"photo": np.full((H, W, 3), background, np.float32), "maps": np.zeros((H, W, 7), np.float32),
-           "uv": np.zeros((H, W, 2), np.float32), "normal": np.zeros((H, W, 3), np.float32), "mask": m}
+           "uv": np.zeros((H, W, 2), np.float32), "normal": np.zeros((H, W, 3), np.float32), "mask": m,
+           "face": face}
     out["photo"][m] = rgb
     out["maps"][m] = px
     out["uv"][m] = uv
@@ -281,30 +282,71 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
     return out
 
 
-def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, vertices: int) -> None:
+def unweld_uv(V, F, UV, FUV) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A mesh with per-corner texture coordinates (``FUV`` into ``UV``) as one with a UV per
+    vertex: a vertex is split where its corners have different UVs (along the seams).  Returns
+    ``(V', F', UV')``."""
+    F, FUV = np.asarray(F, np.int64), np.asarray(FUV, np.int64)
+    pairs = np.stack([F.ravel(), FUV.ravel()], 1)
+    uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
+    return np.asarray(V)[uniq[:, 0]], inv.reshape(F.shape), np.asarray(UV)[uniq[:, 1]]
+
+
+_ICT_CACHE: dict = {}
+
+
+def _ict_source(map_res: int):
+    """The ICT model and its face-tile regions at ``map_res`` (once per process)."""
+    if map_res not in _ICT_CACHE:
+        from geoface.synth.ict import load_ict_model
+
+        from .skin_regions import ict_uv_regions
+        model = _ICT_CACHE.get("model") or load_ict_model()
+        _ICT_CACHE["model"] = model
+        _ICT_CACHE[map_res] = ict_uv_regions(map_res, model.head(identity=np.zeros(model.n_identities)))
+    return _ICT_CACHE["model"], _ICT_CACHE[map_res]
+
+
+def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, vertices: int, head_source: str = "procedural") -> None:
     from geoface.nn.camera import look_at
     from geoface.synth import procedural_head
 
     from .texture import save_sample
 
     rng = np.random.default_rng([seed, i])
-    head = procedural_head(vertices, seed=int(rng.integers(1 << 31)))
-    centre = head.V[head.face_mask].mean(0)
+    if head_source == "ict":  # a random person with a random expression, skin by region
+        from geoface.synth.ict import random_expression
+        model, regions = _ict_source(map_res)
+        head = model.head(identity=rng.standard_normal(model.n_identities),
+                          expression=random_expression(rng, model.expression_names, count=2, strength=0.6))
+        V, F, UV = unweld_uv(head.V, head.F, head.UV, head.FUV)
+        in_tile = ((UV >= 0) & (UV <= 1)).all(1)  # the face tile: the skin maps cover it alone
+        P = head.V[head.face_mask]
+        scale = float(np.ptp(P[:, 1]))  # the face's height (cm)
+        centre = P.mean(0)
+    else:
+        head = procedural_head(vertices, seed=int(rng.integers(1 << 31)))
+        V, F, UV, in_tile, scale, regions = head.V, head.F, head.UV, None, 0.16, None
+        centre = head.V[head.face_mask].mean(0)
     yaw, pitch = np.radians(rng.uniform(-20, 20)), np.radians(rng.uniform(-10, 10))
-    dist = rng.uniform(0.40, 0.48)
+    dist = rng.uniform(2.5, 3.0) * scale
     eye = centre + dist * np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
-    cam = look_at(eye, centre + rng.normal(0, 0.005, 3), width=res, height=res, fov_y_deg=30)
-    maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)))
-    s = render_skin_sample(head.V, head.F, head.UV, maps, cam, random_lights(rng, int(rng.integers(2, 5))))
+    cam = look_at(eye, centre + rng.normal(0, 0.03125 * scale, 3), width=res, height=res, fov_y_deg=30)
+    maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)), regions=regions)
+    s = render_skin_sample(V, F, UV, maps, cam, random_lights(rng, int(rng.integers(2, 5))))
+    if in_tile is not None:  # pixels of other tiles (the back of the head, the ears) are not skin samples
+        s["mask"] &= in_tile[F[np.maximum(s["face"], 0)]].all(-1)
     save_sample(path, s["photo"], s["maps"], s["uv"], s["normal"], s["mask"])
 
 
 def make_texture_dataset(out_dir, count: int = 8, res: int = 512, map_res: int | None = None, *,
                          seed: int = 0, vertices: int = 20000, workers: int = 1,
-                         quiet: bool | None = None) -> list:
+                         quiet: bool | None = None, head_source: str = "procedural") -> list:
     """Write ``count`` texture-model samples (``sample_XXXX.npz``, see
-    :func:`geoface.learn.texture.save_sample`) of procedural heads with procedural skin, each
-    from a jittered near-frontal camera under random lights.  ``map_res`` (default: ``res``,
+    :func:`geoface.learn.texture.save_sample`) of procedural skin on heads, each from a
+    jittered near-frontal camera under random lights.  ``head_source``: ``"procedural"`` (our
+    head, stationary skin) or ``"ict"`` (ICT-FaceKit people with random expressions, skin by
+    facial region on the model's UV layout; pixels outside its face tile are masked out).  ``map_res`` (default: ``res``,
     at least 1024) is the UV-map resolution.  Sample ``i`` depends only on (``seed``, ``i``),
     so ``workers`` > 1 (a process pool) writes the same files.  Returns the paths; existing
     samples are kept (resumable)."""
@@ -320,7 +362,9 @@ def make_texture_dataset(out_dir, count: int = 8, res: int = 512, map_res: int |
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / f"sample_{i:04d}.npz" for i in range(count)]
     todo = [i for i in range(count) if not paths[i].exists()]
-    args = [(paths[i], i, seed, res, map_res, vertices) for i in todo]
+    if head_source not in ("procedural", "ict"):
+        raise LearnError(f"head_source must be 'procedural' or 'ict'; got {head_source!r}")
+    args = [(paths[i], i, seed, res, map_res, vertices, head_source) for i in todo]
     if workers > 1 and len(todo) > 1:
         import multiprocessing as mp
         with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:

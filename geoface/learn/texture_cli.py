@@ -68,7 +68,7 @@ def cmd_synth(args) -> int:
     from .skin_synth import make_texture_dataset
     with atomic_dir(args.output, overwrite=True) as tmp:  # complete or absent (the output policy ran first)
         paths = make_texture_dataset(tmp, args.count, args.res, args.map_res, seed=args.seed,
-                                     vertices=args.vertices, quiet=_quiet(args))
+                                     vertices=args.vertices, quiet=_quiet(args), head_source=args.heads)
     print(f"{args.output}: {len(paths)} samples at {args.res}²")
     return 0
 
@@ -158,7 +158,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--count", type=number(int, 1, 100_000), default=8)
     p.add_argument("--res", type=number(int, 16, 8192), default=512, help="photo resolution")
     p.add_argument("--map-res", type=number(int, 16, 16384), default=None, help="UV-map resolution (default max(res, 1024))")
-    p.add_argument("--vertices", type=number(int, 1000, 200_000), default=20000)
+    p.add_argument("--vertices", type=number(int, 1000, 200_000), default=20000, help="procedural heads' vertex count")
+    p.add_argument("--heads", choices=("procedural", "ict"), default="procedural",
+                   help="ict: ICT-FaceKit people with random expressions and skin by facial region")
     p.add_argument("--seed", type=SEED, default=0)
     p.set_defaults(func=cmd_synth)
     t = sd.add_parser("train", parents=[common], help="train predictor, GDE and HFDR in turn")

@@ -115,3 +115,28 @@ def test_make_texture_dataset_workers_write_the_same_files(tmp_path):
         with np.load(pa) as za, np.load(pb) as zb:
             for k in za.files:
                 assert np.array_equal(za[k], zb[k]), k
+
+
+def test_unweld_uv_keeps_every_corner():
+    from geoface.learn.skin_synth import unweld_uv
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    UV = np.array([[0, 0], [1, 0], [1, 1], [0.5, 0.5], [0, 1]], float)
+    FUV = np.array([[0, 1, 2], [3, 2, 4]])  # vertex 0 has two UVs (a seam)
+    V2, F2, UV2 = unweld_uv(V, F, UV, FUV)
+    assert len(V2) == 5 and np.allclose(V2[F2], V[F]) and np.allclose(UV2[F2], UV[FUV])
+
+
+def test_ict_texture_samples(tmp_path):
+    """``head_source="ict"``: ICT people with regional skin; the mask keeps the face tile only
+    and covers a near-frontal face; maps and photo are defined there."""
+    from geoface.learn.skin_synth import make_texture_dataset
+    from geoface.learn.texture import load_sample
+    p = make_texture_dataset(tmp_path, count=1, res=96, map_res=256, seed=5, head_source="ict", quiet=True)
+    s = load_sample(p[0])
+    m = s["mask"]
+    assert 0.15 < m.mean() < 0.9
+    assert (s["uv"][m] >= 0).all() and (s["uv"][m] <= 1).all()
+    assert s["photo"][m].mean() > 0.05 and s["maps"][m][:, 0:3].std() > 0.005
+    with pytest.raises(LearnError, match="head_source"):
+        make_texture_dataset(tmp_path / "x", count=1, res=64, head_source="flame")
