@@ -1,7 +1,7 @@
 """The regional-skin picture of docs/textures.md: albedo, micronormal and specular of two people
 on the ICT-FaceKit face tile, each with a close-up of the mouth and nose.
 
-    python data_tools/skin_regions_picture.py docs/images/skin_regions.png [--res 1024] [--seeds 1 6]
+    python data_tools/skin_regions_picture.py docs/images/skin_regions.jpg [--res 1024] [--tile 256] [--seeds 1 6]
 """
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ def main() -> int:
                       cv2.resize(u8[crop], (T, T), interpolation=cv2.INTER_AREA)]
         rows.append(np.concatenate(tiles, 1))
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(a.out), np.concatenate(rows, 0))
+    cv2.imwrite(str(a.out), np.concatenate(rows, 0), [cv2.IMWRITE_JPEG_QUALITY, 88])
     return 0
 
 
