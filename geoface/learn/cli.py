@@ -123,7 +123,8 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("prompt")
     p.add_argument("-n", type=number(int, 1, 10_000), default=4)
     p.add_argument("--steps", type=number(int, 1, 100_000_000), default=50)
-    p.add_argument("--scheduler", choices=["ddpm", "ddim"], default="ddim")
+    p.add_argument("--scheduler", choices=["ddpm", "ddim"], default="ddpm",
+                   help="ddpm: stochastic (measured to give valid heads where ddim does not, docs/ddpm.md); ddim: deterministic")
     p.add_argument("--guidance", type=number(float, 0, 100), default=3.0)
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--device", default="cpu")
