@@ -408,9 +408,15 @@ def test_killed_dataset_build_stops_its_workers(tmp_path, sig):
     for s in range(3):
         assert run("synth", "head", "-o", heads / f"t{s}.obj", "--vertices", "12000", "--seed", s)[0] == 0
     out = tmp_path / "ds"
-    argv = ("dataset", "build", heads, out, "--res", "256", "--augment", "2", "--workers", "2")
+    argv = ("dataset", "build", heads, out, "--res", "256", "--augment", "4", "--workers", "2")
     p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", *map(str, argv)])
-    time.sleep(8.0)
+    # kill it while its workers convert (not after a fixed delay: a fast machine finishes first)
+    deadline = time.time() + 60
+    while time.time() < deadline and p.poll() is None and not [
+            q for q in _our_processes("multiprocessing.spawn") if _parent(q) == p.pid]:
+        time.sleep(0.1)
+    time.sleep(1.5)
+    assert p.poll() is None, "the build finished before it could be interrupted"
     t = time.time()
     p.send_signal(sig)
     p.wait(timeout=10)
