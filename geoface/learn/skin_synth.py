@@ -34,12 +34,7 @@ def _noise(rng, R: int, scale_uv: float) -> np.ndarray:
 
     Drawn on a grid of fixed size (4 cells per feature, whatever ``R``) and resampled, so the
     same generator state gives the same field at every resolution."""
-    G = max(int(np.ceil(4.0 / scale_uv)), 4)
-    z = ndimage.gaussian_filter(rng.standard_normal((G, G)), 4.0, mode="wrap")
-    z = ndimage.zoom(z, R / G, order=1, mode="grid-wrap", grid_mode=True)
-    z = z[:R, :R] if z.shape[0] >= R else np.pad(z, ((0, R - z.shape[0]), (0, R - z.shape[1])), mode="wrap")
-    z = z - z.mean()
-    return z / (z.std() + 1e-12)
+    return _aniso_noise(rng, R, scale_uv, scale_uv)
 
 
 def _spots(rng, R: int, count: int, sigma_uv: float, amp: tuple[float, float]) -> np.ndarray:
