@@ -176,14 +176,21 @@ def skin_maps(res: int = 1024, seed: int = 0, *, pore_density: float = 3e5, frec
     return SkinMaps(np.clip(albedo, 0, 1), height, micronormal, np.clip(spec, 0, 1)[..., None])
 
 
-def random_lights(rng, n: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(directions [n, 3] towards the lights, colours [n, 3], ambient [3]) around a frontal hemisphere."""
+def random_lights(rng, n: int = 3, *, power: tuple[float, float] = (0.9, 1.2)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(directions [n, 3] towards the lights, colours [n, 3], ambient [3]) around a frontal hemisphere.
+
+    The lights share a total power drawn from ``power`` (a photo's exposure: a face facing a
+    light of power 1 is as bright as its albedo), split unevenly between them, with a warm/cool
+    tint of ±15 % per channel; so the photo's brightness says something about the skin tone."""
     d = rng.standard_normal((n, 3))
     d[:, 2] = np.abs(d[:, 2]) + 0.5  # mostly from the camera side (+z towards the viewer)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     warm = rng.uniform(0.85, 1.15, (n, 3))
-    col = warm * rng.uniform(0.25, 0.6, (n, 1))
-    amb = np.full(3, rng.uniform(0.05, 0.2))
+    amb_share = rng.uniform(0.05, 0.15)
+    total = rng.uniform(*power)
+    share = rng.dirichlet(np.full(n, 2.0)) * (1 - amb_share) * total
+    col = warm * share[:, None]
+    amb = np.full(3, amb_share * total)
     return d, col, amb
 
 
@@ -233,9 +240,28 @@ def _sample_uv_map(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
             + (img[y0 + 1, x0] * (1 - fx) + img[y0 + 1, x0 + 1] * fx) * fy)
 
 
+def eye_albedo(cos_axis: np.ndarray, iris: np.ndarray, pupil_deg: float = 12.0, iris_deg: float = 30.0) -> np.ndarray:
+    """Albedo [k, 3] of an eyeball at points ``cos_axis`` [k] (cosine of the angle between the
+    point's direction from the eyeball's centre and its gaze): a black pupil, the ``iris``
+    colour with a dark limbal ring at its rim, a white sclera reddening towards the back."""
+    c = np.asarray(cos_axis, np.float64)[:, None]
+    ang = np.degrees(np.arccos(np.clip(c, -1, 1)))
+    sclera = np.array([0.80, 0.76, 0.72]) * (1 - 0.15 * np.clip((ang - 40) / 50, 0, 1)) + np.array([0.05, 0, 0]) * np.clip((ang - 50) / 40, 0, 1)
+    ring = np.clip((ang - (iris_deg - 5)) / 5, 0, 1)  # limbal ring darkening over the iris's outer 5°
+    iris_c = np.asarray(iris, np.float64)[None] * (1 - 0.6 * ring) * (0.8 + 0.4 * np.clip(ang / iris_deg, 0, 1))
+    out = np.where(ang < iris_deg, iris_c, sclera)
+    return np.where(ang < pupil_deg, 0.02, out)
+
+
 def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None,
-                       background: float = 0.0) -> dict:
+                       background: float = 0.0, eyes: dict | None = None) -> dict:
     """Render one training tuple of the texture model from a mesh with UVs.
+
+    ``eyes`` (optional) shades parts that are not skin: ``{"eyeball": bool [n], "cos": [n]
+    (see :func:`eye_albedo`), "iris": [3], "socket": bool [n]}``; a pixel whose triangle has an
+    eyeball vertex gets :func:`eye_albedo` (wet: specular 0.9, flat micronormal), one with a
+    socket vertex the pink of the inner eyelid.  Their pixels stay in ``mask`` (the caller
+    decides what counts as skin).
 
     Returns float32 image-space arrays in [0, 1]: ``photo`` [H,W,3] (shaded, see :func:`shade`),
     ``maps`` [H,W,7] (albedo, micronormal, specular looked up through the pixel's UV),
@@ -265,6 +291,15 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
     N = np.where((N * view).sum(1, keepdims=True) < 0, -N, N)  # back-facing interpolation at silhouettes
     stack = maps.stack()
     px = _sample_uv_map(stack, uv)
+    if eyes is not None:
+        flat = np.array([0.5, 0.5, 1.0])
+        sock = np.asarray(eyes.get("socket", np.zeros(len(V), bool)))[tri].any(1)
+        px[sock] = np.r_[0.55, 0.30, 0.27, flat, 0.6]
+        ball = np.asarray(eyes["eyeball"])[tri].any(1)
+        if ball.any():
+            c = (np.asarray(eyes["cos"], np.float64)[tri[ball]] * b[ball]).sum(1)
+            px[ball] = np.concatenate([eye_albedo(c, eyes["iris"]), np.broadcast_to(flat, (len(c), 3)),
+                                       np.full((len(c), 1), 0.9)], 1)
     rgb = shade(px[:, 0:3], px[:, 3:6], px[:, 6:7], N, view, lights)
     Ncam = N @ np.asarray(camera.R, np.float64).T
     out = {"photo": np.full((H, W, 3), background, np.float32), "maps": np.zeros((H, W, 7), np.float32),
@@ -277,14 +312,15 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
     return out
 
 
-def unweld_uv(V, F, UV, FUV) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def unweld_uv(V, F, UV, FUV, *, with_source: bool = False):
     """A mesh with per-corner texture coordinates (``FUV`` into ``UV``) as one with a UV per
     vertex: a vertex is split where its corners have different UVs (along the seams).  Returns
-    ``(V', F', UV')``."""
+    ``(V', F', UV')`` and, ``with_source``, the input vertex of each new one."""
     F, FUV = np.asarray(F, np.int64), np.asarray(FUV, np.int64)
     pairs = np.stack([F.ravel(), FUV.ravel()], 1)
     uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
-    return np.asarray(V)[uniq[:, 0]], inv.reshape(F.shape), np.asarray(UV)[uniq[:, 1]]
+    out = np.asarray(V)[uniq[:, 0]], inv.reshape(F.shape), np.asarray(UV)[uniq[:, 1]]
+    return (*out, uniq[:, 0]) if with_source else out
 
 
 _ICT_CACHE: dict = {}
@@ -302,6 +338,26 @@ def _ict_source(map_res: int):
     return _ICT_CACHE["model"], _ICT_CACHE[map_res]
 
 
+IRIS = np.array([[0.30, 0.16, 0.06], [0.18, 0.09, 0.04], [0.25, 0.35, 0.45], [0.28, 0.33, 0.18], [0.10, 0.06, 0.03]])
+
+
+def _ict_eyes(neutral, src, head, rng) -> dict:
+    """The ``eyes`` argument of :func:`render_skin_sample` for an unwelded ICT head: per vertex,
+    eyeball / socket flags and the cosine to the gaze axis (+z, measured on the person's neutral
+    head, so a look blendshape turns the pattern with the eyeball)."""
+    lab = head.labels[src]
+    ball = lab == 7
+    cos = np.zeros(len(src))
+    for side in (-1, 1):
+        sel = ball & (np.sign(neutral.V[src, 0]) == side)
+        P = neutral.V[src[sel]]
+        A = np.c_[2 * P, np.ones(len(P))]  # sphere fit: |p|² = 2 p·c + (r² − |c|²)
+        c = np.linalg.lstsq(A, (P ** 2).sum(1), rcond=None)[0][:3]
+        d = P - c
+        cos[sel] = d[:, 2] / np.linalg.norm(d, axis=1)
+    return {"eyeball": ball, "socket": lab == 4, "cos": cos, "iris": IRIS[rng.integers(len(IRIS))] * rng.uniform(0.8, 1.2)}
+
+
 def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, vertices: int, head_source: str = "procedural") -> None:
     from geoface.nn.camera import look_at
     from geoface.synth import procedural_head
@@ -309,29 +365,35 @@ def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, verti
     from .texture import save_sample
 
     rng = np.random.default_rng([seed, i])
-    if head_source == "ict":  # a random person with a random expression, skin by region
+    eyes = None
+    if head_source == "ict":  # a random person with a random expression, skin by region, eyes
         from geoface.synth.ict import random_expression
         model, regions = _ict_source(map_res)
-        head = model.head(identity=rng.standard_normal(model.n_identities),
-                          expression=random_expression(rng, model.expression_names, count=2, strength=0.6))
-        V, F, UV = unweld_uv(head.V, head.F, head.UV, head.FUV)
-        in_tile = ((UV >= 0) & (UV <= 1)).all(1)  # the face tile: the skin maps cover it alone
-        P = head.V[head.face_mask]
-        scale = float(np.ptp(P[:, 1]))  # the face's height (cm)
+        ident = rng.standard_normal(model.n_identities)
+        expr = random_expression(rng, model.expression_names, count=2, strength=0.6)
+        parts = ("skin", "eyes")
+        head = model.head(identity=ident, expression=expr, parts=parts)
+        V, F, UV, src = unweld_uv(head.V, head.F, head.UV, head.FUV, with_source=True)
+        skin = head.labels[src][F].max(1) <= 2  # a triangle's region (as the model's polygons): skin
+        eyes = _ict_eyes(model.head(identity=ident, parts=parts), src, head, rng)
+        P = head.V[head.labels == 0]  # the narrow face (brows to chin)
+        scale = float(np.ptp(P[:, 1])) * 0.8  # a portrait: the face fills most of the frame
         centre = P.mean(0)
     else:
         head = procedural_head(vertices, seed=int(rng.integers(1 << 31)))
-        V, F, UV, in_tile, scale, regions = head.V, head.F, head.UV, None, 0.16, None
+        V, F, UV, skin, scale, regions = head.V, head.F, head.UV, None, 0.16, None
         centre = head.V[head.face_mask].mean(0)
     yaw, pitch = np.radians(rng.uniform(-20, 20)), np.radians(rng.uniform(-10, 10))
     dist = rng.uniform(2.5, 3.0) * scale
     eye = centre + dist * np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
     cam = look_at(eye, centre + rng.normal(0, 0.03125 * scale, 3), width=res, height=res, fov_y_deg=30)
     maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)), regions=regions)
-    s = render_skin_sample(V, F, UV, maps, cam, random_lights(rng, int(rng.integers(2, 5))))
-    if in_tile is not None:  # pixels of other tiles (the back of the head, the ears) are not skin samples
-        s["mask"] &= in_tile[F[np.maximum(s["face"], 0)]].all(-1)
-    save_sample(path, s["photo"], s["maps"], s["uv"], s["normal"], s["mask"])
+    s = render_skin_sample(V, F, UV, maps, cam, random_lights(rng, int(rng.integers(2, 5))), eyes=eyes)
+    if skin is not None:  # the face tile's skin only: not the eyes, nor other tiles (the back of the head, the ears)
+        in_tile = ((UV >= 0) & (UV <= 1)).all(1)
+        s["mask"] &= skin[np.maximum(s["face"], 0)] & in_tile[F[np.maximum(s["face"], 0)]].all(-1)
+    lm = cam.project(head.V[head.landmarks])[0] if head_source == "ict" else None  # the 68 points, as a detector gives them
+    save_sample(path, s["photo"], s["maps"], s["uv"], s["normal"], s["mask"], landmarks=lm)
 
 
 def make_texture_dataset(out_dir, count: int = 8, res: int = 512, map_res: int | None = None, *,

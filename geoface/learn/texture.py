@@ -35,30 +35,40 @@ from .texture_nets import GDE, HFDR, N_MAPS, NormalUVPredictor, TextureNetConfig
 KEYS = {"photo": 3, "maps": N_MAPS, "uv": 2, "normal": 3}
 
 
-def save_sample(path, photo, maps, uv, normal, mask) -> None:
-    """Write one training sample (float arrays in [0, 1]) as uint16 npz, atomically."""
+def save_sample(path, photo, maps, uv, normal, mask, landmarks=None) -> None:
+    """Write one training sample (float arrays in [0, 1]) as uint16 npz, atomically;
+    ``landmarks`` (optional): the face's 68 landmarks in pixels (x right, y down)."""
     arrs = {"photo": photo, "maps": maps, "uv": uv, "normal": normal}
     out = {k: np.round(np.clip(np.asarray(v, np.float64), 0, 1) * 65535).astype(np.uint16) for k, v in arrs.items()}
     out["mask"] = np.asarray(mask, bool)
+    if landmarks is not None:
+        out["landmarks"] = np.asarray(landmarks, np.float32).reshape(68, 2)
     path = Path(path)
     tmp = path.with_name(path.stem + ".tmp.npz")
     np.savez_compressed(tmp, **out)
     os.replace(tmp, path)
 
 
-def load_sample(path) -> dict:
-    """→ dict of float32 arrays (photo, maps, uv, normal) and the bool mask; checks shapes."""
+def load_sample(path, keys=None, box=None) -> dict:
+    """→ dict of float32 arrays (photo, maps, uv, normal) and the bool mask; checks shapes.
+
+    ``keys``: only these (default all, and the mask always); ``box``: a list of ``(rows, cols)``
+    slice pairs — each array is then a list of its crops, converted after cropping (so a 4K
+    sample costs its uint16 arrays, one at a time, not their float32 copies)."""
+    keys = list(KEYS) if keys is None else list(keys)
     try:
         with np.load(path) as z:
-            d = {k: z[k].astype(np.float32) / 65535.0 for k in KEYS}
-            d["mask"] = z["mask"].astype(bool)
+            raw = {k: z[k] for k in [*keys, "mask"]}
     except (OSError, ValueError, KeyError, EOFError, TypeError, zipfile.BadZipFile) as e:
         raise LearnError(f"{path} is not a texture sample ({type(e).__name__}: {e})") from None
-    H, W = d["mask"].shape
-    for k, c in KEYS.items():
-        if d[k].shape != (H, W, c):
-            raise LearnError(f"{path}: {k} has shape {d[k].shape}; expected {(H, W, c)}")
-    return d
+    H, W = raw["mask"].shape
+    for k in keys:
+        if raw[k].shape != (H, W, KEYS[k]):
+            raise LearnError(f"{path}: {k} has shape {raw[k].shape}; expected {(H, W, KEYS[k])}")
+    conv = lambda k, a: a.astype(bool) if k == "mask" else a.astype(np.float32) / 65535.0  # noqa: E731
+    if box is None:
+        return {k: conv(k, a) for k, a in raw.items()}
+    return {k: [conv(k, a[ys, xs]) for ys, xs in box] for k, a in raw.items()}
 
 
 def _t(a: np.ndarray) -> torch.Tensor:  # [H, W, C] -> [1, C, H, W]
@@ -164,24 +174,36 @@ def _masked_l1(a, b, m):
 def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, quiet: bool | None = None,
                   log=None, device: str = "cpu") -> dict:
     """Train the three stages on ``data_dir``/*.npz; writes ``out_dir`` (config + safetensors)
-    and returns the per-stage loss history.  ``device``: "cpu" or "cuda" (all samples are held
-    on it)."""
+    and returns the per-stage loss history.  ``device``: "cpu" or "cuda".
+
+    The data are streamed: memory holds the ``gde_res`` copies of the samples and, during the
+    HFDR stage, one step's full-resolution patches (read from disk at each step), so a folder
+    of 4K samples trains in the memory of one."""
     from geoface.progress import progress
     cfg = cfg or TextureTrainConfig()
     files = sorted(Path(data_dir).glob("*.npz"))
     if not files:
         raise LearnError(f"no *.npz texture samples in {data_dir}")
-    data = [load_sample(f) for f in files]
-    H = data[0]["mask"].shape[0]
+    # streamed: the samples are read one at a time; only their gde_res copies stay in memory,
+    # and the HFDR stage reads its full-resolution patches from disk at each step
+    H = np.load(files[0])["mask"].shape[0]
     _check_sizes(H, cfg)
     torch.manual_seed(cfg.seed)
     g = torch.Generator().manual_seed(cfg.seed)
     model = TextureModel(cfg).to(device)
-    full = {k: torch.cat([_t(d[k]) for d in data]).to(device) for k in KEYS}
-    mask = torch.cat([torch.from_numpy(d["mask"])[None, None].float() for d in data]).to(device)
-    lo = {k: _down(v, cfg.gde_res) for k, v in full.items()}
-    mlo = (_down(mask, cfg.gde_res) > 0.5).float()
-    n = len(data)
+    lo: dict = {k: [] for k in KEYS}
+    mlo = []
+    for f in progress(files, "texture data (low resolution)", quiet=quiet):
+        d = load_sample(f)
+        if d["mask"].shape != (H, H):
+            raise LearnError(f"{f}: the samples must all be {H}x{H}; this one is {d['mask'].shape}")
+        for k in KEYS:
+            lo[k].append(_down(_t(d[k]), cfg.gde_res))
+        mlo.append(_down(torch.from_numpy(d["mask"])[None, None].float(), cfg.gde_res))
+        del d
+    lo = {k: torch.cat(v).to(device) for k, v in lo.items()}
+    mlo = (torch.cat(mlo) > 0.5).float().to(device)
+    n = len(files)
     hist: dict = {"predictor": [], "gde": [], "hfdr": []}
     t0 = time.time()
 
@@ -211,7 +233,7 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
     run_stage("predictor", model.predictor.parameters(), pred_step, cfg.epochs[0])
     model.predictor.requires_grad_(False)
     with torch.no_grad():
-        p_uv, p_n = model.predictor(lo["photo"])
+        p_uv, p_n = (torch.cat(t) for t in zip(*(model.predictor(lo["photo"][s:s + cfg.batch]) for s in range(0, n, cfg.batch))))
 
     def gde_step(idx):
         out = model.gde(lo["photo"][idx], p_uv[idx], p_n[idx])
@@ -222,22 +244,26 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
     run_stage("gde", model.gde.parameters(), gde_step, cfg.epochs[1])
     model.gde.requires_grad_(False)
     with torch.no_grad():
-        guide = model.gde(lo["photo"], p_uv, p_n)
+        guide = torch.cat([model.gde(lo["photo"][s:s + cfg.batch], p_uv[s:s + cfg.batch], p_n[s:s + cfg.batch])
+                           for s in range(0, n, cfg.batch)])
     P = H // cfg.k
 
     def hfdr_step(idx):
         xs, ts, ms, uvs, ns, gs = [], [], [], [], [], []
         for i in idx.tolist():
+            boxes = []
             for _ in range(cfg.hfdr_patches):
                 y0, x0 = (torch.randint(0, cfg.k, (2,), generator=g) * P).tolist()  # CPU generator
-                box = (slice(y0, y0 + P), slice(x0, x0 + P))
-                xs.append(full["photo"][i:i + 1, :, box[0], box[1]])
-                ts.append(full["maps"][i:i + 1, :, box[0], box[1]])
-                ms.append(mask[i:i + 1, :, box[0], box[1]])
+                boxes.append((slice(y0, y0 + P), slice(x0, x0 + P)))
+            crops = load_sample(files[i], ("photo", "maps"), box=boxes)
+            for j, box in enumerate(boxes):
+                xs.append(_t(crops["photo"][j]))
+                ts.append(_t(crops["maps"][j]))
+                ms.append(torch.from_numpy(crops["mask"][j])[None, None].float())
                 uvs.append(guidance_crop(p_uv[i:i + 1], (H, H), box))
                 ns.append(guidance_crop(p_n[i:i + 1], (H, H), box))
                 gs.append(guidance_crop(guide[i:i + 1], (H, H), box))
-        cat = lambda a: torch.cat(a)  # noqa: E731
+        cat = lambda a: torch.cat(a).to(device)  # noqa: E731
         out = model.hfdr(cat(xs), cat(uvs), cat(ns), cat(gs))
         m = cat(ms)
         loss, _ = map_loss(out * m, cat(ts) * m, 2.0)  # L1 + 2·Laplacian

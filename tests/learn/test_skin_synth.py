@@ -140,3 +140,43 @@ def test_ict_texture_samples(tmp_path):
     assert s["photo"][m].mean() > 0.05 and s["maps"][m][:, 0:3].std() > 0.005
     with pytest.raises(LearnError, match="head_source"):
         make_texture_dataset(tmp_path / "x", count=1, res=64, head_source="flame")
+
+
+def test_random_lights_share_a_total_power():
+    for s in range(20):
+        d, c, amb = random_lights(np.random.default_rng(s), 4, power=(1.0, 1.0))
+        total = c.mean(1).sum() + amb[0]  # the ±15 % tint averages out over channels only roughly
+        assert 0.85 < total < 1.15, total
+        assert (c > 0).all() and 0.04 < amb[0] < 0.16
+
+
+def test_eye_albedo_pupil_iris_sclera():
+    from geoface.learn.skin_synth import eye_albedo
+    iris = np.array([0.2, 0.3, 0.45])
+    c = np.cos(np.radians([0.0, 20.0, 60.0]))
+    a = eye_albedo(c, iris, pupil_deg=12, iris_deg=30)
+    assert np.allclose(a[0], 0.02)  # the pupil
+    assert np.argmax(a[1]) == 2 and a[1].max() < 0.5  # the (blue) iris
+    assert a[2].min() > 0.6  # the sclera
+
+
+def test_ict_samples_show_eyes_outside_the_mask(tmp_path):
+    """ICT photos have eyes (a dark pupil and a white sclera between the eyelid landmarks),
+    which the skin mask leaves out; the 68 landmarks are stored in pixels."""
+    from geoface.learn.skin_synth import make_texture_dataset
+    from geoface.learn.texture import load_sample
+    [p] = make_texture_dataset(tmp_path, count=1, res=256, map_res=256, seed=2, head_source="ict", quiet=True)
+    s = load_sample(p)
+    with np.load(p) as z:
+        L = z["landmarks"]
+    assert L.shape == (68, 2) and (L > 0).all() and (L < 256).all()
+    for eye in (slice(36, 42), slice(42, 48)):  # each eye's six eyelid points
+        lo, hi = np.floor(L[eye].min(0)).astype(int), np.ceil(L[eye].max(0)).astype(int)
+        box = (slice(lo[1], hi[1] + 1), slice(lo[0], hi[0] + 1))
+        photo, mask = s["photo"][box], s["mask"][box]
+        assert (~mask).mean() > 0.4  # mostly not skin
+        grey = photo[~mask].mean(1)
+        assert grey.min() < 0.25 and grey.max() - grey.min() > 0.4, (grey.min(), grey.max())  # pupil and sclera
+    # the nose tip (landmark 30) is skin
+    x, y = np.round(L[30]).astype(int)
+    assert s["mask"][y, x]
