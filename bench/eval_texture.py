@@ -132,7 +132,7 @@ def run_4k(a, out: Path, model_dir: Path, fitted: dict) -> None:
     size = a.size4k
     t = time.perf_counter()
     [path] = make_texture_dataset(out / f"face{size}", 1, size, map_res=size, seed=SEEDS["4k"], head_source="ict",
-                                  quiet=True)
+                                  quiet=True, supersample=1)  # 2× of 4K would need ~30 GB
     d = load_sample(path)
     with np.load(path) as z:
         lm = z["landmarks"]
@@ -181,8 +181,13 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--workers", type=int, default=1, help="processes writing the synthetic samples")
+    ap.add_argument("--supersample", type=int, default=2, help="rendered pixels averaged per photo pixel, per side")
+    ap.add_argument("--map-weights", default="1,1,1", help="loss weights of albedo, micronormal, specular")
+    ap.add_argument("--hash-max-res", type=int, default=None, help="finest hash-grid resolution (default the model's)")
+    ap.add_argument("--hash-log2-table", type=int, default=None, help="log2 of the hash table size (default the model's)")
     ap.add_argument("--size4k", type=int, default=4096, help="size of the reconstruct-from-landmarks run (0 = skip)")
     ap.add_argument("--out", default="/tmp/geoface_eval_texture")
+    ap.add_argument("--splits", default="val,test", help="the held-out splits to score (val while choosing settings)")
     ap.add_argument("--quick", action="store_true", help="tiny smoke configuration (a few minutes)")
     a = ap.parse_args(argv)
     import torch
@@ -198,10 +203,11 @@ def main(argv=None) -> int:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     emit(out, bench="eval_texture", stage="config", heads=a.heads, train=a.train, val=a.val, test=a.test, res=a.res,
-         k=a.k, gde_res=a.gde_res, epochs=list(epochs), hfdr_patches=a.hfdr_patches, device=a.device, threads=torch.get_num_threads())
+         k=a.k, gde_res=a.gde_res, epochs=list(epochs), hfdr_patches=a.hfdr_patches, supersample=a.supersample,
+         map_weights=a.map_weights, hash_max_res=a.hash_max_res, hash_log2_table=a.hash_log2_table, device=a.device, threads=torch.get_num_threads())
     t = time.perf_counter()
     files = {split: make_texture_dataset(out / split, n, a.res, seed=SEEDS[split], workers=a.workers, quiet=True,
-                                         head_source=a.heads)
+                                         head_source=a.heads, supersample=a.supersample)
              for split, n in (("train", a.train), ("val", a.val), ("test", a.test))}
     emit(out, stage="data", seconds=round(time.perf_counter() - t, 1))
     fitted = fit_baselines(files["train"])
@@ -209,7 +215,10 @@ def main(argv=None) -> int:
     for name, use_hash in (("full", True), ("no_hash", False)):
         mdir = out / f"model_{name}"
         if not (mdir / "model.safetensors").exists():
-            cfg = TextureTrainConfig(nets=TextureNetConfig(use_hash=use_hash), gde_res=a.gde_res, k=a.k,
+            hash_opts = {k: v for k, v in (("hash_max_res", a.hash_max_res), ("hash_log2_table", a.hash_log2_table)) if v}
+            nets = TextureNetConfig(use_hash=use_hash, **hash_opts)
+            cfg = TextureTrainConfig(nets=nets, gde_res=a.gde_res, k=a.k,
+                                     map_weights=tuple(float(w) for w in a.map_weights.split(",")),
                                      epochs=epochs, lr=a.lr, batch=a.batch,
                                      hfdr_patches=a.hfdr_patches, seed=0)
             info = train_texture(out / "train", mdir, cfg, quiet=True, device=a.device)
@@ -219,7 +228,7 @@ def main(argv=None) -> int:
         models[name] = TextureModel.load(mdir)
     variants = {"constant": None, "photo": None, "gde_upsampled": ("full", False), "gde_hfdr": ("full", True),
                 "gde_hfdr_no_hash": ("no_hash", True)}
-    for split in ("val", "test"):
+    for split in a.splits.split(","):
         per: dict = {v: [] for v in variants}
         for i, p in enumerate(files[split]):
             d = load_sample(p)

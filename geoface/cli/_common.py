@@ -61,7 +61,7 @@ _PATHS = {
     ("ddpm", "train"): (("data_dir",), ("output",)),
     ("ddpm", "sample"): (("run_dir",), ("output",)),
     ("texture", "synth"): ((), ("output",)),
-    ("texture", "train"): (("data_dir",), ("output",)),
+    ("texture", "train"): (("data_dir", "init"), ("output",)),
     ("texture", "reconstruct"): (("photo", "model", "mesh", "camera", "landmarks"), ("output",)),
     ("splat", "fit"): (("mesh",), ("output", "renders")),
     ("hmd", "synth"): ((), ("output",)),

@@ -358,7 +358,8 @@ def _ict_eyes(neutral, src, head, rng) -> dict:
     return {"eyeball": ball, "socket": lab == 4, "cos": cos, "iris": IRIS[rng.integers(len(IRIS))] * rng.uniform(0.8, 1.2)}
 
 
-def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, vertices: int, head_source: str = "procedural") -> None:
+def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, vertices: int, head_source: str = "procedural",
+                          supersample: int = 1) -> None:
     from geoface.nn.camera import look_at
     from geoface.synth import procedural_head
 
@@ -386,24 +387,54 @@ def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, verti
     yaw, pitch = np.radians(rng.uniform(-20, 20)), np.radians(rng.uniform(-10, 10))
     dist = rng.uniform(2.5, 3.0) * scale
     eye = centre + dist * np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
-    cam = look_at(eye, centre + rng.normal(0, 0.03125 * scale, 3), width=res, height=res, fov_y_deg=30)
+    ss = int(supersample)
+    cam = look_at(eye, centre + rng.normal(0, 0.03125 * scale, 3), width=res * ss, height=res * ss, fov_y_deg=30)
     maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)), regions=regions)
     s = render_skin_sample(V, F, UV, maps, cam, random_lights(rng, int(rng.integers(2, 5))), eyes=eyes)
     if skin is not None:  # the face tile's skin only: not the eyes, nor other tiles (the back of the head, the ears)
         in_tile = ((UV >= 0) & (UV <= 1)).all(1)
         s["mask"] &= skin[np.maximum(s["face"], 0)] & in_tile[F[np.maximum(s["face"], 0)]].all(-1)
-    lm = cam.project(head.V[head.landmarks])[0] if head_source == "ict" else None  # the 68 points, as a detector gives them
+    if ss > 1:
+        s = pixel_average(s, ss)
+    lm = cam.project(head.V[head.landmarks])[0] / ss if head_source == "ict" else None  # the 68 points, as a detector gives them
     save_sample(path, s["photo"], s["maps"], s["uv"], s["normal"], s["mask"], landmarks=lm)
+
+
+def pixel_average(s: dict, ss: int, gamma: float = 2.2) -> dict:
+    """A sample rendered at ``ss``× the resolution → what a camera's pixels integrate: the
+    mean of each ``ss``×``ss`` block of light (the photo averaged in linear light, then
+    re-encoded), of the maps, UVs and normals (unit vectors renormalised); a pixel is in the
+    mask when all of its block is.  Returns the keys photo, maps, uv, normal, mask."""
+    def avg(a):
+        H, W = a.shape[:2]
+        return a.reshape(H // ss, ss, W // ss, ss, *a.shape[2:]).mean((1, 3))
+
+    def unit(enc):  # encoded unit vectors n/2 + ½ → their mean direction, encoded
+        v = avg(enc.astype(np.float64) * 2 - 1)
+        return (v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12) * 0.5 + 0.5).astype(np.float32)
+
+    out = {"photo": (avg(s["photo"].astype(np.float64) ** gamma) ** (1 / gamma)).astype(np.float32),
+           "uv": avg(s["uv"]).astype(np.float32), "normal": unit(s["normal"]),
+           "mask": avg(s["mask"].astype(np.float32)) > 0.999}
+    maps = avg(s["maps"]).astype(np.float32)
+    maps[..., 3:6] = unit(s["maps"][..., 3:6])
+    out["maps"] = maps
+    for k in ("maps", "uv", "normal"):
+        out[k][~out["mask"]] = 0.0
+    return out
 
 
 def make_texture_dataset(out_dir, count: int = 8, res: int = 512, map_res: int | None = None, *,
                          seed: int = 0, vertices: int = 20000, workers: int = 1,
-                         quiet: bool | None = None, head_source: str = "procedural") -> list:
+                         quiet: bool | None = None, head_source: str = "procedural", supersample: int = 2) -> list:
     """Write ``count`` texture-model samples (``sample_XXXX.npz``, see
     :func:`geoface.learn.texture.save_sample`) of procedural skin on heads, each from a
     jittered near-frontal camera under random lights.  ``head_source``: ``"procedural"`` (our
     head, stationary skin) or ``"ict"`` (ICT-FaceKit people with random expressions, skin by
-    facial region on the model's UV layout; pixels outside its face tile are masked out).  ``map_res`` (default: ``res``,
+    facial region on the model's UV layout; pixels outside its face tile are masked out).
+    ``supersample``: each pixel is the average of s×s rendered ones (:func:`pixel_average`), as a
+    camera integrates light over its pixels; 1 point-samples the maps (aliased detail, which no
+    model can recover from the photo).  ``map_res`` (default: ``res``,
     at least 1024) is the UV-map resolution.  Sample ``i`` depends only on (``seed``, ``i``),
     so ``workers`` > 1 (a process pool) writes the same files.  Returns the paths; existing
     samples are kept (resumable)."""
@@ -421,7 +452,9 @@ def make_texture_dataset(out_dir, count: int = 8, res: int = 512, map_res: int |
     todo = [i for i in range(count) if not paths[i].exists()]
     if head_source not in ("procedural", "ict"):
         raise LearnError(f"head_source must be 'procedural' or 'ict'; got {head_source!r}")
-    args = [(paths[i], i, seed, res, map_res, vertices, head_source) for i in todo]
+    if supersample not in (1, 2, 3, 4):
+        raise LearnError(f"supersample must be 1..4; got {supersample}")
+    args = [(paths[i], i, seed, res, map_res, vertices, head_source, supersample) for i in todo]
     if workers > 1 and len(todo) > 1:
         import multiprocessing as mp
         with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:

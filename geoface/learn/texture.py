@@ -89,11 +89,14 @@ class TextureTrainConfig:
     batch: int = 4
     hfdr_patches: int = 4  # random patches per sample and step
     seed: int = 0
+    #: loss weights of albedo, micronormal, specular (GDE and HFDR; the paper weighs them equally)
+    map_weights: tuple = (1.0, 1.0, 1.0)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["nets"] = self.nets.to_dict()
         d["epochs"] = list(self.epochs)
+        d["map_weights"] = list(self.map_weights)
         return d
 
     @classmethod
@@ -171,14 +174,25 @@ def _masked_l1(a, b, m):
     return ((a - b).abs() * m).sum() / (m.sum() * a.shape[1]).clamp_min(1)
 
 
+def _channel_weights(cfg: TextureTrainConfig, device) -> torch.Tensor:
+    w = [float(x) for x in cfg.map_weights]
+    if len(w) != 3 or min(w) < 0 or not np.isfinite(w).all() or max(w) == 0:
+        raise LearnError(f"map_weights must be three weights >= 0 (albedo, micronormal, specular); got {cfg.map_weights}")
+    return torch.tensor([w[0]] * 3 + [w[1]] * 3 + [w[2]], device=device)[None, :, None, None]
+
+
 def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, quiet: bool | None = None,
-                  log=None, device: str = "cpu") -> dict:
+                  log=None, device: str = "cpu", init=None) -> dict:
     """Train the three stages on ``data_dir``/*.npz; writes ``out_dir`` (config + safetensors)
     and returns the per-stage loss history.  ``device``: "cpu" or "cuda".
 
     The data are streamed: memory holds the ``gde_res`` copies of the samples and, during the
     HFDR stage, one step's full-resolution patches (read from disk at each step), so a folder
-    of 4K samples trains in the memory of one."""
+    of 4K samples trains in the memory of one.
+
+    ``init``: a trained model (folder) whose weights training starts from — with ``epochs``
+    ``(0, 0, n)``, for example, only the HFDR is trained again; its networks must have the
+    sizes ``cfg`` gives."""
     from geoface.progress import progress
     cfg = cfg or TextureTrainConfig()
     files = sorted(Path(data_dir).glob("*.npz"))
@@ -190,7 +204,15 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
     _check_sizes(H, cfg)
     torch.manual_seed(cfg.seed)
     g = torch.Generator().manual_seed(cfg.seed)
-    model = TextureModel(cfg).to(device)
+    model = TextureModel(cfg)
+    if init is not None:
+        src = TextureModel.load(init)
+        try:
+            model.load_state_dict(src.state_dict(), strict=True)
+        except RuntimeError:
+            raise LearnError(f"{init}: its networks differ from this configuration's (sizes or hash encoding)") from None
+    model = model.to(device)
+    wmap = _channel_weights(cfg, device)
     lo: dict = {k: [] for k in KEYS}
     mlo = []
     for f in progress(files, "texture data (low resolution)", quiet=quiet):
@@ -238,7 +260,7 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
     def gde_step(idx):
         out = model.gde(lo["photo"][idx], p_uv[idx], p_n[idx])
         m = mlo[idx]
-        loss, _ = map_loss(out * m, lo["maps"][idx] * m, 1.0)  # eq.: L1 + 1·Laplacian
+        loss, _ = map_loss(out * m * wmap, lo["maps"][idx] * m * wmap, 1.0)  # eq.: L1 + 1·Laplacian
         return loss
 
     run_stage("gde", model.gde.parameters(), gde_step, cfg.epochs[1])
@@ -265,7 +287,7 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
                 gs.append(guidance_crop(guide[i:i + 1], (H, H), box))
         cat = lambda a: torch.cat(a).to(device)  # noqa: E731
         out = model.hfdr(cat(xs), cat(uvs), cat(ns), cat(gs))
-        m = cat(ms)
+        m = cat(ms) * wmap
         loss, _ = map_loss(out * m, cat(ts) * m, 2.0)  # L1 + 2·Laplacian
         return loss
 

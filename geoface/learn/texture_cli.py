@@ -68,7 +68,8 @@ def cmd_synth(args) -> int:
     from .skin_synth import make_texture_dataset
     with atomic_dir(args.output, overwrite=True) as tmp:  # complete or absent (the output policy ran first)
         paths = make_texture_dataset(tmp, args.count, args.res, args.map_res, seed=args.seed,
-                                     vertices=args.vertices, quiet=_quiet(args), head_source=args.heads)
+                                     vertices=args.vertices, quiet=_quiet(args), head_source=args.heads,
+                                     supersample=args.supersample)
     print(f"{args.output}: {len(paths)} samples at {args.res}²")
     return 0
 
@@ -82,9 +83,22 @@ def cmd_train(args) -> int:
         epochs = ()
     if len(epochs) != 3 or min(epochs) < 0:
         raise GeofaceError(f"--epochs must be three counts like 20,20,20 (predictor, GDE, HFDR); got {args.epochs!r}")
+    try:
+        weights = tuple(float(w) for w in args.map_weights.split(","))
+    except ValueError:
+        weights = ()
+    if len(weights) != 3:
+        raise GeofaceError(f"--map-weights must be three weights like 1,4,1 (albedo, micronormal, specular); got {args.map_weights!r}")
     cfg = TextureTrainConfig(nets=TextureNetConfig(use_hash=not args.no_hash), gde_res=args.gde_res, k=args.k,
-                             epochs=epochs, lr=args.lr, batch=args.batch, seed=args.seed)
-    info = train_texture(args.data_dir, args.output, cfg, quiet=_quiet(args))
+                             epochs=epochs, lr=args.lr, batch=args.batch, seed=args.seed, map_weights=weights)
+    if args.init is not None:  # the networks' sizes come from the model trained before
+        from .texture import TextureModel
+        nets = TextureModel.load(args.init).cfg.nets
+        if nets.use_hash == args.no_hash:
+            raise GeofaceError(f"{args.init} was trained {'without' if args.no_hash is False else 'with'} hash encoding; "
+                               "--no-hash must match it")
+        cfg.nets = nets
+    info = train_texture(args.data_dir, args.output, cfg, quiet=_quiet(args), init=args.init)
     last = {k: (f"{v[-1]:.4f}" if v else "-") for k, v in info["history"].items()}
     print(f"{args.output}: {info['samples']} samples of {info['size']}², {info['seconds']:.1f} s; final losses "
           + " ".join(f"{k} {v}" for k, v in last.items()))
@@ -161,6 +175,8 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--vertices", type=number(int, 1000, 200_000), default=20000, help="procedural heads' vertex count")
     p.add_argument("--heads", choices=("procedural", "ict"), default="procedural",
                    help="ict: ICT-FaceKit people with random expressions and skin by facial region")
+    p.add_argument("--supersample", type=number(int, 1, 4), default=2,
+                   help="rendered pixels averaged per photo pixel, per side (1: point-sampled, aliased maps)")
     p.add_argument("--seed", type=SEED, default=0)
     p.set_defaults(func=cmd_synth)
     t = sd.add_parser("train", parents=[common], help="train predictor, GDE and HFDR in turn")
@@ -172,6 +188,10 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--lr", type=number(float, 0, 1, lo_open=True), default=1e-3)
     t.add_argument("--batch", type=number(int, 1, 4096), default=4)
     t.add_argument("--no-hash", action="store_true", help="GDE without the UV hash encoding (ablation)")
+    t.add_argument("--map-weights", default="1,1,1", metavar="A,M,S",
+                   help="loss weights of albedo, micronormal, specular (default equal, as the paper)")
+    t.add_argument("--init", default=None, metavar="MODEL_DIR",
+                   help="start from this trained model's weights (e.g. --epochs 0,0,20 trains its HFDR further)")
     t.add_argument("--seed", type=SEED, default=0)
     t.set_defaults(func=cmd_train)
     r = sd.add_parser("reconstruct", parents=[common], help="albedo, micronormal, specular maps of a photo")

@@ -117,7 +117,7 @@ class TextureNetConfig:
     hash_features: int = 2
     hash_log2_table: int = 16
     hash_base_res: int = 16
-    hash_max_res: int = 1024
+    hash_max_res: int = 128  # finest grid; 1024 overfitted 64 faces (docs/textures.md)
     use_hash: bool = True
 
     def to_dict(self) -> dict:

@@ -180,3 +180,25 @@ def test_ict_samples_show_eyes_outside_the_mask(tmp_path):
     # the nose tip (landmark 30) is skin
     x, y = np.round(L[30]).astype(int)
     assert s["mask"][y, x]
+
+
+def test_pixel_average_is_what_a_camera_integrates():
+    from geoface.learn.skin_synth import pixel_average
+    H = 4
+    photo = np.zeros((H, H, 3), np.float32)
+    photo[0, 0] = 1.0  # one bright sub-pixel of four: a quarter of the light
+    n = np.zeros((H, H, 3))
+    n[..., 2] = 1.0
+    n[0, 0] = [1.0, 0.0, 0.0]  # one sub-pixel's normal of four tilted 90°: the mean is (1, 0, 3)/√10
+    s = {"photo": photo, "maps": np.concatenate([np.full((H, H, 3), 0.4), n * 0.5 + 0.5, np.full((H, H, 1), 0.2)], -1),
+         "uv": np.random.default_rng(0).random((H, H, 2)), "normal": n * 0.5 + 0.5, "mask": np.ones((H, H), bool)}
+    s["mask"][3, 3] = False
+    out = pixel_average(s, 2)
+    assert out["photo"].shape == (2, 2, 3)
+    np.testing.assert_allclose(out["photo"][0, 0], 0.25 ** (1 / 2.2), rtol=1e-6)  # linear light, re-encoded
+    np.testing.assert_allclose(out["normal"][0, 0] * 2 - 1, np.array([1, 0, 3]) / np.sqrt(10), atol=1e-6)
+    np.testing.assert_allclose(out["maps"][0, 0, 3:6] * 2 - 1, np.array([1, 0, 3]) / np.sqrt(10), atol=1e-6)
+    np.testing.assert_allclose(out["maps"][0, 1], [0.4, 0.4, 0.4, 0.5, 0.5, 1.0, 0.2], atol=1e-6)
+    np.testing.assert_allclose(out["uv"][0, 0], s["uv"][:2, :2].mean((0, 1)), atol=1e-6)
+    assert out["mask"].tolist() == [[True, True], [True, False]]  # a block with a background sub-pixel is out
+    assert (out["maps"][1, 1] == 0).all()

@@ -123,3 +123,24 @@ def test_crops_match_the_full_sample(tmp_path):
     for (ys, xs), c, m in zip(boxes, crops["maps"], crops["mask"]):
         np.testing.assert_array_equal(c, full["maps"][ys, xs])
         np.testing.assert_array_equal(m, full["mask"][ys, xs])
+
+
+def test_init_trains_only_the_stages_asked_for(trained, tmp_path):
+    """``init`` starts from a trained model: epochs (0, 0, 2) keep its predictor and GDE exactly
+    and move its HFDR; weights for the maps are checked; networks of other sizes are refused."""
+    root, out, _ = trained
+    src = TextureModel.load(out)
+    cfg = TextureTrainConfig(**{**src.cfg.__dict__, "epochs": (0, 0, 2), "map_weights": (1.0, 4.0, 1.0)})
+    train_texture(root, tmp_path / "m", cfg, quiet=True, init=out)
+    new = TextureModel.load(tmp_path / "m")
+    assert tuple(new.cfg.map_weights) == (1.0, 4.0, 1.0)
+    a, b = src.state_dict(), new.state_dict()
+    for k in a:
+        if not k.startswith("hfdr."):
+            assert torch.equal(a[k], b[k]), k
+    assert any(not torch.equal(a[k], b[k]) for k in a if k.startswith("hfdr."))
+    with pytest.raises(LearnError, match="map_weights"):
+        train_texture(root, tmp_path / "x", TextureTrainConfig(**{**cfg.__dict__, "map_weights": (1, -1, 1)}), quiet=True)
+    other = TextureTrainConfig(**{**cfg.__dict__, "nets": TextureNetConfig(**{**NETS.to_dict(), "use_hash": False})})
+    with pytest.raises(LearnError, match="differ"):
+        train_texture(root, tmp_path / "y", other, quiet=True, init=out)

@@ -72,6 +72,8 @@ def test_synth_train_reconstruct_end_to_end(tmp_path, capsys):
     (["texture", "train", "{tmp}/in", "-o", "{tmp}/m", "--epochs", "3,3"], "--epochs"),
     (["texture", "train", "{tmp}/in", "-o", "{tmp}/m"], "no *.npz"),
     (["texture", "train", "{tmp}/in", "-o", "{tmp}/in/m"], "inside the input folder"),
+    (["texture", "train", "{tmp}/in", "-o", "{tmp}/m", "--map-weights", "1,4"], "--map-weights"),
+    (["texture", "train", "{tmp}/in", "-o", "{tmp}/m", "--init", "{tmp}/in"], "config.json is missing"),
 ])
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, msg):
     (tmp_path / "in").mkdir()
