@@ -341,7 +341,7 @@ def _ict_source(map_res: int):
 IRIS = np.array([[0.30, 0.16, 0.06], [0.18, 0.09, 0.04], [0.25, 0.35, 0.45], [0.28, 0.33, 0.18], [0.10, 0.06, 0.03]])
 
 
-def _ict_eyes(neutral, src, head, rng) -> dict:
+def _ict_eyes(neutral_V, src, head, rng) -> dict:
     """The ``eyes`` argument of :func:`render_skin_sample` for an unwelded ICT head: per vertex,
     eyeball / socket flags and the cosine to the gaze axis (+z, measured on the person's neutral
     head, so a look blendshape turns the pattern with the eyeball)."""
@@ -349,8 +349,8 @@ def _ict_eyes(neutral, src, head, rng) -> dict:
     ball = lab == 7
     cos = np.zeros(len(src))
     for side in (-1, 1):
-        sel = ball & (np.sign(neutral.V[src, 0]) == side)
-        P = neutral.V[src[sel]]
+        sel = ball & (np.sign(neutral_V[src, 0]) == side)
+        P = neutral_V[src[sel]]
         A = np.c_[2 * P, np.ones(len(P))]  # sphere fit: |p|² = 2 p·c + (r² − |c|²)
         c = np.linalg.lstsq(A, (P ** 2).sum(1), rcond=None)[0][:3]
         d = P - c
@@ -376,7 +376,7 @@ def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, verti
         head = model.head(identity=ident, expression=expr, parts=parts)
         V, F, UV, src = unweld_uv(head.V, head.F, head.UV, head.FUV, with_source=True)
         skin = head.labels[src][F].max(1) <= 2  # a triangle's region (as the model's polygons): skin
-        eyes = _ict_eyes(model.head(identity=ident, parts=parts), src, head, rng)
+        eyes = _ict_eyes(model.shape(ident, parts=parts), src, head, rng)
         P = head.V[head.labels == 0]  # the narrow face (brows to chin)
         scale = float(np.ptp(P[:, 1])) * 0.8  # a portrait: the face fills most of the frame
         centre = P.mean(0)

@@ -198,10 +198,6 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
     files = sorted(Path(data_dir).glob("*.npz"))
     if not files:
         raise LearnError(f"no *.npz texture samples in {data_dir}")
-    # streamed: the samples are read one at a time; only their gde_res copies stay in memory,
-    # and the HFDR stage reads its full-resolution patches from disk at each step
-    H = np.load(files[0])["mask"].shape[0]
-    _check_sizes(H, cfg)
     torch.manual_seed(cfg.seed)
     g = torch.Generator().manual_seed(cfg.seed)
     model = TextureModel(cfg)
@@ -213,10 +209,16 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
             raise LearnError(f"{init}: its networks differ from this configuration's (sizes or hash encoding)") from None
     model = model.to(device)
     wmap = _channel_weights(cfg, device)
+    # streamed: the samples are read one at a time; only their gde_res copies stay in memory,
+    # and the HFDR stage reads its full-resolution patches from disk at each step
     lo: dict = {k: [] for k in KEYS}
     mlo = []
+    H = None
     for f in progress(files, "texture data (low resolution)", quiet=quiet):
         d = load_sample(f)
+        if H is None:
+            H = d["mask"].shape[0]
+            _check_sizes(H, cfg)
         if d["mask"].shape != (H, H):
             raise LearnError(f"{f}: the samples must all be {H}x{H}; this one is {d['mask'].shape}")
         for k in KEYS:

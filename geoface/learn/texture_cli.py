@@ -74,28 +74,29 @@ def cmd_synth(args) -> int:
     return 0
 
 
+def _three(text: str, conv, msg: str) -> tuple:
+    """Three comma-separated numbers >= 0, or a GeofaceError ``msg``."""
+    try:
+        out = tuple(conv(v) for v in text.split(","))
+    except ValueError:
+        out = ()
+    if len(out) != 3 or min(out) < 0:
+        raise GeofaceError(f"{msg}; got {text!r}")
+    return out
+
+
 def cmd_train(args) -> int:
     from .texture import TextureTrainConfig, train_texture
     from .texture_nets import TextureNetConfig
-    try:
-        epochs = tuple(int(e) for e in args.epochs.split(","))
-    except ValueError:
-        epochs = ()
-    if len(epochs) != 3 or min(epochs) < 0:
-        raise GeofaceError(f"--epochs must be three counts like 20,20,20 (predictor, GDE, HFDR); got {args.epochs!r}")
-    try:
-        weights = tuple(float(w) for w in args.map_weights.split(","))
-    except ValueError:
-        weights = ()
-    if len(weights) != 3:
-        raise GeofaceError(f"--map-weights must be three weights like 1,4,1 (albedo, micronormal, specular); got {args.map_weights!r}")
+    epochs = _three(args.epochs, int, "--epochs must be three counts like 20,20,20 (predictor, GDE, HFDR)")
+    weights = _three(args.map_weights, float, "--map-weights must be three weights like 1,4,1 (albedo, micronormal, specular)")
     cfg = TextureTrainConfig(nets=TextureNetConfig(use_hash=not args.no_hash), gde_res=args.gde_res, k=args.k,
                              epochs=epochs, lr=args.lr, batch=args.batch, seed=args.seed, map_weights=weights)
     if args.init is not None:  # the networks' sizes come from the model trained before
         from .texture import TextureModel
         nets = TextureModel.load(args.init).cfg.nets
         if nets.use_hash == args.no_hash:
-            raise GeofaceError(f"{args.init} was trained {'without' if args.no_hash is False else 'with'} hash encoding; "
+            raise GeofaceError(f"{args.init} was trained {'with' if nets.use_hash else 'without'} hash encoding; "
                                "--no-hash must match it")
         cfg.nets = nets
     info = train_texture(args.data_dir, args.output, cfg, quiet=_quiet(args), init=args.init)
