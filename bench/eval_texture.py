@@ -182,7 +182,9 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--workers", type=int, default=1, help="processes writing the synthetic samples")
     ap.add_argument("--supersample", type=int, default=2, help="rendered pixels averaged per photo pixel, per side")
-    ap.add_argument("--map-weights", default="1,1,1", help="loss weights of albedo, micronormal, specular")
+    ap.add_argument("--map-weights", default="1,1,1", help="GDE loss weights of albedo, micronormal, specular")
+    ap.add_argument("--hfdr-map-weights", default=None, help="HFDR loss weights (default the model's)")
+    ap.add_argument("--seed", type=int, default=0, help="model seed (initialisation, batches); the data stay the same")
     ap.add_argument("--hash-max-res", type=int, default=None, help="finest hash-grid resolution (default the model's)")
     ap.add_argument("--hash-log2-table", type=int, default=None, help="log2 of the hash table size (default the model's)")
     ap.add_argument("--size4k", type=int, default=4096, help="size of the reconstruct-from-landmarks run (0 = skip)")
@@ -204,7 +206,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     emit(out, bench="eval_texture", stage="config", heads=a.heads, train=a.train, val=a.val, test=a.test, res=a.res,
          k=a.k, gde_res=a.gde_res, epochs=list(epochs), hfdr_patches=a.hfdr_patches, supersample=a.supersample,
-         map_weights=a.map_weights, hash_max_res=a.hash_max_res, hash_log2_table=a.hash_log2_table, device=a.device, threads=torch.get_num_threads())
+         map_weights=a.map_weights, hfdr_map_weights=a.hfdr_map_weights, seed=a.seed, hash_max_res=a.hash_max_res, hash_log2_table=a.hash_log2_table, device=a.device, threads=torch.get_num_threads())
     t = time.perf_counter()
     files = {split: make_texture_dataset(out / split, n, a.res, seed=SEEDS[split], workers=a.workers, quiet=True,
                                          head_source=a.heads, supersample=a.supersample)
@@ -217,10 +219,11 @@ def main(argv=None) -> int:
         if not (mdir / "model.safetensors").exists():
             hash_opts = {k: v for k, v in (("hash_max_res", a.hash_max_res), ("hash_log2_table", a.hash_log2_table)) if v}
             nets = TextureNetConfig(use_hash=use_hash, **hash_opts)
+            hw = {"hfdr_map_weights": tuple(float(w) for w in a.hfdr_map_weights.split(","))} if a.hfdr_map_weights else {}
             cfg = TextureTrainConfig(nets=nets, gde_res=a.gde_res, k=a.k,
                                      map_weights=tuple(float(w) for w in a.map_weights.split(",")),
                                      epochs=epochs, lr=a.lr, batch=a.batch,
-                                     hfdr_patches=a.hfdr_patches, seed=0)
+                                     hfdr_patches=a.hfdr_patches, seed=a.seed, **hw)
             info = train_texture(out / "train", mdir, cfg, quiet=True, device=a.device)
             emit(out, stage="train", model=name, seconds=round(info["seconds"], 1),
                  final={k: round(v[-1], 5) for k, v in info["history"].items() if v},

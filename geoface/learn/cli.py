@@ -15,17 +15,9 @@ __all__ = ["register", "cmd_ddpm_train", "cmd_ddpm_sample"]
 
 def _device(name):
     """``--device``: cpu or cuda[:k]; cuda only where torch sees a GPU (one line otherwise)."""
-    if name is None or name == "cpu":
-        return name
-    if not (name == "cuda" or (name.startswith("cuda:") and name[5:].isdigit())):
-        raise GeofaceError(f"--device must be cpu, cuda or cuda:K; got {name!r}")
-    import torch
+    from geoface.nn.config import resolve_device
 
-    if not torch.cuda.is_available():
-        raise GeofaceError(f"--device {name}: torch sees no CUDA GPU on this machine; use --device cpu")
-    if ":" in name and int(name[5:]) >= torch.cuda.device_count():
-        raise GeofaceError(f"--device {name}: there are {torch.cuda.device_count()} CUDA devices")
-    return name
+    return resolve_device(name)
 
 
 def _quiet(args):

@@ -254,7 +254,7 @@ def eye_albedo(cos_axis: np.ndarray, iris: np.ndarray, pupil_deg: float = 12.0, 
 
 
 def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None,
-                       background: float = 0.0, eyes: dict | None = None) -> dict:
+                       background: float = 0.0, eyes: dict | None = None, solids=()) -> dict:
     """Render one training tuple of the texture model from a mesh with UVs.
 
     ``eyes`` (optional) shades parts that are not skin: ``{"eyeball": bool [n], "cos": [n]
@@ -300,6 +300,9 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
             c = (np.asarray(eyes["cos"], np.float64)[tri[ball]] * b[ball]).sum(1)
             px[ball] = np.concatenate([eye_albedo(c, eyes["iris"]), np.broadcast_to(flat, (len(c), 3)),
                                        np.full((len(c), 1), 0.9)], 1)
+    for flags, albedo, spec in solids:
+        hit = np.asarray(flags, bool)[tri].any(1)
+        px[hit] = np.r_[np.asarray(albedo, np.float64), 0.5, 0.5, 1.0, float(spec)]
     rgb = shade(px[:, 0:3], px[:, 3:6], px[:, 6:7], N, view, lights)
     Ncam = N @ np.asarray(camera.R, np.float64).T
     out = {"photo": np.full((H, W, 3), background, np.float32), "maps": np.zeros((H, W, 7), np.float32),

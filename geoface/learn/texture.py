@@ -89,14 +89,20 @@ class TextureTrainConfig:
     batch: int = 4
     hfdr_patches: int = 4  # random patches per sample and step
     seed: int = 0
-    #: loss weights of albedo, micronormal, specular (GDE and HFDR; the paper weighs them equally)
+    #: loss weights of albedo, micronormal, specular in the GDE stage (the paper weighs them equally)
     map_weights: tuple = (1.0, 1.0, 1.0)
+    #: the same for the HFDR stage: micronormal detail is a faint signal in the photo (a few
+    #: percent of shading), and at equal weights the refiner barely learned it; chosen on the
+    #: validation faces (docs/textures.md); None = ``map_weights``
+    hfdr_map_weights: tuple | None = (1.0, 8.0, 1.0)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["nets"] = self.nets.to_dict()
         d["epochs"] = list(self.epochs)
         d["map_weights"] = list(self.map_weights)
+        if self.hfdr_map_weights is not None:
+            d["hfdr_map_weights"] = list(self.hfdr_map_weights)
         return d
 
     @classmethod
@@ -174,10 +180,15 @@ def _masked_l1(a, b, m):
     return ((a - b).abs() * m).sum() / (m.sum() * a.shape[1]).clamp_min(1)
 
 
-def _channel_weights(cfg: TextureTrainConfig, device) -> torch.Tensor:
-    w = [float(x) for x in cfg.map_weights]
+def _channel_weights(cfg: TextureTrainConfig, device, hfdr: bool = False) -> torch.Tensor:
+    given = cfg.hfdr_map_weights if hfdr and cfg.hfdr_map_weights is not None else cfg.map_weights
+    name = "hfdr_map_weights" if hfdr and cfg.hfdr_map_weights is not None else "map_weights"
+    try:
+        w = [float(x) for x in given]
+    except (TypeError, ValueError):
+        w = []
     if len(w) != 3 or min(w) < 0 or not np.isfinite(w).all() or max(w) == 0:
-        raise LearnError(f"map_weights must be three weights >= 0 (albedo, micronormal, specular); got {cfg.map_weights}")
+        raise LearnError(f"{name} must be three weights >= 0 (albedo, micronormal, specular); got {given}")
     return torch.tensor([w[0]] * 3 + [w[1]] * 3 + [w[2]], device=device)[None, :, None, None]
 
 
@@ -209,6 +220,7 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
             raise LearnError(f"{init}: its networks differ from this configuration's (sizes or hash encoding)") from None
     model = model.to(device)
     wmap = _channel_weights(cfg, device)
+    wmap_hfdr = _channel_weights(cfg, device, hfdr=True)
     # streamed: the samples are read one at a time; only their gde_res copies stay in memory,
     # and the HFDR stage reads its full-resolution patches from disk at each step
     lo: dict = {k: [] for k in KEYS}
@@ -289,7 +301,7 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
                 gs.append(guidance_crop(guide[i:i + 1], (H, H), box))
         cat = lambda a: torch.cat(a).to(device)  # noqa: E731
         out = model.hfdr(cat(xs), cat(uvs), cat(ns), cat(gs))
-        m = cat(ms) * wmap
+        m = cat(ms) * wmap_hfdr
         loss, _ = map_loss(out * m, cat(ts) * m, 2.0)  # L1 + 2·Laplacian
         return loss
 

@@ -90,8 +90,10 @@ def cmd_train(args) -> int:
     from .texture_nets import TextureNetConfig
     epochs = _three(args.epochs, int, "--epochs must be three counts like 20,20,20 (predictor, GDE, HFDR)")
     weights = _three(args.map_weights, float, "--map-weights must be three weights like 1,4,1 (albedo, micronormal, specular)")
+    hfdr_w = _three(args.hfdr_map_weights, float, "--hfdr-map-weights must be three weights like 1,8,1 (albedo, micronormal, specular)")
     cfg = TextureTrainConfig(nets=TextureNetConfig(use_hash=not args.no_hash), gde_res=args.gde_res, k=args.k,
-                             epochs=epochs, lr=args.lr, batch=args.batch, seed=args.seed, map_weights=weights)
+                             epochs=epochs, lr=args.lr, batch=args.batch, seed=args.seed, map_weights=weights,
+                             hfdr_map_weights=hfdr_w)
     if args.init is not None:  # the networks' sizes come from the model trained before
         from .texture import TextureModel
         nets = TextureModel.load(args.init).cfg.nets
@@ -190,7 +192,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--batch", type=number(int, 1, 4096), default=4)
     t.add_argument("--no-hash", action="store_true", help="GDE without the UV hash encoding (ablation)")
     t.add_argument("--map-weights", default="1,1,1", metavar="A,M,S",
-                   help="loss weights of albedo, micronormal, specular (default equal, as the paper)")
+                   help="GDE loss weights of albedo, micronormal, specular (default equal, as the paper)")
+    t.add_argument("--hfdr-map-weights", default="1,8,1", metavar="A,M,S",
+                   help="HFDR loss weights of albedo, micronormal, specular (default 1,8,1, chosen on validation faces)")
     t.add_argument("--init", default=None, metavar="MODEL_DIR",
                    help="start from this trained model's weights (e.g. --epochs 0,0,20 trains its HFDR further)")
     t.add_argument("--seed", type=SEED, default=0)

@@ -165,6 +165,10 @@ class HFDR(nn.Module):
     def __init__(self, cfg: TextureNetConfig):
         super().__init__()
         self.net = UNet(3 + 2 + 3, N_MAPS, cfg.hfdr_widths, late_channels=N_MAPS)
+        # the refiner starts as the identity on the guidance (a zero residual): a random start
+        # adds noise that training can settle into keeping instead of learning detail
+        nn.init.zeros_(self.net.head[-1].weight)
+        nn.init.zeros_(self.net.head[-1].bias)
 
     def forward(self, patch: Tensor, uv: Tensor, normal: Tensor, guidance: Tensor) -> Tensor:
         raw = self.net(torch.cat([patch, uv, normal], 1), late=guidance)

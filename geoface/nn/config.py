@@ -155,3 +155,22 @@ def check_version(meta: dict, supported: int, *, where: str, error: type = Check
     if v > supported:
         raise error(f"{where}: format version {v} is newer than this geoface reads ({supported}); upgrade geoface")
     return v
+
+
+def resolve_device(name, error=None):
+    """A device name checked: None and "cpu" pass; "cuda" or "cuda:K" only where torch sees that
+    GPU. Anything else raises ``error`` (default GeofaceError) with a one-line reason."""
+    from geoface.errors import GeofaceError
+
+    error = error or GeofaceError
+    if name is None or name == "cpu":
+        return name
+    if not (name == "cuda" or (name.startswith("cuda:") and name[5:].isdigit())):
+        raise error(f"--device must be cpu, cuda or cuda:K; got {name!r}")
+    import torch
+
+    if not torch.cuda.is_available():
+        raise error(f"--device {name}: torch sees no CUDA GPU on this machine; use --device cpu")
+    if ":" in name and int(name[5:]) >= torch.cuda.device_count():
+        raise error(f"--device {name}: there are {torch.cuda.device_count()} CUDA devices")
+    return name

@@ -38,11 +38,17 @@ a headset hides the upper face is restored from the visible lower face alone:
    statistics are recomputed as plain means over the registration frames with the final
    weights (:meth:`HFMModel.refit_statistics`).
 6. **Global pose** (eq. 8): (ω, τ) = MLP_pose(θ), a rotation exp(ω) about the head centre and a
-   translation applied to every Gaussian after the local deformation. Where the video folder has
-   the tracked head pose (``head_poses.npz``: a face tracker in registration, the headset's own
-   6-DoF tracking in use), it is applied after that, and the MLP learns the residual. Without
-   it the pose has to be read from the lower-face crop alone: on the synthetic videos (yaw ±8°)
-   training then stalls at an L1 loss near 0.05, against 0.007 for a still head.
+   translation applied to every Gaussian after the local deformation, then the head pose of the
+   frame (X' = R (X − pivot) + pivot + t), so that the MLP learns the residual of that pose.
+   Registration takes the head pose of each frame from ``head_poses.npz`` when the folder has
+   one (a face tracker's), else fits it to the frame's landmarks (:mod:`geoface.splat.head_pose`:
+   PnP of the landmarks that move little with expressions, placed on the canonical head through
+   frame 0). Learning the pose only through the image loss stalls: on the procedural videos
+   (yaw ±8°) training then stopped at an L1 loss near 0.05, against 0.007 for a still head. In
+   use, the pose comes from ``head_poses.npz`` (a headset's own 6-DoF tracking, when the user has
+   it in the camera's frame) or, as in the paper, from the lower-face image: MLP_head_pose(θ)
+   (``image_pose``) predicts (ω, τ) of the whole head pose and is trained during registration on
+   the registration poses (squared error, ``lambda_pose``; the encoder learns from it too).
 7. **Correlation-weight sampling** (eq. 9–10): the mapping runs between 512 upper and 512 lower
    *key* Gaussians only — upper keys by farthest-point sampling of the canonical positions,
    lower keys 512 drawn without replacement with probability proportional to their correlation
@@ -85,7 +91,8 @@ so a model's score was mostly the luck of its last step, and so was every compar
 variants; a moving average of the same steps (decay 0.98) scored 34.4–35.9 dB (SD 0.39), 0.6 dB
 higher on average.
 
-Ablations (``HFMConfig``): ``global_pose=False`` (no pose MLP), ``gaussian_mapping=False`` (no
+Ablations (``HFMConfig``): ``global_pose=False`` (no pose MLPs: without a pose file the head
+stays in its canonical pose), ``gaussian_mapping=False`` (no
 Gaussian & feature mapping: the upper face is deformed from θ by the lower face's networks of
 eq. 2, one deformation field over the whole head; ``unmapped_upper="separate"`` gives it its own
 MLP instead, a stronger baseline than the paper's ablation with more weights than the mapping's),

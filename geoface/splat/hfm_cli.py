@@ -28,9 +28,15 @@ def cmd_hmd_synth(args) -> int:
     from geoface._io import atomic_dir
 
     with atomic_dir(out, overwrite=True) as tmp:  # complete or absent: a failure leaves nothing
-        reg, use = make_synthetic_hmd(tmp, frames=args.frames, heldout=args.heldout, res=args.res,
-                                      n_vertices=args.vertices, seed=args.seed, motion=args.motion,
-                                      quiet=_quiet(args))
+        if args.head == "ict":
+            from .hfm_ict import make_ict_hmd
+
+            reg, use = make_ict_hmd(tmp, frames=args.frames, usage_frames=args.usage_frames, res=args.res,
+                                    seed=args.seed, motion=args.motion, jitter=args.jitter, quiet=_quiet(args))
+        else:
+            reg, use = make_synthetic_hmd(tmp, frames=args.frames, heldout=args.heldout, res=args.res,
+                                          n_vertices=args.vertices, seed=args.seed, motion=args.motion,
+                                          quiet=_quiet(args))
         reg, use = out / Path(reg).relative_to(tmp), out / Path(use).relative_to(tmp)
     print(f"{reg}: registration video; {use}: usage video with a headset (+ gt/, hmd_masks/)")
     return 0
@@ -56,31 +62,40 @@ def cmd_hmd_train(args) -> int:
     if (out / "model.safetensors").exists() and not args.force:
         raise GeofaceError(f"{out} already holds a model; use --force to replace it")
     cfg = _config(args)
-    info = train_hfm(args.reg_dir, out, cfg, progress=None if not _quiet(args) else False, log=log)
+    device = args.device
+    if device is None:
+        import torch
+
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    info = train_hfm(args.reg_dir, out, cfg, progress=None if not _quiet(args) else False, log=log,
+                     poses=args.poses, device=device)
     h = info["history"]
     first = sum(r["loss"] for r in h[:20]) / len(h[:20])
     last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])
     print(f"{args.reg_dir} -> {out}: {cfg.iters} steps in {info['seconds']:.1f} s, loss {first:.4f} -> {last:.4f}, "
           f"{info['n_gaussians']} Gaussians ({info['n_upper']} upper), {info['dropped_children']} split children "
-          f"dropped at the boundary; weights averaged over the last {info['averaged_steps']} steps")
+          f"dropped at the boundary; weights averaged over the last {info['averaged_steps']} steps; head poses "
+          + ("from head_poses.npz" if info["poses"] == "file" else
+             f"fitted to {info['pose_landmarks']} landmarks (median {info['pose_fit_rms_px']} px)"))
     return 0
 
 
 def cmd_hmd_remove(args) -> int:
     from .hfm import load_hfm, remove_hmd
-    from .hfm_data import load_video
 
     if args.output is None and args.video is None:
         raise GeofaceError("say where the frames go: -o OUT_DIR (PNG frames) and/or --video OUT.mp4")
     if args.video is not None and Path(args.video).suffix.lower() != ".mp4":
         raise GeofaceError(f"--video: an .mp4 path; got {args.video}")
     model = load_hfm(args.model_dir)
+    from .hfm_data import load_video
+
     video = load_video(args.usage_dir)
     out = None if args.output is None else Path(args.output)
     if out is not None and (out / "frames").is_dir() and any((out / "frames").iterdir()) and not args.force:
         raise GeofaceError(f"{out}/frames is not empty; use --force to overwrite")
     composite = not args.no_composite
-    renders, times = remove_hmd(model, video, out_dir=out, composite=composite)
+    renders, times = remove_hmd(model, video, out_dir=out, composite=composite, poses=args.poses)
     import numpy as np
 
     where = [] if out is None else [f"{out}/frames"]
@@ -106,12 +121,13 @@ def cmd_hmd_remove(args) -> int:
 
 def cmd_hmd_eval(args) -> int:
     from .hfm import evaluate_hmd, load_hfm
-    from .hfm_data import load_video
 
     model = load_hfm(args.model_dir)
-    res = evaluate_hmd(model, load_video(args.usage_dir))
+    from .hfm_data import load_video
+
+    res = evaluate_hmd(model, load_video(args.usage_dir), poses=args.poses)
     say = (lambda *a, **k: None) if json_to_stdout(args) else print
-    say(f"{args.usage_dir}: face PSNR {res['psnr_face']:.2f} dB SSIM {res['ssim_face']:.4f}; occluded region "
+    say(f"{args.usage_dir} (head poses: {res['poses']}): face PSNR {res['psnr_face']:.2f} dB SSIM {res['ssim_face']:.4f}; occluded region "
           f"PSNR {res['psnr_occluded']:.2f} dB SSIM {res['ssim_occluded']:.4f}; {res['fps']:.1f} FPS "
           f"({res['frames']} frames); expression motion upper {res['upper_motion_mm']:.2f} mm, "
           f"lower {res['lower_motion_mm']:.2f} mm")
@@ -135,8 +151,14 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     s.add_argument("--frames", type=number(int, 2, 100_000), default=200, help="frames in the whole sequence (200)")
     s.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.2, help="last fraction that becomes the usage video (0.2)")
     s.add_argument("--res", type=number(int, 16, 4096), default=128, help="image side in pixels (128)")
+    s.add_argument("--head", choices=("procedural", "ict"), default="procedural",
+                   help="procedural (the toy head; the sequence is split) or ict (an ICT-FaceKit person, lit, talking; "
+                        "--seed picks the person)")
+    s.add_argument("--usage-frames", type=number(int, 1, 100_000), default=None,
+                   help="--head ict: frames of the usage video, its own sequence (default frames/4)")
     s.add_argument("--vertices", type=number(int, 1000, 200_000), default=8000, help="procedural head vertices (8000)")
     s.add_argument("--motion", type=number(float, 0, 100), default=1.0, help="head motion scale (1; 0 = still)")
+    s.add_argument("--jitter", type=number(float, 0, 100), default=1.0, help="--head ict: camera shake scale (1)")
     s.add_argument("--seed", type=SEED, default=0)
     s.set_defaults(func=cmd_hmd_synth)
     t = hs.add_parser("train", parents=[common], help="register a person from an unoccluded video folder")
@@ -154,6 +176,10 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--y-split", type=number(float), default=None, help="upper/lower split height y_t (default: meta.json)")
     t.add_argument("--no-densify", action="store_true", help="no clone/split/prune")
     t.add_argument("--threads", type=number(int, 1, 1024), default=None, help="torch CPU threads")
+    t.add_argument("--poses", choices=("auto", "file", "landmarks"), default="auto",
+                   help="registration head poses: head_poses.npz (file), fitted to the landmarks (landmarks), "
+                        "or the file when there is one (auto)")
+    t.add_argument("--device", default=None, help="cpu or cuda (default: cuda when torch sees a GPU)")
     t.add_argument("--seed", type=SEED, default=0)
     t.set_defaults(func=cmd_hmd_train)
     r = hs.add_parser("remove", parents=[common], help="restore the full face in a headset video (streams, reports FPS)")
@@ -163,6 +189,10 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     r.add_argument("--video", default=None, metavar="OUT.mp4", help="write an H.264 MP4 (with USAGE_DIR/audio.wav if any)")
     r.add_argument("--fps", type=number(float, 0, 240, lo_open=True), default=None,
                    help="frame rate of the video (default: the usage folder's, else 25)")
+    r.add_argument("--poses", choices=("auto", "file", "landmarks", "image"), default="auto",
+                   help="head pose per frame: USAGE_DIR/head_poses.npz (file; a headset's own tracking), fitted to the "
+                        "landmarks below the headset (landmarks), read from the lower-face crop (image), or the first "
+                        "of these the folder allows (auto)")
     r.add_argument("--no-composite", action="store_true", help="write the avatar renders, not frames with the HMD region replaced")
     r.set_defaults(func=cmd_hmd_remove)
     from .drive_cli import add_export_parser
@@ -171,6 +201,10 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     e = hs.add_parser("eval", parents=[common], help="PSNR/SSIM (whole face, occluded region) and FPS on a usage folder with gt/")
     e.add_argument("model_dir", metavar="MODEL_DIR")
     e.add_argument("usage_dir", metavar="USAGE_DIR")
+    e.add_argument("--poses", choices=("auto", "file", "landmarks", "image"), default="auto",
+                   help="head pose per frame: USAGE_DIR/head_poses.npz (file; a headset's own tracking), fitted to the "
+                        "landmarks below the headset (landmarks), read from the lower-face crop (image), or the first "
+                        "of these the folder allows (auto)")
     add_json(e, "the figures")
     e.set_defaults(func=cmd_hmd_eval)
 

@@ -5,6 +5,7 @@ A video folder (registration or usage) holds::
     frames/000000.png ...   RGB frames, background removed (black)
     masks/000000.png ...    optional foreground masks (nonzero = person); default: frame != 0
     landmarks.json          {"names": [...], "points": [[[x, y], ...] per frame]} in pixels;
+                            without "names", 68 points per frame are the iBUG 68 (IBUG68_NAMES);
                             the lower-face crop uses nose_tip, mouth_left, mouth_right, chin
     camera.json             {"fx", "fy", "cx", "cy", "width", "height", "R", "t"} (OpenCV, world→camera)
     meta.json               {"y_split": y_t in world metres, "up": [0, 1, 0]}: the upper/lower split
@@ -39,10 +40,31 @@ from geoface.nn.camera import Camera, look_at
 from geoface.errors import GeofaceError
 from geoface.splat.errors import SplatError
 
-__all__ = ["HMDVideo", "load_video", "lower_face_box", "crop_lower_face", "make_synthetic_hmd",
+__all__ = ["HMDVideo", "load_video", "IBUG68_NAMES", "IBUG68_LOWER", "IBUG68_RIGID", "lower_face_box", "crop_lower_face", "make_synthetic_hmd",
            "LOWER_FACE_LANDMARKS", "UPPER_EXPRESSIONS", "headset_mesh"]
 
 LOWER_FACE_LANDMARKS = ("nose_tip", "mouth_left", "mouth_right", "chin")
+
+
+def _ibug68_names() -> tuple:
+    names = ([f"jaw_{i:02d}" for i in range(17)] + [f"brow_right_{i}" for i in range(5)]
+             + [f"brow_left_{i}" for i in range(5)] + [f"nose_bridge_{i}" for i in range(4)]
+             + [f"nose_base_{i}" for i in range(5)] + [f"eye_right_{i}" for i in range(6)]
+             + [f"eye_left_{i}" for i in range(6)] + [f"lips_outer_{i:02d}" for i in range(12)]
+             + [f"lips_inner_{i}" for i in range(8)])
+    # the four the lower-face crop reads (the subject's left is the image right in a frontal view)
+    names[8], names[30], names[48], names[54] = "chin", "nose_tip", "mouth_right", "mouth_left"
+    return tuple(names)
+
+
+#: names of the 68 iBUG / Multi-PIE points (dlib, face_alignment, OpenFace order): a
+#: ``landmarks.json`` whose points are [T, 68, 2] may leave out ``names`` and gets these
+IBUG68_NAMES = _ibug68_names()
+#: indices of the 68 below a headset: jaw line, nose base (with its tip), lips
+IBUG68_LOWER = tuple(range(0, 17)) + (30, 31, 32, 33, 34, 35) + tuple(range(48, 68))
+#: indices of the 68 that move little with expressions (head-pose fitting): upper jaw line, nose,
+#: eye corners
+IBUG68_RIGID = (0, 1, 2, 14, 15, 16, 27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39, 42, 45)
 # the expression weights of the synthetic sequences that move the upper face (above y_t)
 UPPER_EXPRESSIONS = ("brow_raise", "eyes_closed_left", "eyes_closed_right")
 
@@ -158,10 +180,14 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
         cam = _camera_from_json(json.loads((folder / "camera.json").read_text()))
         meta = json.loads((folder / "meta.json").read_text())
         y_split = float(meta["y_split"])
-        names = list(lm["names"])
         pts = np.asarray(lm["points"], dtype=np.float64)
+        names = list(lm["names"]) if "names" in lm else (list(IBUG68_NAMES) if pts.ndim == 3 and pts.shape[1] == 68 else None)
+        if names is None:
+            raise KeyError("'names' (needed unless the points are the 68 iBUG landmarks)")
     except (ValueError, KeyError, TypeError) as e:
         raise SplatError(f"{folder}: malformed json ({type(e).__name__}: {e})") from None
+    if pts.ndim == 3 and pts.shape[1] != len(names):
+        raise SplatError(f"{folder}/landmarks.json: {len(names)} names but {pts.shape[1]} points per frame")
     missing = [n for n in LOWER_FACE_LANDMARKS if n not in names]
     if missing:
         raise SplatError(f"{folder}/landmarks.json: missing landmarks {missing}")

@@ -42,6 +42,8 @@ class HFMConfig:
     y_split: float | None = None   # y_t (world metres); None: the registration folder's meta.json
     margin: float = 0.004      # m of Algorithm 1 (metres)
     global_pose: bool = True
+    image_pose: bool = True    # learn the whole head pose from the crop (for videos without head_poses.npz)
+    lambda_pose: float = 100.0  # weight of its loss: squared radians + squared (translation / 0.1 head size)
     gaussian_mapping: bool = True
     feature_mapping: bool = True
     sampling: bool = True
@@ -131,6 +133,8 @@ class HFMModel(nn.Module):
             self.mlp_up = mlp(e + L, H, 10)
         if cfg.global_pose:
             self.mlp_pose = mlp(L, 64, 6)
+            if cfg.image_pose:
+                self.mlp_head_pose = mlp(L, 128, 6)
         if cfg.gaussian_mapping and cfg.map_norm:
             # running mean square of each lower deformation channel (bias-corrected EMA over steps)
             self.register_buffer("p_ms", torch.zeros(10))
@@ -142,6 +146,9 @@ class HFMModel(nn.Module):
             self.register_buffer("f_steps", torch.zeros(()))
         self._refit: str | None = None  # inside refit_statistics: which statistics it averages
         self.keys_u: Tensor | None = None
+        #: the registration landmarks on the canonical head ({"names", "points" [K][3]}), for
+        #: fitting a usage video's head pose to its landmarks (saved in config.json)
+        self.landmarks3d: dict | None = None
         self.keys_l: Tensor | None = None
         self.wdist: tuple[Tensor, Tensor] | None = None
 
@@ -306,10 +313,36 @@ class HFMModel(nn.Module):
         pk = self.map_params(E[self.keys_u], E[self.keys_l], pK, detach)
         return (pk[j] * w[..., None]).sum(1)
 
-    def deform(self, theta: Tensor, head_pose=None) -> GaussianTensors:
+    @property
+    def predicts_head_pose(self) -> bool:
+        return self.cfg.global_pose and self.cfg.image_pose and hasattr(self, "mlp_head_pose")
+
+    def head_pose_params(self, theta: Tensor) -> Tensor:
+        """[B, 6]: the head pose read from the crop's latent — rotation vector (radians) and
+        translation / (0.1 × head size), about the head's centre."""
+        return self.mlp_head_pose(theta)
+
+    def head_pose_from_params(self, q: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """(R, t, pivot) of :meth:`head_pose_params`' output row ``q`` [6]."""
+        R = quat_to_rotmat(axis_angle_to_quat(q[:3])[None])[0]
+        return R, q[3:] * self.scale * 0.1, self.center
+
+    def pose_params_of(self, R, t, pivot) -> np.ndarray:
+        """The inverse of :meth:`head_pose_from_params` for a pose (R, t, pivot) in numpy: the
+        [6] target of :meth:`head_pose_params` (the same motion about the head's centre)."""
+        from scipy.spatial.transform import Rotation
+
+        R, t, p = (np.asarray(a, np.float64) for a in (R, t, pivot))
+        c = self.center.detach().cpu().numpy().astype(np.float64)
+        tc = (p - R @ p + t) - (c - R @ c)
+        return np.r_[Rotation.from_matrix(R).as_rotvec(), tc / (float(self.scale) * 0.1)]
+
+    def deform(self, theta: Tensor, head_pose=None, read_pose: bool = True) -> GaussianTensors:
         """The Gaussians for latent ``theta`` [1, latent] (eq. 1–10), then the tracked rigid head
         pose ``head_pose`` = (R [3, 3], t [3], pivot [3]) when given (X' = R (X − pivot) + pivot + t);
-        the global pose MLP is then the residual the tracker missed."""
+        the global pose MLP is then the residual the tracker missed.  Without ``head_pose`` a
+        model with ``image_pose`` reads the head pose from ``theta`` (``mlp_head_pose``, trained
+        on the registration video's poses); ``read_pose=False`` keeps the canonical pose then."""
         g = self.gaussians
         X = g.means
         n = len(X)
@@ -344,14 +377,17 @@ class HFMModel(nn.Module):
             R = quat_to_rotmat(qg[None])[0]
             means = (means - self.center) @ R.T + self.center + pose[3:] * self.scale * 0.1
             quats = quat_mul(qg[None].expand(n, 4), quats)
+        if head_pose is None and read_pose and self.predicts_head_pose:
+            head_pose = self.head_pose_from_params(self.head_pose_params(theta)[0])
         if head_pose is not None:
-            R, t, piv = (torch.as_tensor(np.asarray(a), dtype=X.dtype, device=X.device) for a in head_pose)
+            R, t, piv = (torch.as_tensor(a, dtype=X.dtype, device=X.device) if torch.is_tensor(a) else
+                         torch.as_tensor(np.asarray(a), dtype=X.dtype, device=X.device) for a in head_pose)
             means = (means - piv) @ R.T + piv + t
             quats = quat_mul(rotmat_to_quat_torch(R[None]).expand(n, 4), quats)
         return GaussianTensors(means, log_scales, quats, g.opacity_logits, g.colors)
 
-    def forward(self, crop: Tensor, box: Tensor | None = None, head_pose=None) -> GaussianTensors:
-        return self.deform(self.encoder(crop, box), head_pose)
+    def forward(self, crop: Tensor, box: Tensor | None = None, head_pose=None, read_pose: bool = True) -> GaussianTensors:
+        return self.deform(self.encoder(crop, box), head_pose, read_pose)
 
 
 @torch.no_grad()

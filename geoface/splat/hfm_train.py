@@ -80,13 +80,44 @@ def _pose(video, t):
     return R[t], tr[t], piv
 
 
-def build_model(video, cfg: HFMConfig) -> HFMModel:
-    """Canonical Gaussians from the registration head mesh (one per vertex, THGS init)."""
+def _head_mesh(video):
     from geoface.mesh.io import load_mesh
 
     if video.mesh_path is None:
         raise SplatError("the registration folder has no head mesh (head.ply / head.obj)")
-    m = load_mesh(video.mesh_path)
+    return load_mesh(video.mesh_path)
+
+
+def registration_poses(video, poses: str = "auto", log=None) -> dict:
+    """Set ``video.poses`` for registration and say where they came from: ``"file"`` (the folder's
+    ``head_poses.npz``), ``"landmarks"`` (fitted to the landmarks, :mod:`geoface.splat.head_pose`)
+    or ``"auto"`` (the file when there is one).  Returns a summary (source, fit error)."""
+    if poses not in ("auto", "file", "landmarks"):
+        raise SplatError(f"poses must be 'auto', 'file' or 'landmarks'; got {poses!r}")
+    if poses == "file" and video.poses is None:
+        raise SplatError("--poses file: the registration folder has no head_poses.npz")
+    from geoface.splat.head_pose import canonical_landmarks, poses_from_landmarks
+
+    m = _head_mesh(video)
+    if video.poses is not None and poses != "landmarks":
+        R, t, p = video.poses
+        names, P = canonical_landmarks(video, m.V, m.F, (R[0], t[0], p))
+        return {"poses": "file", "landmarks3d": {"names": names, "points": P.round(7).tolist()}}
+    fit = poses_from_landmarks(video, m.V, m.F)
+    names, P = canonical_landmarks(video, m.V, m.F)
+    video.poses = (fit["R"], fit["t"], fit["pivot"])
+    info = {"poses": "landmarks", "pose_landmarks": len(fit["names"]),
+            "pose_fit_rms_px": round(float(np.nanmedian(fit["rms_px"])), 3),
+            "pose_fit_worst_px": round(float(np.nanmax(fit["rms_px"])), 3),
+            "landmarks3d": {"names": names, "points": P.round(7).tolist()}}
+    if log:
+        log(f"hfm: head poses from {info['pose_landmarks']} landmarks per frame (median fit {info['pose_fit_rms_px']} px)")
+    return info
+
+
+def build_model(video, cfg: HFMConfig) -> HFMModel:
+    """Canonical Gaussians from the registration head mesh (one per vertex, THGS init)."""
+    m = _head_mesh(video)
     C = getattr(m, "colors", None)
     if C is None:
         raise SplatError(f"{video.mesh_path}: the head mesh needs vertex colours")
@@ -96,9 +127,12 @@ def build_model(video, cfg: HFMConfig) -> HFMModel:
 
 
 def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice | None = None,
-              progress=None, log=print, callback=None) -> dict:
+              progress=None, log=print, callback=None, poses: str = "auto", device: str = "cpu") -> dict:
     """Register a person from an unoccluded video folder; saves ``out_dir`` (config.json,
     model.safetensors) and returns a summary (loss history, seconds, Gaussians, keys).
+    ``poses``: the registration head poses (:func:`registration_poses`: the folder's file, or
+    fitted to its landmarks).  ``device``: "cpu" or "cuda" (the gsplat rasteriser when installed,
+    else the torch one on the GPU); the saved model is the same either way.
     ``callback(step, model, average)``, when given, runs after every step (``average``: the
     :class:`WeightAverage` once it has started, else None), e.g. to score the model as it trains."""
     from geoface.nn.losses import dssim
@@ -112,13 +146,26 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     video = load_video(reg_dir, need_mesh=True, frames=frames)
+    pose_info = registration_poses(video, poses, log)
     model = build_model(video, cfg)
+    model.landmarks3d = pose_info.pop("landmarks3d")  # for the usage video's landmarks (hfm_usage.usage_poses)
+    targets = None
+    if model.predicts_head_pose:  # what mlp_head_pose learns to read from the crop
+        R, tr, piv = video.poses
+        targets = torch.tensor(np.stack([model.pose_params_of(R[f], tr[f], piv) for f in range(len(R))]),
+                               dtype=torch.float32)
+    from geoface.nn.config import resolve_device
+
+    dev = resolve_device(device, SplatError) or "cpu"
+    model.to(dev)
     cam = video.camera
-    imgs, crops, boxes = _frames_tensors(video, cfg.crop)
+    imgs, crops, boxes = (a.to(dev) for a in _frames_tensors(video, cfg.crop))
+    if targets is not None:
+        targets = targets.to(dev)
     vgg = None
     if cfg.lambda_vgg > 0:
         if cfg.vgg_weights:
-            vgg = VGGPerceptual(cfg.vgg_weights)
+            vgg = VGGPerceptual(cfg.vgg_weights).to(dev)
         elif log:
             log("hfm: no VGG weights given (--vgg-weights): training without the perceptual term")
     g = model.gaussians
@@ -147,7 +194,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     ema_start = max(n_warm, strategy.cfg.refine_stop if strategy is not None else 0) if cfg.ema > 0 else cfg.iters
     average = None
     t0 = time.perf_counter()
-    bg = torch.zeros(3)
+    bg = torch.zeros(3, device=dev)
     steps = range(cfg.iters)
     if not callable(progress):
         steps = bar(steps, "registering (HFM-GS)", total=cfg.iters, quiet=None if progress is None else not progress)
@@ -161,7 +208,8 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
         if it % cfg.key_every == 0:
             model.refresh_keys()
         gt = imgs[f]
-        gd = model(crops[f:f + 1], boxes[f:f + 1], _pose(video, f))
+        theta = model.encoder(crops[f:f + 1], boxes[f:f + 1])
+        gd = model.deform(theta, _pose(video, f))
         rgb, alpha, depth, info = rasterize(gd, cam, background=bg, return_info=True)
         l1 = (rgb - gt).abs().mean()
         a, b = rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None]
@@ -172,12 +220,18 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
         ls = boundary_loss(g.means[:, 1], strategy.upper if strategy is not None else model.upper_mask(),
                            model.y_split)
         loss = loss + cfg.lambda_split * ls
+        lp = None
+        if targets is not None and it >= n_warm:
+            lp = ((model.head_pose_params(theta)[0] - targets[f]) ** 2).sum()
+            loss = loss + cfg.lambda_pose * lp
         if strategy is not None:
             strategy.step_pre_backward(info)
         loss.backward()
         opt.step()
         opt.zero_grad(set_to_none=True)
         rec = {"step": it, "loss": float(loss.detach()), "l1": float(l1.detach()), "n": len(g), "nets": it >= n_warm}
+        if lp is not None:
+            rec["pose"] = float(lp.detach())
         if strategy is not None:
             counts = strategy.step_post_backward(g, opt, info, it)
             if counts["cloned"] or counts["split"] or counts["pruned"]:
@@ -196,16 +250,20 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
         average.copy_to(model)
         model.refresh_keys()  # W_gm of the averaged weights
     model.refit_statistics(crops, boxes)  # the mapping's input statistics, for the final weights
+    model.cpu()
     seconds = time.perf_counter() - t0
     save_hfm(model, out_dir)
-    return {"seconds": seconds, "frames": len(imgs), "warmup_steps": n_warm,
+    return {**pose_info, "seconds": seconds, "frames": len(imgs), "warmup_steps": n_warm,
             "averaged_steps": average.steps if average is not None else 0, "history": history, "n_gaussians": len(g), "n_upper": int(model.upper_mask().sum()),
             "dropped_children": strategy.dropped if strategy is not None else 0, "vgg": vgg is not None}
 
 
 def save_hfm(model: HFMModel, out_dir) -> None:
-    write_model_dir(out_dir, model, {"format": "geoface-hfm-gs", "version": 1, "config": model.cfg.to_dict(),
-                                     "y_split": model.y_split, "n_gaussians": len(model.gaussians)})
+    meta = {"format": "geoface-hfm-gs", "version": 1, "config": model.cfg.to_dict(),
+            "y_split": model.y_split, "n_gaussians": len(model.gaussians)}
+    if getattr(model, "landmarks3d", None):
+        meta["landmarks3d"] = model.landmarks3d
+    write_model_dir(out_dir, model, meta)
 
 
 def load_hfm(model_dir) -> HFMModel:
@@ -217,6 +275,7 @@ def load_hfm(model_dir) -> HFMModel:
     conf.setdefault("upsample", "params")  # before the field: W_dist spread the keys' deformations
     conf.setdefault("feat_norm", False)  # and MLP_mapping read f_U as W_gm gave it
     conf.setdefault("mapping_heads", 1)
+    conf.setdefault("image_pose", False)  # before the field: no pose read from the crop
     if not conf.get("gaussian_mapping", True):  # before the field: the unmapped upper face had its own MLP
         conf.setdefault("unmapped_upper", "separate" if any(k.startswith("mlp_up.") for k in sd) else "shared")
     cfg = HFMConfig.from_dict(conf, where=f"{d}/config.json")
@@ -238,6 +297,15 @@ def load_hfm(model_dir) -> HFMModel:
         raise SplatError(f"{d}: model weights do not match config.json ({str(e).splitlines()[0][:160]})") from None
     if n != meta.get("n_gaussians", n):
         raise SplatError(f"{d}: {n} Gaussians in the weights, config.json says {meta['n_gaussians']}")
+    lm = meta.get("landmarks3d")
+    if lm is not None:
+        try:
+            names, pts = [str(n) for n in lm["names"]], np.asarray(lm["points"], np.float64)
+            if pts.shape != (len(names), 3) or not np.isfinite(pts).all():
+                raise ValueError(f"points {pts.shape} for {len(names)} names")
+        except (KeyError, TypeError, ValueError) as e:
+            raise ModelFolderError(f"{d}/config.json: landmarks3d needs names and [K, 3] points ({e})") from None
+        model.landmarks3d = {"names": names, "points": pts.tolist()}
     model.eval()
     model.refresh_keys()
     return model

@@ -15,6 +15,55 @@ from geoface.splat.hfm_train import _pose
 
 
 # ----------------------------------------------------------------------------- usage
+POSE_SOURCES = ("auto", "file", "landmarks", "image")
+
+
+@torch.no_grad()
+def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | None, str]:
+    """The head pose of each usage frame and where it came from, one of:
+
+    * ``"file"`` — the folder's ``head_poses.npz`` (a headset's own tracking in the camera's frame);
+    * ``"landmarks"`` — fitted to the frame's landmarks below the headset that move little with
+      expressions (nose base, the jaw line's ends: :data:`~geoface.splat.head_pose.LOWER_RIGID_NAMES`,
+      or every landmark the registration placed on the head for other names), by the robust PnP of
+      :mod:`geoface.splat.head_pose`, starting from the pose the model reads from the first crop;
+    * ``"image"`` — read from each lower-face crop by the model (None is returned: the model does it
+      per frame);
+    * ``"auto"`` — the file, else the landmarks (at least 4 such points), else the image.
+
+    Returns ``((R [T, 3, 3], t [T, 3], pivot [3]) or None, source)``."""
+    from geoface.splat.head_pose import LOWER_RIGID_NAMES, solve_poses
+
+    if source not in POSE_SOURCES:
+        raise SplatError(f"poses must be one of {POSE_SOURCES}; got {source!r}")
+    if source == "file" or (source == "auto" and video.poses is not None):
+        if video.poses is None:
+            raise SplatError("poses 'file': the usage folder has no head_poses.npz")
+        return video.poses, "file"
+    lm = getattr(model, "landmarks3d", None)
+    use = []
+    if lm is not None:
+        known = dict(zip(lm["names"], lm["points"]))
+        rigid = [n for n in video.names if n in LOWER_RIGID_NAMES and n in known]
+        use = rigid if rigid else [n for n in video.names if n in known]
+    if source == "landmarks" and len(use) < 4:
+        raise SplatError(f"poses 'landmarks': {len(use)} of the usage landmarks are known on the head (need 4; "
+                         "the model keeps the registration landmarks since this version)")
+    if source == "image" or len(use) < 4:
+        return None, "image"
+    P = np.array([known[n] for n in use])
+    idx = [video.names.index(n) for n in use]
+    piv = P.mean(0)
+    init = None
+    if model.predicts_head_pose:  # start from the pose the crop says
+        boxes = video.boxes()
+        q = model.head_pose_params(model.encoder(*_frame_input(video, 0, model.cfg.crop, boxes)))[0]
+        R0, t0, c = (a.double().cpu().numpy() for a in model.head_pose_from_params(q))
+        init = (R0, (c - R0 @ c + t0) - (piv - R0 @ piv))
+    fit = solve_poses(video.camera, P, video.landmarks[:, idx], piv, init=init)
+    return (fit["R"], fit["t"], fit["pivot"]), "landmarks"
+
+
 def _frame_input(video, t: int, size: int, boxes: np.ndarray) -> tuple[Tensor, Tensor]:
     """Frame ``t``'s lower-face crop [1, 3, size, size] and crop box [1, 3] (``boxes`` =
     ``video.boxes()``), as the encoder takes them."""
@@ -25,14 +74,22 @@ def _frame_input(video, t: int, size: int, boxes: np.ndarray) -> tuple[Tensor, T
 
 
 @torch.no_grad()
-def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: bool = True):
+def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: bool = True, poses: str = "auto"):
     """Restore every frame of ``video`` (an :class:`HMDVideo`): render the avatar driven by the
-    lower-face crop; where ``video.hmd_masks`` is known, paste the rendering into the occluded
-    region only (``composite``). Streams frame by frame; returns (renders [T, H, W, 3] float32,
-    per-frame seconds). Writes ``out_dir/frames/*.png`` when given (each file complete or absent)."""
+    lower-face crop, in the head pose that ``poses`` says (:func:`usage_poses`); where
+    ``video.hmd_masks`` is known, paste the rendering into the occluded region only
+    (``composite``). Streams frame by frame; returns (renders [T, H, W, 3] float32, per-frame
+    seconds, including the pose fit). Writes ``out_dir/frames/*.png`` when given (each file
+    complete or absent)."""
+    from dataclasses import replace
+
     from geoface.splat.hfm_data import write_frame
     from geoface.splat.rasterizer import rasterize
 
+    t0 = time.perf_counter()
+    pose, _ = usage_poses(model, video, poses)
+    fit_s = (time.perf_counter() - t0) / max(len(video), 1)
+    video = replace(video, poses=pose)
     cam = camera or video.camera
     out = Path(out_dir) if out_dir is not None else None
     renders, times = [], []
@@ -42,7 +99,7 @@ def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: 
         t0 = time.perf_counter()
         rgb = rasterize(model(*_frame_input(video, t, model.cfg.crop, boxes), _pose(video, t)), cam,
                         background=bg)[0].clamp(0, 1).numpy()
-        times.append(time.perf_counter() - t0)
+        times.append(time.perf_counter() - t0 + fit_s)
         renders.append(rgb)
         if out is not None:
             img = rgb
@@ -59,7 +116,8 @@ def expression_motion(model: HFMModel, video) -> dict:
     over the upper and the lower set, in millimetres (scene units are metres). Near zero means
     the avatar ignores the lower face (a collapsed encoder or dead deformation networks)."""
     boxes = video.boxes()
-    P = torch.stack([model(*_frame_input(video, t, model.cfg.crop, boxes)).means for t in range(len(video))])
+    P = torch.stack([model(*_frame_input(video, t, model.cfg.crop, boxes), read_pose=False).means
+                     for t in range(len(video))])
     rms = (P - P.mean(0)).pow(2).sum(-1).mean(0).sqrt() * 1000
     up = model.upper_mask()
     return {"upper_motion_mm": float(rms[up].mean()) if bool(up.any()) else 0.0,
@@ -70,7 +128,7 @@ EXPRESSION_TAU = 0.02     # a pixel belongs to the expression region where it ch
 EXPRESSION_MIN_PIXELS = 10
 
 
-def evaluate_hmd(model: HFMModel, video) -> dict:
+def evaluate_hmd(model: HFMModel, video, poses: str = "auto") -> dict:
     """PSNR/SSIM of the renders against ``video.gt`` on the whole face (foreground) and in the
     region the headset hides; FPS of the whole per-frame path (crop, encode, deform, render).
 
@@ -85,8 +143,9 @@ def evaluate_hmd(model: HFMModel, video) -> dict:
     frames themselves score there — an avatar must beat it to show it restored the expression."""
     if video.gt is None or video.hmd_masks is None:
         raise SplatError("evaluation needs gt/ and hmd_masks/ in the usage folder")
-    R, times = remove_hmd(model, video)
+    R, times = remove_hmd(model, video, poses=poses)
     out = hmd_metrics(R, video)
+    out["poses"] = usage_poses(model, video, poses)[1]
     out.update(expression_motion(model, video))
     out.update(frames=len(video), fps=float(1.0 / np.median(times)), seconds_per_frame=float(np.median(times)))
     return out

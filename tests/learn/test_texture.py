@@ -141,6 +141,30 @@ def test_init_trains_only_the_stages_asked_for(trained, tmp_path):
     assert any(not torch.equal(a[k], b[k]) for k in a if k.startswith("hfdr."))
     with pytest.raises(LearnError, match="map_weights"):
         train_texture(root, tmp_path / "x", TextureTrainConfig(**{**cfg.__dict__, "map_weights": (1, -1, 1)}), quiet=True)
+    with pytest.raises(LearnError, match="hfdr_map_weights"):
+        train_texture(root, tmp_path / "x", TextureTrainConfig(**{**cfg.__dict__, "hfdr_map_weights": (1, 1)}), quiet=True)
+
+
+def test_hfdr_map_weights_weigh_the_refiner_s_maps(trained, tmp_path):
+    """The HFDR starts at its guidance and learns a map only through that map's loss weight: with
+    albedo weighted 0 its albedo stays the GDE's, exactly, while the other maps move."""
+    from geoface.learn.texture import reconstruct
+
+    root, out, _ = trained
+    src = TextureModel.load(out)
+    cfg = TextureTrainConfig(**{**src.cfg.__dict__, "epochs": (0, 0, 2), "hfdr_map_weights": (0.0, 1.0, 1.0)})
+    m = TextureModel(cfg)
+    m.load_state_dict({**m.state_dict(), **{k: v for k, v in src.state_dict().items() if not k.startswith("hfdr.")}})
+    m.save(tmp_path / "init")
+    train_texture(root, tmp_path / "m", cfg, quiet=True, init=tmp_path / "init")
+    new = TextureModel.load(tmp_path / "m")
+    assert tuple(new.cfg.hfdr_map_weights) == (0.0, 1.0, 1.0)
+    from pathlib import Path
+
+    photo = load_sample(sorted(Path(root).glob("*.npz"))[0])["photo"]
+    a, b = reconstruct(new, photo, refine=True, smooth=False), reconstruct(new, photo, refine=False)
+    np.testing.assert_allclose(a["albedo"], b["albedo"], atol=1e-6)
+    assert np.abs(a["specular"] - b["specular"]).max() > 1e-4
     other = TextureTrainConfig(**{**cfg.__dict__, "nets": TextureNetConfig(**{**NETS.to_dict(), "use_hash": False})})
     with pytest.raises(LearnError, match="differ"):
         train_texture(root, tmp_path / "y", other, quiet=True, init=out)

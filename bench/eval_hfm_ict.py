@@ -1,0 +1,196 @@
+#!/usr/bin/env python
+"""HFM-GS on ICT-FaceKit people without the head-pose file: held-out identities, paired variants.
+
+    python bench/eval_hfm_ict.py data --out DIR [--val 10 --test 11,12,13] [--frames 200 --usage 50]
+    python bench/eval_hfm_ict.py run --out DIR [--splits test] [--seeds 0,1] [--jobs 4] [--device cuda]
+    python bench/eval_hfm_ict.py poses --out DIR [--splits val,test]
+    python bench/eval_hfm_ict.py table --out DIR
+
+``data`` writes one capture per identity seed (:func:`geoface.splat.hfm_ict.make_ict_hmd`: a
+talking, emoting, lit ICT person, registration and usage videos of different sequences) under
+``DIR/data/<split>_<seed>``.  ``run`` trains, for each capture and model seed, the variants
+
+* ``oracle``   — Full, registered and used with the true head poses (``head_poses.npz``);
+* ``full``     — Full with no pose file: registration poses fitted to the landmarks (PnP), the
+  usage pose read from the lower-face crop (the pose MLP trained during registration);
+* ``no_gaussian_feature_mapping``, ``no_global_pose`` — the paper's ablations, no pose file;
+
+and scores each on the usage video (PSNR/SSIM: whole face, the region the headset hides, its
+expression region); the no-file models with the usage pose fitted to the landmarks below the
+headset (``usage_poses: landmarks``), read from the crop alone (``image``) and, to separate what
+the pose estimate costs, the true one (``file``).  One JSON line per score in ``DIR/results.jsonl``;
+``poses`` scores the head poses alone against the truth: registration poses fitted to the 68
+landmarks, usage poses fitted to those below the headset.  ``table`` prints means and the pairs.  Choose settings with ``--splits val``; report ``test``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+VARIANTS = {"oracle": ("full", "file"), "full": ("full", "landmarks"),
+            "no_gaussian_feature_mapping": ("no_gaussian_feature_mapping", "landmarks"),
+            "no_global_pose": ("no_global_pose", "landmarks")}
+
+
+def _data(a) -> None:
+    from geoface.splat.hfm_ict import make_ict_hmd
+
+    for split, seeds in (("val", a.val), ("test", a.test)):
+        for s in seeds:
+            d = Path(a.out) / "data" / f"{split}_{s}"
+            if (d / "usage" / "meta.json").is_file():
+                continue
+            t0 = time.time()
+            make_ict_hmd(d, frames=a.frames, usage_frames=a.usage, res=a.res, seed=s, quiet=True)
+            print(json.dumps({"stage": "data", "split": split, "seed": s, "seconds": round(time.time() - t0, 1)}), flush=True)
+
+
+def _job(job) -> list:
+    try:
+        return _job_rows(job)
+    except Exception as e:  # one broken run must not stop the others; say what broke
+        import traceback
+
+        return [{"stage": "error", "job": [str(x) for x in job[1:5]], "error": f"{type(e).__name__}: {e}",
+                 "where": traceback.format_exc().splitlines()[-3:]}]
+
+
+def _job_rows(job) -> list:
+    import torch
+
+    from geoface.splat.hfm import ABLATIONS, HFMConfig, evaluate_hmd, load_hfm, train_hfm
+    from geoface.splat.hfm_data import load_video
+
+    d, split, data_seed, seed, variant, iters, threads, device, out = job
+    torch.set_num_threads(threads)
+    ablation, poses = VARIANTS[variant]
+    mdir = Path(out) / "models" / f"{split}_{data_seed}_{variant}_s{seed}"
+    cfg = HFMConfig(**{**ABLATIONS[ablation], "iters": iters, "seed": seed, "threads": threads})
+    info = train_hfm(Path(d) / "registration", mdir, cfg, progress=False, log=None, poses=poses, device=device)
+    model = load_hfm(mdir)
+    rows = []
+    video = load_video(Path(d) / "usage")
+    for usage_poses in (("file",) if poses == "file" else ("landmarks", "image", "file")):
+        r = evaluate_hmd(model, video, poses=usage_poses)
+        rows.append({"stage": "score", "split": split, "data_seed": data_seed, "seed": seed, "variant": variant,
+                     "usage_poses": usage_poses, "train_seconds": round(info["seconds"], 1),
+                     "pose_fit_rms_px": info.get("pose_fit_rms_px"), "n_gaussians": info["n_gaussians"],
+                     **{k: round(float(v), 4) for k, v in r.items()}})
+    return rows
+
+
+def _run(a) -> None:
+    import multiprocessing as mp
+
+    jobs = []
+    for split in a.splits:
+        for s in (a.val if split == "val" else a.test):
+            d = Path(a.out) / "data" / f"{split}_{s}"
+            if not (d / "usage" / "meta.json").is_file():
+                raise SystemExit(f"{d}: no capture; run the data stage first")
+            for seed in a.seeds:
+                for v in a.variants:
+                    jobs.append((str(d), split, s, seed, v, a.iters, a.threads, a.device, a.out))
+    res = Path(a.out) / "results.jsonl"
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(a.jobs) as pool, res.open("a") as f:
+        for rows in pool.imap_unordered(_job, jobs):
+            for r in rows:
+                line = json.dumps(r)
+                print(line, flush=True)
+                f.write(line + "\n")
+                f.flush()
+
+
+def _poses(a) -> None:
+    from geoface.mesh.io import load_mesh
+    from geoface.splat.head_pose import LOWER_RIGID_NAMES, canonical_landmarks, poses_from_landmarks, rotation_vector, solve_poses
+    from geoface.splat.hfm_data import load_video
+
+    def errors(fit_R, fit_t, piv, video):
+        R, t, p = video.poses
+        ang = [np.degrees(np.linalg.norm(rotation_vector(R[f].T @ fit_R[f]))) for f in range(len(R))]
+        # the same rigid motion moves the pivot to the same place: compare translations about ``piv``
+        mm = [1000 * np.linalg.norm(fit_t[f] - ((p - R[f] @ p + t[f]) - (piv - R[f] @ piv))) for f in range(len(R))]
+        return {"deg_mean": round(float(np.mean(ang)), 3), "deg_max": round(float(np.max(ang)), 3),
+                "mm_mean": round(float(np.mean(mm)), 2), "mm_max": round(float(np.max(mm)), 2)}
+
+    for split in a.splits:
+        for s in (a.val if split == "val" else a.test):
+            d = Path(a.out) / "data" / f"{split}_{s}"
+            reg, use = load_video(d / "registration", need_mesh=True), load_video(d / "usage")
+            m = load_mesh(reg.mesh_path)
+            fit = poses_from_landmarks(reg, m.V, m.F)
+            names, P = canonical_landmarks(reg, m.V, m.F)
+            sel = [n for n in use.names if n in LOWER_RIGID_NAMES and n in names]
+            uf = solve_poses(use.camera, P[[names.index(n) for n in sel]],
+                             use.landmarks[:, [use.names.index(n) for n in sel]], fit["pivot"])
+            row = {"stage": "poses", "split": split, "data_seed": s,
+                   "registration": {**errors(fit["R"], fit["t"], fit["pivot"], reg), "landmarks": len(fit["names"])},
+                   "usage": {**errors(uf["R"], uf["t"], fit["pivot"], use), "landmarks": len(sel)}}
+            print(json.dumps(row), flush=True)
+            with (Path(a.out) / "results.jsonl").open("a") as f:
+                f.write(json.dumps(row) + "\n")
+
+
+def _table(a) -> None:
+    rows = [json.loads(x) for x in (Path(a.out) / "results.jsonl").read_text().splitlines() if '"score"' in x]
+    keys = ("psnr_face", "ssim_face", "psnr_occluded", "ssim_occluded", "psnr_expression")
+    for split in ("val", "test"):
+        sel = [r for r in rows if r["split"] == split]
+        if not sel:
+            continue
+        print(f"## {split}: {len({r['data_seed'] for r in sel})} people × {len({r['seed'] for r in sel})} model seeds")
+        print("| variant | usage poses | n | " + " | ".join(keys) + " |")
+        print("|---|---|---|" + "---|" * len(keys))
+        for v in VARIANTS:
+            for up in ("file", "landmarks", "image"):
+                g = [r for r in sel if r["variant"] == v and r["usage_poses"] == up]
+                if g:
+                    print(f"| {v} | {up} | {len(g)} | " + " | ".join(f"{np.mean([r[k] for r in g]):.3f}" for k in keys) + " |")
+        base = {(r["data_seed"], r["seed"]): r for r in sel if r["variant"] == "full" and r["usage_poses"] == "landmarks"}
+        for v, up in (("oracle", "file"), ("no_gaussian_feature_mapping", "landmarks"), ("no_global_pose", "landmarks")):
+            pairs = [(base[k], r) for r in sel if r["variant"] == v and r["usage_poses"] == up
+                     for k in [(r["data_seed"], r["seed"])] if k in base]
+            if pairs:
+                d = {k: [b[k] - o[k] for b, o in pairs] for k in ("psnr_face", "psnr_occluded")}
+                print(f"full (no pose file) − {v}: " + ", ".join(
+                    f"{k} {np.mean(x):+.2f} dB ({sum(y > 0 for y in x)} of {len(x)} better)" for k, x in d.items()))
+
+
+def main(argv=None) -> int:
+    ints = lambda s: [int(x) for x in s.split(",") if x]  # noqa: E731
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("stage", choices=("data", "run", "poses", "table"))
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--val", type=ints, default=[10])
+    ap.add_argument("--test", type=ints, default=[11, 12, 13])
+    ap.add_argument("--frames", type=int, default=200)
+    ap.add_argument("--usage", type=int, default=50)
+    ap.add_argument("--res", type=int, default=128)
+    ap.add_argument("--splits", type=lambda s: s.split(","), default=["test"])
+    ap.add_argument("--seeds", type=ints, default=[0, 1])
+    ap.add_argument("--variants", type=lambda s: s.split(","), default=list(VARIANTS))
+    ap.add_argument("--iters", type=int, default=1500)
+    ap.add_argument("--jobs", type=int, default=1, help="runs at a time")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads per run")
+    ap.add_argument("--device", default="cpu")
+    a = ap.parse_args(argv)
+    bad = [v for v in a.variants if v not in VARIANTS]
+    if bad:
+        ap.error(f"unknown variants {bad}; choose from {list(VARIANTS)}")
+    os.makedirs(a.out, exist_ok=True)
+    {"data": _data, "run": _run, "poses": _poses, "table": _table}[a.stage](a)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,154 @@
+"""Rigid head poses from 2D landmarks (perspective-n-point with a robust loss).
+
+A video folder's landmarks (``landmarks.json``, any tracker's, see :mod:`hfm_data`) and its
+canonical head (``head.ply``, in the pose of frame 0) give each frame's rigid head pose:
+
+1. :func:`landmarks_on_mesh` puts frame 0's landmarks on the head: the ray through each
+   landmark pixel meets the triangle the camera sees there (exact ray–plane intersection, so
+   sub-pixel landmarks land sub-pixel on the surface); points the head does not cover (a jaw
+   contour on the silhouette) are dropped;
+2. :func:`solve_poses` finds per frame the rotation and translation ``X' = R (X − pivot) +
+   pivot + t`` that projects those 3D points onto the frame's landmarks, by Gauss–Newton with
+   a soft-L1 and then a Cauchy loss (1 px scale) from the previous frame's pose: landmarks that
+   expressions move (a smiling mouth corner, an open jaw) are down-weighted as outliers.  With the iBUG 68 only
+   the points that move little with expressions are used (:data:`IBUG68_RIGID`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from geoface.splat.errors import SplatError
+
+__all__ = ["landmarks_on_mesh", "solve_poses", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
+           "rotation_vector", "LOWER_RIGID_NAMES"]
+
+#: iBUG names below a headset that move little with expressions (nose base, the jaw line's ends)
+LOWER_RIGID_NAMES = ("nose_tip", "nose_base_0", "nose_base_1", "nose_base_2", "nose_base_3", "nose_base_4",
+                     "jaw_00", "jaw_01", "jaw_02", "jaw_14", "jaw_15", "jaw_16")
+
+
+def rodrigues(w) -> np.ndarray:
+    """Rotation matrix of the axis-angle vector ``w`` (radians)."""
+    w = np.asarray(w, np.float64)
+    a = float(np.linalg.norm(w))
+    if a < 1e-12:
+        return np.eye(3)
+    k = w / a
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+
+
+def rotation_vector(R) -> np.ndarray:
+    """Axis-angle vector of a rotation matrix (inverse of :func:`rodrigues`)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(np.asarray(R, np.float64)).as_rotvec()
+
+
+def landmarks_on_mesh(V, F, camera, points2d) -> tuple[np.ndarray, np.ndarray]:
+    """3D points [K, 3] where the camera rays through ``points2d`` [K, 2] (pixels) meet the mesh,
+    and a bool [K]: whether the ray met it (NaN rows where not)."""
+    from geoface.nn.render_mesh import rasterize_mesh
+
+    V, F = np.asarray(V, np.float64), np.asarray(F, np.int64)
+    pts = np.asarray(points2d, np.float64)
+    face, _, _ = rasterize_mesh(V, F, camera)
+    H, W = face.shape
+    out = np.full((len(pts), 3), np.nan)
+    ok = np.zeros(len(pts), bool)
+    Rc, tc = np.asarray(camera.R, np.float64), np.asarray(camera.t, np.float64)
+    origin = -Rc.T @ tc
+    for i, (x, y) in enumerate(pts):
+        if not (np.isfinite(x) and np.isfinite(y)):
+            continue
+        c, r = int(np.floor(x)), int(np.floor(y))
+        if not (0 <= r < H and 0 <= c < W) or face[r, c] < 0:
+            continue
+        d = Rc.T @ np.array([(x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0])
+        a, b, cc = V[F[face[r, c]]]
+        n = np.cross(b - a, cc - a)
+        den = float(n @ d)
+        if abs(den) < 1e-15:
+            continue
+        out[i] = origin + d * float(n @ (a - origin)) / den
+        ok[i] = True
+    return out, ok
+
+
+def _project(camera, X):
+    Xc = X @ np.asarray(camera.R, np.float64).T + np.asarray(camera.t, np.float64)
+    return np.stack([camera.fx * Xc[:, 0] / Xc[:, 2] + camera.cx, camera.fy * Xc[:, 1] / Xc[:, 2] + camera.cy], 1)
+
+
+def solve_poses(camera, points3d, points2d, pivot, *, init=None, scale_px: float = 1.0) -> dict:
+    """Per-frame rigid pose of ``points3d`` [K, 3] (canonical) seen at ``points2d`` [T, K, 2].
+
+    Returns ``{"R": [T, 3, 3], "t": [T, 3], "pivot": [3], "rms_px": [T], "inliers": [T]}``
+    (rms over the points within 3 × ``scale_px`` of their landmark).  Each frame starts from the
+    previous frame's solution (``init`` = (R, t) for frame 0, default the identity); NaN
+    landmarks are skipped.  Raises SplatError when a frame has fewer than 4 points."""
+    from scipy.optimize import least_squares
+
+    P = np.asarray(points3d, np.float64)
+    obs = np.asarray(points2d, np.float64)
+    piv = np.asarray(pivot, np.float64)
+    T = len(obs)
+    R0, t0 = (np.eye(3), np.zeros(3)) if init is None else (np.asarray(init[0], np.float64), np.asarray(init[1], np.float64))
+    x = np.r_[rotation_vector(R0), t0]
+    Rs, ts, rms, inl = np.zeros((T, 3, 3)), np.zeros((T, 3)), np.zeros(T), np.zeros(T, int)
+    for f in range(T):
+        ok = np.isfinite(obs[f]).all(1) & np.isfinite(P).all(1)
+        if ok.sum() < 4:
+            raise SplatError(f"frame {f}: only {int(ok.sum())} usable landmarks for the head pose (need 4)")
+        Q, q = P[ok] - piv, obs[f][ok]
+
+        def resid(x):
+            X = Q @ rodrigues(x[:3]).T + piv + x[3:]
+            return (_project(camera, X) - q).ravel()
+
+        # soft-L1 first (close to convex), then Cauchy from there (ignores moved points more)
+        sol = least_squares(resid, x, loss="soft_l1", f_scale=2 * scale_px, method="trf", x_scale="jac", max_nfev=200)
+        sol = least_squares(resid, sol.x, loss="cauchy", f_scale=scale_px, method="trf", x_scale="jac", max_nfev=200)
+        x = sol.x
+        e = np.linalg.norm(sol.fun.reshape(-1, 2), axis=1)
+        good = e < 3 * scale_px
+        Rs[f], ts[f] = rodrigues(x[:3]), x[3:]
+        rms[f] = float(np.sqrt(np.mean(e[good] ** 2))) if good.any() else float("nan")
+        inl[f] = int(good.sum())
+    return {"R": Rs, "t": ts, "pivot": piv, "rms_px": rms, "inliers": inl}
+
+
+def canonical_landmarks(video, mesh_V, mesh_F, pose0=None) -> tuple[list, np.ndarray]:
+    """(names, points [K, 3]) of ``video``'s frame-0 landmarks placed on the canonical head
+    (frame 0 seen through its pose ``pose0`` = (R, t, pivot) when given, else the head as it is);
+    landmarks off the head are left out."""
+    V = np.asarray(mesh_V, np.float64)
+    if pose0 is not None:
+        R, t, p = (np.asarray(a, np.float64) for a in pose0)
+        V = (V - p) @ R.T + p + t
+    P, ok = landmarks_on_mesh(V, mesh_F, video.camera, video.landmarks[0])
+    if pose0 is not None:
+        P = (P - p - t) @ R + p  # back to the canonical pose
+    return [n for n, k in zip(video.names, ok) if k], P[ok]
+
+
+def poses_from_landmarks(video, mesh_V, mesh_F, *, indices=None) -> dict:
+    """Head poses of every frame of ``video`` (an :class:`HMDVideo`) from its landmarks and its
+    canonical head (``mesh_V``, ``mesh_F``; frame 0's pose).  ``indices``: which landmarks to
+    use (default: the iBUG rigid ones when the names are the iBUG 68, else all).  Returns
+    :func:`solve_poses`'s dict plus ``points3d`` [K, 3] and ``names`` of the points used."""
+    from geoface.splat.hfm_data import IBUG68_NAMES, IBUG68_RIGID
+
+    names = list(video.names)
+    if indices is None:
+        indices = list(IBUG68_RIGID) if tuple(names) == tuple(IBUG68_NAMES) else list(range(len(names)))
+    idx = np.asarray(indices, int)
+    P3, ok = landmarks_on_mesh(mesh_V, mesh_F, video.camera, video.landmarks[0][idx])
+    if ok.sum() < 4:
+        raise SplatError(f"only {int(ok.sum())} of frame 0's landmarks fall on the head mesh: cannot fit head poses "
+                         "(is head.ply in frame 0's pose, and camera.json right?)")
+    idx, P3 = idx[ok], P3[ok]
+    pivot = P3.mean(0)
+    out = solve_poses(video.camera, P3, video.landmarks[:, idx], pivot)
+    out.update(points3d=P3, names=[names[i] for i in idx])
+    return out

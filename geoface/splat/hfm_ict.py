@@ -1,0 +1,307 @@
+"""Synthetic HMD captures of real heads: a person of the ICT-FaceKit model (built from scans of
+real people, :mod:`geoface.synth.ict`) talking and emoting, lit, with eyes, teeth and a mouth.
+
+What :func:`make_ict_hmd` renders, frame by frame:
+
+* **the person**: identity weights of the model (``identity``: a row of N(0, 1) weights drawn
+  from the seed, or given), skin maps with facial regions on the model's UV layout (lips, brows,
+  eyelids, pores, forehead lines, stubble, freckles; :func:`geoface.learn.skin_synth.skin_maps`),
+  eyes (iris, pupil, sclera), teeth, gums, tongue and the mouth's interior;
+* **expressions** as ARKit weight curves (:func:`arkit_curves`): speech-like jaw and lip motion
+  (syllables in phrases, vowels that round the lips), emotions that couple upper and lower face
+  (surprise: brows up, eyes wide, jaw open; smile: cheeks and lower lids up; anger: brows down,
+  frown, sneer) and blinks.  The registration and the usage video are *different* sequences
+  (other phrases, emotions and blinks), not two halves of one;
+* **lighting**: Lambert + GGX specular (:func:`geoface.learn.skin_synth.shade`) under lights that
+  stay fixed in the world while the head turns, so shading changes with the pose;
+* **motion**: a rigid head motion (yaw, pitch, roll, translation) about the neck and a small
+  per-frame camera shake (both in ``head_poses.npz``, which holds the exact pose relative to the
+  nominal camera of ``camera.json``);
+* **the headset** in the usage video (``hmd_masks/``), with ``gt/`` (the same frames without
+  it) and ``gt_static_upper/`` (the upper-face expression at rest, see :mod:`hfm_data`).
+
+Registration frame 0 is the person at rest in the canonical pose, which is ``head.ply`` (a
+decimated copy of the rendered mesh with vertex colours, for the Gaussians' initialisation).
+``landmarks.json`` holds the 68 iBUG points (:data:`geoface.splat.hfm_data.IBUG68_NAMES`) that a
+face tracker gives; in the usage video only those below the headset (jaw, nose base, mouth).
+Units are metres.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from geoface.splat.errors import SplatError
+
+__all__ = ["arkit_curves", "make_ict_hmd", "ICT_PARTS", "is_upper_blendshape"]
+
+#: the model's parts that are rendered (and become Gaussians)
+ICT_PARTS = ("skin", "eyes", "teeth", "mouth")
+_CM = 0.01  # the model's centimetres → metres
+# region numbers of ICTHead.labels (the order of geoface.synth.ict.REGIONS)
+_MOUTH, _EYE_SOCKET, _GUMS, _TEETH, _EYEBALL = 3, 4, 5, 6, 7
+_SOLIDS = {_MOUTH: ((0.30, 0.09, 0.09), 0.15), _GUMS: ((0.62, 0.27, 0.27), 0.4), _TEETH: ((0.86, 0.82, 0.70), 0.5)}
+_HEADSET = ((0.10, 0.10, 0.11), 0.3)
+
+
+def is_upper_blendshape(name: str) -> bool:
+    """Blendshapes that move the face above the headset's edge (brows, lids, gaze)."""
+    return name.startswith(("brow", "eye"))
+
+
+def _smooth(x: np.ndarray, width: float) -> np.ndarray:
+    from scipy.ndimage import gaussian_filter1d
+
+    return gaussian_filter1d(x, width, mode="nearest") if width > 0 else x
+
+
+def arkit_curves(T: int, rng, *, fps: float = 25.0, loudness=None, talk: float = 1.0, emote: float = 1.0,
+                 blink: bool = True) -> list[dict]:
+    """``T`` frames of ARKit blendshape weights in [0, 1] (a list of dicts, model names).
+
+    * speech: phrases of 1–3 s with pauses; within a phrase syllables at 3–5 per second open the
+      jaw and part the lips, and slower vowels round (funnel, pucker) or stretch the mouth; with
+      ``loudness`` ([T] ≥ 0, e.g. an audio envelope per frame) the jaw follows it instead;
+    * emotions: surprise, smile and anger, smooth and often at rest, each coupling upper and lower
+      face; ``emote`` scales them, ``talk`` the speech;
+    * blinks every 2–6 s (both eyes, 0.2 s)."""
+    t = np.arange(T) / fps
+    # phrases: on/off spans
+    on = np.zeros(T)
+    s = rng.uniform(0, 1.0)
+    while s < t[-1] + 1 if T else False:
+        d = rng.uniform(1.0, 3.0)
+        on[(t >= s) & (t < s + d)] = 1
+        s += d + rng.uniform(0.3, 1.2)
+    on = _smooth(on, 0.08 * fps)
+    if loudness is not None:
+        loud = np.asarray(loudness, np.float64)
+        if loud.shape != (T,):
+            raise SplatError(f"loudness must have one value per frame ({T}); got shape {loud.shape}")
+        syl = np.clip(loud / max(float(np.percentile(loud, 95)), 1e-9), 0, 1.2)
+        on = np.clip(_smooth(syl, 0.25 * fps) * 3, 0, 1)
+    else:
+        rate = rng.uniform(3.0, 5.0)
+        phase = 2 * np.pi * np.cumsum(rate * (1 + 0.25 * _smooth(rng.standard_normal(T), fps * 0.3))) / fps
+        syl = np.clip(np.sin(phase), 0, None) ** 1.5 * on * rng.uniform(0.6, 1.0, T).clip(0, 1)
+        syl = _smooth(syl, 0.04 * fps)
+    vowel = _smooth(rng.standard_normal(T), 0.15 * fps)
+    vowel /= max(float(np.abs(vowel).max()), 1e-9)
+    # emotions: sums of slow sinusoids, often at rest (as hfm_data._drivers, but per second)
+    emo = np.zeros((T, 3))
+    for k in range(3):
+        f = rng.uniform(0.08, 0.25, 3)
+        ph = rng.uniform(0, 2 * np.pi, 3)
+        w = sum(np.sin(2 * np.pi * f[j] * t + ph[j]) / (j + 1) for j in range(3))
+        emo[:, k] = np.clip((w - 0.3) / 1.1, 0, 1) ** 1.2
+    sur, smi, ang = (emote * emo).T
+    blinks = np.zeros(T)
+    if blink:
+        s = rng.uniform(0.5, 3.0)
+        while s < t[-1] if T else False:
+            blinks = np.maximum(blinks, np.exp(-0.5 * ((t - s) / 0.05) ** 2))
+            s += rng.uniform(2.0, 6.0)
+    talk_open = talk * syl
+    jaw = np.clip(0.55 * talk_open + 0.45 * sur, 0, 1)
+    out = []
+    for i in range(T):
+        rnd, wide = max(vowel[i], 0.0) * talk * on[i], max(-vowel[i], 0.0) * talk * on[i]
+        e = {"jawOpen": jaw[i], "mouthClose": 0.25 * talk * on[i] * (1 - syl[i]) * (jaw[i] > 0.05),
+             "mouthFunnel": 0.5 * rnd, "mouthPucker": 0.35 * rnd, "mouthStretch_L": 0.3 * wide, "mouthStretch_R": 0.3 * wide,
+             "mouthLowerDown_L": 0.3 * talk_open[i], "mouthLowerDown_R": 0.3 * talk_open[i],
+             "mouthUpperUp_L": 0.2 * talk_open[i], "mouthUpperUp_R": 0.2 * talk_open[i],
+             "browInnerUp_L": 0.9 * sur[i], "browInnerUp_R": 0.9 * sur[i], "browOuterUp_L": sur[i], "browOuterUp_R": sur[i],
+             "eyeWide_L": 0.6 * sur[i], "eyeWide_R": 0.6 * sur[i],
+             "mouthSmile_L": smi[i], "mouthSmile_R": smi[i], "cheekSquint_L": 0.6 * smi[i], "cheekSquint_R": 0.6 * smi[i],
+             "eyeSquint_L": 0.5 * smi[i], "eyeSquint_R": 0.5 * smi[i],
+             "browDown_L": ang[i], "browDown_R": ang[i], "mouthFrown_L": 0.7 * ang[i], "mouthFrown_R": 0.7 * ang[i],
+             "noseSneer_L": 0.4 * ang[i], "noseSneer_R": 0.4 * ang[i], "mouthPress_L": 0.3 * ang[i], "mouthPress_R": 0.3 * ang[i],
+             "eyeBlink_L": blinks[i], "eyeBlink_R": blinks[i]}
+        out.append({k: float(np.clip(v, 0, 1)) for k, v in e.items()})
+    return out
+
+
+def _motion(T: int, rng, fps: float, scale: float, jitter: float, ramp: int):
+    """[T, 3] yaw/pitch/roll (radians) and [T, 3] translation (m): slow sinusoids (yaw ±10°,
+    pitch ±5°, roll ±3°, ±6 mm) plus a per-frame camera shake (``jitter`` × 0.3°, 0.5 mm); the
+    first ``ramp`` frames ease in from rest."""
+    t = np.arange(T) / fps
+    amp_r = np.radians([10.0, 5.0, 3.0]) * scale
+    ang = np.stack([amp_r[k] * sum(np.sin(2 * np.pi * f * t + p) / (j + 1) for j, (f, p) in
+                                   enumerate(zip(rng.uniform(0.1, 0.5, 2), rng.uniform(0, 2 * np.pi, 2)))) / 1.5
+                    for k in range(3)], 1)
+    tr = np.stack([0.006 * scale * np.sin(2 * np.pi * rng.uniform(0.1, 0.4) * t + rng.uniform(0, 2 * np.pi))
+                   for _ in range(3)], 1)
+    ang += jitter * np.radians(0.3) * rng.standard_normal((T, 3))
+    tr += jitter * 0.0005 * rng.standard_normal((T, 3))
+    if ramp:
+        w = np.clip(np.arange(T) / ramp, 0, 1)
+        w = w * w * (3 - 2 * w)
+        ang *= w[:, None]
+        tr *= w[:, None]
+    return ang, tr
+
+
+def _box_mean(a: np.ndarray, ss: int) -> np.ndarray:
+    H, W = a.shape[:2]
+    return a.reshape(H // ss, ss, W // ss, ss, *a.shape[2:]).mean((1, 3))
+
+
+def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res: int = 128, identity=None,
+                 seed: int = 0, motion: float = 1.0, jitter: float = 1.0, fps: float = 25.0, map_res: int = 512,
+                 gaussians: int = 12000, supersample: int = 2, quiet: bool | None = None) -> tuple[Path, Path]:
+    """Write ``out/registration`` (``frames`` frames) and ``out/usage`` (``usage_frames``, default a
+    quarter of ``frames``) of one ICT-FaceKit person (format: :mod:`geoface.splat.hfm_data`; what
+    is rendered: the module doc); returns both folders.
+
+    ``identity``: the model's identity weights (a sequence of up to 100 numbers) or None (drawn
+    from ``seed``); ``gaussians``: vertices of ``head.ply``, the decimated canonical head."""
+    from geoface.learn.skin_synth import _ict_eyes, _ict_source, random_lights, skin_maps, unweld_uv
+    from geoface.mesh.io import save_mesh
+    from geoface.nn.camera import Camera, look_at
+    from geoface.progress import progress
+    from geoface.splat.hfm_data import (IBUG68_NAMES, IBUG68_LOWER, _rot, _write_png, camera_to_json,
+                                        headset_mesh)
+
+    usage_frames = max(5, frames // 4) if usage_frames is None else int(usage_frames)
+    if frames < 5 or usage_frames < 1:
+        raise SplatError(f"need frames >= 5 and usage_frames >= 1; got {frames}, {usage_frames}")
+    if supersample < 1 or res < 16:
+        raise SplatError(f"need res >= 16 and supersample >= 1; got {res}, {supersample}")
+    out = Path(out)
+    rng = np.random.default_rng([seed, 7101])
+    model, regions = _ict_source(map_res)
+    if identity is None:
+        ident = rng.standard_normal(model.n_identities)
+    else:
+        ident = np.zeros(model.n_identities)
+        given = np.asarray(identity, np.float64).ravel()
+        if len(given) > model.n_identities or not np.isfinite(given).all():
+            raise SplatError(f"identity: up to {model.n_identities} finite weights; got {len(given)}")
+        ident[:len(given)] = given
+    rest = model.head(identity=ident, parts=ICT_PARTS)
+    lab = rest.labels
+    V0 = rest.V * _CM
+    Vu, Fu, UVu, src = unweld_uv(rest.V, rest.F, rest.UV, rest.FUV, with_source=True)
+    eyes = _ict_eyes(model.shape(ident, parts=ICT_PARTS), src, rest, rng)
+    maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)), regions=regions)
+    lights = random_lights(rng, int(rng.integers(2, 4)))
+    solids = [(lab[src] == k, c, s) for k, (c, s) in _SOLIDS.items()]
+    lmk = rest.landmarks
+    L0 = V0[lmk]
+    y_eye = float(L0[36:48, 1].mean())
+    y_nose = float(L0[30, 1])
+    y_split = y_eye - 0.4 * (y_eye - y_nose)
+    front = float(V0[lab <= 1, 2].max())
+    chin = L0[8]
+    pivot = np.array([0.0, chin[1] - 0.04, float(V0[lab == 2, 2].mean())])  # the neck
+    target = np.array([0.0, 0.5 * (y_eye + chin[1]) + 0.01, float(L0[:, 2].mean())])
+    cam = look_at(target + [0, 0, 0.45], target, width=res, height=res, fov_y_deg=36.0)
+    ss = int(supersample)
+    cam_ss = Camera(cam.fx * ss, cam.fy * ss, cam.cx * ss, cam.cy * ss, res * ss, res * ss, cam.R, cam.t)
+    hV, hF = headset_mesh(y_split, front)
+    from geoface.mesh.core import vertex_normals
+
+    def render(expr, R, tr, headset: bool):
+        V = model.shape(ident, expr, parts=ICT_PARTS) * _CM
+        V = (V - pivot) @ R.T + pivot + tr
+        N = vertex_normals(V, rest.F)[src]
+        Vr, Fr, UVr, Nr = V[src], Fu, UVu, N
+        sol = list(solids)
+        if headset:
+            Vh = (hV - pivot) @ R.T + pivot + tr
+            Vr = np.concatenate([Vr, Vh])
+            Fr = np.concatenate([Fu, hF + len(src)])
+            UVr = np.concatenate([UVu, np.zeros((len(hV), 2))])
+            Nr = np.concatenate([Nr, vertex_normals(Vh, hF)])
+            sol = [(np.r_[m, np.zeros(len(hV), bool)], c, s) for m, c, s in sol]
+            sol.append((np.r_[np.zeros(len(src), bool), np.ones(len(hV), bool)], *_HEADSET))
+        ey = {k: (np.r_[v, np.zeros(len(Vr) - len(v), v.dtype)] if k in ("eyeball", "socket", "cos") else v)
+              for k, v in eyes.items()}
+        from geoface.learn.skin_synth import render_skin_sample
+
+        s = render_skin_sample(Vr, Fr, UVr, maps, cam_ss, lights, normals=Nr, eyes=ey, solids=sol)
+        alpha = _box_mean(s["mask"].astype(np.float32), ss)
+        rgb = _box_mean(s["photo"].astype(np.float64) ** 2.2, ss) ** (1 / 2.2)
+        hmd = _box_mean((s["face"] >= len(Fu)).astype(np.float32), ss) > 0.5 if headset else None
+        return V, rgb.astype(np.float32), alpha, hmd
+
+    n_all = frames + usage_frames
+    rng_r, rng_u = (np.random.default_rng([seed, 7102, k]) for k in range(2))
+    seqs = {"registration": (arkit_curves(frames, rng_r, fps=fps), _motion(frames, rng_r, fps, motion, jitter, 10)),
+            "usage": (arkit_curves(usage_frames, rng_u, fps=fps), _motion(usage_frames, rng_u, fps, motion, jitter, 0))}
+    # registration frame 0: the person at rest in the canonical pose (head.ply)
+    seqs["registration"][0][0] = {k: 0.0 for k in seqs["registration"][0][0]}
+    dirs = {"registration": out / "registration", "usage": out / "usage"}
+    for which, d in dirs.items():
+        subs = ("frames", "masks") + (("hmd_masks", "gt", "gt_static_upper") if which == "usage" else ())
+        for sub in subs:
+            (d / sub).mkdir(parents=True, exist_ok=True)
+    it = progress(range(n_all), "rendering ICT HMD videos", total=n_all, quiet=quiet)
+    jobs = [("registration", k) for k in range(frames)] + [("usage", k) for k in range(usage_frames)]
+    poses = {w: ([], []) for w in dirs}
+    lm_pts = {w: [] for w in dirs}
+    log = {w: [] for w in dirs}
+    lower_idx = list(IBUG68_LOWER)
+    for _, (which, k) in zip(it, jobs):
+        exprs, (ang, tr) = seqs[which]
+        R = _rot(*ang[k])
+        d = dirs[which]
+        name = f"{k:06d}.png"
+        V, rgb, alpha, hmd = render(exprs[k], R, tr[k], which == "usage")
+        uv, _ = cam.project(V[lmk])
+        uv = np.asarray(uv)
+        lm_pts[which].append((uv if which == "registration" else uv[lower_idx]).tolist())
+        poses[which][0].append(R)
+        poses[which][1].append(tr[k])
+        log[which].append({"frame": k, "expression": {n: round(v, 4) for n, v in exprs[k].items() if v > 1e-4},
+                           "yaw_pitch_roll_deg": np.degrees(ang[k]).tolist(), "translation": tr[k].tolist()})
+        _write_png(d / "frames" / name, rgb)
+        _write_png(d / "masks" / name, (alpha > 0.5).astype(np.uint8) * 255)
+        if which == "usage":
+            _write_png(d / "hmd_masks" / name, hmd.astype(np.uint8) * 255)
+            _, g, _, _ = render(exprs[k], R, tr[k], False)
+            _write_png(d / "gt" / name, g)
+            still = {n: (0.0 if is_upper_blendshape(n) else v) for n, v in exprs[k].items()}
+            _, g, _, _ = render(still, R, tr[k], False)
+            _write_png(d / "gt_static_upper" / name, g)
+    for which, d in dirs.items():
+        names = list(IBUG68_NAMES) if which == "registration" else [IBUG68_NAMES[i] for i in lower_idx]
+        (d / "landmarks.json").write_text(json.dumps({"names": names, "points": lm_pts[which]}))
+        np.savez(d / "head_poses.npz", R=np.stack(poses[which][0]), t=np.stack(poses[which][1]), pivot=pivot)
+        (d / "camera.json").write_text(json.dumps(camera_to_json(cam)))
+        (d / "meta.json").write_text(json.dumps({
+            "y_split": y_split, "up": [0, 1, 0], "source": "ICT-FaceKit", "seed": seed, "fps": fps,
+            "identity": [round(float(x), 5) for x in ident], "lights": [a.tolist() for a in lights],
+            "upper_blendshapes": sorted(n for n in exprs[0] if is_upper_blendshape(n)), "frames": log[which]}))
+    Vi, Fi, Ci = _init_mesh(V0, rest, src, UVu, maps, eyes, solids, gaussians)
+    save_mesh(dirs["registration"] / "head.ply", V=Vi, F=Fi, colors=Ci)
+    return dirs["registration"], dirs["usage"]
+
+
+def _init_mesh(V0, head, src, UVu, maps, eyes, solids, target: int):
+    """The canonical head for the Gaussians: the rendered mesh (welded) decimated to ``target``
+    vertices, coloured by the albedo of its nearest original vertex."""
+    from scipy.spatial import cKDTree
+
+    from geoface.learn.skin_synth import _sample_uv_map, eye_albedo
+    from geoface.repair.remesh import remesh
+
+    col_u = _sample_uv_map(maps.stack()[..., :3], np.clip(UVu, 0, 1))
+    ball = eyes["eyeball"]
+    col_u[ball] = eye_albedo(eyes["cos"][ball], eyes["iris"])
+    col_u[eyes["socket"]] = (0.55, 0.30, 0.27)
+    for m, c, _ in solids:
+        col_u[m] = c
+    col = np.zeros((len(V0), 3))
+    col[src] = col_u  # a seam vertex takes one of its copies' colours
+    if target and target < len(V0):
+        r = remesh(V0, head.F, target, method="decimate")
+        V, F = np.asarray(r.V), np.asarray(r.F)
+        _, nn = cKDTree(V0).query(V)
+        col = col[nn]
+    else:
+        V, F = V0, head.F
+    return V, F, np.clip(col, 0, 1)
