@@ -16,8 +16,8 @@ def main() -> int:
     import cv2
     import numpy as np
 
-    from geoface.learn.skin_regions import ict_uv_regions
-    from geoface.learn.skin_synth import skin_maps
+    from geoface.skin.regions import ict_uv_regions
+    from geoface.skin.render import skin_maps
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out", type=Path)

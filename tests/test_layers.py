@@ -14,7 +14,7 @@ PKG = Path(__file__).resolve().parents[1] / "geoface"
 RANKS = {
     "errors": 0, "tol": 0.1, "_io": 0.15, "_args": 0.2, "_lazy": 0.2, "progress": 0.3, "video": 0.4, "": 0.5,
     "mesh": 1, "synth": 2, "repair": 2.5, "param": 3, "gimage": 4, "uvmap": 5, "viz": 5.5,
-    "pipeline": 6, "dataset": 6.5, "nn": 7, "learn": 8, "splat": 8, "webview": 8.5, "cli": 9, "__main__": 10,
+    "pipeline": 6, "dataset": 6.5, "nn": 7, "skin": 7.5, "learn": 8, "splat": 8, "webview": 8.5, "cli": 9, "__main__": 10,
 }
 GEOMETRY_CORE = ("mesh", "repair", "param", "gimage", "uvmap")
 

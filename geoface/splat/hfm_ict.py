@@ -5,14 +5,14 @@ What :func:`make_ict_hmd` renders, frame by frame:
 
 * **the person**: identity weights of the model (``identity``: a row of N(0, 1) weights drawn
   from the seed, or given), skin maps with facial regions on the model's UV layout (lips, brows,
-  eyelids, pores, forehead lines, stubble, freckles; :func:`geoface.learn.skin_synth.skin_maps`),
+  eyelids, pores, forehead lines, stubble, freckles; :func:`geoface.skin.render.skin_maps`),
   eyes (iris, pupil, sclera), teeth, gums, tongue and the mouth's interior;
 * **expressions** as ARKit weight curves (:func:`arkit_curves`): speech-like jaw and lip motion
   (syllables in phrases, vowels that round the lips), emotions that couple upper and lower face
   (surprise: brows up, eyes wide, jaw open; smile: cheeks and lower lids up; anger: brows down,
   frown, sneer) and blinks.  The registration and the usage video are *different* sequences
   (other phrases, emotions and blinks), not two halves of one;
-* **lighting**: Lambert + GGX specular (:func:`geoface.learn.skin_synth.shade`) under lights that
+* **lighting**: Lambert + GGX specular (:func:`geoface.skin.render.shade`) under lights that
   stay fixed in the world while the head turns, so shading changes with the pose;
 * **motion**: a rigid head motion (yaw, pitch, roll, translation) about the neck and a small
   per-frame camera shake (both in ``head_poses.npz``, which holds the exact pose relative to the
@@ -158,7 +158,7 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
 
     ``identity``: the model's identity weights (a sequence of up to 100 numbers) or None (drawn
     from ``seed``); ``gaussians``: vertices of ``head.ply``, the decimated canonical head."""
-    from geoface.learn.skin_synth import _ict_eyes, _ict_source, random_lights, skin_maps, unweld_uv
+    from geoface.skin.render import _ict_eyes, _ict_source, random_lights, skin_maps, unweld_uv
     from geoface.mesh.io import save_mesh
     from geoface.nn.camera import Camera, look_at
     from geoface.progress import progress
@@ -220,7 +220,7 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
             sol.append((np.r_[np.zeros(len(src), bool), np.ones(len(hV), bool)], *_HEADSET))
         ey = {k: (np.r_[v, np.zeros(len(Vr) - len(v), v.dtype)] if k in ("eyeball", "socket", "cos") else v)
               for k, v in eyes.items()}
-        from geoface.learn.skin_synth import render_skin_sample
+        from geoface.skin.render import render_skin_sample
 
         s = render_skin_sample(Vr, Fr, UVr, maps, cam_ss, lights, normals=Nr, eyes=ey, solids=sol)
         alpha = _box_mean(s["mask"].astype(np.float32), ss)
@@ -286,7 +286,7 @@ def _init_mesh(V0, head, src, UVu, maps, eyes, solids, target: int):
     vertices, coloured by the albedo of its nearest original vertex."""
     from scipy.spatial import cKDTree
 
-    from geoface.learn.skin_synth import _sample_uv_map, eye_albedo
+    from geoface.skin.render import _sample_uv_map, eye_albedo
     from geoface.repair.remesh import remesh
 
     col_u = _sample_uv_map(maps.stack()[..., :3], np.clip(UVu, 0, 1))

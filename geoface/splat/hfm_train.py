@@ -220,7 +220,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
         ls = boundary_loss(g.means[:, 1], strategy.upper if strategy is not None else model.upper_mask(),
                            model.y_split)
         loss = loss + cfg.lambda_split * ls
-        lp = None
+        lp, loss_img = None, loss.detach()  # the history's "loss": the image (and split) terms
         if targets is not None and it >= n_warm:
             lp = ((model.head_pose_params(theta)[0] - targets[f]) ** 2).sum()
             loss = loss + cfg.lambda_pose * lp
@@ -229,7 +229,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
         loss.backward()
         opt.step()
         opt.zero_grad(set_to_none=True)
-        rec = {"step": it, "loss": float(loss.detach()), "l1": float(l1.detach()), "n": len(g), "nets": it >= n_warm}
+        rec = {"step": it, "loss": float(loss_img), "l1": float(l1.detach()), "n": len(g), "nets": it >= n_warm}
         if lp is not None:
             rec["pose"] = float(lp.detach())
         if strategy is not None:

@@ -4,9 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geoface.learn.errors import LearnError
-from geoface.learn.skin_regions import REGION_NAMES, ict_uv_regions, landmark_uv
-from geoface.learn.skin_synth import skin_maps
+from geoface.skin import SkinError
+
+from geoface.skin.regions import REGION_NAMES, ict_uv_regions, landmark_uv
+from geoface.skin.render import skin_maps
 
 R = 192
 
@@ -53,7 +54,7 @@ def test_regions_sit_where_the_landmarks_say(head, regions):
     # the face covers the landmarks; areas are plausible shares of the tile
     assert (at(regions["face"], L) > 0.5).all()
     assert 0.005 < regions["lips"].mean() < 0.05 and 0.05 < regions["forehead"].mean() < 0.25
-    with pytest.raises(LearnError, match="res"):
+    with pytest.raises(SkinError, match="res"):
         ict_uv_regions(8, head)
 
 
@@ -107,5 +108,5 @@ def _has_stubble(seed: int) -> bool:
 
 
 def test_regions_shape_mismatch_is_an_error(regions):
-    with pytest.raises(LearnError, match="region"):
+    with pytest.raises(SkinError, match="region"):
         skin_maps(R // 2, seed=0, regions=regions)

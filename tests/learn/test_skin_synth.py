@@ -1,6 +1,8 @@
 import numpy as np
 import pytest
 
+from geoface.skin import SkinError
+
 from geoface.learn.errors import LearnError
 from geoface.learn.skin_synth import height_to_normal, random_lights, shade, skin_maps
 
@@ -15,7 +17,7 @@ def test_deterministic_ranges_and_layout():
     n = a.micronormal * 2 - 1
     np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1, atol=1e-6)
     assert (n[..., 2] > 0.3).all()
-    with pytest.raises(LearnError):
+    with pytest.raises(SkinError):
         skin_maps(8)
 
 

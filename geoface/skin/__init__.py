@@ -1,0 +1,14 @@
+"""Synthetic skin: PBR maps with facial regions on a head's UV layout (:mod:`.regions`,
+:mod:`.render`) and their rendering under lights — the data of the texture model
+(:mod:`geoface.learn.texture`) and of the avatar captures (:mod:`geoface.splat.hfm_ict`).
+
+Numpy only; the layer sits above :mod:`geoface.nn` (it rasterises with
+:func:`geoface.nn.render_mesh.rasterize_mesh`) and below ``learn`` and ``splat``.
+"""
+from geoface.errors import GeofaceError
+
+__all__ = ["SkinError"]
+
+
+class SkinError(GeofaceError):
+    """An invalid argument to the skin generator or renderer."""
