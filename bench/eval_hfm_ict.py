@@ -74,16 +74,23 @@ def _job_rows(job) -> list:
     ablation, poses = VARIANTS[variant]
     mdir = Path(out) / "models" / f"{split}_{data_seed}_{variant}_s{seed}"
     cfg = HFMConfig(**{**ABLATIONS[ablation], "iters": iters, "seed": seed, "threads": threads})
-    info = train_hfm(Path(d) / "registration", mdir, cfg, progress=False, log=None, poses=poses, device=device)
+    info_file = mdir / "train_info.json"
+    if info_file.is_file() and (mdir / "model.safetensors").is_file():  # trained before: score it again
+        info = json.loads(info_file.read_text())
+    else:
+        info = train_hfm(Path(d) / "registration", mdir, cfg, progress=False, log=None, poses=poses, device=device)
+        info = {k: v for k, v in info.items() if k != "history"}
+        info_file.write_text(json.dumps(info))
     model = load_hfm(mdir)
     rows = []
     video = load_video(Path(d) / "usage")
     for usage_poses in (("file",) if poses == "file" else ("landmarks", "image", "file")):
         r = evaluate_hmd(model, video, poses=usage_poses)
         rows.append({"stage": "score", "split": split, "data_seed": data_seed, "seed": seed, "variant": variant,
-                     "usage_poses": usage_poses, "train_seconds": round(info["seconds"], 1),
-                     "pose_fit_rms_px": info.get("pose_fit_rms_px"), "n_gaussians": info["n_gaussians"],
-                     **{k: round(float(v), 4) for k, v in r.items()}})
+                     "usage_poses": usage_poses,
+                     "train_seconds": None if info.get("seconds") is None else round(info["seconds"], 1),
+                     "pose_fit_rms_px": info.get("pose_fit_rms_px"), "n_gaussians": len(model.gaussians),
+                     **{k: (round(float(v), 4) if isinstance(v, (int, float)) else v) for k, v in r.items()}})
     return rows
 
 

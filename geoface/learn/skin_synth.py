@@ -1,19 +1,9 @@
-"""Procedural skin PBR maps and their shading (synthetic data for the 4K-texture model).
+"""Synthetic training data of the 4K-texture model: :func:`make_texture_dataset` writes
+(photo, maps, UV, normal, mask, landmarks) samples of procedural or ICT-FaceKit heads with
+regional skin, rendered under random lights.
 
-:func:`skin_maps` draws UV-space maps at any resolution from a seed — the same seed gives the
-same skin at every resolution (features are placed in UV units and noise is drawn on grids
-that do not depend on the resolution; a lower resolution sees fine features averaged):
-
-* albedo [R, R, 3] in [0, 1] — a skin tone, low-frequency redness patches, freckles (sparse
-  brown spots in a few regions), pores (dense small dark dots) and fine mottling;
-* height [R, R] — pore pits and fine wrinkles; **micronormal** [R, R, 3] = tangent-space
-  normal of the height field, encoded n/2 + ½ (so flat skin is (0.5, 0.5, 1));
-* specular [R, R, 1] in [0, 1] — an oily T-zone-like low-frequency field, less in pores.
-
-:func:`shade` renders per-pixel maps under a few directional lights (an environment
-approximation) with Lambert diffuse plus a GGX microfacet specular lobe, using the
-micronormal through a per-pixel tangent frame; output is display-referred RGB in [0, 1]
-(gamma 2.2).  All numpy, vectorised.
+The skin maps and their renderer live in :mod:`geoface.skin.render` (also used by the avatar
+captures); their names stay importable from here.
 """
 from __future__ import annotations
 
