@@ -119,7 +119,7 @@ def _run(a) -> None:
 
 def _poses(a) -> None:
     from geoface.mesh.io import load_mesh
-    from geoface.splat.head_pose import LOWER_RIGID_NAMES, canonical_landmarks, poses_from_landmarks, rotation_vector, solve_poses
+    from geoface.splat.head_pose import LOWER_RIGID_NAMES, poses_from_landmarks, rotation_vector, solve_poses
     from geoface.splat.hfm_data import load_video
 
     def errors(fit_R, fit_t, piv, video):
@@ -136,7 +136,7 @@ def _poses(a) -> None:
             reg, use = load_video(d / "registration", need_mesh=True), load_video(d / "usage")
             m = load_mesh(reg.mesh_path)
             fit = poses_from_landmarks(reg, m.V, m.F)
-            names, P = canonical_landmarks(reg, m.V, m.F)
+            names, P = fit["all_names"], fit["all_points3d"]
             sel = [n for n in use.names if n in LOWER_RIGID_NAMES and n in names]
             uf = solve_poses(use.camera, P[[names.index(n) for n in sel]],
                              use.landmarks[:, [use.names.index(n) for n in sel]], fit["pivot"])

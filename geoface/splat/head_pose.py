@@ -136,19 +136,19 @@ def poses_from_landmarks(video, mesh_V, mesh_F, *, indices=None) -> dict:
     """Head poses of every frame of ``video`` (an :class:`HMDVideo`) from its landmarks and its
     canonical head (``mesh_V``, ``mesh_F``; frame 0's pose).  ``indices``: which landmarks to
     use (default: the iBUG rigid ones when the names are the iBUG 68, else all).  Returns
-    :func:`solve_poses`'s dict plus ``points3d`` [K, 3] and ``names`` of the points used."""
+    :func:`solve_poses`'s dict plus ``points3d`` [K, 3] and ``names`` of the points used, and
+    ``all_names`` / ``all_points3d``: every landmark that frame 0 places on the head."""
     from geoface.splat.hfm_data import IBUG68_NAMES, IBUG68_RIGID
 
     names = list(video.names)
     if indices is None:
         indices = list(IBUG68_RIGID) if tuple(names) == tuple(IBUG68_NAMES) else list(range(len(names)))
-    idx = np.asarray(indices, int)
-    P3, ok = landmarks_on_mesh(mesh_V, mesh_F, video.camera, video.landmarks[0][idx])
-    if ok.sum() < 4:
-        raise SplatError(f"only {int(ok.sum())} of frame 0's landmarks fall on the head mesh: cannot fit head poses "
+    placed, P_all = canonical_landmarks(video, mesh_V, mesh_F)
+    use = [names[i] for i in indices if names[i] in placed]
+    if len(use) < 4:
+        raise SplatError(f"only {len(use)} of frame 0's landmarks fall on the head mesh: cannot fit head poses "
                          "(is head.ply in frame 0's pose, and camera.json right?)")
-    idx, P3 = idx[ok], P3[ok]
-    pivot = P3.mean(0)
-    out = solve_poses(video.camera, P3, video.landmarks[:, idx], pivot)
-    out.update(points3d=P3, names=[names[i] for i in idx])
+    P3 = P_all[[placed.index(n) for n in use]]
+    out = solve_poses(video.camera, P3, video.landmarks[:, [names.index(n) for n in use]], P3.mean(0))
+    out.update(points3d=P3, names=use, all_names=placed, all_points3d=P_all)
     return out

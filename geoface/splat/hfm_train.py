@@ -88,23 +88,25 @@ def _head_mesh(video):
     return load_mesh(video.mesh_path)
 
 
-def registration_poses(video, poses: str = "auto", log=None) -> dict:
+def registration_poses(video, poses: str = "auto", log=None, mesh=None) -> dict:
     """Set ``video.poses`` for registration and say where they came from: ``"file"`` (the folder's
     ``head_poses.npz``), ``"landmarks"`` (fitted to the landmarks, :mod:`geoface.splat.head_pose`)
-    or ``"auto"`` (the file when there is one).  Returns a summary (source, fit error)."""
+    or ``"auto"`` (the file when there is one).  Returns a summary (source, fit error) with the
+    landmarks placed on the canonical head (``landmarks3d``).  ``mesh``: the loaded head mesh
+    (default: the folder's)."""
     if poses not in ("auto", "file", "landmarks"):
         raise SplatError(f"poses must be 'auto', 'file' or 'landmarks'; got {poses!r}")
     if poses == "file" and video.poses is None:
         raise SplatError("--poses file: the registration folder has no head_poses.npz")
     from geoface.splat.head_pose import canonical_landmarks, poses_from_landmarks
 
-    m = _head_mesh(video)
+    m = mesh if mesh is not None else _head_mesh(video)
     if video.poses is not None and poses != "landmarks":
         R, t, p = video.poses
         names, P = canonical_landmarks(video, m.V, m.F, (R[0], t[0], p))
         return {"poses": "file", "landmarks3d": {"names": names, "points": P.round(7).tolist()}}
     fit = poses_from_landmarks(video, m.V, m.F)
-    names, P = canonical_landmarks(video, m.V, m.F)
+    names, P = fit["all_names"], fit["all_points3d"]
     video.poses = (fit["R"], fit["t"], fit["pivot"])
     info = {"poses": "landmarks", "pose_landmarks": len(fit["names"]),
             "pose_fit_rms_px": round(float(np.nanmedian(fit["rms_px"])), 3),
@@ -115,9 +117,10 @@ def registration_poses(video, poses: str = "auto", log=None) -> dict:
     return info
 
 
-def build_model(video, cfg: HFMConfig) -> HFMModel:
-    """Canonical Gaussians from the registration head mesh (one per vertex, THGS init)."""
-    m = _head_mesh(video)
+def build_model(video, cfg: HFMConfig, mesh=None) -> HFMModel:
+    """Canonical Gaussians from the registration head mesh (one per vertex, THGS init);
+    ``mesh``: that mesh loaded (default: read from the folder)."""
+    m = mesh if mesh is not None else _head_mesh(video)
     C = getattr(m, "colors", None)
     if C is None:
         raise SplatError(f"{video.mesh_path}: the head mesh needs vertex colours")
@@ -146,8 +149,9 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     video = load_video(reg_dir, need_mesh=True, frames=frames)
-    pose_info = registration_poses(video, poses, log)
-    model = build_model(video, cfg)
+    mesh = _head_mesh(video)
+    pose_info = registration_poses(video, poses, log, mesh)
+    model = build_model(video, cfg, mesh)
     model.landmarks3d = pose_info.pop("landmarks3d")  # for the usage video's landmarks (hfm_usage.usage_poses)
     targets = None
     if model.predicts_head_pose:  # what mlp_head_pose learns to read from the crop

@@ -73,7 +73,6 @@ def _frame_input(video, t: int, size: int, boxes: np.ndarray) -> tuple[Tensor, T
     return crop, torch.tensor(boxes[t:t + 1])
 
 
-@torch.no_grad()
 def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: bool = True, poses: str = "auto"):
     """Restore every frame of ``video`` (an :class:`HMDVideo`): render the avatar driven by the
     lower-face crop, in the head pose that ``poses`` says (:func:`usage_poses`); where
@@ -81,13 +80,19 @@ def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: 
     (``composite``). Streams frame by frame; returns (renders [T, H, W, 3] float32, per-frame
     seconds, including the pose fit). Writes ``out_dir/frames/*.png`` when given (each file
     complete or absent)."""
+    return _remove(model, video, out_dir, camera, composite, poses)[:2]
+
+
+@torch.no_grad()
+def _remove(model, video, out_dir, camera, composite, poses):
+    """:func:`remove_hmd`, also returning where the poses came from."""
     from dataclasses import replace
 
     from geoface.splat.hfm_data import write_frame
     from geoface.splat.rasterizer import rasterize
 
     t0 = time.perf_counter()
-    pose, _ = usage_poses(model, video, poses)
+    pose, source = usage_poses(model, video, poses)
     fit_s = (time.perf_counter() - t0) / max(len(video), 1)
     video = replace(video, poses=pose)
     cam = camera or video.camera
@@ -106,7 +111,7 @@ def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: 
             if composite and video.hmd_masks is not None:
                 img = np.where(video.hmd_masks[t][..., None], rgb, video.frames[t])
             write_frame(out, t, img)
-    return np.stack(renders), np.asarray(times)
+    return np.stack(renders), np.asarray(times), source
 
 
 @torch.no_grad()
@@ -143,9 +148,9 @@ def evaluate_hmd(model: HFMModel, video, poses: str = "auto") -> dict:
     frames themselves score there — an avatar must beat it to show it restored the expression."""
     if video.gt is None or video.hmd_masks is None:
         raise SplatError("evaluation needs gt/ and hmd_masks/ in the usage folder")
-    R, times = remove_hmd(model, video, poses=poses)
+    R, times, source = _remove(model, video, None, None, True, poses)
     out = hmd_metrics(R, video)
-    out["poses"] = usage_poses(model, video, poses)[1]
+    out["poses"] = source
     out.update(expression_motion(model, video))
     out.update(frames=len(video), fps=float(1.0 / np.median(times)), seconds_per_frame=float(np.median(times)))
     return out
