@@ -17,6 +17,7 @@
    * ``photo``: the photo itself as albedo, linearised (γ 2.2) with a per-channel gain fitted
      on the training faces (the input projected to UV, seen in image space); albedo only;
    * ``gde_upsampled``: the GDE's maps bilinearly upsampled (the super-resolution baseline);
+     ``gde_upsampled_no_hash``: the same from the GDE trained without hash encoding;
    * ``gde_hfdr``: GDE + HFDR (the model); ``gde_hfdr_no_hash``: the same without hash encoding.
    Rows per face carry ``face``; the summary rows per split carry the mean and, against each
    baseline, the number of faces the model beats;
@@ -185,6 +186,8 @@ def main(argv=None) -> int:
     ap.add_argument("--map-weights", default="1,1,1", help="GDE loss weights of albedo, micronormal, specular")
     ap.add_argument("--hfdr-map-weights", default=None, help="HFDR loss weights (default the model's)")
     ap.add_argument("--seed", type=int, default=0, help="model seed (initialisation, batches); the data stay the same")
+    ap.add_argument("--hfdr-band", choices=("full", "detail"), default=None,
+                    help="what the HFDR refines (default the model's)")
     ap.add_argument("--hash-max-res", type=int, default=None, help="finest hash-grid resolution (default the model's)")
     ap.add_argument("--hash-log2-table", type=int, default=None, help="log2 of the hash table size (default the model's)")
     ap.add_argument("--size4k", type=int, default=4096, help="size of the reconstruct-from-landmarks run (0 = skip)")
@@ -206,7 +209,8 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     emit(out, bench="eval_texture", stage="config", heads=a.heads, train=a.train, val=a.val, test=a.test, res=a.res,
          k=a.k, gde_res=a.gde_res, epochs=list(epochs), hfdr_patches=a.hfdr_patches, supersample=a.supersample,
-         map_weights=a.map_weights, hfdr_map_weights=a.hfdr_map_weights, seed=a.seed, hash_max_res=a.hash_max_res, hash_log2_table=a.hash_log2_table, device=a.device, threads=torch.get_num_threads())
+         map_weights=a.map_weights, hfdr_map_weights=a.hfdr_map_weights, seed=a.seed, hash_max_res=a.hash_max_res, hash_log2_table=a.hash_log2_table, hfdr_band=a.hfdr_band,
+         device=a.device, threads=torch.get_num_threads())
     t = time.perf_counter()
     files = {split: make_texture_dataset(out / split, n, a.res, seed=SEEDS[split], workers=a.workers, quiet=True,
                                          head_source=a.heads, supersample=a.supersample)
@@ -217,7 +221,8 @@ def main(argv=None) -> int:
     for name, use_hash in (("full", True), ("no_hash", False)):
         mdir = out / f"model_{name}"
         if not (mdir / "model.safetensors").exists():
-            hash_opts = {k: v for k, v in (("hash_max_res", a.hash_max_res), ("hash_log2_table", a.hash_log2_table)) if v}
+            hash_opts = {k: v for k, v in (("hash_max_res", a.hash_max_res), ("hash_log2_table", a.hash_log2_table),
+                                           ("hfdr_band", a.hfdr_band)) if v}
             nets = TextureNetConfig(use_hash=use_hash, **hash_opts)
             hw = {"hfdr_map_weights": tuple(float(w) for w in a.hfdr_map_weights.split(","))} if a.hfdr_map_weights else {}
             cfg = TextureTrainConfig(nets=nets, gde_res=a.gde_res, k=a.k,
@@ -229,7 +234,8 @@ def main(argv=None) -> int:
                  final={k: round(v[-1], 5) for k, v in info["history"].items() if v},
                  first={k: round(v[0], 5) for k, v in info["history"].items() if v})
         models[name] = TextureModel.load(mdir)
-    variants = {"constant": None, "photo": None, "gde_upsampled": ("full", False), "gde_hfdr": ("full", True),
+    variants = {"constant": None, "photo": None, "gde_upsampled": ("full", False),
+                "gde_upsampled_no_hash": ("no_hash", False), "gde_hfdr": ("full", True),
                 "gde_hfdr_no_hash": ("no_hash", True)}
     for split in a.splits.split(","):
         per: dict = {v: [] for v in variants}

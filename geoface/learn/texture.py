@@ -176,6 +176,12 @@ def _check_sizes(H: int, cfg: TextureTrainConfig) -> None:
         raise LearnError(f"gde_res={cfg.gde_res} must be <= the image size {H} and divisible by {m_gde}")
 
 
+def _texels(size: int, H: int, gde_res: int) -> tuple[int, int]:
+    """How many GDE texels a square patch of ``size`` full-resolution pixels spans."""
+    n = max(int(round(size * gde_res / H)), 1)
+    return n, n
+
+
 def _masked_l1(a, b, m):
     return ((a - b).abs() * m).sum() / (m.sum() * a.shape[1]).clamp_min(1)
 
@@ -300,7 +306,7 @@ def train_texture(data_dir, out_dir, cfg: TextureTrainConfig | None = None, *, q
                 ns.append(guidance_crop(p_n[i:i + 1], (H, H), box))
                 gs.append(guidance_crop(guide[i:i + 1], (H, H), box))
         cat = lambda a: torch.cat(a).to(device)  # noqa: E731
-        out = model.hfdr(cat(xs), cat(uvs), cat(ns), cat(gs))
+        out = model.hfdr(cat(xs), cat(uvs), cat(ns), cat(gs), grid=_texels(P, H, cfg.gde_res))
         m = cat(ms) * wmap_hfdr
         loss, _ = map_loss(out * m, cat(ts) * m, 2.0)  # L1 + 2·Laplacian
         return loss
@@ -336,7 +342,8 @@ def reconstruct(model: TextureModel, photo: np.ndarray, *, k: int | None = None,
         def patch(i, j, ys, xs):
             box = (ys, xs)
             out = model.hfdr(x[:, :, ys, xs].to(device), guidance_crop(uv, (H, H), box),
-                             guidance_crop(nrm, (H, H), box), guidance_crop(guide, (H, H), box))
+                             guidance_crop(nrm, (H, H), box), guidance_crop(guide, (H, H), box),
+                             grid=_texels(ys.stop - ys.start, H, r))
             return out[0].cpu().numpy()
         maps = stream_patches(patch, (H, H), k, N_MAPS)
         if smooth:

@@ -5,6 +5,7 @@ Heavy imports (torch) happen inside the command functions.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -91,7 +92,7 @@ def cmd_train(args) -> int:
     epochs = _three(args.epochs, int, "--epochs must be three counts like 20,20,20 (predictor, GDE, HFDR)")
     weights = _three(args.map_weights, float, "--map-weights must be three weights like 1,4,1 (albedo, micronormal, specular)")
     hfdr_w = _three(args.hfdr_map_weights, float, "--hfdr-map-weights must be three weights like 1,8,1 (albedo, micronormal, specular)")
-    cfg = TextureTrainConfig(nets=TextureNetConfig(use_hash=not args.no_hash), gde_res=args.gde_res, k=args.k,
+    cfg = TextureTrainConfig(nets=TextureNetConfig(use_hash=not args.no_hash, hfdr_band=args.hfdr_band), gde_res=args.gde_res, k=args.k,
                              epochs=epochs, lr=args.lr, batch=args.batch, seed=args.seed, map_weights=weights,
                              hfdr_map_weights=hfdr_w)
     if args.init is not None:  # the networks' sizes come from the model trained before
@@ -100,7 +101,7 @@ def cmd_train(args) -> int:
         if nets.use_hash == args.no_hash:
             raise GeofaceError(f"{args.init} was trained {'with' if nets.use_hash else 'without'} hash encoding; "
                                "--no-hash must match it")
-        cfg.nets = nets
+        cfg.nets = dataclasses.replace(nets, hfdr_band=args.hfdr_band)  # sizes from it, the band as asked
     info = train_texture(args.data_dir, args.output, cfg, quiet=_quiet(args), init=args.init)
     last = {k: (f"{v[-1]:.4f}" if v else "-") for k, v in info["history"].items()}
     print(f"{args.output}: {info['samples']} samples of {info['size']}², {info['seconds']:.1f} s; final losses "
@@ -195,6 +196,8 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="GDE loss weights of albedo, micronormal, specular (default equal, as the paper)")
     t.add_argument("--hfdr-map-weights", default="1,8,1", metavar="A,M,S",
                    help="HFDR loss weights of albedo, micronormal, specular (default 1,8,1, chosen on validation faces)")
+    t.add_argument("--hfdr-band", choices=("full", "detail"), default="full",
+                   help="what the HFDR refines: every band, or only the detail finer than the GDE's texels")
     t.add_argument("--init", default=None, metavar="MODEL_DIR",
                    help="start from this trained model's weights (e.g. --epochs 0,0,20 trains its HFDR further)")
     t.add_argument("--seed", type=SEED, default=0)

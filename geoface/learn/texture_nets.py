@@ -25,6 +25,7 @@ from .errors import LearnError
 from geoface.nn.hashenc import HashEncoding
 from geoface.nn.losses import laplacian_loss
 
+HFDR_BANDS = ("full", "detail")
 MAPS = {"albedo": slice(0, 3), "micronormal": slice(3, 6), "specular": slice(6, 7)}
 N_MAPS = 7
 
@@ -119,6 +120,14 @@ class TextureNetConfig:
     hash_base_res: int = 16
     hash_max_res: int = 128  # finest grid; 1024 overfitted 64 faces (docs/textures.md)
     use_hash: bool = True
+    #: what the HFDR may change: "full" (any frequency) or "detail" (only what the GDE's grid
+    #: cannot hold: its residual minus the residual's own average over each GDE texel, so the
+    #: refined maps keep the GDE's low band); see docs/textures.md
+    hfdr_band: str = "full"
+
+    def __post_init__(self):
+        if self.hfdr_band not in HFDR_BANDS:
+            raise LearnError(f"hfdr_band must be one of {', '.join(HFDR_BANDS)}; got {self.hfdr_band!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -127,7 +136,8 @@ class TextureNetConfig:
     def from_dict(cls, d: dict, where: str = "config.json (nets)") -> "TextureNetConfig":
         from geoface.nn.config import config_from_dict
 
-        return config_from_dict(cls, d, where=where, unknown="ignore")
+        # models saved before the option existed refine every band
+        return config_from_dict(cls, {"hfdr_band": "full", **d}, where=where, unknown="ignore")
 
 
 class NormalUVPredictor(nn.Module):
@@ -169,10 +179,20 @@ class HFDR(nn.Module):
         # adds noise that training can settle into keeping instead of learning detail
         nn.init.zeros_(self.net.head[-1].weight)
         nn.init.zeros_(self.net.head[-1].bias)
+        self.band = cfg.hfdr_band
 
-    def forward(self, patch: Tensor, uv: Tensor, normal: Tensor, guidance: Tensor) -> Tensor:
+    def forward(self, patch: Tensor, uv: Tensor, normal: Tensor, guidance: Tensor,
+                grid: tuple[int, int] | None = None) -> Tensor:
+        """``grid``: how many GDE texels the patch spans (rows, cols); needed when
+        ``hfdr_band`` is "detail" (the patch must be aligned to the GDE's texels)."""
         raw = self.net(torch.cat([patch, uv, normal], 1), late=guidance)
         # residual on the guidance: refine, not re-predict, the coarse maps
-        out = (guidance + torch.tanh(raw) * 0.5).clamp(0, 1)
+        res = torch.tanh(raw) * 0.5
+        if self.band == "detail":
+            if grid is None:
+                raise LearnError("the HFDR refines detail only: pass grid, the patch's size in GDE texels")
+            low = Fnn.interpolate(res, size=tuple(grid), mode="area")  # the residual's mean per texel
+            res = res - Fnn.interpolate(low, size=res.shape[-2:], mode="nearest")
+        out = (guidance + res).clamp(0, 1)
         n = Fnn.normalize(out[:, 3:6] * 2 - 1, dim=1, eps=1e-6)  # keep micronormals unit length
         return torch.cat([out[:, 0:3], n * 0.5 + 0.5, out[:, 6:7]], 1)

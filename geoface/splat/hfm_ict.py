@@ -35,7 +35,7 @@ import numpy as np
 
 from geoface.splat.errors import SplatError
 
-__all__ = ["arkit_curves", "make_ict_hmd", "ICT_PARTS", "is_upper_blendshape"]
+__all__ = ["arkit_curves", "make_ict_hmd", "ICTPerson", "ICT_PARTS", "is_upper_blendshape"]
 
 #: the model's parts that are rendered (and become Gaussians)
 ICT_PARTS = ("skin", "eyes", "teeth", "mouth")
@@ -149,6 +149,88 @@ def _box_mean(a: np.ndarray, ss: int) -> np.ndarray:
     return a.reshape(H // ss, ss, W // ss, ss, *a.shape[2:]).mean((1, 3))
 
 
+class ICTPerson:
+    """One lit ICT-FaceKit person before a fixed camera (what the synthetic captures render).
+
+    Built from ``rng`` (in this order: identity unless given, eyes, skin maps, lights), so a seed
+    gives the same person.  :meth:`render` poses the model rigidly about the neck ``pivot``."""
+
+    def __init__(self, rng, *, identity=None, res: int = 128, map_res: int = 512, supersample: int = 2):
+        from geoface.nn.camera import Camera, look_at
+        from geoface.skin.render import _ict_eyes, _ict_source, random_lights, skin_maps, unweld_uv
+        from geoface.splat.hfm_data import headset_mesh
+
+        if supersample < 1 or res < 16:
+            raise SplatError(f"need res >= 16 and supersample >= 1; got {res}, {supersample}")
+        model, regions = _ict_source(map_res)
+        if identity is None:
+            ident = rng.standard_normal(model.n_identities)
+        else:
+            ident = np.zeros(model.n_identities)
+            given = np.asarray(identity, np.float64).ravel()
+            if len(given) > model.n_identities or not np.isfinite(given).all():
+                raise SplatError(f"identity: up to {model.n_identities} finite weights; got {len(given)}")
+            ident[:len(given)] = given
+        self.model, self.ident = model, ident
+        self.rest = rest = model.head(identity=ident, parts=ICT_PARTS)
+        lab = rest.labels
+        self.V0 = V0 = rest.V * _CM
+        Vu, self.Fu, self.UVu, self.src = unweld_uv(rest.V, rest.F, rest.UV, rest.FUV, with_source=True)
+        self.eyes = _ict_eyes(model.shape(ident, parts=ICT_PARTS), self.src, rest, rng)
+        self.maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)), regions=regions)
+        self.lights = random_lights(rng, int(rng.integers(2, 4)))
+        self.solids = [(lab[self.src] == k, c, s) for k, (c, s) in _SOLIDS.items()]
+        L0 = V0[rest.landmarks]
+        y_eye = float(L0[36:48, 1].mean())
+        y_nose = float(L0[30, 1])
+        self.y_split = y_eye - 0.4 * (y_eye - y_nose)
+        self.front = float(V0[lab <= 1, 2].max())
+        chin = L0[8]
+        self.pivot = np.array([0.0, chin[1] - 0.04, float(V0[lab == 2, 2].mean())])  # the neck
+        target = np.array([0.0, 0.5 * (y_eye + chin[1]) + 0.01, float(L0[:, 2].mean())])
+        self.cam = cam = look_at(target + [0, 0, 0.45], target, width=res, height=res, fov_y_deg=36.0)
+        self.ss = ss = int(supersample)
+        self.cam_ss = Camera(cam.fx * ss, cam.fy * ss, cam.cx * ss, cam.cy * ss, res * ss, res * ss, cam.R, cam.t)
+        self.hV, self.hF = headset_mesh(self.y_split, self.front)
+
+    def shape(self, expr: dict) -> np.ndarray:
+        """The person's vertices (metres, canonical pose) under ARKit weights ``expr``."""
+        return self.model.shape(self.ident, expr, parts=ICT_PARTS) * _CM
+
+    def render(self, expr: dict, R, tr, headset: bool = False):
+        """→ (posed vertices, RGB [res, res, 3], alpha [res, res], headset mask or None): the
+        person with expression ``expr`` turned by ``R`` about the neck and moved by ``tr``."""
+        from geoface.mesh.core import vertex_normals
+        from geoface.skin.render import render_skin_sample
+
+        V = self.shape(expr)
+        V = (V - self.pivot) @ np.asarray(R).T + self.pivot + tr
+        src, Fu = self.src, self.Fu
+        N = vertex_normals(V, self.rest.F)[src]
+        Vr, Fr, UVr, Nr = V[src], Fu, self.UVu, N
+        sol = list(self.solids)
+        if headset:
+            Vh = (self.hV - self.pivot) @ np.asarray(R).T + self.pivot + tr
+            Vr = np.concatenate([Vr, Vh])
+            Fr = np.concatenate([Fu, self.hF + len(src)])
+            UVr = np.concatenate([UVr, np.zeros((len(Vh), 2))])
+            Nr = np.concatenate([Nr, vertex_normals(Vh, self.hF)])
+            sol = [(np.r_[m, np.zeros(len(Vh), bool)], c, s) for m, c, s in sol]
+            sol.append((np.r_[np.zeros(len(src), bool), np.ones(len(Vh), bool)], *_HEADSET))
+        ey = {k: (np.r_[v, np.zeros(len(Vr) - len(v), v.dtype)] if k in ("eyeball", "socket", "cos") else v)
+              for k, v in self.eyes.items()}
+        s = render_skin_sample(Vr, Fr, UVr, self.maps, self.cam_ss, self.lights, normals=Nr, eyes=ey, solids=sol)
+        ss = self.ss
+        alpha = _box_mean(s["mask"].astype(np.float32), ss)
+        rgb = _box_mean(s["photo"].astype(np.float64) ** 2.2, ss) ** (1 / 2.2)
+        hmd = _box_mean((s["face"] >= len(Fu)).astype(np.float32), ss) > 0.5 if headset else None
+        return V, rgb.astype(np.float32), alpha, hmd
+
+    def init_mesh(self, target: int):
+        """The canonical head for Gaussians: vertices, faces, colours (see :func:`_init_mesh`)."""
+        return _init_mesh(self.V0, self.rest, self.src, self.UVu, self.maps, self.eyes, self.solids, target)
+
+
 def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res: int = 128, identity=None,
                  seed: int = 0, motion: float = 1.0, jitter: float = 1.0, fps: float = 25.0, map_res: int = 512,
                  gaussians: int = 12000, supersample: int = 2, quiet: bool | None = None) -> tuple[Path, Path]:
@@ -158,75 +240,18 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
 
     ``identity``: the model's identity weights (a sequence of up to 100 numbers) or None (drawn
     from ``seed``); ``gaussians``: vertices of ``head.ply``, the decimated canonical head."""
-    from geoface.skin.render import _ict_eyes, _ict_source, random_lights, skin_maps, unweld_uv
     from geoface.mesh.io import save_mesh
-    from geoface.nn.camera import Camera, look_at
     from geoface.progress import progress
-    from geoface.splat.hfm_data import (IBUG68_NAMES, IBUG68_LOWER, _rot, _write_png, camera_to_json,
-                                        headset_mesh)
+    from geoface.splat.hfm_data import IBUG68_NAMES, IBUG68_LOWER, _rot, _write_png, camera_to_json
 
     usage_frames = max(5, frames // 4) if usage_frames is None else int(usage_frames)
     if frames < 5 or usage_frames < 1:
         raise SplatError(f"need frames >= 5 and usage_frames >= 1; got {frames}, {usage_frames}")
-    if supersample < 1 or res < 16:
-        raise SplatError(f"need res >= 16 and supersample >= 1; got {res}, {supersample}")
     out = Path(out)
     rng = np.random.default_rng([seed, 7101])
-    model, regions = _ict_source(map_res)
-    if identity is None:
-        ident = rng.standard_normal(model.n_identities)
-    else:
-        ident = np.zeros(model.n_identities)
-        given = np.asarray(identity, np.float64).ravel()
-        if len(given) > model.n_identities or not np.isfinite(given).all():
-            raise SplatError(f"identity: up to {model.n_identities} finite weights; got {len(given)}")
-        ident[:len(given)] = given
-    rest = model.head(identity=ident, parts=ICT_PARTS)
-    lab = rest.labels
-    V0 = rest.V * _CM
-    Vu, Fu, UVu, src = unweld_uv(rest.V, rest.F, rest.UV, rest.FUV, with_source=True)
-    eyes = _ict_eyes(model.shape(ident, parts=ICT_PARTS), src, rest, rng)
-    maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)), regions=regions)
-    lights = random_lights(rng, int(rng.integers(2, 4)))
-    solids = [(lab[src] == k, c, s) for k, (c, s) in _SOLIDS.items()]
-    lmk = rest.landmarks
-    L0 = V0[lmk]
-    y_eye = float(L0[36:48, 1].mean())
-    y_nose = float(L0[30, 1])
-    y_split = y_eye - 0.4 * (y_eye - y_nose)
-    front = float(V0[lab <= 1, 2].max())
-    chin = L0[8]
-    pivot = np.array([0.0, chin[1] - 0.04, float(V0[lab == 2, 2].mean())])  # the neck
-    target = np.array([0.0, 0.5 * (y_eye + chin[1]) + 0.01, float(L0[:, 2].mean())])
-    cam = look_at(target + [0, 0, 0.45], target, width=res, height=res, fov_y_deg=36.0)
-    ss = int(supersample)
-    cam_ss = Camera(cam.fx * ss, cam.fy * ss, cam.cx * ss, cam.cy * ss, res * ss, res * ss, cam.R, cam.t)
-    hV, hF = headset_mesh(y_split, front)
-    from geoface.mesh.core import vertex_normals
-
-    def render(expr, R, tr, headset: bool):
-        V = model.shape(ident, expr, parts=ICT_PARTS) * _CM
-        V = (V - pivot) @ R.T + pivot + tr
-        N = vertex_normals(V, rest.F)[src]
-        Vr, Fr, UVr, Nr = V[src], Fu, UVu, N
-        sol = list(solids)
-        if headset:
-            Vh = (hV - pivot) @ R.T + pivot + tr
-            Vr = np.concatenate([Vr, Vh])
-            Fr = np.concatenate([Fu, hF + len(src)])
-            UVr = np.concatenate([UVu, np.zeros((len(hV), 2))])
-            Nr = np.concatenate([Nr, vertex_normals(Vh, hF)])
-            sol = [(np.r_[m, np.zeros(len(hV), bool)], c, s) for m, c, s in sol]
-            sol.append((np.r_[np.zeros(len(src), bool), np.ones(len(hV), bool)], *_HEADSET))
-        ey = {k: (np.r_[v, np.zeros(len(Vr) - len(v), v.dtype)] if k in ("eyeball", "socket", "cos") else v)
-              for k, v in eyes.items()}
-        from geoface.skin.render import render_skin_sample
-
-        s = render_skin_sample(Vr, Fr, UVr, maps, cam_ss, lights, normals=Nr, eyes=ey, solids=sol)
-        alpha = _box_mean(s["mask"].astype(np.float32), ss)
-        rgb = _box_mean(s["photo"].astype(np.float64) ** 2.2, ss) ** (1 / 2.2)
-        hmd = _box_mean((s["face"] >= len(Fu)).astype(np.float32), ss) > 0.5 if headset else None
-        return V, rgb.astype(np.float32), alpha, hmd
+    person = ICTPerson(rng, identity=identity, res=res, map_res=map_res, supersample=supersample)
+    ident, lmk, cam, pivot, y_split = person.ident, person.rest.landmarks, person.cam, person.pivot, person.y_split
+    render = person.render
 
     n_all = frames + usage_frames
     rng_r, rng_u = (np.random.default_rng([seed, 7102, k]) for k in range(2))
@@ -274,9 +299,9 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
         (d / "camera.json").write_text(json.dumps(camera_to_json(cam)))
         (d / "meta.json").write_text(json.dumps({
             "y_split": y_split, "up": [0, 1, 0], "source": "ICT-FaceKit", "seed": seed, "fps": fps,
-            "identity": [round(float(x), 5) for x in ident], "lights": [a.tolist() for a in lights],
+            "identity": [round(float(x), 5) for x in ident], "lights": [a.tolist() for a in person.lights],
             "upper_blendshapes": sorted(n for n in exprs[0] if is_upper_blendshape(n)), "frames": log[which]}))
-    Vi, Fi, Ci = _init_mesh(V0, rest, src, UVu, maps, eyes, solids, gaussians)
+    Vi, Fi, Ci = person.init_mesh(gaussians)
     save_mesh(dirs["registration"] / "head.ply", V=Vi, F=Fi, colors=Ci)
     return dirs["registration"], dirs["usage"]
 

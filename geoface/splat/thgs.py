@@ -227,6 +227,7 @@ class THGSModel(nn.Module):
         self.register_buffer("audio_scale", torch.ones(audio_dim))
         J, K = len(tpl.joints), tpl.n_expr
         self.d_rot = nn.Parameter(torch.zeros(n_frames, J, 3))     # per-frame pose corrections
+        self.d_transl = nn.Parameter(torch.zeros(n_frames, 3))    # … and root translation corrections
         self.d_expr = nn.Parameter(torch.zeros(n_frames, K))      # per-frame expression corrections
         self.stage = 4  # all parts on (training sets it)
 
@@ -241,6 +242,7 @@ class THGSModel(nn.Module):
         if frame is not None and len(self.d_rot):
             if self.stage >= 1:
                 rot = rot + self.d_rot[frame]
+                transl = transl + self.d_transl[frame]
             if self.stage >= 2:
                 expr = expr + self.d_expr[frame]
         Xc = g.means
@@ -309,6 +311,8 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
                              "opacity_logits": 2.5e-2, "colors": 1e-2}, eps=1e-15)
     opt.add_param_group({"params": [model.skin.offsets], "lr": cfg.lr_nets * 0.1, "name": "skin"})
     opt.add_param_group({"params": [model.d_rot, model.d_expr], "lr": cfg.lr_pose, "name": "pose"})
+    # translation corrections in metres: the rotation's rate times the head's size
+    opt.add_param_group({"params": [model.d_transl], "lr": cfg.lr_pose * ext, "name": "pose_t"})
     opt.add_param_group({"params": [model.leb.delta], "lr": cfg.lr_nets * 0.01, "name": "leb"})
     if model.saam is not None:
         opt.add_param_group({"params": list(model.saam.parameters()), "lr": cfg.lr_nets, "name": "saam"})
@@ -338,7 +342,7 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
         loss.backward()
         for grp in opt.param_groups:  # staged schedule: parts not yet switched on keep still
             name = grp["name"]
-            on = {"skin": model.stage >= 1, "pose": model.stage >= 1, "leb": model.stage >= 3 and cfg.use_leb,
+            on = {"skin": model.stage >= 1, "pose": model.stage >= 1, "pose_t": model.stage >= 1, "leb": model.stage >= 3 and cfg.use_leb,
                   "saam": model.stage >= 4}.get(name, True)
             if not on:
                 for p in grp["params"]:
@@ -380,6 +384,7 @@ def load_thgs(model_dir) -> THGSModel:
         g = Gaussians(sd["gaussians.means"], sd["gaussians.log_scales"], sd["gaussians.quats"],
                       sd["gaussians.opacity_logits"], sd["gaussians.colors"], sd["gaussians.parent"])
         model = THGSModel(tpl, cfg, int(meta["audio_dim"]), int(meta["n_frames"]), g)
+        sd.setdefault("d_transl", torch.zeros_like(model.d_transl))  # saved before translation corrections
         model.load_state_dict(sd, strict=True)
     except (KeyError, RuntimeError) as e:
         raise SplatError(f"{d}: weights do not match config.json ({str(e).splitlines()[0][:160]})") from None
@@ -431,6 +436,39 @@ def render_frames(model: THGSModel, camera, rot, transl, expr, audio, frames=Non
     return np.stack(out), np.asarray(times)
 
 
+def head_pose_errors(template, rot, transl, true_rot, true_transl) -> dict:
+    """Per-frame error of the head's rigid motion against the truth, whichever joints carry it:
+    the transform of the template's head joint (the jaw's parent) from each pose — the angle
+    between the rotations (degrees) and the distance (mm) the head's centre lands apart —
+    mean, median and max over the frames."""
+    from scipy.spatial.transform import Rotation
+
+    joints = torch.tensor(template.joints)
+    h = int(template.parents[template.jaw]) if template.jaw >= 0 else len(template.joints) - 1
+    c = torch.tensor(template.V[template.head_mask].mean(0) if template.head_mask.any() else template.V.mean(0))
+    ang, dist = [], []
+    for r, t, r0, t0 in zip(rot, transl, true_rot, true_transl):
+        A = joint_transforms(joints, template.parents, torch.as_tensor(r, dtype=torch.float64),
+                             torch.as_tensor(t, dtype=torch.float64))[h]
+        B = joint_transforms(joints, template.parents, torch.as_tensor(r0, dtype=torch.float64),
+                             torch.as_tensor(t0, dtype=torch.float64))[h]
+        ang.append(Rotation.from_matrix((A[:3, :3] @ B[:3, :3].T).numpy()).magnitude())
+        dist.append(float(torch.linalg.norm(A[:3, :3] @ c + A[:3, 3] - B[:3, :3] @ c - B[:3, 3])))
+    ang, dist = np.degrees(ang), np.asarray(dist) * 1000
+    return {"rot_deg_mean": float(ang.mean()), "rot_deg_median": float(np.median(ang)), "rot_deg_max": float(ang.max()),
+            "mm_mean": float(dist.mean()), "mm_median": float(np.median(dist)), "mm_max": float(dist.max())}
+
+
+def corrected_poses(model: THGSModel, rot, transl):
+    """The training frames' poses with the model's learned per-frame corrections added."""
+    n = min(len(rot), len(model.d_rot))
+    r = np.array(rot, np.float64, copy=True)
+    t = np.array(transl, np.float64, copy=True)
+    r[:n] += model.d_rot.detach().double().numpy()[:n]
+    t[:n] += model.d_transl.detach().double().numpy()[:n]
+    return r, t
+
+
 def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
     """Held-out frames (the last ``heldout`` fraction): PSNR/SSIM over the person, PSNR of the mouth
     rectangle, and lip sync — the correlation of the rendered mouth's openness
@@ -465,7 +503,16 @@ def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
     corr = lambda a, b: float(np.corrcoef(a, b)[0, 1]) if np.std(a) > 0 and np.std(b) > 0 else 0.0  # noqa: E731
     out.update(lipsync_corr=corr(open_r, env), lipsync_corr_real=corr(open_g, env),
                mouth_open_mae=float(np.mean(np.abs(np.asarray(open_r) - np.asarray(open_g)))),
+               mouth_open_std=float(np.std(open_r)), mouth_open_std_real=float(np.std(open_g)),
                frames=len(te), fps=float(1 / np.median(times)))
+    truth = Path(data.meta.get("_folder", "")) / "poses_true.npz"
+    if truth.is_file():  # a capture with perturbed tracking: how far the corrections took the poses
+        tr, _ = _split(len(data), h)
+        with np.load(truth, allow_pickle=False) as z:
+            r0, t0 = np.asarray(z["rot"])[tr], np.asarray(z["transl"])[tr]
+        r1, t1 = corrected_poses(model, data.rot, data.transl)
+        out["pose_before"] = head_pose_errors(model.template, data.rot[tr], data.transl[tr], r0, t0)
+        out["pose_after"] = head_pose_errors(model.template, r1[tr], t1[tr], r0, t0)
     return out
 
 

@@ -18,15 +18,33 @@ from geoface._args import SEED, add_json, json_to_stdout, number, write_json
 def cmd_talk_synth(args) -> int:
     from .thgs_data import make_synthetic_talking
 
+    perturb = (0.0, 0.0)
+    if args.perturb is not None:
+        try:
+            perturb = tuple(float(x) for x in args.perturb.split(","))
+        except ValueError:
+            perturb = ()
+        if len(perturb) != 2 or not all(0 <= x < 90 for x in perturb):
+            raise GeofaceError(f"--perturb: degrees,millimetres like 3,5 (each in [0, 90)); got {args.perturb!r}")
+        if args.head != "ict":
+            raise GeofaceError("--perturb needs --head ict (its captures keep the true poses beside the tracked ones)")
     out = Path(args.output)
     if out.exists() and any(out.iterdir()):
         raise GeofaceError(f"{out} exists and is not empty; choose a new folder")
     from geoface._io import atomic_dir
 
     with atomic_dir(out, overwrite=True) as tmp:  # complete or absent: a failure leaves nothing
-        make_synthetic_talking(tmp, seconds=args.seconds, fps=args.fps, res=args.res, n_vertices=args.vertices,
-                               seed=args.seed, quiet=_quiet(args))
-    print(f"{out}: synthetic talking head, {args.seconds:g} s at {args.fps:g} fps, {args.res}² (audio.wav, poses.npz)")
+        if args.head == "ict":
+            from .thgs_ict import make_ict_talking
+
+            make_ict_talking(tmp, seconds=args.seconds, fps=args.fps, res=args.res, n_vertices=args.vertices,
+                             seed=args.seed, perturb=perturb, quiet=_quiet(args))
+        else:
+            make_synthetic_talking(tmp, seconds=args.seconds, fps=args.fps, res=args.res, n_vertices=args.vertices,
+                                   seed=args.seed, quiet=_quiet(args))
+    what = "ICT-FaceKit person" if args.head == "ict" else "synthetic talking head"
+    extra = f", tracking off by {perturb[0]:g}° / {perturb[1]:g} mm per frame" if any(perturb) else ""
+    print(f"{out}: {what}, {args.seconds:g} s at {args.fps:g} fps, {args.res}² (audio.wav, poses.npz){extra}")
     return 0
 
 
@@ -96,7 +114,11 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     s.add_argument("--seconds", type=number(float, 0, 3600, lo_open=True), default=8.0)
     s.add_argument("--fps", type=number(float, 0, 240, lo_open=True), default=25.0)
     s.add_argument("--res", type=number(int, 16, 4096), default=128)
-    s.add_argument("--vertices", type=number(int, 1000, 200_000), default=6000)
+    s.add_argument("--vertices", type=number(int, 1000, 200_000), default=6000, help="template vertices (Gaussians)")
+    s.add_argument("--head", choices=("procedural", "ict"), default="procedural",
+                   help="procedural head, or an ICT-FaceKit person (lit skin, eyes, teeth; ARKit blendshapes)")
+    s.add_argument("--perturb", default=None, metavar="DEG,MM",
+                   help="ict: each frame's tracked head pose off by DEG degrees and MM millimetres (true poses kept)")
     s.add_argument("--seed", type=SEED, default=0)
     s.set_defaults(func=cmd_talk_synth)
     t = hs.add_parser("train", parents=[common], help="fit a talking avatar to a data folder")

@@ -103,3 +103,34 @@ def test_map_loss_parts():
     _, _, _, t = _batch()
     loss, parts = map_loss(t, t)
     assert float(loss) == 0 and parts["albedo"] == 0 and set(parts) >= {"micronormal", "specular", "laplacian"}
+
+
+def test_detail_band_hfdr_keeps_the_gde_texel_means():
+    """With hfdr_band="detail" the refiner's change to albedo and specular averages to zero over
+    every GDE texel the patch spans (it adds only what the GDE grid cannot hold); a "full" band
+    refiner with the same weights shifts those means."""
+    rgb, uv, n, target = _batch()
+    guide = torch.full_like(target, 0.5)
+    outs = {}
+    for band in ("full", "detail"):
+        torch.manual_seed(3)
+        net = HFDR(TextureNetConfig(**{**CFG.to_dict(), "hfdr_band": band}))
+        for p in net.parameters():  # away from the zero start, so the residual is not zero
+            torch.nn.init.normal_(p, std=0.2)
+        with torch.no_grad():
+            outs[band] = net(rgb, uv, n, guide, grid=(8, 8))  # 32² patch over 8² texels
+    for band, out in outs.items():
+        means = torch.nn.functional.avg_pool2d(out - guide, 4)[:, [0, 1, 2, 6]]
+        change = (out - guide)[:, [0, 1, 2, 6]].abs().mean()
+        assert float(change) > 1e-3, band  # both refine
+        if band == "detail":
+            assert float(means.abs().max()) < 1e-6
+        else:
+            assert float(means.abs().max()) > 1e-3
+    with pytest.raises(LearnError, match="grid"):
+        HFDR(TextureNetConfig(**{**CFG.to_dict(), "hfdr_band": "detail"}))(rgb, uv, n, guide)
+    with pytest.raises(LearnError, match="hfdr_band"):
+        TextureNetConfig(hfdr_band="low")
+    # a model saved before the option existed refines every band
+    old = {k: v for k, v in CFG.to_dict().items() if k != "hfdr_band"}
+    assert TextureNetConfig.from_dict(old).hfdr_band == "full"

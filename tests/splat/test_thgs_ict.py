@@ -1,0 +1,118 @@
+"""THGS on ICT-FaceKit heads: the template's jaw and eyes, the talking captures, perturbed tracking."""
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from geoface.splat.hfm_ict import ICTPerson  # noqa: E402
+from geoface.splat.kinematics import joint_transforms  # noqa: E402
+from geoface.splat.thgs import head_pose_errors  # noqa: E402
+from geoface.splat.thgs_ict import (JOINT_NAMES, ict_template, is_mouth_blendshape, make_ict_talking,  # noqa: E402
+                                    perturb_capture)
+from geoface.splat.errors import SplatError  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def person_tpl():
+    person = ICTPerson(np.random.default_rng(3), res=32, map_res=128, supersample=1)
+    tpl, info = ict_template(person, 1500)
+    return person, tpl, info
+
+
+def _pose(tpl, rot, transl=None):
+    A = joint_transforms(torch.tensor(tpl.joints), tpl.parents, torch.tensor(rot),
+                         None if transl is None else torch.tensor(transl))
+    M = torch.einsum("nj,jab->nab", torch.tensor(tpl.weights), A).numpy()
+    return (M[:, :3, :3] @ tpl.V[..., None])[..., 0] + M[:, :3, 3]
+
+
+def test_jaw_hinge_and_weights_reproduce_the_model_s_jaw_opening(person_tpl):
+    """Rotating the fitted jaw joint by the fitted angle moves the template's vertices as the
+    model's own jawOpen blendshape does (to a tenth of its motion on the parts that move), and
+    the hinge sits where a jaw's does: behind the mouth, between the chin and the eyes."""
+    person, tpl, info = person_tpl
+    from scipy.spatial import cKDTree
+
+    rv = np.asarray(info["jaw_rotvec"])
+    assert 8 < np.degrees(np.linalg.norm(rv)) < 30  # a full opening turns the jaw 8–30°
+    assert abs(rv[0]) > 0.9 * np.linalg.norm(rv)  # about the left-right axis
+    rot = np.zeros((len(JOINT_NAMES), 3))
+    rot[tpl.jaw] = rv
+    moved = _pose(tpl, rot) - tpl.V
+    _, near = cKDTree(person.V0).query(tpl.V)
+    want = (person.shape({"jawOpen": 1.0}) - person.V0)[near]
+    big = np.linalg.norm(want, axis=1) > 0.3 * np.linalg.norm(want, axis=1).max()
+    err = np.linalg.norm(moved - want, axis=1)[big].mean() / np.linalg.norm(want, axis=1)[big].mean()
+    assert err < 0.2, err
+    lm = person.V0[person.rest.landmarks]
+    hinge = tpl.joints[tpl.jaw]
+    assert lm[8, 1] < hinge[1] < lm[36:48, 1].mean() + 0.01  # between chin and eyes
+    assert hinge[2] < lm[48:68, 2].min() - 0.03  # well behind the lips
+    # above the eyes the head barely moves with the jaw (as in the blendshape: skin stretch only)
+    top = tpl.V[:, 1] > lm[36:48, 1].mean()
+    assert np.linalg.norm(moved[top], axis=1).max() < 0.02 * np.linalg.norm(moved, axis=1).max()
+
+
+def test_eyes_turn_about_their_centres_and_the_root_is_the_capture_s_pivot(person_tpl):
+    person, tpl, _ = person_tpl
+    for j in (4, 5):
+        ball = tpl.weights[:, j] > 0.999
+        assert ball.sum() > 20
+        r = np.linalg.norm(tpl.V[ball] - tpl.joints[j], axis=1)
+        assert r.std() < 0.15 * r.mean() and 0.008 < r.mean() < 0.016  # a sphere of ~1.2 cm about the joint
+    # the tracker's pose (a root rotation and a translation) is the capture's rigid motion about the neck
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_euler("xyz", [0.1, -0.2, 0.05]).as_matrix()
+    t = np.array([0.004, -0.002, 0.003])
+    rot = np.zeros((len(JOINT_NAMES), 3))
+    rot[0] = Rotation.from_matrix(R).as_rotvec()
+    np.testing.assert_allclose(_pose(tpl, rot, t), (tpl.V - person.pivot) @ R.T + person.pivot + t, atol=1e-9)
+    # the basis: the model's other 52 blendshapes, in metres
+    assert tpl.n_expr == 52 and 0.002 < np.abs(tpl.expr_basis).max() < 0.05
+
+
+def test_head_pose_errors_measure_angle_and_displacement(person_tpl):
+    _, tpl, _ = person_tpl
+    from scipy.spatial.transform import Rotation
+
+    T, J = 4, len(JOINT_NAMES)
+    rot = np.zeros((T, J, 3))
+    rot[:, 0] = Rotation.from_euler("y", [[0], [5], [10], [15]], degrees=True).as_rotvec()
+    tr = np.zeros((T, 3))
+    e = head_pose_errors(tpl, rot, tr, rot, tr)
+    assert e["rot_deg_max"] < 1e-6 and e["mm_max"] < 1e-6
+    e = head_pose_errors(tpl, rot, tr + [0.005, 0, 0], rot, tr)
+    assert e["rot_deg_max"] < 1e-6 and abs(e["mm_mean"] - 5.0) < 1e-6
+    other = rot.copy()
+    other[:, 2, 0] += np.radians(2.0)  # a nod on the head joint counts as much as one on the root
+    e = head_pose_errors(tpl, other, tr, rot, tr)
+    assert abs(e["rot_deg_mean"] - 2.0) < 1e-6
+
+
+def test_talking_capture_lets_the_audio_drive_the_mouth_and_perturbs_tracking(tmp_path):
+    from geoface.splat.thgs_data import load_talking
+
+    d = make_ict_talking(tmp_path / "talk", seconds=2.0, res=32, n_vertices=1500, map_res=128, supersample=1,
+                         seed=2, quiet=True)
+    data = load_talking(d)
+    meta = json.loads((d / "meta.json").read_text())
+    assert len(data) == 50 and data.frames.shape[1:] == (32, 32, 3)
+    names = meta["expression_names"]
+    mouth = [i for i, n in enumerate(names) if is_mouth_blendshape(n)]
+    assert len(mouth) > 10 and np.abs(data.expr[:, mouth]).max() == 0  # the tracker leaves the mouth out
+    jaw, env = np.asarray(meta["jaw_open"]), np.asarray(meta["envelope"])
+    assert jaw.max() > 0.2 and np.corrcoef(jaw, env)[0, 1] > 0.5  # the loudness opens the jaw
+    truth = np.load(d / "poses_true.npz")
+    np.testing.assert_array_equal(truth["rot"], data.rot)  # no perturbation asked
+    p = perturb_capture(d, tmp_path / "pert", (3.0, 5.0), seed=1)
+    pert = load_talking(p)
+    np.testing.assert_array_equal(pert.frames, data.frames)
+    e = head_pose_errors(data.template, pert.rot, pert.transl, truth["rot"], truth["transl"])
+    assert abs(e["rot_deg_mean"] - 3.0) < 1e-6 and abs(e["rot_deg_max"] - 3.0) < 1e-6
+    # 5 mm of translation and a 3° turn about the neck, ~10 cm below the head's centre
+    assert 2.0 < e["mm_mean"] < 5.0 + 0.15 * 1000 * np.radians(3.0)
+    with pytest.raises(SplatError, match="poses_true"):
+        perturb_capture(tmp_path / "pert_missing", tmp_path / "x", (1, 1))
