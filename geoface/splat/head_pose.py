@@ -7,6 +7,10 @@ canonical head (``head.ply``, in the pose of frame 0) give each frame's rigid he
    landmark pixel meets the triangle the camera sees there (exact ray–plane intersection, so
    sub-pixel landmarks land sub-pixel on the surface); points the head does not cover (a jaw
    contour on the silhouette) are dropped;
+   the jaw's outline, though, is where the face turns away from the camera: its ray meets the
+   cheek in front of the true point (7–14 mm off on the ICT-FaceKit captures), so with the iBUG
+   68 the outline points are instead **triangulated** (:func:`triangulate`) from all frames, seen
+   through the poses that the points placed well (nose, eye corners) give (2 mm off there);
 2. :func:`solve_poses` finds per frame the rotation and translation ``X' = R (X − pivot) +
    pivot + t`` that projects those 3D points onto the frame's landmarks, by Gauss–Newton with
    a soft-L1 and then a Cauchy loss (1 px scale) from the previous frame's pose: landmarks that
@@ -19,7 +23,7 @@ import numpy as np
 
 from geoface.splat.errors import SplatError
 
-__all__ = ["landmarks_on_mesh", "solve_poses", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
+__all__ = ["landmarks_on_mesh", "solve_poses", "triangulate", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
            "rotation_vector", "LOWER_RIGID_NAMES"]
 
 #: iBUG names below a headset that move little with expressions (nose base, the jaw line's ends)
@@ -118,6 +122,31 @@ def solve_poses(camera, points3d, points2d, pivot, *, init=None, scale_px: float
     return {"R": Rs, "t": ts, "pivot": piv, "rms_px": rms, "inliers": inl}
 
 
+def triangulate(camera, poses: dict, points2d, init, *, scale_px: float = 1.0) -> np.ndarray:
+    """Canonical 3D points [K, 3] that the poses (``solve_poses``'s dict: R, t, pivot) project
+    onto ``points2d`` [T, K, 2] (NaN skipped), each by a robust (Cauchy, ``scale_px``) least
+    squares over the frames from ``init`` [K, 3]; a point seen in fewer than 2 frames keeps its
+    ``init``."""
+    from scipy.optimize import least_squares
+
+    R, t, piv = (np.asarray(poses[k], np.float64) for k in ("R", "t", "pivot"))
+    obs = np.asarray(points2d, np.float64)
+    out = np.array(init, np.float64, copy=True)
+    for k in range(obs.shape[1]):
+        ok = np.isfinite(obs[:, k]).all(1)
+        if ok.sum() < 2 or not np.isfinite(out[k]).all():
+            continue
+        Rk, tk, q = R[ok], t[ok], obs[ok, k]
+
+        def resid(X):
+            Xw = np.einsum("fij,j->fi", Rk, X - piv) + piv + tk
+            return (_project(camera, Xw) - q).ravel()
+
+        out[k] = least_squares(resid, out[k], loss="cauchy", f_scale=scale_px, method="trf", x_scale="jac",
+                               max_nfev=200).x
+    return out
+
+
 def canonical_landmarks(video, mesh_V, mesh_F, pose0=None) -> tuple[list, np.ndarray]:
     """(names, points [K, 3]) of ``video``'s frame-0 landmarks placed on the canonical head
     (frame 0 seen through its pose ``pose0`` = (R, t, pivot) when given, else the head as it is);
@@ -148,7 +177,17 @@ def poses_from_landmarks(video, mesh_V, mesh_F, *, indices=None) -> dict:
     if len(use) < 4:
         raise SplatError(f"only {len(use)} of frame 0's landmarks fall on the head mesh: cannot fit head poses "
                          "(is head.ply in frame 0's pose, and camera.json right?)")
+    pivot = P_all[[placed.index(n) for n in use]].mean(0)
+    outline = [n for n in placed if n.startswith("jaw_")] if tuple(names) == tuple(IBUG68_NAMES) else []
+    inner = [n for n in use if n not in outline]
+    if outline and len(inner) >= 4 and len(video) >= 2:
+        # the outline's rays graze the cheek: triangulate it through the poses of the inner points
+        first = solve_poses(video.camera, P_all[[placed.index(n) for n in inner]],
+                            video.landmarks[:, [names.index(n) for n in inner]], pivot)
+        k = [placed.index(n) for n in outline]
+        P_all = P_all.copy()
+        P_all[k] = triangulate(video.camera, first, video.landmarks[:, [names.index(n) for n in outline]], P_all[k])
     P3 = P_all[[placed.index(n) for n in use]]
-    out = solve_poses(video.camera, P3, video.landmarks[:, [names.index(n) for n in use]], P3.mean(0))
+    out = solve_poses(video.camera, P3, video.landmarks[:, [names.index(n) for n in use]], pivot)
     out.update(points3d=P3, names=use, all_names=placed, all_points3d=P_all)
     return out

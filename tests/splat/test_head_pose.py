@@ -10,7 +10,8 @@ import torch
 
 from geoface.nn.camera import look_at
 from geoface.splat.errors import SplatError
-from geoface.splat.head_pose import landmarks_on_mesh, poses_from_landmarks, rodrigues, rotation_vector, solve_poses
+from geoface.splat.head_pose import (landmarks_on_mesh, poses_from_landmarks, rodrigues, rotation_vector, solve_poses,
+                                     triangulate)
 from geoface.splat.hfm_data import IBUG68_LOWER, IBUG68_NAMES, LOWER_FACE_LANDMARKS, load_video
 
 
@@ -25,6 +26,31 @@ def test_rodrigues_round_trip():
         R = rodrigues(w)
         assert np.allclose(R @ R.T, np.eye(3), atol=1e-12) and np.isclose(np.linalg.det(R), 1)
         assert np.allclose(rotation_vector(R), w, atol=1e-9)
+
+
+def test_triangulation_recovers_points_a_ray_cast_misplaced():
+    """Points started 1–2 cm off along the view (a jaw outline's ray meeting the cheek) are put
+    back within 2.5 mm (1.2 mm on average; depth is what ±10° of parallax resolves least) from 40 frames of ±10° head motion and 0.5 px noise — a quarter of the
+    frames with the point moved 8 px (an expression), which the robust loss ignores."""
+    rng = np.random.default_rng(4)
+    cam = look_at([0, 0, 0.45], [0, 0, 0], width=256, height=256, fov_y_deg=36)
+    P = rng.normal(0, 1, (6, 3)) * [0.06, 0.05, 0.02] + [0, 0, 0.03]
+    piv = np.array([0.0, -0.1, 0.0])
+    T = 40
+    R = np.stack([rodrigues(rng.normal(0, 1, 3) * np.radians(6)) for _ in range(T)])
+    t = rng.normal(0, 0.004, (T, 3))
+    obs = np.stack([cam.project((P - piv) @ R[f].T + piv + t[f])[0] for f in range(T)])
+    obs += rng.normal(0, 0.5, obs.shape)
+    obs[: T // 4, :, 1] += 8.0
+    init = P + rng.choice([-1, 1], (6, 1)) * rng.uniform(0.01, 0.02, (6, 1)) * [0, 0, 1]
+    X = triangulate(cam, {"R": R, "t": t, "pivot": piv}, obs, init)
+    err = np.linalg.norm(X - P, axis=1)
+    assert err.max() < 2.5e-3 and err.mean() < 1.2e-3
+    assert np.linalg.norm(init - P, axis=1).min() > 9e-3
+    # a point seen in one frame only keeps its start
+    lone = obs.copy()
+    lone[1:, 0] = np.nan
+    assert np.array_equal(triangulate(cam, {"R": R, "t": t, "pivot": piv}, lone, init)[0], init[0])
 
 
 def test_pnp_recovers_poses_through_noise_and_moving_points():

@@ -1,0 +1,85 @@
+"""Pictures of the avatars on ICT-FaceKit captures for the docs, each frame beside its truth.
+
+    python data_tools/avatar_pictures.py hmd MODEL_DIR USAGE_DIR OUT.jpg [--frames 5 20 40] [--poses landmarks]
+    python data_tools/avatar_pictures.py talk MODEL_DIR DATA_DIR OUT.jpg [--count 4]
+
+* ``hmd``: per chosen usage frame, a column of the input (headset on), the restored frame (the
+  avatar pasted into the headset's region, poses as ``--poses`` says), the ground truth (the
+  same frame rendered without the headset) and the avatar's own whole render;
+* ``talk``: held-out frames of a THGS model (the last fraction its training left out, those with
+  the widest range of mouth opening), the render above the real frame.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def _grid(rows, tile: int):
+    import cv2
+    import numpy as np
+
+    def t(img):
+        img = (np.clip(img, 0, 1) * 255).astype(np.uint8)[..., ::-1]
+        return cv2.resize(img, (tile, tile), interpolation=cv2.INTER_AREA if img.shape[0] > tile else cv2.INTER_CUBIC)
+
+    return np.concatenate([np.concatenate([t(im) for im in row], 1) for row in rows], 0)
+
+
+def hmd(a) -> "np.ndarray":
+    import numpy as np
+
+    from geoface.splat.hfm_data import _read_png, load_video
+    from geoface.splat.hfm_train import load_hfm
+    from geoface.splat.hfm_usage import remove_hmd
+
+    model = load_hfm(a.model_dir)
+    video = load_video(a.data_dir)
+    renders, _ = remove_hmd(model, video, poses=a.poses)
+    frames = [f for f in a.frames if f < len(video)]
+    gt = [_read_png(Path(a.data_dir) / "gt" / f"{f:06d}.png") for f in frames]
+    restored = [np.where(video.hmd_masks[f][..., None], renders[f], video.frames[f]) for f in frames]
+    return _grid([[video.frames[f] for f in frames], restored, gt, [renders[f] for f in frames]], a.tile)
+
+
+def talk(a) -> "np.ndarray":
+    import numpy as np
+
+    from geoface.splat.thgs import _split, load_thgs, mouth_openness, _mouth_rect, render_frames
+    from geoface.splat.thgs_data import load_talking
+
+    model = load_thgs(a.model_dir)
+    data = load_talking(a.data_dir)
+    _, te = _split(len(data), model.cfg.heldout)
+    opening = [mouth_openness(data.frames[t], _mouth_rect(model, data.camera, data.rot[t], data.transl[t])) for t in te]
+    order = np.argsort(opening)
+    pick = sorted(te[order[np.linspace(0, len(te) - 1, a.count).round().astype(int)]])
+    R, _ = render_frames(model, data.camera, data.rot, data.transl, data.expr, data.audio, pick)
+    return _grid([list(R), [data.frames[t] for t in pick]], a.tile)
+
+
+def main() -> int:
+    import cv2
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("kind", choices=("hmd", "talk"))
+    ap.add_argument("model_dir")
+    ap.add_argument("data_dir")
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--frames", type=int, nargs="+", default=[5, 20, 40])
+    ap.add_argument("--poses", default="landmarks")
+    ap.add_argument("--count", type=int, default=4)
+    ap.add_argument("--tile", type=int, default=192)
+    a = ap.parse_args()
+    img = hmd(a) if a.kind == "hmd" else talk(a)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(a.out), img, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    print(f"{a.out}: {img.shape[1]}×{img.shape[0]}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
