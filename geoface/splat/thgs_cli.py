@@ -100,6 +100,10 @@ def cmd_talk_eval(args) -> int:
     say(f"{args.data_dir}: held-out PSNR {res['psnr']:.2f} dB SSIM {res['ssim']:.4f}, mouth PSNR "
           f"{res['psnr_mouth']:.2f} dB; lip sync r = {res['lipsync_corr']:.2f} (real frames {res['lipsync_corr_real']:.2f}); "
           f"{res['fps']:.1f} FPS ({res['frames']} frames)")
+    if "pose_before" in res:
+        b, a = res["pose_before"], res["pose_after"]
+        say(f"head pose of the training frames against the truth: {b['rot_deg_mean']:.2f}° / {b['mm_mean']:.1f} mm "
+            f"tracked, {a['rot_deg_mean']:.2f}° / {a['mm_mean']:.1f} mm corrected (means)")
     write_json(args, res)
     return 0
 
