@@ -68,7 +68,7 @@ def main(argv=None) -> int:
          stage_starts=[int(round(s * scale)) for s in PAPER_STAGES], threads=torch.get_num_threads())
     t = time.perf_counter()
     data_dir = out / "data"
-    runs = [(name, data_dir, VARIANTS[name]) for name in a.variants.split(",")]
+    runs = [(name, data_dir, VARIANTS[name]) for name in a.variants.split(",") if name]
     kw = dict(seconds=a.seconds, res=a.res, n_vertices=a.vertices, seed=a.data_seed, quiet=True)
     if a.head == "ict":
         from geoface.splat.thgs_ict import make_ict_talking as make

@@ -182,7 +182,7 @@ class THGSConfig:
     lambda_normal: float = 0.01   # refinement stage (from the blendshape stage on)
     lr_means: float = 1.6e-4
     lr_nets: float = 1e-3
-    lr_pose: float = 1e-3
+    lr_pose: float = 5e-3  # per-frame corrections: radians per step at a typical misfit (FrameCorrections)
     heldout: float = 0.2
     init_opacity: float = 0.5
     seed: int = 0
@@ -281,6 +281,35 @@ class THGSModel(nn.Module):
         return ((g.means - self.V0[g.parent]) ** 2).sum(-1).mean()
 
 
+class FrameCorrections:
+    """Steps for per-frame corrections (pose, expression), one frame at a time.
+
+    A frame's row of ``d_rot``/``d_transl``/``d_expr`` gets a gradient only when that frame is
+    drawn, once every few hundred steps. Adam keeps moving every row on its stale momentum, and
+    normalises each step to about the learning rate whatever the gradient: the corrections then
+    wander (5.5° on an ICT capture whose poses were exact). Here only the drawn row moves, by
+    its gradient over a root-mean-square shared by all frames (RMSprop, per joint and axis):
+    steps grow with the misfit and vanish where the frame fits."""
+
+    def __init__(self, params_lrs, beta: float = 0.99, eps: float = 1e-12):
+        self.items = [(p, float(lr), torch.zeros(p.shape[1:])) for p, lr in params_lrs]
+        self.beta, self.eps, self.n = beta, eps, 0
+
+    @torch.no_grad()
+    def step(self, row: int) -> None:
+        self.n += 1
+        for p, lr, v in self.items:
+            if p.grad is None:
+                continue
+            g = p.grad[row]
+            v.mul_(self.beta).add_((1 - self.beta) * g * g)
+            p[row] -= lr * g / ((v / (1 - self.beta ** self.n)).sqrt() + self.eps)
+
+    def zero_grad(self) -> None:
+        for p, _, _ in self.items:
+            p.grad = None
+
+
 def _split(n: int, heldout: float):
     k = max(1, int(round(n * (1 - heldout)))) if heldout > 0 else n
     return np.arange(k), np.arange(k, n)
@@ -310,9 +339,9 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     opt = make_optimizer(g, {"means": cfg.lr_means * ext, "log_scales": 5e-3, "quats": 1e-3,
                              "opacity_logits": 2.5e-2, "colors": 1e-2}, eps=1e-15)
     opt.add_param_group({"params": [model.skin.offsets], "lr": cfg.lr_nets * 0.1, "name": "skin"})
-    opt.add_param_group({"params": [model.d_rot, model.d_expr], "lr": cfg.lr_pose, "name": "pose"})
-    # translation corrections in metres: the rotation's rate times the head's size
-    opt.add_param_group({"params": [model.d_transl], "lr": cfg.lr_pose * ext, "name": "pose_t"})
+    # translation corrections in metres: the rotation's step times the head's size
+    frame_opt = FrameCorrections([(model.d_rot, cfg.lr_pose), (model.d_transl, cfg.lr_pose * ext),
+                                  (model.d_expr, cfg.lr_pose)])
     opt.add_param_group({"params": [model.leb.delta], "lr": cfg.lr_nets * 0.01, "name": "leb"})
     if model.saam is not None:
         opt.add_param_group({"params": list(model.saam.parameters()), "lr": cfg.lr_nets, "name": "saam"})
@@ -342,13 +371,16 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
         loss.backward()
         for grp in opt.param_groups:  # staged schedule: parts not yet switched on keep still
             name = grp["name"]
-            on = {"skin": model.stage >= 1, "pose": model.stage >= 1, "pose_t": model.stage >= 1, "leb": model.stage >= 3 and cfg.use_leb,
+            on = {"skin": model.stage >= 1, "leb": model.stage >= 3 and cfg.use_leb,
                   "saam": model.stage >= 4}.get(name, True)
             if not on:
                 for p in grp["params"]:
                     p.grad = None
         opt.step()
         opt.zero_grad(set_to_none=True)
+        if model.stage >= 1:  # pose corrections from the first stage (expression ones act from the second)
+            frame_opt.step(f)
+        frame_opt.zero_grad()
         history.append({"step": it, "loss": float(loss.detach()), "l1": float(l1.detach()), "stage": model.stage})
         if callable(progress) and (it % 50 == 0 or it == cfg.iters - 1):
             progress(it, history[-1])
@@ -393,9 +425,9 @@ def load_thgs(model_dir) -> THGSModel:
     return model
 
 
-def _mouth_rect(model: THGSModel, camera, rot, transl, pad: int = 2):
-    """Pixel rectangle (y0, y1, x0, x1) of the posed mouth box."""
-    lo, hi = model.template.mouth_box
+def _mouth_rect(model: THGSModel, camera, rot, transl, pad: int = 2, box=None):
+    """Pixel rectangle (y0, y1, x0, x1) of the posed mouth box (or of ``box``, (2, 3) corners)."""
+    lo, hi = model.template.mouth_box if box is None else np.asarray(box, np.float64)
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     W = model.skin(torch.tensor(corners, dtype=torch.float32))
     A = joint_transforms(model.joints, model.parents, torch.as_tensor(rot, dtype=torch.float32),
@@ -469,6 +501,22 @@ def corrected_poses(model: THGSModel, rot, transl):
     return r, t
 
 
+@torch.no_grad()
+def lip_gaps(model: THGSModel, data, frames, lip_vertices) -> np.ndarray:
+    """Per frame, the distance (scene units) between the mean centres of the Gaussians bound to
+    the two template vertices ``lip_vertices`` (upper and lower inner lip), posed by the
+    frame's tracking and audio: how far the avatar opens its mouth."""
+    parent = model.gaussians.parent
+    sel = [parent == int(v) for v in lip_vertices]
+    if not all(bool(m.any()) for m in sel):
+        raise SplatError("no Gaussian is bound to one of the lip vertices")
+    out = []
+    for t in frames:
+        X = model(data.rot[t], data.transl[t], data.expr[t], torch.as_tensor(data.audio[t])).means
+        out.append(float(torch.linalg.norm(X[sel[0]].mean(0) - X[sel[1]].mean(0))))
+    return np.asarray(out)
+
+
 def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
     """Held-out frames (the last ``heldout`` fraction): PSNR/SSIM over the person, PSNR of the mouth
     rectangle, and lip sync — the correlation of the rendered mouth's openness
@@ -482,6 +530,7 @@ def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
         raise SplatError("evaluation needs at least two held-out frames")
     R, times = render_frames(model, data.camera, data.rot, data.transl, data.expr, data.audio, te)
     rows = {"psnr": [], "ssim": [], "psnr_mouth": []}
+    lips = data.meta.get("lips_box")
     open_r, open_g = [], []
     for k, t in enumerate(te):
         gt = data.frames[t]
@@ -489,10 +538,12 @@ def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
         rows["psnr"].append(psnr(R[k], gt, m))
         rows["ssim"].append(ssim_masked(R[k], gt, m))
         rect = _mouth_rect(model, data.camera, data.rot[t], data.transl[t])
+        # where the mouth opens, when the capture says (its mouth box also holds chin and cheeks)
+        orect = rect if lips is None else _mouth_rect(model, data.camera, data.rot[t], data.transl[t], box=lips)
         y0, y1, x0, x1 = rect
         rows["psnr_mouth"].append(psnr(R[k][y0:y1, x0:x1], gt[y0:y1, x0:x1]))
-        open_r.append(mouth_openness(R[k], rect))
-        open_g.append(mouth_openness(gt, rect))
+        open_r.append(mouth_openness(R[k], orect))
+        open_g.append(mouth_openness(gt, orect))
     out = {k: float(np.mean(v)) for k, v in rows.items()}
     wav = Path(data.meta.get("_folder", "")) / "audio.wav"
     if wav.is_file():
@@ -504,7 +555,14 @@ def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
     out.update(lipsync_corr=corr(open_r, env), lipsync_corr_real=corr(open_g, env),
                mouth_open_mae=float(np.mean(np.abs(np.asarray(open_r) - np.asarray(open_g)))),
                mouth_open_std=float(np.std(open_r)), mouth_open_std_real=float(np.std(open_g)),
+               mouth_open_corr_real=corr(open_r, open_g),
                frames=len(te), fps=float(1 / np.median(times)))
+    if "lip_vertices" in data.meta and "lip_gap_m" in data.meta:  # the mouth's opening, geometrically
+        gap = lip_gaps(model, data, te, data.meta["lip_vertices"])
+        true = np.asarray(data.meta["lip_gap_m"], np.float64)[te]
+        out.update(lip_gap_corr_loudness=corr(gap, env), lip_gap_corr_loudness_real=corr(true, env),
+                   lip_gap_corr_real=corr(gap, true), lip_gap_std_mm=float(np.std(gap) * 1000),
+                   lip_gap_std_mm_real=float(np.std(true) * 1000))
     truth = Path(data.meta.get("_folder", "")) / "poses_true.npz"
     if truth.is_file():  # a capture with perturbed tracking: how far the corrections took the poses
         tr, _ = _split(len(data), h)

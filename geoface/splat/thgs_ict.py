@@ -135,6 +135,30 @@ def ict_template(person, n_vertices: int = 6000):
     return tpl, {"jaw_rotvec": rv.tolist(), "expression_names": names}
 
 
+def lips_box(person) -> np.ndarray:
+    """(2, 3) min/max corners, canonical metres, of where the mouth opens: the inner lips, 2 mm
+    to the sides, 3 mm above, and 18 mm below (the lower lip of an open jaw); what
+    :func:`geoface.splat.thgs.mouth_openness` looks at."""
+    L = person.V0[person.rest.landmarks][60:68]
+    lo, hi = L.min(0), L.max(0)
+    return np.stack([lo - [0.002, 0.018, 0.02], hi + [0.002, 0.003, 0.005]])
+
+
+#: iBUG points of the inner lips' middles (upper, lower): their distance is the mouth's opening
+LIP_POINTS = (62, 66)
+
+
+def lip_truth(person, template, curves) -> dict:
+    """``lip_vertices``: the template vertices nearest the inner lips' middles; ``lip_gap_m``:
+    per frame of ``curves`` (ARKit weights), the true distance between those lip points."""
+    from scipy.spatial import cKDTree
+
+    lm = person.rest.landmarks[list(LIP_POINTS)]
+    _, idx = cKDTree(template.V).query(person.V0[lm])
+    gap = [float(np.linalg.norm(np.subtract(*person.shape(c)[lm]))) for c in curves]
+    return {"lip_vertices": [int(i) for i in idx], "lip_gap_m": [round(g, 6) for g in gap]}
+
+
 def _unit_rows(rng, n: int) -> np.ndarray:
     d = rng.standard_normal((n, 3))
     return d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -239,6 +263,6 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
         "fps": fps, "source": "ICT-FaceKit", "seed": seed, "identity": [round(float(v), 5) for v in person.ident],
         "expression_names": names, "tracked_expressions": [n for n in names if not is_mouth_blendshape(n)],
         "jaw_open": [round(float(v), 5) for v in jaw], "envelope": [round(float(v), 5) for v in loud],
-        "jaw_rotvec": info["jaw_rotvec"], "perturb_deg_mm": [deg, mm],
-        "lights": [a.tolist() for a in person.lights]}))
+        "jaw_rotvec": info["jaw_rotvec"], "perturb_deg_mm": [deg, mm], "lips_box": lips_box(person).tolist(),
+        "lights": [a.tolist() for a in person.lights], **lip_truth(person, tpl, curves)}))
     return out

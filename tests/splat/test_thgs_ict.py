@@ -105,6 +105,14 @@ def test_talking_capture_lets_the_audio_drive_the_mouth_and_perturbs_tracking(tm
     assert len(mouth) > 10 and np.abs(data.expr[:, mouth]).max() == 0  # the tracker leaves the mouth out
     jaw, env = np.asarray(meta["jaw_open"]), np.asarray(meta["envelope"])
     assert jaw.max() > 0.2 and np.corrcoef(jaw, env)[0, 1] > 0.5  # the loudness opens the jaw
+    gap = np.asarray(meta["lip_gap_m"])  # the true opening of the lips follows the loudness
+    assert gap.max() > 0.01 and np.corrcoef(gap, env)[0, 1] > 0.5
+    from geoface.splat.thgs import THGSConfig, THGSModel, lip_gaps
+
+    model = THGSModel(data.template, THGSConfig(use_saam=False), data.audio.shape[1], 0)
+    rest = np.linalg.norm(np.subtract(*data.template.V[meta["lip_vertices"]]))
+    g = lip_gaps(model, data, range(len(data)), meta["lip_vertices"])  # no audio module: the lips stay as tracked
+    assert np.abs(g - rest).max() < 1e-3 and 0 < rest < 0.006
     truth = np.load(d / "poses_true.npz")
     np.testing.assert_array_equal(truth["rot"], data.rot)  # no perturbation asked
     p = perturb_capture(d, tmp_path / "pert", (3.0, 5.0), seed=1)
