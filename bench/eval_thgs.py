@@ -34,7 +34,8 @@ VARIANTS = {"full": {}, "no_leb": {"use_leb": False}, "no_saam": {"use_saam": Fa
 def main(argv=None) -> int:
     import torch
 
-    from geoface.splat.thgs import PAPER_STAGES, THGSConfig, evaluate_thgs, load_thgs, train_thgs
+    from geoface.splat.thgs import PAPER_STAGES, THGSConfig, load_thgs, train_thgs
+    from geoface.splat.thgs_eval import evaluate_thgs
     from geoface.splat.thgs_data import load_talking, make_synthetic_talking
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

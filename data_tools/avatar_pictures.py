@@ -48,7 +48,8 @@ def hmd(a) -> "np.ndarray":
 def talk(a) -> "np.ndarray":
     import numpy as np
 
-    from geoface.splat.thgs import _split, load_thgs, mouth_openness, _mouth_rect, render_frames
+    from geoface.splat.thgs import _split, load_thgs, render_frames
+    from geoface.splat.thgs_eval import _mouth_rect, mouth_openness
     from geoface.splat.thgs_data import load_talking
 
     model = load_thgs(a.model_dir)

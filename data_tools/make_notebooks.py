@@ -173,7 +173,8 @@ print(f"{len(back.means)} Gaussians, {(WORK / 'head_gs.ply').stat().st_size / 1e
 tracked poses that leave the jaw to the audio). `train_thgs` fits the avatar: LBS with a voxel
 skinning grid, learnable expression blendshapes, and the spatial audio attention module that moves
 the mouth with the sound. `animate` drives it from the audio alone."""),
-    new_code_cell("""from geoface.splat.thgs import animate, evaluate_thgs, load_thgs, train_thgs, THGSConfig
+    new_code_cell("""from geoface.splat.thgs import animate, load_thgs, train_thgs, THGSConfig
+from geoface.splat.thgs_eval import evaluate_thgs
 from geoface.splat.thgs_data import load_talking, make_synthetic_talking
 
 talk = make_synthetic_talking(WORK / "talk", seconds=TALK_SECONDS, res=64, n_vertices=2000, quiet=True)

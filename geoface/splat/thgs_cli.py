@@ -92,7 +92,8 @@ def cmd_talk_animate(args) -> int:
 
 
 def cmd_talk_eval(args) -> int:
-    from .thgs import evaluate_thgs, load_thgs
+    from .thgs import load_thgs
+    from .thgs_eval import evaluate_thgs
     from .thgs_data import load_talking
 
     res = evaluate_thgs(load_thgs(args.model_dir), load_talking(args.data_dir), args.heldout)

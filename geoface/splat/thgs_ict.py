@@ -15,7 +15,7 @@
   cheeks (brows, eyes, cheeks, nose); the mouth (``jaw*``, ``mouth*``) is left to the audio.
   With ``perturb=(degrees, mm)`` the tracked head pose of every frame is off by that much (a
   random axis and direction per frame) — the truth is in ``poses_true.npz`` — so that the joint
-  optimisation of pose corrections can be measured (:func:`geoface.splat.thgs.head_pose_errors`).
+  optimisation of pose corrections can be measured (:func:`geoface.splat.thgs_eval.head_pose_errors`).
 
 Units are metres.
 """
@@ -138,7 +138,7 @@ def ict_template(person, n_vertices: int = 6000):
 def lips_box(person) -> np.ndarray:
     """(2, 3) min/max corners, canonical metres, of where the mouth opens: the inner lips, 2 mm
     to the sides, 3 mm above, and 18 mm below (the lower lip of an open jaw); what
-    :func:`geoface.splat.thgs.mouth_openness` looks at."""
+    :func:`geoface.splat.thgs_eval.mouth_openness` looks at."""
     L = person.V0[person.rest.landmarks][60:68]
     lo, hi = L.min(0), L.max(0)
     return np.stack([lo - [0.002, 0.018, 0.02], hi + [0.002, 0.003, 0.005]])

@@ -13,8 +13,8 @@ from geoface.splat.audio import audio_features, envelope, log_mel
 from geoface.splat.errors import SplatError
 from geoface.splat.template import Template, load_smplx, procedural_template
 from geoface.splat.thgs import (ExpressionBlendshapes, SpatialAudioAttention, THGSConfig, THGSModel,
-                                VoxelSkinning, axis_angle_to_matrix, evaluate_thgs, joint_transforms, lbs,
-                                load_thgs, mouth_openness, train_thgs)
+                                VoxelSkinning, axis_angle_to_matrix, joint_transforms, lbs, load_thgs, train_thgs)
+from geoface.splat.thgs_eval import evaluate_thgs, mouth_openness
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ torch = pytest.importorskip("torch")
 
 from geoface.splat.hfm_ict import ICTPerson  # noqa: E402
 from geoface.splat.kinematics import joint_transforms  # noqa: E402
-from geoface.splat.thgs import head_pose_errors  # noqa: E402
+from geoface.splat.thgs_eval import head_pose_errors  # noqa: E402
 from geoface.splat.thgs_ict import (JOINT_NAMES, ict_template, is_mouth_blendshape, make_ict_talking,  # noqa: E402
                                     perturb_capture)
 from geoface.splat.errors import SplatError  # noqa: E402
@@ -107,7 +107,8 @@ def test_talking_capture_lets_the_audio_drive_the_mouth_and_perturbs_tracking(tm
     assert jaw.max() > 0.2 and np.corrcoef(jaw, env)[0, 1] > 0.5  # the loudness opens the jaw
     gap = np.asarray(meta["lip_gap_m"])  # the true opening of the lips follows the loudness
     assert gap.max() > 0.01 and np.corrcoef(gap, env)[0, 1] > 0.5
-    from geoface.splat.thgs import THGSConfig, THGSModel, lip_gaps
+    from geoface.splat.thgs import THGSConfig, THGSModel
+    from geoface.splat.thgs_eval import lip_gaps
 
     model = THGSModel(data.template, THGSConfig(use_saam=False), data.audio.shape[1], 0)
     rest = np.linalg.norm(np.subtract(*data.template.V[meta["lip_vertices"]]))
