@@ -215,7 +215,7 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
     from scipy.spatial.transform import Rotation
 
     from geoface.progress import progress
-    from geoface.splat.hfm_data import _write_png, camera_to_json
+    from geoface.splat.hfm_data import _rot, _write_png, camera_to_json
     from geoface.splat.hfm_ict import ICTPerson, _motion, arkit_curves
     from geoface.splat.thgs_data import speech_like
 
@@ -241,13 +241,9 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
     rot = np.zeros((T, J, 3))
     transl = np.zeros((T, 3))
     expr = np.zeros((T, len(names)))
-    from geoface.splat.hfm_data import _rot
-
-    Rs = []
     jaw = []
     for k in progress(range(T), "rendering ICT talking video", total=T, quiet=quiet):
         R = _rot(*ang[k])
-        Rs.append(R)
         _, rgb, alpha, _ = person.render(curves[k], R, tr[k])
         _write_png(out / "frames" / f"{k:06d}.png", rgb * (alpha[..., None] > 0.5))
         rot[k, 0] = Rotation.from_matrix(R).as_rotvec()  # rigid about the root = the neck pivot
