@@ -291,21 +291,24 @@ class FrameCorrections:
     steps grow with the misfit and vanish where the frame fits."""
 
     def __init__(self, params_lrs, beta: float = 0.99, eps: float = 1e-12):
-        self.items = [(p, float(lr), torch.zeros(p.shape[1:])) for p, lr in params_lrs]
-        self.beta, self.eps, self.n = beta, eps, 0
+        # per tensor: its rate, the running mean square of its gradients, and how many it has had
+        # (expression corrections start a stage later than pose ones: each debiases by its own count)
+        self.items = [[p, float(lr), torch.zeros(p.shape[1:]), 0] for p, lr in params_lrs]
+        self.beta, self.eps = beta, eps
 
     @torch.no_grad()
     def step(self, row: int) -> None:
-        self.n += 1
-        for p, lr, v in self.items:
+        for item in self.items:
+            p, lr, v, n = item
             if p.grad is None:
                 continue
+            item[3] = n = n + 1
             g = p.grad[row]
             v.mul_(self.beta).add_((1 - self.beta) * g * g)
-            p[row] -= lr * g / ((v / (1 - self.beta ** self.n)).sqrt() + self.eps)
+            p[row] -= lr * g / ((v / (1 - self.beta ** n)).sqrt() + self.eps)
 
     def zero_grad(self) -> None:
-        for p, _, _ in self.items:
+        for p, *_ in self.items:
             p.grad = None
 
 

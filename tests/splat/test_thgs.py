@@ -308,3 +308,25 @@ def test_cli(talk_dir, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err and all(line.startswith("geoface: error:") for line in err)
     assert not (tmp_path / "o2").exists() and not (tmp_path / "m2").exists()
+
+
+def test_frame_corrections_move_only_the_drawn_frame_by_its_gradient():
+    """Only the drawn frame's row moves; its first step is the rate (the gradient over its own
+    root-mean-square); a tensor that gets gradients later debiases by its own count."""
+    from geoface.splat.thgs import FrameCorrections
+
+    a = torch.nn.Parameter(torch.zeros(5, 3))
+    b = torch.nn.Parameter(torch.zeros(5, 2))
+    opt = FrameCorrections([(a, 0.1), (b, 0.01)])
+    for _ in range(3):  # b gets no gradient yet
+        a.grad = torch.zeros(5, 3)
+        a.grad[2] = torch.tensor([1.0, -2.0, 0.5])
+        opt.step(2)
+        opt.zero_grad()
+    assert torch.count_nonzero(a[[0, 1, 3, 4]]) == 0 and torch.count_nonzero(b) == 0
+    # a steady gradient: each step is the rate, against the gradient's sign
+    torch.testing.assert_close(a[2].detach(), torch.tensor([-0.3, 0.3, -0.3]))
+    b.grad = torch.zeros(5, 2)
+    b.grad[4] = torch.tensor([3.0, -3.0])
+    opt.step(4)
+    torch.testing.assert_close(b[4].detach(), torch.tensor([-0.01, 0.01]))  # first step = the rate exactly
