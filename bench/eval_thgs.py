@@ -88,11 +88,14 @@ def main(argv=None) -> int:
         runs.append(("full_perturbed", out / "data_perturbed", {}))
     emit(stage="data", seconds=round(time.perf_counter() - t, 1))
     rnd = lambda v: {k: rnd(x) for k, x in v.items()} if isinstance(v, dict) else round(v, 4)  # noqa: E731
+    loaded = {}
     for name, ddir, opts in runs:
         cfg = THGSConfig(iters=a.iters, stage_scale=scale, seed=0, **opts)
         info = train_thgs(ddir, out / f"model_{name}", cfg, progress=False)
         h = info["history"]
-        ev = evaluate_thgs(load_thgs(out / f"model_{name}"), load_talking(ddir))
+        if ddir not in loaded:  # the variants on one capture share its frames in memory
+            loaded[ddir] = load_talking(ddir)
+        ev = evaluate_thgs(load_thgs(out / f"model_{name}"), loaded[ddir])
         emit(stage="heldout", variant=name, train_seconds=round(info["seconds"], 1), gaussians=info["n_gaussians"],
              loss_first=round(float(np.mean([r["loss"] for r in h[:20]])), 4),
              loss_last=round(float(np.mean([r["loss"] for r in h[-20:]])), 4), **rnd(ev))

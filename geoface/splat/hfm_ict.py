@@ -137,8 +137,9 @@ def _motion(T: int, rng, fps: float, scale: float, jitter: float, ramp: int):
     ang += jitter * np.radians(0.3) * rng.standard_normal((T, 3))
     tr += jitter * 0.0005 * rng.standard_normal((T, 3))
     if ramp:
-        w = np.clip(np.arange(T) / ramp, 0, 1)
-        w = w * w * (3 - 2 * w)
+        from geoface.splat.template import _smooth as smoothstep
+
+        w = smoothstep(np.arange(T) / ramp)
         ang *= w[:, None]
         tr *= w[:, None]
     return ang, tr

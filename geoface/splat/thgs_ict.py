@@ -41,13 +41,12 @@ def is_mouth_blendshape(name: str) -> bool:
 
 
 def _rigid_fit(P: np.ndarray, Q: np.ndarray, w: np.ndarray):
-    """Weighted least-squares rotation R and translation t with Q ≈ P Rᵀ + t (Kabsch)."""
+    """Weighted least-squares rotation R and translation t with Q ≈ P Rᵀ + t (Kabsch, scipy's)."""
+    from scipy.spatial.transform import Rotation
+
     w = w / w.sum()
     cp, cq = w @ P, w @ Q
-    H = ((P - cp) * w[:, None]).T @ (Q - cq)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
+    R = Rotation.align_vectors(Q - cq, P - cp, weights=w)[0].as_matrix()
     return R, cq - R @ cp
 
 
@@ -79,11 +78,6 @@ def _sphere_centre(P: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(A, (P * P).sum(1), rcond=None)[0][:3]
 
 
-def _smoothstep(x):
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3 - 2 * x)
-
-
 def ict_template(person, n_vertices: int = 6000):
     """The :class:`~geoface.splat.hfm_ict.ICTPerson` ``person`` as a skinned THGS template
     (module doc).  Returns ``(template, info)``; ``info`` holds ``jaw_rotvec`` (the rotation of a
@@ -91,7 +85,7 @@ def ict_template(person, n_vertices: int = 6000):
     from scipy.spatial import cKDTree
 
     from geoface.splat.hfm_ict import _CM, ICT_PARTS
-    from geoface.splat.template import Template
+    from geoface.splat.template import Template, _smooth as _smoothstep
 
     model, rest = person.model, person.rest
     V0 = person.V0
@@ -148,15 +142,12 @@ def lips_box(person) -> np.ndarray:
 LIP_POINTS = (62, 66)
 
 
-def lip_truth(person, template, curves) -> dict:
-    """``lip_vertices``: the template vertices nearest the inner lips' middles; ``lip_gap_m``:
-    per frame of ``curves`` (ARKit weights), the true distance between those lip points."""
+def lip_vertices(person, template) -> list:
+    """The template vertices nearest the person's inner lips' middles (:data:`LIP_POINTS`)."""
     from scipy.spatial import cKDTree
 
-    lm = person.rest.landmarks[list(LIP_POINTS)]
-    _, idx = cKDTree(template.V).query(person.V0[lm])
-    gap = [float(np.linalg.norm(np.subtract(*person.shape(c)[lm]))) for c in curves]
-    return {"lip_vertices": [int(i) for i in idx], "lip_gap_m": [round(g, 6) for g in gap]}
+    _, idx = cKDTree(template.V).query(person.V0[person.rest.landmarks[list(LIP_POINTS)]])
+    return [int(i) for i in idx]
 
 
 def _unit_rows(rng, n: int) -> np.ndarray:
@@ -241,10 +232,12 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
     rot = np.zeros((T, J, 3))
     transl = np.zeros((T, 3))
     expr = np.zeros((T, len(names)))
-    jaw = []
+    jaw, gap = [], []
+    lips = person.rest.landmarks[list(LIP_POINTS)]
     for k in progress(range(T), "rendering ICT talking video", total=T, quiet=quiet):
         R = _rot(*ang[k])
-        _, rgb, alpha, _ = person.render(curves[k], R, tr[k])
+        V, rgb, alpha, _ = person.render(curves[k], R, tr[k])
+        gap.append(float(np.linalg.norm(np.subtract(*V[lips]))))  # the true lip gap (a rigid motion keeps it)
         _write_png(out / "frames" / f"{k:06d}.png", rgb * (alpha[..., None] > 0.5))
         rot[k, 0] = Rotation.from_matrix(R).as_rotvec()  # rigid about the root = the neck pivot
         transl[k] = tr[k]
@@ -260,5 +253,6 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
         "expression_names": names, "tracked_expressions": [n for n in names if not is_mouth_blendshape(n)],
         "jaw_open": [round(float(v), 5) for v in jaw], "envelope": [round(float(v), 5) for v in loud],
         "jaw_rotvec": info["jaw_rotvec"], "perturb_deg_mm": [deg, mm], "lips_box": lips_box(person).tolist(),
-        "lights": [a.tolist() for a in person.lights], **lip_truth(person, tpl, curves)}))
+        "lights": [a.tolist() for a in person.lights], "lip_vertices": lip_vertices(person, tpl),
+        "lip_gap_m": [round(g, 6) for g in gap]}))
     return out
