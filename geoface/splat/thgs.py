@@ -291,19 +291,23 @@ class FrameCorrections:
     steps grow with the misfit and vanish where the frame fits."""
 
     def __init__(self, params_lrs, beta: float = 0.99, eps: float = 1e-12):
-        # per tensor: its rate, the running mean square of its gradients, and how many it has had
-        # (expression corrections start a stage later than pose ones: each debiases by its own count)
-        self.items = [[p, float(lr), torch.zeros(p.shape[1:]), 0] for p, lr in params_lrs]
+        # per tensor: its rate, which of a row's entries may move (a bool mask broadcast over the
+        # row; all when not given), the running mean square of its gradients, and how many it has
+        # had (expression corrections start a stage later than pose ones: each debiases by its own count)
+        self.items = []
+        for p, lr, *mask in params_lrs:
+            m = torch.as_tensor(mask[0], dtype=p.dtype) if mask else torch.ones(())
+            self.items.append([p, float(lr), m, torch.zeros(p.shape[1:]), 0])
         self.beta, self.eps = beta, eps
 
     @torch.no_grad()
     def step(self, row: int) -> None:
         for item in self.items:
-            p, lr, v, n = item
+            p, lr, m, v, n = item
             if p.grad is None:
                 continue
-            item[3] = n = n + 1
-            g = p.grad[row]
+            item[4] = n = n + 1
+            g = p.grad[row] * m
             v.mul_(self.beta).add_((1 - self.beta) * g * g)
             p[row] -= lr * g / ((v / (1 - self.beta ** n)).sqrt() + self.eps)
 
@@ -342,8 +346,12 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
                              "opacity_logits": 2.5e-2, "colors": 1e-2}, eps=1e-15)
     opt.add_param_group({"params": [model.skin.offsets], "lr": cfg.lr_nets * 0.1, "name": "skin"})
     # translation corrections in metres: the rotation's step times the head's size
-    frame_opt = FrameCorrections([(model.d_rot, cfg.lr_pose), (model.d_transl, cfg.lr_pose * ext),
-                                  (model.d_expr, cfg.lr_pose)])
+    # what the tracker did not measure (a jaw, lips left to the audio) gets no per-frame correction:
+    # one would fit each training frame's mouth and leave the audio module nothing to learn
+    tj = np.ones(len(data.template.joints), bool) if data.tracked_joints is None else data.tracked_joints
+    te = np.ones(data.template.n_expr, bool) if data.tracked_expr is None else data.tracked_expr
+    frame_opt = FrameCorrections([(model.d_rot, cfg.lr_pose, torch.tensor(tj)[:, None]),
+                                  (model.d_transl, cfg.lr_pose * ext), (model.d_expr, cfg.lr_pose, torch.tensor(te))])
     opt.add_param_group({"params": [model.leb.delta], "lr": cfg.lr_nets * 0.01, "name": "leb"})
     if model.saam is not None:
         opt.add_param_group({"params": list(model.saam.parameters()), "lr": cfg.lr_nets, "name": "saam"})

@@ -6,7 +6,12 @@ A data folder holds::
     camera.json            fixed camera (as in :mod:`geoface.splat.hfm_data`)
     template.npz           the skinned template (:class:`geoface.splat.template.Template`)
     poses.npz              per frame: rot [T, J, 3] local axis-angle joint rotations, transl [T, 3],
-                           expr [T, K] expression coefficients (what a face/body tracker gives)
+                           expr [T, K] expression coefficients (what a face/body tracker gives);
+                           optional tracked_joints [J], tracked_expr [K] (bool; default all true):
+                           what the tracker measured. Training corrects these per frame; the
+                           others (e.g. a jaw and lips the tracker leaves to the audio) it never
+                           corrects per frame, which would fit them frame by frame instead of
+                           learning them from the audio
     audio.wav | features.npy   the speech (log-mel features are computed) or precomputed features
     meta.json              {"fps": 25, ...}
 
@@ -31,7 +36,7 @@ from geoface.splat.errors import SplatError
 from geoface.splat.hfm_data import _camera_from_json, _read_png, _write_png, camera_to_json
 from geoface.splat.template import Template
 
-__all__ = ["TalkingData", "load_talking", "make_synthetic_talking", "speech_like"]
+__all__ = ["TalkingData", "load_talking", "load_tracked", "make_synthetic_talking", "speech_like"]
 
 
 @dataclass
@@ -45,6 +50,8 @@ class TalkingData:
     audio: np.ndarray         # [T, D] per-frame features
     fps: float
     meta: dict
+    tracked_joints: np.ndarray | None = None  # [J] bool: rotations the tracker measured (None: all)
+    tracked_expr: np.ndarray | None = None    # [K] bool: expressions the tracker measured (None: all)
 
     def __len__(self):
         return len(self.frames)
@@ -67,6 +74,18 @@ def load_poses(path, n_joints: int, n_expr: int, n_frames: int | None = None):
     return rot, transl, expr
 
 
+def load_tracked(path, n_joints: int, n_expr: int) -> tuple[np.ndarray, np.ndarray]:
+    """(tracked_joints [J], tracked_expr [K]) bool masks of ``poses.npz`` (all true when absent)."""
+    out = []
+    with np.load(path, allow_pickle=False) as d:
+        for key, n in (("tracked_joints", n_joints), ("tracked_expr", n_expr)):
+            m = np.asarray(d[key]) if key in d.files else np.ones(n, bool)
+            if m.shape != (n,) or m.dtype != bool:
+                raise SplatError(f"{path}: {key} must be a bool array of {n}; got {m.dtype} {m.shape}")
+            out.append(m)
+    return out[0], out[1]
+
+
 def load_talking(folder) -> TalkingData:
     from geoface.splat.audio import audio_features
 
@@ -85,6 +104,7 @@ def load_talking(folder) -> TalkingData:
         raise SplatError(f"{folder}: malformed camera.json/meta.json ({type(e).__name__}: {e})") from None
     tpl = Template.load(folder / "template.npz")
     rot, transl, expr = load_poses(folder / "poses.npz", len(tpl.joints), tpl.n_expr, len(paths))
+    tracked = load_tracked(folder / "poses.npz", len(tpl.joints), tpl.n_expr)
     src = folder / "features.npy" if (folder / "features.npy").is_file() else folder / "audio.wav"
     if not src.is_file():
         raise SplatError(f"{folder}: needs audio.wav or features.npy")
@@ -93,7 +113,7 @@ def load_talking(folder) -> TalkingData:
     if imgs.shape[1:3] != (cam.height, cam.width):
         raise SplatError(f"{folder}: frames are {imgs.shape[2]}×{imgs.shape[1]}, camera.json says {cam.width}×{cam.height}")
     meta["_folder"] = str(folder)
-    return TalkingData(imgs, cam, tpl, rot, transl, expr, A, fps, meta)
+    return TalkingData(imgs, cam, tpl, rot, transl, expr, A, fps, meta, *tracked)
 
 
 def speech_like(seconds: float, sr: int = 16000, seed: int = 0):
@@ -192,7 +212,9 @@ def make_synthetic_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res:
         r = render_mesh(V, head.F, cam, head.colors, supersample=supersample)
         _write_png(out / "frames" / f"{k:06d}.png", r.rgb * r.alpha[..., None])
         mouth_open_px.append(float(jaw_open[k]))
-    np.savez(out / "poses.npz", rot=rot, transl=transl, expr=expr)
+    # the tracker measures neither the jaw nor the lips' pucker: the audio's
+    np.savez(out / "poses.npz", rot=rot, transl=transl, expr=expr, tracked_joints=np.arange(J) != tpl.jaw,
+             tracked_expr=np.array([n != "pucker" for n in names]))
     tpl.save(out / "template.npz")
     (out / "camera.json").write_text(json.dumps(camera_to_json(cam)))
     (out / "meta.json").write_text(json.dumps({"fps": fps, "source": "procedural template", "seed": seed,

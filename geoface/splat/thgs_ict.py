@@ -150,6 +150,14 @@ def lip_vertices(person, template) -> list:
     return [int(i) for i in idx]
 
 
+def tracked_dofs(names) -> dict:
+    """What the synthetic tracker measures (``poses.npz``'s masks, :mod:`geoface.splat.thgs_data`):
+    the rigid head pose (the root joint; neck, head and eye joints stay at rest, the gaze is in
+    the blendshapes) and the expressions that are not the mouth's."""
+    return {"tracked_joints": np.array([n == "root" for n in JOINT_NAMES]),
+            "tracked_expr": np.array([not is_mouth_blendshape(n) for n in names])}
+
+
 def _unit_rows(rng, n: int) -> np.ndarray:
     d = rng.standard_normal((n, 3))
     return d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -188,7 +196,9 @@ def perturb_capture(src, dst, perturb: tuple, seed: int = 0) -> Path:
     with np.load(truth, allow_pickle=False) as z:
         rot, transl, expr = z["rot"], z["transl"], z["expr"]
     rot, transl = _perturbed(rot, transl, deg, mm, np.random.default_rng([seed, 7202]))
-    np.savez(tmp / "poses.npz", rot=rot, transl=transl, expr=expr)
+    with np.load(src / "poses.npz", allow_pickle=False) as z:  # what the tracker measured stays so
+        tracked = {k: z[k] for k in ("tracked_joints", "tracked_expr") if k in z.files}
+    np.savez(tmp / "poses.npz", rot=rot, transl=transl, expr=expr, **tracked)
     meta = json.loads((tmp / "meta.json").read_text())
     meta["perturb_deg_mm"] = [deg, mm]
     (tmp / "meta.json").write_text(json.dumps(meta))
@@ -245,7 +255,7 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
         jaw.append(curves[k].get("jawOpen", 0.0))
     np.savez(out / "poses_true.npz", rot=rot, transl=transl, expr=expr)
     rot, transl = _perturbed(rot, transl, deg, mm, np.random.default_rng([seed, 7202]))
-    np.savez(out / "poses.npz", rot=rot, transl=transl, expr=expr)
+    np.savez(out / "poses.npz", rot=rot, transl=transl, expr=expr, **tracked_dofs(names))
     tpl.save(out / "template.npz")
     (out / "camera.json").write_text(json.dumps(camera_to_json(person.cam)))
     (out / "meta.json").write_text(json.dumps({

@@ -245,6 +245,13 @@ def test_a_few_training_steps_lower_the_loss_and_round_trip(talk_dir, tmp_path):
     from geoface.splat.thgs_data import load_talking
 
     d = load_talking(talk_dir)
+    # the tracker measured neither the jaw nor the pucker: those get no per-frame correction
+    # (they would fit each training frame's mouth and leave the audio module nothing to learn)
+    assert not d.tracked_joints[d.template.jaw] and d.tracked_joints.sum() == len(d.template.joints) - 1
+    pk = [i for i, t in enumerate(d.tracked_expr) if not t]
+    assert len(pk) == 1
+    assert torch.count_nonzero(m.d_rot[:, d.template.jaw]) == 0 and torch.count_nonzero(m.d_expr[:, pk]) == 0
+    assert torch.count_nonzero(m.d_rot[:, d.tracked_joints]) > 0  # the tracked ones are corrected
     ev = evaluate_thgs(m, d)
     assert ev["frames"] == 10 and 5 < ev["psnr"] < 60 and -1 <= ev["lipsync_corr"] <= 1
     (tmp_path / "m" / "model.safetensors").write_bytes(b"junk")
@@ -330,3 +337,22 @@ def test_frame_corrections_move_only_the_drawn_frame_by_its_gradient():
     b.grad[4] = torch.tensor([3.0, -3.0])
     opt.step(4)
     torch.testing.assert_close(b[4].detach(), torch.tensor([-0.01, 0.01]))  # first step = the rate exactly
+    c = torch.nn.Parameter(torch.zeros(4, 3, 2))  # rows of 3 joints × 2; joint 1 is not to be corrected
+    opt = FrameCorrections([(c, 0.1, torch.tensor([True, False, True])[:, None])])
+    for r in range(4):
+        c.grad = torch.ones(4, 3, 2)
+        opt.step(r)
+    assert torch.count_nonzero(c[:, 1]) == 0 and bool((c[:, [0, 2]] == -0.1).all())
+
+
+def test_tracked_masks_default_to_all_and_reject_bad_shapes(tmp_path):
+    from geoface.splat.thgs_data import load_tracked
+
+    p = tmp_path / "poses.npz"
+    np.savez(p, rot=np.zeros((2, 4, 3)), transl=np.zeros((2, 3)), expr=np.zeros((2, 5)))
+    tj, te = load_tracked(p, 4, 5)
+    assert tj.all() and te.all() and tj.shape == (4,) and te.shape == (5,)
+    for bad in ({"tracked_joints": np.ones(3, bool)}, {"tracked_expr": np.ones(5, np.int64)}):
+        np.savez(p, rot=np.zeros((2, 4, 3)), transl=np.zeros((2, 3)), expr=np.zeros((2, 5)), **bad)
+        with pytest.raises(SplatError, match="tracked_"):
+            load_tracked(p, 4, 5)

@@ -116,8 +116,13 @@ def test_talking_capture_lets_the_audio_drive_the_mouth_and_perturbs_tracking(tm
     assert np.abs(g - rest).max() < 1e-3 and 0 < rest < 0.006
     truth = np.load(d / "poses_true.npz")
     np.testing.assert_array_equal(truth["rot"], data.rot)  # no perturbation asked
+    # the tracker measures the rigid head pose (the root) and the expressions outside the mouth
+    assert data.tracked_joints.tolist() == [True] + [False] * 5
+    np.testing.assert_array_equal(data.tracked_expr, [not is_mouth_blendshape(n) for n in names])
     p = perturb_capture(d, tmp_path / "pert", (3.0, 5.0), seed=1)
     pert = load_talking(p)
+    np.testing.assert_array_equal(pert.tracked_expr, data.tracked_expr)
+    np.testing.assert_array_equal(pert.tracked_joints, data.tracked_joints)
     np.testing.assert_array_equal(pert.frames, data.frames)
     e = head_pose_errors(data.template, pert.rot, pert.transl, truth["rot"], truth["transl"])
     assert abs(e["rot_deg_mean"] - 3.0) < 1e-6 and abs(e["rot_deg_max"] - 3.0) < 1e-6
