@@ -345,13 +345,12 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     opt = make_optimizer(g, {"means": cfg.lr_means * ext, "log_scales": 5e-3, "quats": 1e-3,
                              "opacity_logits": 2.5e-2, "colors": 1e-2}, eps=1e-15)
     opt.add_param_group({"params": [model.skin.offsets], "lr": cfg.lr_nets * 0.1, "name": "skin"})
-    # translation corrections in metres: the rotation's step times the head's size
     # what the tracker did not measure (a jaw, lips left to the audio) gets no per-frame correction:
-    # one would fit each training frame's mouth and leave the audio module nothing to learn
-    tj = np.ones(len(data.template.joints), bool) if data.tracked_joints is None else data.tracked_joints
-    te = np.ones(data.template.n_expr, bool) if data.tracked_expr is None else data.tracked_expr
-    frame_opt = FrameCorrections([(model.d_rot, cfg.lr_pose, torch.tensor(tj)[:, None]),
-                                  (model.d_transl, cfg.lr_pose * ext), (model.d_expr, cfg.lr_pose, torch.tensor(te))])
+    # one would fit each training frame's mouth and leave the audio module nothing to learn;
+    # translation corrections in metres: the rotation's step times the head's size
+    frame_opt = FrameCorrections([(model.d_rot, cfg.lr_pose, torch.tensor(data.tracked_joints)[:, None]),
+                                  (model.d_transl, cfg.lr_pose * ext),
+                                  (model.d_expr, cfg.lr_pose, torch.tensor(data.tracked_expr))])
     opt.add_param_group({"params": [model.leb.delta], "lr": cfg.lr_nets * 0.01, "name": "leb"})
     if model.saam is not None:
         opt.add_param_group({"params": list(model.saam.parameters()), "lr": cfg.lr_nets, "name": "saam"})

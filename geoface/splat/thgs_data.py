@@ -50,8 +50,8 @@ class TalkingData:
     audio: np.ndarray         # [T, D] per-frame features
     fps: float
     meta: dict
-    tracked_joints: np.ndarray | None = None  # [J] bool: rotations the tracker measured (None: all)
-    tracked_expr: np.ndarray | None = None    # [K] bool: expressions the tracker measured (None: all)
+    tracked_joints: np.ndarray  # [J] bool: rotations the tracker measured (:func:`load_tracked`)
+    tracked_expr: np.ndarray    # [K] bool: expressions the tracker measured
 
     def __len__(self):
         return len(self.frames)
