@@ -186,6 +186,13 @@ def main(argv=None) -> int:
     ap.add_argument("--map-weights", default="1,1,1", help="GDE loss weights of albedo, micronormal, specular")
     ap.add_argument("--hfdr-map-weights", default=None, help="HFDR loss weights (default the model's)")
     ap.add_argument("--seed", type=int, default=0, help="model seed (initialisation, batches); the data stay the same")
+    ap.add_argument("--no-ablation", action="store_true",
+                    help="train and score only the model with hash encoding (compare it with the no-hash model of an "
+                         "earlier run of the same data and seed: texture_seeds.py OLD.jsonl+NEW.jsonl)")
+    ap.add_argument("--hash-mode", choices=("input", "logit"), default=None,
+                    help="where the GDE's hash features go (default the model's)")
+    ap.add_argument("--gde-tone", choices=("absolute", "relative"), default=None,
+                    help="how the GDE reads skin tone (default the model's)")
     ap.add_argument("--hfdr-band", choices=("full", "detail"), default=None,
                     help="what the HFDR refines (default the model's)")
     ap.add_argument("--hash-max-res", type=int, default=None, help="finest hash-grid resolution (default the model's)")
@@ -209,7 +216,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     emit(out, bench="eval_texture", stage="config", heads=a.heads, train=a.train, val=a.val, test=a.test, res=a.res,
          k=a.k, gde_res=a.gde_res, epochs=list(epochs), hfdr_patches=a.hfdr_patches, supersample=a.supersample,
-         map_weights=a.map_weights, hfdr_map_weights=a.hfdr_map_weights, seed=a.seed, hash_max_res=a.hash_max_res, hash_log2_table=a.hash_log2_table, hfdr_band=a.hfdr_band,
+         map_weights=a.map_weights, hfdr_map_weights=a.hfdr_map_weights, seed=a.seed, hash_max_res=a.hash_max_res, hash_log2_table=a.hash_log2_table, hfdr_band=a.hfdr_band, gde_tone=a.gde_tone, hash_mode=a.hash_mode, no_ablation=a.no_ablation,
          device=a.device, threads=torch.get_num_threads())
     t = time.perf_counter()
     files = {split: make_texture_dataset(out / split, n, a.res, seed=SEEDS[split], workers=a.workers, quiet=True,
@@ -218,11 +225,11 @@ def main(argv=None) -> int:
     emit(out, stage="data", seconds=round(time.perf_counter() - t, 1))
     fitted = fit_baselines(files["train"])
     models = {}
-    for name, use_hash in (("full", True), ("no_hash", False)):
+    for name, use_hash in (("full", True), ("no_hash", False))[: 1 if a.no_ablation else 2]:
         mdir = out / f"model_{name}"
         if not (mdir / "model.safetensors").exists():
             hash_opts = {k: v for k, v in (("hash_max_res", a.hash_max_res), ("hash_log2_table", a.hash_log2_table),
-                                           ("hfdr_band", a.hfdr_band)) if v}
+                                           ("hfdr_band", a.hfdr_band), ("gde_tone", a.gde_tone), ("hash_mode", a.hash_mode)) if v}
             nets = TextureNetConfig(use_hash=use_hash, **hash_opts)
             hw = {"hfdr_map_weights": tuple(float(w) for w in a.hfdr_map_weights.split(","))} if a.hfdr_map_weights else {}
             cfg = TextureTrainConfig(nets=nets, gde_res=a.gde_res, k=a.k,
@@ -237,6 +244,7 @@ def main(argv=None) -> int:
     variants = {"constant": None, "photo": None, "gde_upsampled": ("full", False),
                 "gde_upsampled_no_hash": ("no_hash", False), "gde_hfdr": ("full", True),
                 "gde_hfdr_no_hash": ("no_hash", True)}
+    variants = {k: v for k, v in variants.items() if v is None or v[0] in models}
     for split in a.splits.split(","):
         per: dict = {v: [] for v in variants}
         for i, p in enumerate(files[split]):

@@ -4,7 +4,10 @@
     python bench/texture_seeds.py RESULTS.jsonl [RESULTS.jsonl ...] [--split test] [--a gde_hfdr --b gde_hfdr_no_hash]
 
 Each file is one seed's ``results.jsonl`` (the same held-out faces in every run; where a face
-was scored more than once, its last row counts). Prints one JSON line per variant and split:
+was scored more than once, its last row counts).  ``OLD.jsonl+NEW.jsonl`` reads both files as
+one seed's run, NEW's rows after OLD's: a run made with ``eval_texture.py --no-ablation`` (the
+model with hash encoding only) then takes its no-hash rows from an earlier run of the same data
+and seed. Prints one JSON line per variant and split:
 the mean over faces of each seed, then their mean and standard deviation over seeds; and, for
 the pair ``--a`` − ``--b`` (default the model with and without hash encoding, and the same for
 the GDE alone), per metric: the difference of each seed, their mean, its standard error over
@@ -24,10 +27,12 @@ METRICS = ("albedo_psnr", "albedo_ssim", "albedo_detail_psnr", "micronormal_psnr
 PAIRS = (("gde_hfdr", "gde_hfdr_no_hash"), ("gde_upsampled", "gde_upsampled_no_hash"))
 
 
-def per_face(path: Path) -> dict:
-    """{(split, variant): {face: row}} from one results.jsonl (last row per face wins)."""
+def per_face(spec: str) -> dict:
+    """{(split, variant): {face: row}} from one results.jsonl, or several joined by "+" (last
+    row per face wins)."""
     out: dict = {}
-    for line in path.read_text().splitlines():
+    lines = [line for p in spec.split("+") for line in Path(p).read_text().splitlines()]
+    for line in lines:
         r = json.loads(line)
         if r.get("stage") == "face":
             out.setdefault((r["split"], r["variant"]), {})[r["face"]] = r
@@ -36,7 +41,7 @@ def per_face(path: Path) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("results", nargs="+", type=Path)
+    ap.add_argument("results", nargs="+", help="one results.jsonl per seed (OLD.jsonl+NEW.jsonl: both, NEW last)")
     ap.add_argument("--splits", default="val,test")
     ap.add_argument("--a", default=None, help="variant compared (default: both hash pairs)")
     ap.add_argument("--b", default=None, help="against this variant")

@@ -92,7 +92,8 @@ def cmd_train(args) -> int:
     epochs = _three(args.epochs, int, "--epochs must be three counts like 20,20,20 (predictor, GDE, HFDR)")
     weights = _three(args.map_weights, float, "--map-weights must be three weights like 1,4,1 (albedo, micronormal, specular)")
     hfdr_w = _three(args.hfdr_map_weights, float, "--hfdr-map-weights must be three weights like 1,8,1 (albedo, micronormal, specular)")
-    cfg = TextureTrainConfig(nets=TextureNetConfig(use_hash=not args.no_hash, hfdr_band=args.hfdr_band), gde_res=args.gde_res, k=args.k,
+    tone = {k: v for k, v in (("gde_tone", args.gde_tone), ("hash_mode", args.hash_mode)) if v is not None}
+    cfg = TextureTrainConfig(nets=TextureNetConfig(use_hash=not args.no_hash, hfdr_band=args.hfdr_band, **tone), gde_res=args.gde_res, k=args.k,
                              epochs=epochs, lr=args.lr, batch=args.batch, seed=args.seed, map_weights=weights,
                              hfdr_map_weights=hfdr_w)
     if args.init is not None:  # the networks' sizes come from the model trained before
@@ -101,6 +102,10 @@ def cmd_train(args) -> int:
         if nets.use_hash == args.no_hash:
             raise GeofaceError(f"{args.init} was trained {'with' if nets.use_hash else 'without'} hash encoding; "
                                "--no-hash must match it")
+        if args.gde_tone not in (None, nets.gde_tone):
+            raise GeofaceError(f"{args.init} reads {nets.gde_tone} tone; --gde-tone must match it")
+        if args.hash_mode not in (None, nets.hash_mode):
+            raise GeofaceError(f"{args.init} has hash mode {nets.hash_mode}; --hash-mode must match it")
         cfg.nets = dataclasses.replace(nets, hfdr_band=args.hfdr_band)  # sizes from it, the band as asked
     info = train_texture(args.data_dir, args.output, cfg, quiet=_quiet(args), init=args.init)
     last = {k: (f"{v[-1]:.4f}" if v else "-") for k, v in info["history"].items()}
@@ -192,6 +197,12 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--lr", type=number(float, 0, 1, lo_open=True), default=1e-3)
     t.add_argument("--batch", type=number(int, 1, 4096), default=4)
     t.add_argument("--no-hash", action="store_true", help="GDE without the UV hash encoding (ablation)")
+    t.add_argument("--hash-mode", choices=("input", "logit"), default=None,
+                   help="where the hash features go: the GDE's input (the paper), or an offset of its output "
+                        "logits per UV position (default: the model's, see docs/textures.md)")
+    t.add_argument("--gde-tone", choices=("absolute", "relative"), default=None,
+                   help="how the GDE reads skin tone: straight from the photo, or relative to the photo's tone "
+                        "(default: the model's, see docs/textures.md)")
     t.add_argument("--map-weights", default="1,1,1", metavar="A,M,S",
                    help="GDE loss weights of albedo, micronormal, specular (default equal, as the paper)")
     t.add_argument("--hfdr-map-weights", default="1,8,1", metavar="A,M,S",

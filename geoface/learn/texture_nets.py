@@ -4,7 +4,9 @@ Three UNet-like networks, all working in image space ([B, C, H, W], values in [0
 
 * :class:`NormalUVPredictor` — RGB → UV (2, in [0, 1]) + normal (3, unit length).
 * :class:`GDE` (Global Distribution Extractor, run at 1024² in the paper) — image ⊕ UV ⊕
-  normal ⊕ hash features of the UV → albedo 3 + micronormal 3 + specular 1.
+  normal → albedo 3 + micronormal 3 + specular 1, plus a per-UV offset of the output logits
+  from hash features of the UV (``hash_mode="logit"``; the paper's concatenation of the hash
+  features to the input is ``hash_mode="input"``).
 * :class:`HFDR` (High-Frequency Detail Refiner, on full-resolution patches) — patch ⊕
   upsampled UV and normal crops → the same 7 maps, with the upsampled GDE guidance
   concatenated to its last hidden features before the output head.
@@ -26,6 +28,9 @@ from geoface.nn.hashenc import HashEncoding
 from geoface.nn.losses import laplacian_loss
 
 HFDR_BANDS = ("full", "detail")
+GDE_TONES = ("absolute", "relative")
+HASH_MODES = ("input", "logit")
+GAMMA = 2.2  # the photos' encoding (linear light = photo ** GAMMA)
 MAPS = {"albedo": slice(0, 3), "micronormal": slice(3, 6), "specular": slice(6, 7)}
 N_MAPS = 7
 
@@ -120,14 +125,28 @@ class TextureNetConfig:
     hash_base_res: int = 16
     hash_max_res: int = 128  # finest grid; 1024 overfitted 64 faces (docs/textures.md)
     use_hash: bool = True
+    #: where the GDE's hash features go: "input" (concatenated to its input, as the paper) or
+    #: "logit" (a linear map of them added to its output logits: a regional offset per UV
+    #: position that the tone read from the photo does not pass through; chosen on the
+    #: validation faces, docs/textures.md)
+    hash_mode: str = "logit"
     #: what the HFDR may change: "full" (any frequency) or "detail" (only what the GDE's grid
     #: cannot hold: its residual minus the residual's own average over each GDE texel, so the
     #: refined maps keep the GDE's low band); see docs/textures.md
     hfdr_band: str = "full"
+    #: how the GDE reads skin tone: "absolute" (albedo straight from the photo and the hash
+    #: features) or "relative" (the photo divided by its tone — a learned weighted mean of its
+    #: linear colour — and the albedo predicted as a factor of that tone, so the hash tables hold
+    #: regional ratios, not the training faces' typical albedo); see docs/textures.md
+    gde_tone: str = "absolute"
 
     def __post_init__(self):
         if self.hfdr_band not in HFDR_BANDS:
             raise LearnError(f"hfdr_band must be one of {', '.join(HFDR_BANDS)}; got {self.hfdr_band!r}")
+        if self.hash_mode not in HASH_MODES:
+            raise LearnError(f"hash_mode must be one of {', '.join(HASH_MODES)}; got {self.hash_mode!r}")
+        if self.gde_tone not in GDE_TONES:
+            raise LearnError(f"gde_tone must be one of {', '.join(GDE_TONES)}; got {self.gde_tone!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -136,8 +155,9 @@ class TextureNetConfig:
     def from_dict(cls, d: dict, where: str = "config.json (nets)") -> "TextureNetConfig":
         from geoface.nn.config import config_from_dict
 
-        # models saved before the option existed refine every band
-        return config_from_dict(cls, {"hfdr_band": "full", **d}, where=where, unknown="ignore")
+        # models saved before the options existed refine every band and read absolute tone
+        return config_from_dict(cls, {"hfdr_band": "full", "gde_tone": "absolute", "hash_mode": "input", **d},
+                                where=where, unknown="ignore")
 
 
 class NormalUVPredictor(nn.Module):
@@ -153,20 +173,52 @@ class NormalUVPredictor(nn.Module):
 
 
 class GDE(nn.Module):
-    """Image ⊕ UV ⊕ normal ⊕ hash(UV) → 7 maps (coarse global distribution)."""
+    """Image ⊕ UV ⊕ normal (⊕ hash(UV) with ``hash_mode="input"``) → 7 maps (coarse global
+    distribution); with ``hash_mode="logit"`` a linear map of hash(UV) is added to the logits.
+
+    With ``gde_tone="relative"`` the photo's tone μ (per channel, linear light) is a weighted
+    mean of its pixels, the weights a softmax over pixels of a 1×1 convolution of features that
+    a change of exposure or skin tone leaves alone (UV, normal, chromaticity).  The network sees
+    the photo divided by μ and predicts the albedo's logit relative to logit(μ): a photo whose
+    linear colour is c·(the same) has tone c·μ, the same network input, and an albedo of
+    sigmoid(r + logit(c·μ)) — about c times the albedo wherever it is dark."""
 
     def __init__(self, cfg: TextureNetConfig):
         super().__init__()
         self.hash = (HashEncoding(2, cfg.hash_levels, cfg.hash_features, cfg.hash_log2_table,
                                   cfg.hash_base_res, cfg.hash_max_res, seed=0) if cfg.use_hash else None)
+        self.hash_logit = None
         extra = self.hash.out_dim if self.hash is not None else 0
+        if self.hash is not None and cfg.hash_mode == "logit":
+            self.hash_logit = nn.Conv2d(extra, N_MAPS, 1)  # starts at zero: the photo-only GDE
+            nn.init.zeros_(self.hash_logit.weight)
+            nn.init.zeros_(self.hash_logit.bias)
+            extra = 0
         self.net = UNet(3 + 2 + 3 + extra, N_MAPS, cfg.gde_widths)
+        self.relative = cfg.gde_tone == "relative"
+        if self.relative:
+            self.tone_weight = nn.Conv2d(2 + 3 + 3, 1, 1)  # where to read the tone (see the class)
+
+    def tone(self, rgb: Tensor, uv: Tensor, normal: Tensor) -> Tensor:
+        """The photo's tone μ [B, 3, 1, 1] in linear light (relative mode)."""
+        lin = rgb.clamp(0, 1) ** GAMMA
+        chroma = lin / (lin.sum(1, keepdim=True) + 1e-6)  # 0 on the black background
+        logits = self.tone_weight(torch.cat([uv, normal, chroma], 1)).flatten(1)
+        w = torch.softmax(logits, 1).view(rgb.shape[0], 1, *rgb.shape[-2:])
+        return (w * lin).sum((2, 3), keepdim=True).clamp(1e-3, 0.999)
 
     def forward(self, rgb: Tensor, uv: Tensor, normal: Tensor) -> Tensor:
-        x = [rgb, uv, normal]
-        if self.hash is not None:
-            x.append(self.hash(uv.permute(0, 2, 3, 1)).permute(0, 3, 1, 2))
-        return pack_maps(self.net(torch.cat(x, 1)))
+        mu = self.tone(rgb, uv, normal) if self.relative else None
+        x = [rgb if mu is None else rgb.clamp_min(0) / mu ** (1 / GAMMA), uv, normal]
+        h = self.hash(uv.permute(0, 2, 3, 1)).permute(0, 3, 1, 2) if self.hash is not None else None
+        if h is not None and self.hash_logit is None:
+            x.append(h)
+        raw = self.net(torch.cat(x, 1))
+        if self.hash_logit is not None:
+            raw = raw + self.hash_logit(h)
+        if mu is not None:
+            raw = torch.cat([raw[:, :3] + torch.logit(mu), raw[:, 3:]], 1)
+        return pack_maps(raw)
 
 
 class HFDR(nn.Module):

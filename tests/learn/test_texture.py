@@ -168,3 +168,21 @@ def test_hfdr_map_weights_weigh_the_refiner_s_maps(trained, tmp_path):
     other = TextureTrainConfig(**{**cfg.__dict__, "nets": TextureNetConfig(**{**NETS.to_dict(), "use_hash": False})})
     with pytest.raises(LearnError, match="differ"):
         train_texture(root, tmp_path / "y", other, quiet=True, init=out)
+
+
+def test_relative_tone_model_trains_saves_and_loads(tmp_path):
+    """A model with gde_tone="relative" trains (its GDE loss falls), keeps the option and its
+    tone weights through save/load, and an absolute model's weights are refused as its init."""
+    (tmp_path / "d").mkdir()
+    root = _make_data(tmp_path / "d")
+    nets = TextureNetConfig(**{**NETS.to_dict(), "gde_tone": "relative"})
+    cfg = TextureTrainConfig(nets=nets, gde_res=32, k=2, epochs=(2, 8, 1), lr=3e-3, batch=2, hfdr_patches=1)
+    info = train_texture(root, tmp_path / "m", cfg, quiet=True)
+    assert info["history"]["gde"][-1] < info["history"]["gde"][0]
+    m = TextureModel.load(tmp_path / "m")
+    assert m.cfg.nets.gde_tone == "relative" and hasattr(m.gde, "tone_weight")
+    photo = load_sample(root / "s0.npz")["photo"]
+    np.testing.assert_array_equal(reconstruct(m, photo)["albedo"], reconstruct(TextureModel.load(tmp_path / "m"), photo)["albedo"])
+    absolute = TextureTrainConfig(**{**cfg.__dict__, "nets": NETS, "epochs": (0, 0, 1)})
+    with pytest.raises(LearnError, match="differ"):
+        train_texture(root, tmp_path / "m2", absolute, quiet=True, init=tmp_path / "m")

@@ -3,7 +3,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from geoface.learn.errors import LearnError  # noqa: E402
-from geoface.learn.texture_nets import (GDE, HFDR, NormalUVPredictor, TextureNetConfig,  # noqa: E402
+from geoface.learn.texture_nets import (GAMMA, GDE, HFDR, NormalUVPredictor, TextureNetConfig,  # noqa: E402
                                         UNet, map_loss, pack_maps)
 
 CFG = TextureNetConfig(predictor_widths=[8, 16], gde_widths=[8, 16], hfdr_widths=[8, 16],
@@ -50,7 +50,7 @@ def test_pack_maps_zero_logits_is_flat_normal():
 def test_hash_encoding_can_be_switched_off():
     off = GDE(TextureNetConfig(**{**CFG.to_dict(), "use_hash": False}))
     assert off.hash is None and off.net.inc.net[0].in_channels == 8
-    assert GDE(CFG).net.inc.net[0].in_channels == 16
+    assert GDE(TextureNetConfig(**{**CFG.to_dict(), "hash_mode": "input"})).net.inc.net[0].in_channels == 16
     assert TextureNetConfig.from_dict({**CFG.to_dict(), "unknown": 1}) == CFG
 
 
@@ -134,3 +134,76 @@ def test_detail_band_hfdr_keeps_the_gde_texel_means():
     # a model saved before the option existed refines every band
     old = {k: v for k, v in CFG.to_dict().items() if k != "hfdr_band"}
     assert TextureNetConfig.from_dict(old).hfdr_band == "full"
+
+
+def test_relative_tone_gde_scales_albedo_with_the_photo():
+    """With gde_tone="relative", a photo whose linear light is c times another's (a darker skin
+    under the same light, or a shorter exposure) has c times the tone, the same network input,
+    and albedo logits shifted by exactly logit(c·μ) − logit(μ); micronormal and specular do not
+    change.  The absolute GDE does not have this property."""
+    rgb, uv, n, _ = _batch(B=2)
+    rgb = rgb * 0.8
+    c = 0.3
+    dark = (rgb ** GAMMA * c) ** (1 / GAMMA)
+    rel = GDE(TextureNetConfig(**{**CFG.to_dict(), "gde_tone": "relative"})).eval()
+    torch.manual_seed(1)
+    for p in rel.tone_weight.parameters():  # weights that depend on the features, not uniform
+        torch.nn.init.normal_(p, std=1.0)
+    with torch.no_grad():
+        mu, mu_dark = rel.tone(rgb, uv, n), rel.tone(dark, uv, n)
+        a, b = rel(rgb, uv, n), rel(dark, uv, n)
+    assert mu.shape == (2, 3, 1, 1)
+    torch.testing.assert_close(mu_dark, c * mu, rtol=1e-5, atol=1e-7)
+    # the tone is a weighted mean of the photo's linear colour: inside its range, not its plain mean
+    lin = rgb ** GAMMA
+    assert bool((mu >= lin.amin((2, 3), keepdim=True)).all() and (mu <= lin.amax((2, 3), keepdim=True)).all())
+    assert float((mu - lin.mean((2, 3), keepdim=True)).abs().max()) > 1e-3
+    shift = torch.logit(b[:, :3]) - torch.logit(a[:, :3])
+    torch.testing.assert_close(shift, (torch.logit(mu_dark) - torch.logit(mu)).expand_as(shift), rtol=0, atol=1e-4)
+    torch.testing.assert_close(b[:, 3:], a[:, 3:], rtol=0, atol=1e-5)
+    with torch.no_grad():
+        absolute = GDE(CFG).eval()
+        d = torch.logit(absolute(dark, uv, n)[:, :3]) - torch.logit(absolute(rgb, uv, n)[:, :3])
+    assert float((d - (torch.logit(mu_dark) - torch.logit(mu))).abs().max()) > 0.05
+
+
+def test_gde_tone_option():
+    with pytest.raises(LearnError, match="gde_tone"):
+        TextureNetConfig(gde_tone="log")
+    # a model saved before the option existed reads absolute tone
+    old = {k: v for k, v in CFG.to_dict().items() if k != "gde_tone"}
+    assert TextureNetConfig.from_dict(old).gde_tone == "absolute"
+    rel = GDE(TextureNetConfig(**{**CFG.to_dict(), "gde_tone": "relative"}))
+    assert rel.net.inc.net[0].in_channels == GDE(CFG).net.inc.net[0].in_channels
+    assert not hasattr(GDE(CFG), "tone_weight")
+
+
+def test_logit_hash_mode_adds_a_per_uv_offset():
+    """hash_mode="logit": the hash features do not enter the network; a linear map of them is
+    added to its albedo and specular logits — the same offset at the same UV whatever the photo
+    (so a photo's tone is read by the network alone), zero at initialisation."""
+    rgb, uv, n, _ = _batch(B=2)
+    other = torch.rand_like(rgb) * 0.3  # a different, darker photo at the same UVs
+    net = GDE(TextureNetConfig(**{**CFG.to_dict(), "hash_mode": "logit"})).eval()
+    assert net.net.inc.net[0].in_channels == 8 and net.hash_logit.in_channels == net.hash.out_dim
+    with torch.no_grad():
+        start = net(rgb, uv, n)
+        net.hash_logit.weight.zero_()  # (already zero: the photo-only GDE at initialisation)
+        torch.testing.assert_close(net(rgb, uv, n), start)
+        torch.nn.init.normal_(net.hash.tables, std=0.5)
+        torch.nn.init.normal_(net.hash_logit.weight, std=0.5)
+        offset = {}
+        for name, photo in (("a", rgb), ("b", other)):
+            with_hash = net(photo, uv, n)
+            w = net.hash_logit.weight.clone()
+            net.hash_logit.weight.zero_()
+            without = net(photo, uv, n)
+            net.hash_logit.weight.copy_(w)
+            idx = [0, 1, 2, 6]
+            offset[name] = torch.logit(with_hash[:, idx]) - torch.logit(without[:, idx])
+    assert float(offset["a"].abs().mean()) > 0.1
+    torch.testing.assert_close(offset["a"], offset["b"], rtol=0, atol=1e-3)
+    with pytest.raises(LearnError, match="hash_mode"):
+        TextureNetConfig(hash_mode="both")
+    old = {k: v for k, v in CFG.to_dict().items() if k != "hash_mode"}
+    assert TextureNetConfig.from_dict(old).hash_mode == "input"
