@@ -20,6 +20,9 @@ Spatial Audio Attention Module (Chen et al., "THGS: talking human avatars with G
   4-layer MLP predicting Δμ, Δr (quaternion offset), Δs (log scale). The output is taken
   relative to silence — Δ(x, a) = g(x, a) − g(x, 0) — so zero audio moves nothing for any
   weights (the canonical mouth is the silent mouth), and the last layer starts at zero.
+* :class:`AudioArticulation` (ours): where the tracker measures no jaw or mouth (``poses.npz``'s
+  masks), those DOFs come from the audio through a small MLP, from the expression stage on; the
+  paper takes them from its tracker. ``use_audio_pose=False`` leaves them at rest.
 """
 from __future__ import annotations
 
@@ -39,7 +42,7 @@ from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_t
 from geoface.splat.kinematics import axis_angle_to_matrix, joint_transforms
 
 __all__ = ["axis_angle_to_matrix", "joint_transforms", "VoxelSkinning", "lbs", "rotmat_to_quat_torch",
-           "ExpressionBlendshapes", "SpatialAudioAttention", "ExternalAttention", "mouth_gaussians",
+           "ExpressionBlendshapes", "SpatialAudioAttention", "AudioArticulation", "ExternalAttention", "mouth_gaussians",
            "THGSConfig", "THGSModel", "train_thgs", "save_thgs", "load_thgs", "render_frames", "animate"]
 
 
@@ -158,6 +161,26 @@ class SpatialAudioAttention(nn.Module):
         return self._g(e, audio[None]) - self._g(e, torch.zeros_like(audio)[None])
 
 
+class AudioArticulation(nn.Module):
+    """What the tracker does not measure (the jaw, the mouth's blendshapes) from the frame's
+    audio: an MLP of the normalised audio features → joint rotations [J, 3] and expression
+    weights [K], relative to silence (f(a) − f(0)) and with its last layer zero at start.  The
+    model applies it to the untracked DOFs only, so the template's own jaw and lips open the
+    mouth (SAAM then refines the mouth Gaussians)."""
+
+    def __init__(self, audio_dim: int, n_joints: int, n_expr: int, hidden: int = 64):
+        super().__init__()
+        self.J = n_joints
+        self.mlp = nn.Sequential(nn.Linear(audio_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+                                 nn.Linear(hidden, n_joints * 3 + n_expr))
+        nn.init.zeros_(self.mlp[-1].weight)
+        nn.init.zeros_(self.mlp[-1].bias)
+
+    def forward(self, audio: Tensor) -> tuple[Tensor, Tensor]:  # [D] -> ([J, 3], [K])
+        o = (self.mlp(audio[None]) - self.mlp(torch.zeros_like(audio)[None]))[0]
+        return o[: self.J * 3].view(self.J, 3), o[self.J * 3:]
+
+
 # ============================================================================ the avatar
 
 PAPER_STAGES = (1500, 15000, 25000, 50000)  # skinning & pose, expression, blendshapes, SAAM
@@ -175,6 +198,8 @@ class THGSConfig:
     voxel_res: int = 64
     use_leb: bool = True
     use_saam: bool = True
+    #: the untracked DOFs (jaw, mouth blendshapes) driven by the audio (:class:`AudioArticulation`)
+    use_audio_pose: bool = True
     lambda_dssim: float = 0.2
     lambda_vertex: float = 1e-2
     lambda_leb: float = 0.1
@@ -201,7 +226,8 @@ class THGSConfig:
 
         from .errors import ModelFolderError
 
-        return config_from_dict(cls, d, where=where, error=ModelFolderError)
+        # models saved before the audio articulation existed have none
+        return config_from_dict(cls, {"use_audio_pose": False, **d}, where=where, error=ModelFolderError)
 
 
 class THGSModel(nn.Module):
@@ -225,6 +251,9 @@ class THGSModel(nn.Module):
         self.register_buffer("audio_ref", torch.zeros(audio_dim))   # silence
         self.register_buffer("audio_scale", torch.ones(audio_dim))
         J, K = len(tpl.joints), tpl.n_expr
+        self.artic = AudioArticulation(audio_dim, J, K) if cfg.use_audio_pose else None
+        self.register_buffer("tracked_joints", torch.ones(J, dtype=torch.bool))  # training sets them
+        self.register_buffer("tracked_expr", torch.ones(K, dtype=torch.bool))
         self.d_rot = nn.Parameter(torch.zeros(n_frames, J, 3))     # per-frame pose corrections
         self.d_transl = nn.Parameter(torch.zeros(n_frames, 3))    # … and root translation corrections
         self.d_expr = nn.Parameter(torch.zeros(n_frames, K))      # per-frame expression corrections
@@ -244,6 +273,10 @@ class THGSModel(nn.Module):
                 transl = transl + self.d_transl[frame]
             if self.stage >= 2:
                 expr = expr + self.d_expr[frame]
+        if self.artic is not None and audio is not None and self.stage >= 2:
+            dr, de = self.artic(self.normalize_audio(torch.as_tensor(audio, dtype=torch.float32)))
+            rot = rot + dr * (~self.tracked_joints)[:, None]
+            expr = expr + de * ~self.tracked_expr
         Xc = g.means
         D = self.leb(expr, learned=self.cfg.use_leb and self.stage >= 3)  # [n_vertices, 3]
         X = Xc + D[g.parent]
@@ -340,6 +373,8 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     model = THGSModel(data.template, cfg, A.shape[1], len(data))
     model.audio_ref.copy_(torch.quantile(A[tr], 0.02, dim=0))
     model.audio_scale.copy_(A[tr].std(0).clamp_min(1e-3))
+    model.tracked_joints.copy_(torch.as_tensor(data.tracked_joints))
+    model.tracked_expr.copy_(torch.as_tensor(data.tracked_expr))
     g = model.gaussians
     ext = float(np.ptp(data.template.V, 0).max())
     opt = make_optimizer(g, {"means": cfg.lr_means * ext, "log_scales": 5e-3, "quats": 1e-3,
@@ -354,6 +389,8 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     opt.add_param_group({"params": [model.leb.delta], "lr": cfg.lr_nets * 0.01, "name": "leb"})
     if model.saam is not None:
         opt.add_param_group({"params": list(model.saam.parameters()), "lr": cfg.lr_nets, "name": "saam"})
+    if model.artic is not None:
+        opt.add_param_group({"params": list(model.artic.parameters()), "lr": cfg.lr_nets, "name": "artic"})
     imgs = torch.tensor(data.frames)
     stages = cfg.stages()
     history, order = [], []
@@ -381,7 +418,7 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
         for grp in opt.param_groups:  # staged schedule: parts not yet switched on keep still
             name = grp["name"]
             on = {"skin": model.stage >= 1, "leb": model.stage >= 3 and cfg.use_leb,
-                  "saam": model.stage >= 4}.get(name, True)
+                  "saam": model.stage >= 4, "artic": model.stage >= 2}.get(name, True)
             if not on:
                 for p in grp["params"]:
                     p.grad = None
@@ -426,6 +463,8 @@ def load_thgs(model_dir) -> THGSModel:
                       sd["gaussians.opacity_logits"], sd["gaussians.colors"], sd["gaussians.parent"])
         model = THGSModel(tpl, cfg, int(meta["audio_dim"]), int(meta["n_frames"]), g)
         sd.setdefault("d_transl", torch.zeros_like(model.d_transl))  # saved before translation corrections
+        sd.setdefault("tracked_joints", model.tracked_joints)  # ... and before the tracked masks
+        sd.setdefault("tracked_expr", model.tracked_expr)
         model.load_state_dict(sd, strict=True)
     except (KeyError, RuntimeError) as e:
         raise SplatError(f"{d}: weights do not match config.json ({str(e).splitlines()[0][:160]})") from None

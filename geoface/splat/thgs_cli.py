@@ -55,7 +55,7 @@ def cmd_talk_train(args) -> int:
     if (out / "model.safetensors").exists() and not args.force:
         raise GeofaceError(f"{out} already holds a model; use --force to replace it")
     cfg = THGSConfig(iters=args.iters, stage_scale=args.stage_scale, use_leb=not args.no_leb,
-                     use_saam=not args.no_saam, heldout=args.heldout, seed=args.seed, threads=args.threads)
+                     use_saam=not args.no_saam, use_audio_pose=not args.no_audio_pose, heldout=args.heldout, seed=args.seed, threads=args.threads)
     info = train_thgs(args.data_dir, out, cfg, progress=None if not _quiet(args) else False)
     h = info["history"]
     first = sum(r["loss"] for r in h[:20]) / len(h[:20])
@@ -134,6 +134,8 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="factor on the paper's stage starts 1.5K/15K/25K/50K (default iters/60000)")
     t.add_argument("--no-leb", action="store_true", help="ablation: no learnable expression blendshapes")
     t.add_argument("--no-saam", action="store_true", help="ablation: no spatial audio attention")
+    t.add_argument("--no-audio-pose", action="store_true",
+                   help="ablation: the DOFs the tracker does not measure (jaw, mouth) stay at rest instead of following the audio")
     t.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.2, help="last fraction of frames kept out of training (0.2)")
     t.add_argument("--threads", type=number(int, 1, 1024), default=None)
     t.add_argument("--seed", type=SEED, default=0)

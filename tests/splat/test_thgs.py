@@ -12,7 +12,7 @@ import torch
 from geoface.splat.audio import audio_features, envelope, log_mel
 from geoface.splat.errors import SplatError
 from geoface.splat.template import Template, load_smplx, procedural_template
-from geoface.splat.thgs import (ExpressionBlendshapes, SpatialAudioAttention, THGSConfig, THGSModel,
+from geoface.splat.thgs import (AudioArticulation, ExpressionBlendshapes, SpatialAudioAttention, THGSConfig, THGSModel,
                                 VoxelSkinning, axis_angle_to_matrix, joint_transforms, lbs, load_thgs, train_thgs)
 from geoface.splat.thgs_eval import evaluate_thgs, mouth_openness
 
@@ -216,6 +216,50 @@ def test_mouth_openness_measures_a_dark_cavity():
     assert math.isclose(mouth_openness(img, (0, 20, 0, 20)), 40 / 400)
 
 
+def test_audio_articulation_drives_only_the_untracked_dofs(tpl):
+    """Silence moves nothing for any weights; with audio, the untracked jaw and expression move
+    and the tracked ones stay exactly as given; an avatar without it ignores the audio there."""
+    art = AudioArticulation(8, 4, 3)
+    a = torch.randn(8)
+    dr, de = art(a)
+    assert dr.shape == (4, 3) and de.shape == (3,) and not dr.any() and not de.any()  # zero last layer
+    with torch.no_grad():
+        for p in art.mlp.parameters():
+            p.add_(torch.randn_like(p) * 0.3)
+    z = art(torch.zeros(8))
+    assert torch.allclose(z[0], torch.zeros(4, 3), atol=1e-7) and torch.allclose(z[1], torch.zeros(3), atol=1e-7)
+    J, K = len(tpl.joints), tpl.n_expr
+    m = THGSModel(tpl, THGSConfig(use_saam=False), audio_dim=8)
+    with torch.no_grad():
+        for p in m.artic.mlp.parameters():
+            p.add_(torch.randn_like(p) * 0.3)
+        m.tracked_joints[:] = True
+        m.tracked_joints[tpl.jaw] = False
+        m.tracked_expr[:] = True
+        m.tracked_expr[0] = False
+    rot, transl, expr = np.zeros((J, 3)), np.zeros(3), np.zeros(K)
+    with torch.no_grad():
+        silent = m(rot, transl, expr, torch.zeros(8)).means
+        moved = m(rot, transl, expr, a).means
+        jaw_w = m.skin(m.gaussians.means)[:, tpl.jaw]
+        m.tracked_joints[tpl.jaw] = True  # everything tracked: the audio moves nothing
+        m.tracked_expr[0] = True
+        tracked = m(rot, transl, expr, a).means
+    assert torch.allclose(silent, m.gaussians.means, atol=1e-6) and torch.equal(tracked, silent)
+    d = (moved - silent).norm(dim=1)
+    assert float(d.max()) > 1e-5
+    m2 = THGSModel(tpl, THGSConfig(use_saam=False), audio_dim=8)  # the jaw alone untracked
+    m2.load_state_dict(m.state_dict())
+    with torch.no_grad():
+        m2.tracked_joints[tpl.jaw] = False
+        d2 = (m2(rot, transl, expr, a).means - silent).norm(dim=1)
+    assert float(d2[jaw_w > 0.05].max()) > 1e-5 and float(d2[jaw_w == 0].abs().max()) < 1e-7
+    off = THGSModel(tpl, THGSConfig(use_saam=False, use_audio_pose=False), audio_dim=8)
+    assert off.artic is None
+    # a model saved before the option existed has no articulation
+    assert THGSConfig.from_dict({"iters": 10}).use_audio_pose is False
+
+
 @pytest.fixture(scope="module")
 def talk_dir(tmp_path_factory):
     from geoface.splat.thgs_data import make_synthetic_talking
@@ -252,6 +296,9 @@ def test_a_few_training_steps_lower_the_loss_and_round_trip(talk_dir, tmp_path):
     assert len(pk) == 1
     assert torch.count_nonzero(m.d_rot[:, d.template.jaw]) == 0 and torch.count_nonzero(m.d_expr[:, pk]) == 0
     assert torch.count_nonzero(m.d_rot[:, d.tracked_joints]) > 0  # the tracked ones are corrected
+    # the saved avatar knows what was tracked: the audio drives the rest at animation time
+    assert torch.equal(m.tracked_joints, torch.as_tensor(d.tracked_joints)) and m.artic is not None
+    assert float(m.artic.mlp[-1].weight.detach().abs().max()) > 0  # it learned something from the audio
     ev = evaluate_thgs(m, d)
     assert ev["frames"] == 10 and 5 < ev["psnr"] < 60 and -1 <= ev["lipsync_corr"] <= 1
     (tmp_path / "m" / "model.safetensors").write_bytes(b"junk")
