@@ -38,6 +38,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 VARIANTS = {"oracle": ("full", "file"), "full": ("full", "landmarks"),
             "no_gaussian_feature_mapping": ("no_gaussian_feature_mapping", "landmarks"),
             "no_global_pose": ("no_global_pose", "landmarks")}
+#: the paper's elements that the defaults depart from, each alone on top of Full (no pose file);
+#: measured on the validation split before any becomes a default
+PAPER = {"map_theta": {"map_theta": True}, "gm_xsr": {"gm_input": "xsr"},
+         "pm_per_component": {"pm_per_component": True}, "split_margin": {"split_margin": 0.002}}
+VARIANTS.update({k: ("full", "landmarks") for k in PAPER})
+MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]
 
 
 def _data(a) -> None:
@@ -69,11 +75,12 @@ def _job_rows(job) -> list:
     from geoface.splat.hfm import ABLATIONS, HFMConfig, evaluate_hmd, load_hfm, train_hfm
     from geoface.splat.hfm_data import load_video
 
-    d, split, data_seed, seed, variant, iters, threads, device, out = job
+    d, split, data_seed, seed, variant, iters, threads, device, models = job
     torch.set_num_threads(threads)
     ablation, poses = VARIANTS[variant]
-    mdir = Path(out) / "models" / f"{split}_{data_seed}_{variant}_s{seed}"
-    cfg = HFMConfig(**{**ABLATIONS[ablation], "iters": iters, "seed": seed, "threads": threads})
+    mdir = Path(models) / f"{split}_{data_seed}_{variant}_s{seed}"
+    cfg = HFMConfig(**{**ABLATIONS[ablation], **PAPER.get(variant, {}), "iters": iters, "seed": seed,
+                       "threads": threads})
     info_file = mdir / "train_info.json"
     if info_file.is_file() and (mdir / "model.safetensors").is_file():  # trained before: score it again
         info = json.loads(info_file.read_text())
@@ -98,14 +105,22 @@ def _run(a) -> None:
     import multiprocessing as mp
 
     jobs = []
-    for split in a.splits:
-        for s in (a.val if split == "val" else a.test):
-            d = Path(a.out) / "data" / f"{split}_{s}"
-            if not (d / "usage" / "meta.json").is_file():
-                raise SystemExit(f"{d}: no capture; run the data stage first")
-            for seed in a.seeds:
-                for v in a.variants:
-                    jobs.append((str(d), split, s, seed, v, a.iters, a.threads, a.device, a.out))
+    models = a.models or str(Path(a.out) / "models")
+    data = Path(a.data) if a.data else Path(a.out) / "data"
+    # --group SPLIT/SEEDS/VARIANTS, in the order given (the first ones finish first), else all of
+    # --splits × --seeds × --variants
+    groups = [g.split("/") for g in a.group] if a.group else [[sp, ",".join(map(str, a.seeds)), ",".join(a.variants)]
+                                                            for sp in a.splits]
+    for split, seeds, variants in groups:
+        for seed in (int(x) for x in seeds.split(",")):
+            for s in (a.val if split == "val" else a.test):
+                d = data / f"{split}_{s}"
+                if not (d / "usage" / "meta.json").is_file():
+                    raise SystemExit(f"{d}: no capture; run the data stage first")
+                for v in variants.split(","):
+                    if v not in VARIANTS:
+                        raise SystemExit(f"unknown variant {v!r}; choose from {list(VARIANTS)}")
+                    jobs.append((str(d), split, s, seed, v, a.iters, a.threads, a.device, models))
     res = Path(a.out) / "results.jsonl"
     ctx = mp.get_context("spawn")
     with ctx.Pool(a.jobs) as pool, res.open("a") as f:
@@ -164,7 +179,7 @@ def _table(a) -> None:
                 if g:
                     print(f"| {v} | {up} | {len(g)} | " + " | ".join(f"{np.mean([r[k] for r in g]):.3f}" for k in keys) + " |")
         base = {(r["data_seed"], r["seed"]): r for r in sel if r["variant"] == "full" and r["usage_poses"] == "landmarks"}
-        for v, up in (("oracle", "file"), ("no_gaussian_feature_mapping", "landmarks"), ("no_global_pose", "landmarks")):
+        for v, up in [("oracle", "file")] + [(v, "landmarks") for v in VARIANTS if v not in ("oracle", "full")]:
             pairs = [(base[k], r) for r in sel if r["variant"] == v and r["usage_poses"] == up
                      for k in [(r["data_seed"], r["seed"])] if k in base]
             if pairs:
@@ -185,11 +200,16 @@ def main(argv=None) -> int:
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--splits", type=lambda s: s.split(","), default=["test"])
     ap.add_argument("--seeds", type=ints, default=[0, 1])
-    ap.add_argument("--variants", type=lambda s: s.split(","), default=list(VARIANTS))
+    ap.add_argument("--variants", type=lambda s: s.split(","), default=MAIN,
+                    help=f"comma-separated, of {list(VARIANTS)} (default: {','.join(MAIN)})")
     ap.add_argument("--iters", type=int, default=1500)
     ap.add_argument("--jobs", type=int, default=1, help="runs at a time")
     ap.add_argument("--threads", type=int, default=1, help="torch threads per run")
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--group", action="append", default=[], metavar="SPLIT/SEEDS/VARIANTS",
+                    help="run: jobs in this order, e.g. test/0/full,oracle (repeatable; instead of --splits/--seeds/--variants)")
+    ap.add_argument("--models", default=None, help="run: where the models go (default OUT/models)")
+    ap.add_argument("--data", default=None, help="where the captures are (default OUT/data)")
     a = ap.parse_args(argv)
     bad = [v for v in a.variants if v not in VARIANTS]
     if bad:

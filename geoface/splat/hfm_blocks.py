@@ -113,11 +113,12 @@ def inverse_distance_weights(P: Tensor, keys: Tensor, k: int = 8, eps: float = 1
     return torch.as_tensor(j, device=P.device), torch.as_tensor(w, dtype=P.dtype, device=P.device)
 
 
-def boundary_loss(y: Tensor, upper: Tensor, y_t: float) -> Tensor:
-    """Eq. 11–12: mean ReLU(y_t − y) over the upper Gaussians + mean ReLU(y − y_t) over the lower."""
+def boundary_loss(y: Tensor, upper: Tensor, y_t: float, d: float = 0.0) -> Tensor:
+    """Eq. 11–12: mean ReLU(y_t + d − y) over the upper Gaussians + mean ReLU(y − y_t + d) over
+    the lower: with the margin ``d`` > 0 each half is held a distance d from the plane."""
     zero = y.new_zeros(())
-    lu = Fnn.relu(y_t - y[upper]).mean() if bool(upper.any()) else zero
-    ll = Fnn.relu(y[~upper] - y_t).mean() if bool((~upper).any()) else zero
+    lu = Fnn.relu(y_t + d - y[upper]).mean() if bool(upper.any()) else zero
+    ll = Fnn.relu(y[~upper] - y_t + d).mean() if bool((~upper).any()) else zero
     return lu + ll
 
 

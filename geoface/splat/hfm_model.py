@@ -54,6 +54,10 @@ class HFMConfig:
     map_norm: bool = True       # the mapping reads p_L / running RMS (per channel) instead of raw p_L
     map_norm_momentum: float = 0.02
     feat_norm: bool = True      # MLP_mapping reads f_U standardised per channel by running statistics
+    map_theta: bool = False     # MLP_mapping reads θ beside γ(x_U) and f_U
+    gm_input: str = "x"         # MLP_gm embeds γ(x) ("x") or γ(x) with the Gaussian's log-scales and rotation ("xsr")
+    pm_per_component: bool = False  # one MLP_pm per deformation component (ΔX, log ΔS, ΔR), each head reads its own
+    split_margin: float = 0.0  # d of the boundary losses: the halves are pushed to y_t ± d (metres)
     lambda_rgb: float = 0.4
     lambda_vgg: float = 0.1
     lambda_split: float = 0.01
@@ -84,8 +88,12 @@ class HFMConfig:
             raise SplatError(f"HFMConfig.upsample must be 'params' or 'features'; got {self.upsample!r}")
         if self.lower_keys not in ("sample", "top"):
             raise SplatError(f"HFMConfig.lower_keys must be 'sample' or 'top'; got {self.lower_keys!r}")
-        if self.margin < 0:
-            raise SplatError(f"HFMConfig.margin must be >= 0; got {self.margin}")
+        if self.margin < 0 or self.split_margin < 0:
+            raise SplatError(f"HFMConfig.margin and split_margin must be >= 0; got {self.margin}, {self.split_margin}")
+        if self.gm_input not in ("x", "xsr"):
+            raise SplatError(f"HFMConfig.gm_input must be 'x' or 'xsr'; got {self.gm_input!r}")
+        if self.pm_per_component and not self.feature_mapping:
+            raise SplatError("HFMConfig.pm_per_component needs feature_mapping (MLP_pm)")
         if not 0 < self.map_norm_momentum <= 1:
             raise SplatError(f"HFMConfig.map_norm_momentum must be in (0, 1]; got {self.map_norm_momentum}")
         if not 0 <= self.warmup < 1:
@@ -124,11 +132,16 @@ class HFMModel(nn.Module):
         self.encoder = ImageEncoder(L, cfg.enc_width, cfg.crop)
         self.mlp_x, self.mlp_s, self.mlp_r = mlp(e + L, H, 3), mlp(e + L, H, 3), mlp(e + L, H, 4)
         if cfg.gaussian_mapping:
-            self.mlp_gm = mlp(e, 64, cfg.emb_dim, zero_last=False)
+            self.mlp_gm = mlp(e + (7 if cfg.gm_input == "xsr" else 0), 64, cfg.emb_dim, zero_last=False)
             f_in = cfg.feat_dim if cfg.feature_mapping else 10
-            if cfg.feature_mapping:
+            if cfg.pm_per_component:  # f_L = [MLP_pm^X(γ, ΔX), MLP_pm^S(γ, log ΔS), MLP_pm^R(γ, ΔR)]
+                self.mlp_pm = nn.ModuleList([mlp(e + k, 64, cfg.feat_dim, zero_last=False) for k in (3, 3, 4)])
+                f_in = 3 * cfg.feat_dim
+            elif cfg.feature_mapping:
                 self.mlp_pm = mlp(e + 10, 64, cfg.feat_dim, zero_last=False)
-            self.mlp_mapping = mlp(e + f_in, H, 10) if cfg.mapping_heads == 1 else DeformHeads(e + f_in, H)
+            head_in = e + (L if cfg.map_theta else 0)
+            head_in += cfg.feat_dim if cfg.pm_per_component and cfg.mapping_heads == 3 else f_in
+            self.mlp_mapping = mlp(head_in, H, 10) if cfg.mapping_heads == 1 else DeformHeads(head_in, H)
         elif cfg.unmapped_upper == "separate":
             self.mlp_up = mlp(e + L, H, 10)
         if cfg.global_pose:
@@ -144,6 +157,8 @@ class HFMModel(nn.Module):
             self.register_buffer("f_mean", torch.zeros(f_in))
             self.register_buffer("f_ms", torch.zeros(f_in))
             self.register_buffer("f_steps", torch.zeros(()))
+        if cfg.gaussian_mapping and cfg.gm_input == "xsr":  # the canonical mean log-scale, MLP_gm's zero
+            self.register_buffer("log_s0", gaussians.log_scales.detach().mean().clone())
         self._refit: str | None = None  # inside refit_statistics: which statistics it averages
         self.keys_u: Tensor | None = None
         #: the registration landmarks on the canonical head ({"names", "points" [K][3]}), for
@@ -158,6 +173,19 @@ class HFMModel(nn.Module):
 
     def embed(self, X: Tensor) -> Tensor:
         return posenc((X - self.center) / self.scale, self.cfg.pos_freqs)
+
+    def gm_embed(self, E: Tensor) -> Tensor:
+        """What MLP_gm reads for every Gaussian, from its embedded positions ``E``: ``E`` itself
+        (``gm_input="x"``), or with the Gaussian's log-scales (less the canonical mean) and its
+        unit rotation quaternion (w ≥ 0), both detached (``"xsr"``): the mapping reads the shape
+        of a Gaussian without reshaping it."""
+        if self.cfg.gm_input == "x":
+            return E
+        g = self.gaussians
+        q = g.quats.detach()
+        q = q / q.norm(dim=-1, keepdim=True)
+        q = torch.where(q[:, :1] < 0, -q, q)
+        return torch.cat([E, g.log_scales.detach() - self.log_s0, q], -1)
 
     @torch.no_grad()
     def refresh_keys(self) -> None:
@@ -232,18 +260,24 @@ class HFMModel(nn.Module):
             return torch.ones_like(self.p_ms)
         return st[0].sqrt() + 1e-6
 
-    def map_features(self, eU: Tensor, eL: Tensor, pL: Tensor, detach: bool | None = None) -> Tensor:
+    def map_features(self, eU: Tensor, eL: Tensor, pL: Tensor, detach: bool | None = None,
+                     gU: Tensor | None = None, gL: Tensor | None = None) -> Tensor:
         """Upper features f_U = W_gm f_L from lower deformations (eq. 3–4, 6), dense over the given
         sets (rows of W_gm in chunks, so |U|·|L| never has to fit at once). ``detach`` (default
-        ``detach_lower``): read ``pL`` without passing gradients back into it."""
+        ``detach_lower``): read ``pL`` without passing gradients back into it. ``gU``/``gL``: what
+        MLP_gm reads (:meth:`gm_embed`; default the embedded positions ``eU``/``eL``)."""
         update = self._updates_statistics(pL, "p")
         if self.cfg.detach_lower if detach is None else detach:  # upper-face errors cannot reshape the lower face
             pL = pL.detach()
         if self.cfg.map_norm:
             pL = pL / self.lower_rms(pL, update)
-        fL = self.mlp_pm(torch.cat([eL, pL], -1)) if self.cfg.feature_mapping else pL
+        if self.cfg.pm_per_component:
+            fL = torch.cat([m(torch.cat([eL, pL[:, a:b]], -1)) for m, a, b in zip(self.mlp_pm, (0, 3, 6), (3, 6, 10))], -1)
+        else:
+            fL = self.mlp_pm(torch.cat([eL, pL], -1)) if self.cfg.feature_mapping else pL
+        gU, gL = eU if gU is None else gU, eL if gL is None else gL
         chunk = max(1, int(2**26 // max(len(eL), 1)))
-        return torch.cat([self.w_gm(eU[i:i + chunk], eL) @ fL for i in range(0, len(eU), chunk)])
+        return torch.cat([self.w_gm(gU[i:i + chunk], gL) @ fL for i in range(0, len(eU), chunk)])
 
     def standardise_features(self, fU: Tensor) -> Tensor:
         """``feat_norm``: f_U minus its running mean, over its running standard deviation, per
@@ -294,11 +328,27 @@ class HFMModel(nn.Module):
         finally:
             self._refit = None
 
-    def map_params(self, eU: Tensor, eL: Tensor, pL: Tensor, detach: bool | None = None) -> Tensor:
-        """Upper deformations p_U = MLP_mapping(γ(x_U), W_gm f_L) (eq. 3–7; ``map_features``)."""
-        return self.mlp_mapping(torch.cat([eU, self.standardise_features(self.map_features(eU, eL, pL, detach))], -1))
+    def decode_upper(self, eU: Tensor, fU: Tensor, theta: Tensor | None = None) -> Tensor:
+        """p_U = MLP_mapping(γ(x_U), f_U[, θ]) [n, 10]; with ``pm_per_component`` and three heads
+        each head reads the features of its own component."""
+        extra = []
+        if self.cfg.map_theta:
+            if theta is None:
+                raise SplatError("this model's MLP_mapping reads θ (map_theta): pass theta")
+            extra = [theta.expand(len(eU), -1)]
+        if self.cfg.pm_per_component and self.cfg.mapping_heads == 3:
+            F, m = self.cfg.feat_dim, self.mlp_mapping
+            return torch.cat([h(torch.cat([eU, fU[:, i * F:(i + 1) * F], *extra], -1))
+                              for i, h in enumerate((m.x, m.s, m.r))], -1)
+        return self.mlp_mapping(torch.cat([eU, fU, *extra], -1))
 
-    def map_keys(self, E: Tensor, iu: Tensor, pK: Tensor, detach: bool | None = None) -> Tensor:
+    def map_params(self, eU: Tensor, eL: Tensor, pL: Tensor, detach: bool | None = None, theta: Tensor | None = None,
+                   gU: Tensor | None = None, gL: Tensor | None = None) -> Tensor:
+        """Upper deformations p_U = MLP_mapping(γ(x_U), W_gm f_L) (eq. 3–7; ``map_features``)."""
+        return self.decode_upper(eU, self.standardise_features(self.map_features(eU, eL, pL, detach, gU, gL)), theta)
+
+    def map_keys(self, E: Tensor, iu: Tensor, pK: Tensor, detach: bool | None = None, theta: Tensor | None = None,
+                 G: Tensor | None = None) -> Tensor:
         """Deformations [|U|, 10] of the upper Gaussians ``iu`` by the mapping between the key
         Gaussians (eq. 9–10; ``refresh_keys`` first), ``pK`` the lower keys' deformations and ``E``
         the embedded positions of all Gaussians. W_dist spreads over the upper Gaussians either
@@ -307,10 +357,12 @@ class HFMModel(nn.Module):
         (``"features"``): keys lie ~12 mm apart on the synthetic head, so spreading deformations
         blurs an eyelid's closing into the brow and cheek around it."""
         j, w = self.wdist
+        G = self.gm_embed(E) if G is None else G
+        ku, kl = self.keys_u, self.keys_l
         if self.cfg.upsample == "features":
-            fk = self.standardise_features(self.map_features(E[self.keys_u], E[self.keys_l], pK, detach))
-            return self.mlp_mapping(torch.cat([E[iu], (fk[j] * w[..., None]).sum(1)], -1))
-        pk = self.map_params(E[self.keys_u], E[self.keys_l], pK, detach)
+            fk = self.standardise_features(self.map_features(E[ku], E[kl], pK, detach, G[ku], G[kl]))
+            return self.decode_upper(E[iu], (fk[j] * w[..., None]).sum(1), theta)
+        pk = self.map_params(E[ku], E[kl], pK, detach, theta, G[ku], G[kl])
         return (pk[j] * w[..., None]).sum(1)
 
     @property
@@ -363,9 +415,11 @@ class HFMModel(nn.Module):
             elif self.cfg.sampling:
                 if not self._keys_valid(n, iu, il):
                     self.refresh_keys()
-                p[iu] = self.map_keys(E, iu, *self._mapping_input(p, self.keys_l, E, theta))
+                p[iu] = self.map_keys(E, iu, *self._mapping_input(p, self.keys_l, E, theta), theta=theta)
             else:
-                p[iu] = self.map_params(E[iu], E[il], *self._mapping_input(p, il, E, theta))
+                G = self.gm_embed(E)
+                p[iu] = self.map_params(E[iu], E[il], *self._mapping_input(p, il, E, theta), theta=theta,
+                                        gU=G[iu], gL=G[il])
         dX, dlogS, dq = p[:, :3], p[:, 3:6], p[:, 6:]
         means = X + dX * self.scale * 0.1
         log_scales = g.log_scales + dlogS
@@ -400,7 +454,7 @@ def select_keys(model: HFMModel, X: Tensor, iu: Tensor, il: Tensor, n_keys: int,
     ku = iu[farthest_point_sampling(X[iu], n_keys, seed)]
     if len(il) <= n_keys:
         return ku, il.clone()
-    E = model.embed(X)
+    E = model.gm_embed(model.embed(X))
     corr = model.w_gm(E[ku], E[il]).sum(0)  # correlation weight of each lower Gaussian
     if lower == "top":
         pick = torch.topk(corr, n_keys).indices

@@ -222,7 +222,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
         if vgg is not None:
             loss = loss + cfg.lambda_vgg * vgg(a, b)
         ls = boundary_loss(g.means[:, 1], strategy.upper if strategy is not None else model.upper_mask(),
-                           model.y_split)
+                           model.y_split, cfg.split_margin)
         loss = loss + cfg.lambda_split * ls
         lp, loss_img = None, loss.detach()  # the history's "loss": the image (and split) terms
         if targets is not None and it >= n_warm:

@@ -719,3 +719,91 @@ def test_tracked_head_pose_is_applied_rigidly():
     q = d.quats.double()
     assert torch.allclose(q, torch.tensor([math.cos(a / 2), 0, math.sin(a / 2), 0], dtype=torch.float64).expand_as(q),
                           atol=1e-6)
+
+
+def test_boundary_loss_margin_holds_each_half_d_from_the_plane():
+    y = torch.tensor([0.01, 0.02, -0.01, -0.03])
+    up = torch.tensor([True, True, False, False])
+    assert float(boundary_loss(y, up, 0.0, d=0.005)) == 0.0  # every point at least d away
+    # upper 0.01 within 0.015 of the plane: short by 0.005; lower −0.01: short by 0.005
+    assert math.isclose(float(boundary_loss(y, up, 0.0, d=0.015)), 0.005 / 2 + 0.005 / 2, rel_tol=1e-6)
+
+
+def _mapped_upper(m, theta):
+    up = m.upper_mask()
+    with torch.no_grad():
+        return m.deform(theta).means[up]
+
+
+def test_paper_elements_start_at_identity_and_reach_the_upper_face():
+    """θ into MLP_mapping, MLP_gm over (X, S, R), MLP_pm per component: each model starts at the
+    canonical Gaussians, and its upper face follows what the option says it reads."""
+    X0 = _model(1500).gaussians.means.detach()
+    theta = torch.randn(1, 128, generator=torch.Generator().manual_seed(3))
+    for cfg in ({"map_theta": True}, {"gm_input": "xsr"}, {"pm_per_component": True},
+                {"pm_per_component": True, "mapping_heads": 1}):
+        m = _model(1500, global_pose=False, **cfg)
+        with torch.no_grad():
+            assert torch.allclose(m.deform(theta).means, X0, atol=1e-7), cfg
+    # map_theta: with the lower networks at the identity (p_L = 0) the upper face still moves with θ
+    m = _model(1500, global_pose=False, map_theta=True, map_norm=False, feat_norm=False)
+    _perturb(m)
+    with torch.no_grad():
+        for mod in (m.mlp_x, m.mlp_s, m.mlp_r):
+            mod[-1].weight.zero_()
+            mod[-1].bias.zero_()
+    a, b = _mapped_upper(m, theta), _mapped_upper(m, 2 * theta)
+    assert float((a - b).abs().max()) > 1e-4
+    plain = _model(1500, global_pose=False, map_norm=False, feat_norm=False)
+    _perturb(plain)
+    with torch.no_grad():
+        for mod in (plain.mlp_x, plain.mlp_s, plain.mlp_r):
+            mod[-1].weight.zero_()
+            mod[-1].bias.zero_()
+    assert torch.allclose(_mapped_upper(plain, theta), _mapped_upper(plain, 2 * theta), atol=1e-7)
+    with pytest.raises(SplatError, match="theta"):
+        m.decode_upper(m.embed(X0[:5]), torch.zeros(5, m.cfg.feat_dim))
+
+
+def test_gm_over_position_scale_rotation_sees_the_gaussians_shape():
+    m = _model(1500, gm_input="xsr")
+    _perturb(m)
+    E = m.embed(m.gaussians.means.detach())
+    G = m.gm_embed(E)
+    assert G.shape == (1500, E.shape[1] + 7)
+    assert torch.allclose(G[:, E.shape[1]:E.shape[1] + 3], torch.zeros(1500, 3), atol=1e-6)  # equal scales: at the mean
+    up = m.upper_mask()
+    W0 = m.w_gm(G[up], G[~up])
+    with torch.no_grad():  # one lower Gaussian grows: its column of W_gm changes, rows still sum to 1
+        m.gaussians.log_scales[torch.nonzero(~up)[0, 0]] += 1.0
+    W1 = m.w_gm(m.gm_embed(E)[up], m.gm_embed(E)[~up])
+    assert torch.allclose(W1.sum(1), torch.ones(len(W1)), atol=1e-6)
+    assert float((W1[:, 0] - W0[:, 0]).detach().abs().max()) > 1e-6
+    # a quaternion and its negative are the same rotation: the same embedding
+    with torch.no_grad():
+        m.gaussians.quats[0] *= -1
+    assert torch.allclose(m.gm_embed(E)[0, -4:], G[0, -4:])
+
+
+def test_pm_per_component_heads_read_only_their_own_component():
+    m = _model(1500, global_pose=False, pm_per_component=True, map_norm=False, feat_norm=False, sampling=False)
+    _perturb(m)
+    F = m.cfg.feat_dim
+    E = m.embed(m.gaussians.means.detach())
+    up = m.upper_mask()
+    pL = torch.randn(int((~up).sum()), 10, generator=torch.Generator().manual_seed(5)) * 0.05
+    with torch.no_grad():
+        fU = m.map_features(E[up], E[~up], pL)
+        assert fU.shape == (int(up.sum()), 3 * F)
+        q = pL.clone()
+        q[:, 6:] += 0.1  # change ΔR only: the ΔX and ΔS features stay, the ΔR features move
+        gU = m.map_features(E[up], E[~up], q)
+        assert torch.allclose(fU[:, :2 * F], gU[:, :2 * F]) and not torch.allclose(fU[:, 2 * F:], gU[:, 2 * F:])
+        pa, pb = m.decode_upper(E[up], fU), m.decode_upper(E[up], gU)
+        assert torch.allclose(pa[:, :6], pb[:, :6]) and not torch.allclose(pa[:, 6:], pb[:, 6:])
+    with pytest.raises(SplatError, match="feature_mapping"):
+        HFMConfig(pm_per_component=True, feature_mapping=False)
+    with pytest.raises(SplatError, match="gm_input"):
+        HFMConfig(gm_input="xs")
+    with pytest.raises(SplatError, match="split_margin"):
+        HFMConfig(split_margin=-1)
