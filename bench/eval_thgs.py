@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 VARIANTS = {"full": {}, "no_leb": {"use_leb": False}, "no_saam": {"use_saam": False},
-            "no_audio_pose": {"use_audio_pose": False}}
+            "no_audio_pose": {"use_audio_pose": False}, "no_landmarks": {"lambda_landmarks": 0.0}}
 
 
 def main(argv=None) -> int:

@@ -46,7 +46,8 @@ def _config(args):
     from .hfm import ABLATIONS, HFMConfig
 
     kw = dict(iters=args.iters, seed=args.seed, threads=args.threads, vgg_weights=args.vgg_weights,
-              densify=not args.no_densify, warmup=args.warmup, ema=args.ema)
+              densify=not args.no_densify, warmup=args.warmup, ema=args.ema, map_theta=args.map_theta,
+              gm_input=args.gm_input, pm_per_component=args.pm_per_component, split_margin=args.split_margin)
     if args.y_split is not None:
         kw["y_split"] = args.y_split
     kw.update(ABLATIONS[args.ablation])
@@ -175,6 +176,13 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="local VGG-16 feature weights (.safetensors or .pth) for the perceptual term")
     t.add_argument("--y-split", type=number(float), default=None, help="upper/lower split height y_t (default: meta.json)")
     t.add_argument("--no-densify", action="store_true", help="no clone/split/prune")
+    t.add_argument("--map-theta", action="store_true", help="MLP_mapping also reads the latent θ (the paper's input)")
+    t.add_argument("--gm-input", choices=("x", "xsr"), default="x",
+                   help="MLP_gm embeds the position (x, default) or position, scale and rotation (xsr, the paper's)")
+    t.add_argument("--pm-per-component", action="store_true",
+                   help="one MLP_pm per deformation component (ΔX, ΔS, ΔR), each mapping head reads its own")
+    t.add_argument("--split-margin", type=number(float, 0, 1), default=0.0, metavar="D",
+                   help="margin d (metres) of the boundary losses: each half held d from y_t (0)")
     t.add_argument("--threads", type=number(int, 1, 1024), default=None, help="torch CPU threads")
     t.add_argument("--poses", choices=("auto", "file", "landmarks"), default="auto",
                    help="registration head poses: head_poses.npz (file), fitted to the landmarks (landmarks), "

@@ -14,7 +14,7 @@ weights, expression basis, head mask and mouth region — and their loaders.
 from __future__ import annotations
 
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +33,9 @@ class Template:
     """A skinned template. Shapes: V (n, 3), F (m, 3), joints (J, 3) rest positions, parents (J,)
     with −1 for the root (a parent precedes its children), weights (n, J) rows summing to 1,
     expr_basis (K, n, 3), head_mask (n,) bool, mouth_box (2, 3) min/max corner of the mouth
-    and teeth region, joint_names (J,)."""
+    and teeth region, joint_names (J,); optionally the vertices at named face landmarks
+    (``landmark_names`` [L], ``landmark_vertices`` [L], e.g. the iBUG-68 names of
+    :data:`geoface.splat.hfm_data.IBUG68_NAMES`), which a capture's ``landmarks.json`` supervises."""
 
     V: np.ndarray
     F: np.ndarray
@@ -45,6 +47,8 @@ class Template:
     mouth_box: np.ndarray
     joint_names: list
     jaw: int = -1  # index of the jaw joint (-1: none)
+    landmark_names: list = field(default_factory=list)
+    landmark_vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def __post_init__(self):
         self.V = np.asarray(self.V, np.float64)
@@ -55,6 +59,8 @@ class Template:
         self.expr_basis = np.asarray(self.expr_basis, np.float64)
         self.head_mask = np.asarray(self.head_mask, bool)
         self.mouth_box = np.asarray(self.mouth_box, np.float64)
+        self.landmark_names = [str(x) for x in self.landmark_names]
+        self.landmark_vertices = np.asarray(self.landmark_vertices, np.int64).reshape(-1)
         n, J = len(self.V), len(self.joints)
         checks = [
             (self.V.ndim == 2 and self.V.shape[1] == 3, f"V must be (n, 3); got {self.V.shape}"),
@@ -71,6 +77,9 @@ class Template:
             (self.mouth_box.shape == (2, 3) and bool((self.mouth_box[1] > self.mouth_box[0]).all()),
              "mouth_box must be (2, 3) with max > min"),
             (len(self.joint_names) == J, "one joint name per joint"),
+            (len(self.landmark_names) == len(self.landmark_vertices) and len(set(self.landmark_names)) ==
+             len(self.landmark_names) and all(0 <= v < n for v in self.landmark_vertices),
+             "landmark_names and landmark_vertices: one distinct name per vertex index into V"),
         ]
         for ok, msg in checks:
             if not ok:
@@ -87,14 +96,16 @@ class Template:
     def save(self, path) -> None:
         np.savez(path, V=self.V, F=self.F, joints=self.joints, parents=self.parents, weights=self.weights,
                  expr_basis=self.expr_basis, head_mask=self.head_mask, mouth_box=self.mouth_box,
-                 joint_names=np.array(self.joint_names), jaw=np.array(self.jaw))
+                 joint_names=np.array(self.joint_names), jaw=np.array(self.jaw),
+                 landmark_names=np.array(self.landmark_names, dtype=str), landmark_vertices=self.landmark_vertices)
 
     @classmethod
     def load(cls, path) -> "Template":
         try:
             with np.load(path, allow_pickle=False) as d:
+                lm = ([str(s) for s in d["landmark_names"]], d["landmark_vertices"]) if "landmark_names" in d.files else ()
                 return cls(d["V"], d["F"], d["joints"], d["parents"], d["weights"], d["expr_basis"],
-                           d["head_mask"], d["mouth_box"], [str(s) for s in d["joint_names"]], int(d["jaw"]))
+                           d["head_mask"], d["mouth_box"], [str(s) for s in d["joint_names"]], int(d["jaw"]), *lm)
         except (OSError, KeyError, ValueError, EOFError, TypeError, IndexError, zipfile.BadZipFile) as e:
             raise SplatError(f"{path}: not a geoface template ({type(e).__name__}: {e})") from None
 

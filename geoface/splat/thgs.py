@@ -204,6 +204,7 @@ class THGSConfig:
     lambda_vertex: float = 1e-2
     lambda_leb: float = 0.1
     lambda_normal: float = 0.01   # refinement stage (from the blendshape stage on)
+    lambda_landmarks: float = 0.1  # mouth landmarks (landmarks.json) from the expression stage on
     lr_means: float = 1.6e-4
     lr_nets: float = 1e-3
     lr_pose: float = 5e-3  # per-frame corrections: radians per step at a typical misfit (FrameCorrections)
@@ -360,7 +361,7 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     from geoface.progress import progress as bar
     from geoface.splat.density import make_optimizer
     from geoface.splat.rasterizer import rasterize
-    from geoface.splat.thgs_data import load_talking
+    from geoface.splat.thgs_data import landmark_loss, load_talking, mouth_landmark_targets
 
     cfg = cfg or THGSConfig()
     if cfg.threads:
@@ -392,6 +393,9 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     if model.artic is not None:
         opt.add_param_group({"params": list(model.artic.parameters()), "lr": cfg.lr_nets, "name": "artic"})
     imgs = torch.tensor(data.frames)
+    lmk = mouth_landmark_targets(data) if cfg.lambda_landmarks > 0 else None
+    if lmk is not None:  # the Gaussian bound to each landmark's vertex
+        lmk = ([int(torch.nonzero(g.parent == int(v))[0, 0]) for v in lmk[0]], lmk[1])
     stages = cfg.stages()
     history, order = [], []
     bg = torch.zeros(3)
@@ -410,6 +414,8 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
         l1 = (rgb - gt).abs().mean()
         loss = (1 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * dssim(rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])
         loss = loss + cfg.lambda_vertex * model.vertex_loss() / ext**2
+        if lmk is not None and model.stage >= 2:
+            loss = loss + cfg.lambda_landmarks * landmark_loss(gd.means[lmk[0]], data.camera, lmk[1][f])
         if model.stage >= 3:
             if cfg.use_leb:
                 loss = loss + cfg.lambda_leb * model.leb.penalty() / ext**2

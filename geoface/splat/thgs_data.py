@@ -14,6 +14,13 @@ A data folder holds::
                            learning them from the audio
     audio.wav | features.npy   the speech (log-mel features are computed) or precomputed features
     meta.json              {"fps": 25, ...}
+    landmarks.json         optional: a face tracker's 2D landmarks per frame, as in
+                           :mod:`geoface.splat.hfm_data` ({"names": [...], "points": [T][L][2]}
+                           pixels; names may be left out for the 68 iBUG points). Training pulls
+                           the template's vertices at the mouth's landmarks (the template's
+                           ``landmark_names``/``landmark_vertices``) onto them: the jaw and lips
+                           the tracker left to the audio then learn where the mouth is, not only
+                           what colour it has
 
 :func:`make_synthetic_talking` renders the procedural template talking: a speech-like signal
 (voiced syllables of a pulse train through moving formant resonators, 3–6 syllables a second,
@@ -36,7 +43,8 @@ from geoface.splat.errors import SplatError
 from geoface.splat.hfm_data import _camera_from_json, _read_png, _write_png, camera_to_json
 from geoface.splat.template import Template
 
-__all__ = ["TalkingData", "load_talking", "load_tracked", "make_synthetic_talking", "speech_like"]
+__all__ = ["TalkingData", "load_talking", "load_tracked", "make_synthetic_talking", "speech_like", "read_landmarks",
+           "mouth_landmark_targets", "landmark_loss"]
 
 
 @dataclass
@@ -52,6 +60,8 @@ class TalkingData:
     meta: dict
     tracked_joints: np.ndarray  # [J] bool: rotations the tracker measured (:func:`load_tracked`)
     tracked_expr: np.ndarray    # [K] bool: expressions the tracker measured
+    landmarks: np.ndarray | None = None  # [T, L, 2] pixels (landmarks.json), or None
+    landmark_names: list | None = None
 
     def __len__(self):
         return len(self.frames)
@@ -113,7 +123,56 @@ def load_talking(folder) -> TalkingData:
     if imgs.shape[1:3] != (cam.height, cam.width):
         raise SplatError(f"{folder}: frames are {imgs.shape[2]}×{imgs.shape[1]}, camera.json says {cam.width}×{cam.height}")
     meta["_folder"] = str(folder)
-    return TalkingData(imgs, cam, tpl, rot, transl, expr, A, fps, meta, *tracked)
+    lm = read_landmarks(folder / "landmarks.json", len(paths)) if (folder / "landmarks.json").is_file() else (None, None)
+    return TalkingData(imgs, cam, tpl, rot, transl, expr, A, fps, meta, *tracked, *lm)
+
+
+#: iBUG-68 names of the mouth's landmarks (points 48–67): what the landmark loss supervises
+def _mouth_names():
+    from geoface.splat.hfm_data import IBUG68_NAMES
+
+    return tuple(IBUG68_NAMES[48:68])
+
+
+def read_landmarks(path, n_frames: int) -> tuple[np.ndarray, list]:
+    """(points [T, L, 2], names [L]) of a ``landmarks.json`` (format: module doc)."""
+    from geoface.splat.hfm_data import IBUG68_NAMES
+
+    try:
+        lm = json.loads(Path(path).read_text())
+        pts = np.asarray(lm["points"], dtype=np.float64)
+        names = [str(n) for n in lm["names"]] if "names" in lm else (
+            list(IBUG68_NAMES) if pts.ndim == 3 and pts.shape[1] == 68 else None)
+    except (ValueError, KeyError, TypeError) as e:
+        raise SplatError(f"{path}: malformed landmarks ({type(e).__name__}: {e})") from None
+    if names is None or pts.ndim != 3 or pts.shape != (n_frames, len(names), 2) or len(set(names)) != len(names):
+        raise SplatError(f"{path}: points must be [frames={n_frames}, K, 2] with K distinct names (or the 68 iBUG "
+                         f"points); got {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise SplatError(f"{path}: non-finite landmarks")
+    return pts, names
+
+
+def mouth_landmark_targets(data: TalkingData):
+    """(template vertices [M], pixels [T, M, 2]) of the mouth's landmarks that both the capture's
+    ``landmarks.json`` and the template name, or None when there are none."""
+    tpl = data.template
+    if data.landmarks is None or not len(tpl.landmark_names):
+        return None
+    both = [n for n in _mouth_names() if n in data.landmark_names and n in tpl.landmark_names]
+    if not both:
+        return None
+    verts = np.array([tpl.landmark_vertices[tpl.landmark_names.index(n)] for n in both])
+    return verts, data.landmarks[:, [data.landmark_names.index(n) for n in both]]
+
+
+def landmark_loss(means, camera, points, delta: float = 1.0):
+    """Mean robust (pseudo-Huber, ``delta`` px) distance in image widths between the projections of
+    ``means`` [M, 3] (torch, world) and the landmarks ``points`` [M, 2] (pixels)."""
+    import torch
+
+    d = camera.project(means)[0] - torch.as_tensor(points, dtype=means.dtype)
+    return ((d.pow(2).sum(-1) + delta**2).sqrt() - delta).mean() / camera.width
 
 
 def speech_like(seconds: float, sr: int = 16000, seed: int = 0):

@@ -78,6 +78,22 @@ def _sphere_centre(P: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(A, (P * P).sum(1), rcond=None)[0][:3]
 
 
+def _snap_landmarks(V: np.ndarray, L: np.ndarray) -> np.ndarray:
+    """Move, for each landmark of ``L`` [68, 3] in turn, the nearest template vertex of ``V`` not
+    taken by an earlier one onto it (in place; a few millimetres on a 6000-vertex head); returns
+    their indices [68]."""
+    from scipy.spatial import cKDTree
+
+    _, cand = cKDTree(V).query(L, k=8)
+    taken, out = set(), []
+    for i, row in enumerate(cand):
+        j = int(next(c for c in row if int(c) not in taken))
+        taken.add(j)
+        out.append(j)
+        V[j] = L[i]
+    return np.asarray(out, np.int64)
+
+
 def ict_template(person, n_vertices: int = 6000):
     """The :class:`~geoface.splat.hfm_ict.ICTPerson` ``person`` as a skinned THGS template
     (module doc).  Returns ``(template, info)``; ``info`` holds ``jaw_rotvec`` (the rotation of a
@@ -95,6 +111,7 @@ def ict_template(person, n_vertices: int = 6000):
          for n in model.expression_names}
     rv, hinge, w_jaw_full = _hinge(V0, E["jawOpen"])
     V, F, _ = person.init_mesh(n_vertices)
+    lmk_v = _snap_landmarks(V, V0[rest.landmarks])  # template vertices at the 68 landmarks, exactly
     _, near = cKDTree(V0).query(V)
     lab = rest.labels[near]
     L0 = V0[rest.landmarks]
@@ -124,8 +141,10 @@ def ict_template(person, n_vertices: int = 6000):
     lo, hi = lips.min(0), lips.max(0)
     lo = lo - [0.006, 0.006 + 0.02, 0.03]  # the opening jaw takes the lower lip down; teeth lie behind
     hi = hi + [0.006, 0.006, 0.006]
+    from geoface.splat.hfm_data import IBUG68_NAMES
+
     tpl = Template(V, F, joints, np.array(_PARENTS), W, basis, w_head > 0.5, np.stack([lo, hi]),
-                   list(JOINT_NAMES), jaw=3)
+                   list(JOINT_NAMES), jaw=3, landmark_names=list(IBUG68_NAMES), landmark_vertices=lmk_v)
     return tpl, {"jaw_rotvec": rv.tolist(), "expression_names": names}
 
 
@@ -137,6 +156,9 @@ def lips_box(person) -> np.ndarray:
     lo, hi = L.min(0), L.max(0)
     return np.stack([lo - [0.002, 0.018, 0.02], hi + [0.002, 0.003, 0.005]])
 
+
+#: pixels of Gaussian noise on the synthetic captures' 2D landmarks (a detector's error)
+LANDMARK_NOISE_PX = 0.5
 
 #: iBUG points of the inner lips' middles (upper, lower): their distance is the mouth's opening
 LIP_POINTS = (62, 66)
@@ -242,18 +264,24 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
     rot = np.zeros((T, J, 3))
     transl = np.zeros((T, 3))
     expr = np.zeros((T, len(names)))
-    jaw, gap = [], []
+    jaw, gap, marks = [], [], []
     lips = person.rest.landmarks[list(LIP_POINTS)]
+    noise = np.random.default_rng([seed, 7203])
     for k in progress(range(T), "rendering ICT talking video", total=T, quiet=quiet):
         R = _rot(*ang[k])
         V, rgb, alpha, _ = person.render(curves[k], R, tr[k])
         gap.append(float(np.linalg.norm(np.subtract(*V[lips]))))  # the true lip gap (a rigid motion keeps it)
+        uv = person.cam.project(V[person.rest.landmarks])[0] + noise.normal(0, LANDMARK_NOISE_PX, (68, 2))
+        marks.append(np.round(uv, 3).tolist())  # what a face tracker's landmark detector gives
         _write_png(out / "frames" / f"{k:06d}.png", rgb * (alpha[..., None] > 0.5))
         rot[k, 0] = Rotation.from_matrix(R).as_rotvec()  # rigid about the root = the neck pivot
         transl[k] = tr[k]
         expr[k] = [0.0 if is_mouth_blendshape(n) else curves[k].get(n, 0.0) for n in names]
         jaw.append(curves[k].get("jawOpen", 0.0))
     np.savez(out / "poses_true.npz", rot=rot, transl=transl, expr=expr)
+    from geoface.splat.hfm_data import IBUG68_NAMES
+
+    (out / "landmarks.json").write_text(json.dumps({"names": list(IBUG68_NAMES), "points": marks}))
     rot, transl = _perturbed(rot, transl, deg, mm, np.random.default_rng([seed, 7202]))
     np.savez(out / "poses.npz", rot=rot, transl=transl, expr=expr, **tracked_dofs(names))
     tpl.save(out / "template.npz")

@@ -670,6 +670,13 @@ def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
     assert main(["hmd", "train", str(reg), "-o", str(md), "--iters", "5", "-q"]) == 2  # no overwrite
     assert main(["hmd", "train", str(reg), "-o", str(tmp_path / "m4"), "--iters", "5", "--ema", "1.5", "-q"]) == 2
     assert not (tmp_path / "m4" / "model.safetensors").exists()
+    # the paper's elements as options; saved in the model's config
+    m5 = tmp_path / "m5"
+    assert main(["hmd", "train", str(reg), "-o", str(m5), "--iters", "3", "--no-densify", "--map-theta", "--gm-input",
+                 "xsr", "--pm-per-component", "--split-margin", "0.002", "-q"]) == 0
+    c5 = load_hfm(m5).cfg
+    assert c5.map_theta and c5.gm_input == "xsr" and c5.pm_per_component and c5.split_margin == 0.002
+    assert main(["hmd", "train", str(reg), "-o", str(tmp_path / "m6"), "--gm-input", "s", "-q"]) == 2
     assert main(["hmd", "remove", str(md), str(use), "-o", str(tmp_path / "out")]) == 0
     assert len(list((tmp_path / "out" / "frames").glob("*.png"))) == 2
     if importlib.util.find_spec("imageio_ffmpeg"):  # the same as a video (frames composited)

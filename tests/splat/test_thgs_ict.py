@@ -119,6 +119,16 @@ def test_talking_capture_lets_the_audio_drive_the_mouth_and_perturbs_tracking(tm
     # the tracker measures the rigid head pose (the root) and the expressions outside the mouth
     assert data.tracked_joints.tolist() == [True] + [False] * 5
     np.testing.assert_array_equal(data.tracked_expr, [not is_mouth_blendshape(n) for n in names])
+    # the tracker's 2D landmarks: the inner lips' landmarks open as the true lips do
+    from geoface.splat.hfm_data import IBUG68_NAMES
+    from geoface.splat.thgs_data import mouth_landmark_targets
+
+    assert data.landmarks.shape == (50, 68, 2) and data.landmark_names == list(IBUG68_NAMES)
+    lm_gap = np.linalg.norm(data.landmarks[:, 62] - data.landmarks[:, 66], axis=1)
+    assert np.corrcoef(lm_gap, gap)[0, 1] > 0.5  # 32 px wide: the gap is a few pixels, the noise 0.5
+    verts, pts = mouth_landmark_targets(data)
+    assert len(verts) == 20 and pts.shape == (50, 20, 2)
+    np.testing.assert_array_equal(verts, data.template.landmark_vertices[48:68])
     p = perturb_capture(d, tmp_path / "pert", (3.0, 5.0), seed=1)
     pert = load_talking(p)
     np.testing.assert_array_equal(pert.tracked_expr, data.tracked_expr)
@@ -148,3 +158,66 @@ def test_cli_talk_synth_ict_with_perturbed_tracking_trains_and_reports_pose_erro
         assert main(["talk", "synth", str(tmp_path / "x"), "--head", "ict", *bad]) == 2
     assert main(["talk", "synth", str(tmp_path / "x"), "--perturb", "3,5"]) == 2  # the procedural head has no truth file
     assert "needs --head ict" in capsys.readouterr().err
+
+
+def test_template_vertices_sit_on_the_landmarks_and_project_onto_the_capture_s_points(person_tpl, tmp_path):
+    """The ICT template carries a vertex exactly at each of the 68 landmarks (distinct vertices),
+    saved and loaded with it; posed by the true poses of a capture, the mouth landmarks' vertices
+    project onto the capture's landmarks.json within the detector noise plus what LBS misses."""
+    from geoface.splat.template import Template
+    from geoface.splat.thgs_data import landmark_loss, load_talking, mouth_landmark_targets
+
+    person, tpl, _ = person_tpl
+    np.testing.assert_allclose(tpl.V[tpl.landmark_vertices], person.V0[person.rest.landmarks], atol=1e-12)
+    assert len(set(tpl.landmark_vertices.tolist())) == 68
+    tpl.save(tmp_path / "t.npz")
+    back = Template.load(tmp_path / "t.npz")
+    assert back.landmark_names == tpl.landmark_names
+    np.testing.assert_array_equal(back.landmark_vertices, tpl.landmark_vertices)
+    with pytest.raises(SplatError, match="landmark"):
+        Template(tpl.V, tpl.F, tpl.joints, tpl.parents, tpl.weights, tpl.expr_basis, tpl.head_mask, tpl.mouth_box,
+                 tpl.joint_names, tpl.jaw, ["a", "b"], [0, len(tpl.V)])
+    # a capture: at rest-mouth frames the posed template lands on the tracker's points
+    d = make_ict_talking(tmp_path / "talk", seconds=1.0, res=64, n_vertices=1500, map_res=128, supersample=1,
+                         seed=4, quiet=True)
+    data = load_talking(d)
+    from geoface.splat.thgs import THGSConfig, THGSModel
+
+    model = THGSModel(data.template, THGSConfig(use_saam=False, use_audio_pose=False), data.audio.shape[1], 0)
+    verts, pts = mouth_landmark_targets(data)
+    truth = np.load(d / "poses_true.npz")
+    meta = json.loads((d / "meta.json").read_text())
+    quiet = int(np.argmin(meta["jaw_open"]))
+    with torch.no_grad():
+        gd = model(truth["rot"][quiet], truth["transl"][quiet], truth["expr"][quiet])
+        uv = data.camera.project(gd.means[torch.as_tensor(verts)])[0].numpy()
+        err = np.linalg.norm(uv - pts[quiet], axis=1)
+        assert np.median(err) < 1.5, err  # 64 px wide: 1.5 px ≈ 2 mm
+        loss0 = float(landmark_loss(gd.means[torch.as_tensor(verts)], data.camera, pts[quiet]))
+        far = float(landmark_loss(gd.means[torch.as_tensor(verts)] + torch.tensor([0.01, 0, 0]), data.camera, pts[quiet]))
+    assert 0 <= loss0 < far
+    bad = tmp_path / "talk" / "landmarks.json"
+    bad.write_text(json.dumps({"points": [[[0, 0]]]}))
+    with pytest.raises(SplatError, match="landmarks"):
+        load_talking(d)
+
+
+def test_mouth_landmarks_teach_the_audio_to_open_the_jaw(tmp_path):
+    """Trained with the capture's mouth landmarks, the audio articulation opens the jaw as the
+    true jaw opens (r > 0.5 over the frames), by a good share of the true range."""
+    from geoface.splat.thgs import THGSConfig, load_thgs, train_thgs
+    from geoface.splat.thgs_data import load_talking
+
+    d = make_ict_talking(tmp_path / "talk", seconds=2.5, res=40, n_vertices=1200, map_res=128, supersample=1,
+                         seed=5, quiet=True)
+    meta = json.loads((d / "meta.json").read_text())
+    jaw_true = np.asarray(meta["jaw_open"])
+    cfg = THGSConfig(iters=200, stage_scale=0.001, use_saam=False, use_leb=False, heldout=0.0, seed=0)
+    train_thgs(d, tmp_path / "m", cfg, progress=False, log=None)
+    m = load_thgs(tmp_path / "m")
+    with torch.no_grad():
+        jaw = np.array([float(m.artic(m.normalize_audio(torch.tensor(a)))[0][m.template.jaw].norm())
+                        for a in load_talking(d).audio])
+    full = np.linalg.norm(meta["jaw_rotvec"])
+    assert np.corrcoef(jaw, jaw_true)[0, 1] > 0.5
+    assert np.ptp(jaw) > 0.25 * full * np.ptp(jaw_true)  # opens by a good share of the true range
