@@ -50,6 +50,8 @@ def main(argv=None) -> int:
     ap.add_argument("--data-seed", type=int, default=0)
     ap.add_argument("--saam-from", type=float, default=0.1)
     ap.add_argument("--variants", default=",".join(VARIANTS))
+    ap.add_argument("--lambda-landmarks", type=float, default=None,
+                    help="weight of the mouth-landmark loss for every variant but no_landmarks (default: THGSConfig's)")
     ap.add_argument("--out", default="/tmp/geoface_eval_thgs")
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--quick", action="store_true")
@@ -91,7 +93,8 @@ def main(argv=None) -> int:
     rnd = lambda v: {k: rnd(x) for k, x in v.items()} if isinstance(v, dict) else round(v, 4)  # noqa: E731
     loaded = {}
     for name, ddir, opts in runs:
-        cfg = THGSConfig(iters=a.iters, stage_scale=scale, seed=0, **opts)
+        lam = {} if a.lambda_landmarks is None else {"lambda_landmarks": a.lambda_landmarks}
+        cfg = THGSConfig(iters=a.iters, stage_scale=scale, seed=0, **{**lam, **opts})
         info = train_thgs(ddir, out / f"model_{name}", cfg, progress=False)
         h = info["history"]
         if ddir not in loaded:  # the variants on one capture share its frames in memory

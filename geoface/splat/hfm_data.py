@@ -40,7 +40,7 @@ from geoface.nn.camera import Camera, look_at
 from geoface.errors import GeofaceError
 from geoface.splat.errors import SplatError
 
-__all__ = ["HMDVideo", "load_video", "IBUG68_NAMES", "IBUG68_LOWER", "IBUG68_RIGID", "lower_face_box", "crop_lower_face", "make_synthetic_hmd",
+__all__ = ["HMDVideo", "load_video", "read_landmarks", "IBUG68_NAMES", "IBUG68_LOWER", "IBUG68_RIGID", "lower_face_box", "crop_lower_face", "make_synthetic_hmd",
            "LOWER_FACE_LANDMARKS", "UPPER_EXPRESSIONS", "headset_mesh"]
 
 LOWER_FACE_LANDMARKS = ("nose_tip", "mouth_left", "mouth_right", "chin")
@@ -162,6 +162,27 @@ def camera_to_json(cam: Camera) -> dict:
             "height": cam.height, "R": cam.R.tolist(), "t": cam.t.tolist()}
 
 
+def read_landmarks(path, n_frames: int) -> tuple[np.ndarray, list]:
+    """(points [T, K, 2] pixels, names [K]) of a ``landmarks.json`` (module doc); every problem is
+    a one-line SplatError."""
+    try:
+        lm = json.loads(Path(path).read_text())
+        pts = np.asarray(lm["points"], dtype=np.float64)
+        names = [str(n) for n in lm["names"]] if "names" in lm else (
+            list(IBUG68_NAMES) if pts.ndim == 3 and pts.shape[1] == 68 else None)
+        if names is None:
+            raise KeyError("'names' (needed unless the points are the 68 iBUG landmarks)")
+    except (ValueError, KeyError, TypeError) as e:
+        raise SplatError(f"{path}: malformed landmarks ({type(e).__name__}: {e})") from None
+    if pts.ndim == 3 and pts.shape[1] != len(names):
+        raise SplatError(f"{path}: {len(names)} names but {pts.shape[1]} points per frame")
+    if pts.ndim != 3 or pts.shape[0] != n_frames or pts.shape[2] != 2 or len(set(names)) != len(names):
+        raise SplatError(f"{path}: points must be [frames={n_frames}, K, 2] with K distinct names; got {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise SplatError(f"{path}: non-finite landmarks")
+    return pts, names
+
+
 def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) -> HMDVideo:
     """Load a video folder (format in the module doc); every problem is a one-line SplatError."""
     folder = Path(folder)
@@ -176,25 +197,16 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
         if not (folder / name).is_file():
             raise SplatError(f"{folder}: missing {name}")
     try:
-        lm = json.loads((folder / "landmarks.json").read_text())
         cam = _camera_from_json(json.loads((folder / "camera.json").read_text()))
         meta = json.loads((folder / "meta.json").read_text())
         y_split = float(meta["y_split"])
-        pts = np.asarray(lm["points"], dtype=np.float64)
-        names = list(lm["names"]) if "names" in lm else (list(IBUG68_NAMES) if pts.ndim == 3 and pts.shape[1] == 68 else None)
-        if names is None:
-            raise KeyError("'names' (needed unless the points are the 68 iBUG landmarks)")
     except (ValueError, KeyError, TypeError) as e:
         raise SplatError(f"{folder}: malformed json ({type(e).__name__}: {e})") from None
-    if pts.ndim == 3 and pts.shape[1] != len(names):
-        raise SplatError(f"{folder}/landmarks.json: {len(names)} names but {pts.shape[1]} points per frame")
+    all_paths = sorted((folder / "frames").glob("*.png"))
+    pts, names = read_landmarks(folder / "landmarks.json", len(all_paths))
     missing = [n for n in LOWER_FACE_LANDMARKS if n not in names]
     if missing:
         raise SplatError(f"{folder}/landmarks.json: missing landmarks {missing}")
-    all_paths = sorted((folder / "frames").glob("*.png"))
-    if pts.ndim != 3 or pts.shape[0] != len(all_paths) or pts.shape[2] != 2:
-        raise SplatError(f"{folder}/landmarks.json: points must be [frames={len(all_paths)}, K, 2]; "
-                         f"got {pts.shape}")
     if frames is not None:
         pts = pts[frames]
     imgs = np.stack([_read_png(p) for p in paths])

@@ -13,7 +13,8 @@ Spatial Audio Attention Module (Chen et al., "THGS: talking human avatars with G
 * :class:`ExpressionBlendshapes` (eq. 8–9): Ê = E + ΔE ∘ M_H with ΔE zero at start and confined
   to the head mask M_H; vertex offsets Σ_k ψ_k Ê_k; L2 penalty ‖ΔE‖² (weight 0.1 in training).
 * training (:func:`train_thgs`): 0.8·L1 + 0.2·D-SSIM, vertex loss (eq. 19, weight 1e-2), LEB
-  penalty (0.1) and, in the refinement stage, a normal loss (:meth:`THGSModel.normal_loss`).
+  penalty (0.1), in the refinement stage a normal loss (:meth:`THGSModel.normal_loss`) and, when
+  the capture has a tracker's ``landmarks.json``, the mouth landmarks (ours; thgs_data).
 * :class:`SpatialAudioAttention` (eq. 10–15): the mouth Gaussians (inside the teeth box + 0.02)
   encoded by a multiresolution tri-plane hash encoding, fused with the frame's audio features,
   passed through external attention (two learned memories, double normalisation) and a

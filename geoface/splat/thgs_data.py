@@ -40,10 +40,10 @@ import numpy as np
 
 from geoface.nn.camera import Camera, look_at
 from geoface.splat.errors import SplatError
-from geoface.splat.hfm_data import _camera_from_json, _read_png, _write_png, camera_to_json
+from geoface.splat.hfm_data import _camera_from_json, _read_png, _write_png, camera_to_json, read_landmarks
 from geoface.splat.template import Template
 
-__all__ = ["TalkingData", "load_talking", "load_tracked", "make_synthetic_talking", "speech_like", "read_landmarks",
+__all__ = ["TalkingData", "load_talking", "load_tracked", "make_synthetic_talking", "speech_like",
            "mouth_landmark_targets", "landmark_loss"]
 
 
@@ -132,25 +132,6 @@ def _mouth_names():
     from geoface.splat.hfm_data import IBUG68_NAMES
 
     return tuple(IBUG68_NAMES[48:68])
-
-
-def read_landmarks(path, n_frames: int) -> tuple[np.ndarray, list]:
-    """(points [T, L, 2], names [L]) of a ``landmarks.json`` (format: module doc)."""
-    from geoface.splat.hfm_data import IBUG68_NAMES
-
-    try:
-        lm = json.loads(Path(path).read_text())
-        pts = np.asarray(lm["points"], dtype=np.float64)
-        names = [str(n) for n in lm["names"]] if "names" in lm else (
-            list(IBUG68_NAMES) if pts.ndim == 3 and pts.shape[1] == 68 else None)
-    except (ValueError, KeyError, TypeError) as e:
-        raise SplatError(f"{path}: malformed landmarks ({type(e).__name__}: {e})") from None
-    if names is None or pts.ndim != 3 or pts.shape != (n_frames, len(names), 2) or len(set(names)) != len(names):
-        raise SplatError(f"{path}: points must be [frames={n_frames}, K, 2] with K distinct names (or the 68 iBUG "
-                         f"points); got {pts.shape}")
-    if not np.isfinite(pts).all():
-        raise SplatError(f"{path}: non-finite landmarks")
-    return pts, names
 
 
 def mouth_landmark_targets(data: TalkingData):
