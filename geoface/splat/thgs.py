@@ -205,7 +205,7 @@ class THGSConfig:
     lambda_vertex: float = 1e-2
     lambda_leb: float = 0.1
     lambda_normal: float = 0.01   # refinement stage (from the blendshape stage on)
-    lambda_landmarks: float = 0.1  # mouth landmarks (landmarks.json) from the expression stage on
+    lambda_landmarks: float = 1.0  # mouth landmarks (landmarks.json) from the expression stage on
     lr_means: float = 1.6e-4
     lr_nets: float = 1e-3
     lr_pose: float = 5e-3  # per-frame corrections: radians per step at a typical misfit (FrameCorrections)

@@ -15,7 +15,7 @@ from geoface.splat.hfm_cli import _quiet  # noqa: E402  (argparse only, no torch
 from geoface._args import SEED, add_json, json_to_stdout, number, write_json
 
 #: THGSConfig.lambda_landmarks's default (kept here so that building the parser imports no torch)
-THGS_LANDMARK_WEIGHT = 0.1
+THGS_LANDMARK_WEIGHT = 1.0
 
 
 def cmd_talk_synth(args) -> int:

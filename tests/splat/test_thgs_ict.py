@@ -209,9 +209,11 @@ def test_template_vertices_sit_on_the_landmarks_and_project_onto_the_capture_s_p
         load_talking(d)
 
 
+@pytest.mark.slow
 def test_mouth_landmarks_teach_the_audio_to_open_the_jaw(tmp_path):
     """Trained with the capture's mouth landmarks, the audio articulation opens the jaw as the
-    true jaw opens (r > 0.5 over the frames), by a good share of the true range."""
+    true jaw opens (r > 0.5 over the frames), by a tenth of the true range or more within 200
+    steps (without them it stays within a hundredth of a degree on the 12 s capture of the docs)."""
     from geoface.splat.thgs import THGSConfig, load_thgs, train_thgs
     from geoface.splat.thgs_data import load_talking
 
@@ -227,4 +229,4 @@ def test_mouth_landmarks_teach_the_audio_to_open_the_jaw(tmp_path):
                         for a in load_talking(d).audio])
     full = np.linalg.norm(meta["jaw_rotvec"])
     assert np.corrcoef(jaw, jaw_true)[0, 1] > 0.5
-    assert np.ptp(jaw) > 0.25 * full * np.ptp(jaw_true)  # opens by a good share of the true range
+    assert np.ptp(jaw) > 0.1 * full * np.ptp(jaw_true)
