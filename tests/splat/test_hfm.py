@@ -520,8 +520,12 @@ def test_loader_errors(videos, tmp_path):
         load_video(tmp_path)
     bad = tmp_path / "bad"
     shutil.copytree(reg, bad)
-    (bad / "landmarks.json").write_text(json.dumps({"names": ["nose_tip"], "points": []}))
+    n = len(list((bad / "frames").glob("*.png")))
+    (bad / "landmarks.json").write_text(json.dumps({"names": ["nose_tip"], "points": [[[0, 0]]] * n}))
     with pytest.raises(SplatError, match="missing landmarks"):
+        load_video(bad)
+    (bad / "landmarks.json").write_text(json.dumps({"names": ["nose_tip"], "points": []}))
+    with pytest.raises(SplatError, match="points must be"):
         load_video(bad)
     shutil.rmtree(bad)
     shutil.copytree(reg, bad)
