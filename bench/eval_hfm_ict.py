@@ -3,6 +3,7 @@
 
     python bench/eval_hfm_ict.py data --out DIR [--val 10 --test 11,12,13] [--frames 200 --usage 50]
     python bench/eval_hfm_ict.py run --out DIR [--splits test] [--seeds 0,1] [--jobs 4] [--device cuda]
+    python bench/eval_hfm_ict.py run --out DIR --group test/0/oracle,full --group val/0,1/full,map_theta ...
     python bench/eval_hfm_ict.py poses --out DIR [--splits val,test]
     python bench/eval_hfm_ict.py table --out DIR
 
@@ -14,6 +15,8 @@ talking, emoting, lit ICT person, registration and usage videos of different seq
 * ``full``     — Full with no pose file: registration poses fitted to the landmarks (PnP), the
   usage pose read from the lower-face crop (the pose MLP trained during registration);
 * ``no_gaussian_feature_mapping``, ``no_global_pose`` — the paper's ablations, no pose file;
+* ``map_theta``, ``gm_xsr``, ``pm_per_component``, ``split_margin`` — Full with one of the paper's
+  elements that the defaults leave out (:data:`PAPER`), for the choice on the validation split;
 
 and scores each on the usage video (PSNR/SSIM: whole face, the region the headset hides, its
 expression region); the no-file models with the usage pose fitted to the landmarks below the
