@@ -40,7 +40,7 @@ import numpy as np
 
 from geoface.nn.camera import Camera, look_at
 from geoface.splat.errors import SplatError
-from geoface.splat.hfm_data import _camera_from_json, _read_png, _write_png, camera_to_json, read_landmarks
+from geoface.splat.hfm_data import IBUG68_NAMES, _camera_from_json, _read_png, _write_png, camera_to_json, read_landmarks
 from geoface.splat.template import Template
 
 __all__ = ["TalkingData", "load_talking", "load_tracked", "make_synthetic_talking", "speech_like",
@@ -128,10 +128,7 @@ def load_talking(folder) -> TalkingData:
 
 
 #: iBUG-68 names of the mouth's landmarks (points 48–67): what the landmark loss supervises
-def _mouth_names():
-    from geoface.splat.hfm_data import IBUG68_NAMES
-
-    return tuple(IBUG68_NAMES[48:68])
+MOUTH_LANDMARKS = tuple(IBUG68_NAMES[48:68])
 
 
 def mouth_landmark_targets(data: TalkingData):
@@ -140,7 +137,7 @@ def mouth_landmark_targets(data: TalkingData):
     tpl = data.template
     if data.landmarks is None or not len(tpl.landmark_names):
         return None
-    both = [n for n in _mouth_names() if n in data.landmark_names and n in tpl.landmark_names]
+    both = [n for n in MOUTH_LANDMARKS if n in data.landmark_names and n in tpl.landmark_names]
     if not both:
         return None
     verts = np.array([tpl.landmark_vertices[tpl.landmark_names.index(n)] for n in both])
