@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from geoface.splat.errors import SplatError
+from geoface.splat.hfm_data import IBUG68_NAMES
 
 __all__ = ["ict_template", "make_ict_talking", "perturb_capture", "is_mouth_blendshape", "JOINT_NAMES"]
 
@@ -141,8 +142,6 @@ def ict_template(person, n_vertices: int = 6000):
     lo, hi = lips.min(0), lips.max(0)
     lo = lo - [0.006, 0.006 + 0.02, 0.03]  # the opening jaw takes the lower lip down; teeth lie behind
     hi = hi + [0.006, 0.006, 0.006]
-    from geoface.splat.hfm_data import IBUG68_NAMES
-
     tpl = Template(V, F, joints, np.array(_PARENTS), W, basis, w_head > 0.5, np.stack([lo, hi]),
                    list(JOINT_NAMES), jaw=3, landmark_names=list(IBUG68_NAMES), landmark_vertices=lmk_v)
     return tpl, {"jaw_rotvec": rv.tolist(), "expression_names": names}
@@ -164,12 +163,10 @@ LANDMARK_NOISE_PX = 0.5
 LIP_POINTS = (62, 66)
 
 
-def lip_vertices(person, template) -> list:
-    """The template vertices nearest the person's inner lips' middles (:data:`LIP_POINTS`)."""
-    from scipy.spatial import cKDTree
-
-    _, idx = cKDTree(template.V).query(person.V0[person.rest.landmarks[list(LIP_POINTS)]])
-    return [int(i) for i in idx]
+def lip_vertices(template) -> list:
+    """The template vertices at the inner lips' middles (:data:`LIP_POINTS`; :func:`ict_template`
+    puts a vertex at each landmark)."""
+    return [int(template.landmark_vertices[i]) for i in LIP_POINTS]
 
 
 def tracked_dofs(names) -> dict:
@@ -279,8 +276,6 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
         expr[k] = [0.0 if is_mouth_blendshape(n) else curves[k].get(n, 0.0) for n in names]
         jaw.append(curves[k].get("jawOpen", 0.0))
     np.savez(out / "poses_true.npz", rot=rot, transl=transl, expr=expr)
-    from geoface.splat.hfm_data import IBUG68_NAMES
-
     (out / "landmarks.json").write_text(json.dumps({"names": list(IBUG68_NAMES), "points": marks}))
     rot, transl = _perturbed(rot, transl, deg, mm, np.random.default_rng([seed, 7202]))
     np.savez(out / "poses.npz", rot=rot, transl=transl, expr=expr, **tracked_dofs(names))
@@ -291,6 +286,6 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
         "expression_names": names, "tracked_expressions": [n for n in names if not is_mouth_blendshape(n)],
         "jaw_open": [round(float(v), 5) for v in jaw], "envelope": [round(float(v), 5) for v in loud],
         "jaw_rotvec": info["jaw_rotvec"], "perturb_deg_mm": [deg, mm], "lips_box": lips_box(person).tolist(),
-        "lights": [a.tolist() for a in person.lights], "lip_vertices": lip_vertices(person, tpl),
+        "lights": [a.tolist() for a in person.lights], "lip_vertices": lip_vertices(tpl),
         "lip_gap_m": [round(g, 6) for g in gap]}))
     return out
