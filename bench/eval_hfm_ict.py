@@ -3,7 +3,7 @@
 
     python bench/eval_hfm_ict.py data --out DIR [--val 10 --test 11,12,13] [--frames 200 --usage 50]
     python bench/eval_hfm_ict.py run --out DIR [--splits test] [--seeds 0,1] [--jobs 4] [--device cuda]
-    python bench/eval_hfm_ict.py run --out DIR --group test/0/oracle,full --group val/0,1/full,map_theta ...
+    python bench/eval_hfm_ict.py run --out DIR --group test/0/oracle,full --group val/0,1/full,map_theta/10 ...
     python bench/eval_hfm_ict.py poses --out DIR [--splits val,test]
     python bench/eval_hfm_ict.py table --out DIR
 
@@ -110,13 +110,14 @@ def _run(a) -> None:
     jobs = []
     models = a.models or str(Path(a.out) / "models")
     data = Path(a.data) if a.data else Path(a.out) / "data"
-    # --group SPLIT/SEEDS/VARIANTS, in the order given (the first ones finish first), else all of
-    # --splits × --seeds × --variants
+    # --group SPLIT/SEEDS/VARIANTS[/PEOPLE], in the order given (the first ones finish first), else
+    # all of --splits × --seeds × --variants; PEOPLE defaults to --val or --test
     groups = [g.split("/") for g in a.group] if a.group else [[sp, ",".join(map(str, a.seeds)), ",".join(a.variants)]
                                                             for sp in a.splits]
-    for split, seeds, variants in groups:
+    for split, seeds, variants, *people in groups:
+        default = a.val if split == "val" else a.test
         for seed in (int(x) for x in seeds.split(",")):
-            for s in (a.val if split == "val" else a.test):
+            for s in ([int(x) for x in people[0].split(",")] if people else default):
                 d = data / f"{split}_{s}"
                 if not (d / "usage" / "meta.json").is_file():
                     raise SystemExit(f"{d}: no capture; run the data stage first")
@@ -209,8 +210,9 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="runs at a time")
     ap.add_argument("--threads", type=int, default=1, help="torch threads per run")
     ap.add_argument("--device", default="cpu")
-    ap.add_argument("--group", action="append", default=[], metavar="SPLIT/SEEDS/VARIANTS",
-                    help="run: jobs in this order, e.g. test/0/full,oracle (repeatable; instead of --splits/--seeds/--variants)")
+    ap.add_argument("--group", action="append", default=[], metavar="SPLIT/SEEDS/VARIANTS[/PEOPLE]",
+                    help="run: jobs in this order, e.g. test/0/full,oracle or test/1/full/11,12 "
+                         "(repeatable; instead of --splits/--seeds/--variants)")
     ap.add_argument("--models", default=None, help="run: where the models go (default OUT/models)")
     ap.add_argument("--data", default=None, help="where the captures are (default OUT/data)")
     a = ap.parse_args(argv)
