@@ -309,6 +309,13 @@ class THGSModel(nn.Module):
         n = R.gather(2, k[:, None, None].expand(-1, 3, 1))[..., 0]
         return (1 - (n * self.vertex_normals[g.parent]).sum(-1).abs()).mean()
 
+    def gaussians_of(self, vertices) -> list[Tensor]:
+        """For each template vertex in ``vertices``, the indices of the Gaussians bound to it."""
+        out = [torch.nonzero(self.gaussians.parent == int(v))[:, 0] for v in vertices]
+        if not all(len(i) for i in out):
+            raise SplatError("no Gaussian is bound to one of the vertices " + str([int(v) for v in vertices]))
+        return out
+
     def vertex_loss(self) -> Tensor:
         """Eq. 19: mean squared distance of each Gaussian to its parent vertex (metres²)."""
         g = self.gaussians
@@ -396,7 +403,7 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     imgs = torch.tensor(data.frames)
     lmk = mouth_landmark_targets(data) if cfg.lambda_landmarks > 0 else None
     if lmk is not None:  # the Gaussian bound to each landmark's vertex
-        lmk = ([int(torch.nonzero(g.parent == int(v))[0, 0]) for v in lmk[0]], lmk[1])
+        lmk = ([int(i[0]) for i in model.gaussians_of(lmk[0])], lmk[1])
     stages = cfg.stages()
     history, order = [], []
     bg = torch.zeros(3)

@@ -86,10 +86,7 @@ def lip_gaps(model: THGSModel, data, frames, lip_vertices) -> np.ndarray:
     """Per frame, the distance (scene units) between the mean centres of the Gaussians bound to
     the two template vertices ``lip_vertices`` (upper and lower inner lip), posed by the
     frame's tracking and audio: how far the avatar opens its mouth."""
-    parent = model.gaussians.parent
-    sel = [parent == int(v) for v in lip_vertices]
-    if not all(bool(m.any()) for m in sel):
-        raise SplatError("no Gaussian is bound to one of the lip vertices")
+    sel = model.gaussians_of(lip_vertices)
     out = []
     for t in frames:
         X = model(data.rot[t], data.transl[t], data.expr[t], torch.as_tensor(data.audio[t])).means

@@ -78,6 +78,17 @@ def test_identity_pose_returns_the_canonical_gaussians(tpl):
     assert float(m.normal_loss().detach()) > 0.05
 
 
+def test_gaussians_of_finds_each_vertex_gaussians_and_refuses_an_unbound_vertex(tpl):
+    m = THGSModel(tpl, THGSConfig(), audio_dim=8)
+    g = m.gaussians
+    g.parent = g.parent.clone()
+    g.parent[[3, 5]] = 7  # vertices 3 and 5 lose their Gaussian to vertex 7
+    a, b = m.gaussians_of([7, 2])
+    assert a.tolist() == [3, 5, 7] and b.tolist() == [2]
+    with pytest.raises(SplatError, match="no Gaussian is bound"):
+        m.gaussians_of([2, 3])
+
+
 def test_rotating_one_joint_rotates_exactly_its_gaussians():
     t = _two_cluster_template()
     skin = VoxelSkinning(t.V, t.weights, res=32)
