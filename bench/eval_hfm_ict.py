@@ -23,7 +23,7 @@ expression region); the no-file models with the usage pose fitted to the landmar
 headset (``usage_poses: landmarks``), read from the crop alone (``image``) and, to separate what
 the pose estimate costs, the true one (``file``).  One JSON line per score in ``DIR/results.jsonl``;
 ``poses`` scores the head poses alone against the truth: registration poses fitted to the 68
-landmarks, usage poses fitted to those below the headset.  ``table`` prints means and the pairs.  Choose settings with ``--splits val``; report ``test``.
+landmarks, usage poses fitted to those below the headset.  ``table`` prints means, the pairs, and whole face / occluded PSNR per person and model seed.  Choose settings with ``--splits val``; report ``test``.
 """
 from __future__ import annotations
 
@@ -190,6 +190,13 @@ def _table(a) -> None:
                 d = {k: [b[k] - o[k] for b, o in pairs] for k in ("psnr_face", "psnr_occluded")}
                 print(f"full (no pose file) − {v}: " + ", ".join(
                     f"{k} {np.mean(x):+.2f} dB ({sum(y > 0 for y in x)} of {len(x)} better)" for k, x in d.items()))
+        cols = [("oracle", "file")] + [(v, "landmarks") for v in MAIN[1:]]
+        print("\n| person | model seed | " + " | ".join(f"{v} ({up})" for v, up in cols) + " |")
+        print("|---|---|" + "---|" * len(cols))
+        for key in sorted({(r["data_seed"], r["seed"]) for r in sel}):
+            got = {(r["variant"], r["usage_poses"]): r for r in sel if (r["data_seed"], r["seed"]) == key}
+            print(f"| {key[0]} | {key[1]} | " + " | ".join(
+                f"{got[c]['psnr_face']:.2f} / {got[c]['psnr_occluded']:.2f}" if c in got else "—" for c in cols) + " |")
 
 
 def main(argv=None) -> int:
