@@ -206,6 +206,7 @@ class THGSConfig:
     lambda_leb: float = 0.1
     lambda_normal: float = 0.01   # refinement stage (from the blendshape stage on)
     lambda_landmarks: float = 1.0  # mouth landmarks (landmarks.json) from the expression stage on
+    landmarks_pose: bool = False   # True: the landmark term also moves the per-frame pose corrections
     lr_means: float = 1.6e-4
     lr_nets: float = 1e-3
     lr_pose: float = 5e-3  # per-frame corrections: radians per step at a typical misfit (FrameCorrections)
@@ -228,8 +229,9 @@ class THGSConfig:
 
         from .errors import ModelFolderError
 
-        # models saved before the audio articulation existed have none
-        return config_from_dict(cls, {"use_audio_pose": False, **d}, where=where, error=ModelFolderError)
+        # saved before the audio articulation: none; before landmarks_pose: the landmarks moved the poses
+        return config_from_dict(cls, {"use_audio_pose": False, "landmarks_pose": True, **d}, where=where,
+                                error=ModelFolderError)
 
 
 class THGSModel(nn.Module):
@@ -422,13 +424,19 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
         l1 = (rgb - gt).abs().mean()
         loss = (1 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * dssim(rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])
         loss = loss + cfg.lambda_vertex * model.vertex_loss() / ext**2
-        if lmk is not None and model.stage >= 2:
-            loss = loss + cfg.lambda_landmarks * landmark_loss(gd.means[lmk[0]], data.camera, lmk[1][f])
+        lm = (cfg.lambda_landmarks * landmark_loss(gd.means[lmk[0]], data.camera, lmk[1][f])
+              if lmk is not None and model.stage >= 2 else None)
+        if lm is not None and cfg.landmarks_pose:
+            loss, lm = loss + lm, None
         if model.stage >= 3:
             if cfg.use_leb:
                 loss = loss + cfg.lambda_leb * model.leb.penalty() / ext**2
             loss = loss + cfg.lambda_normal * model.normal_loss()
+        if lm is not None:  # the landmark term's gradient reaches the networks, not the pose corrections
+            lm.backward(retain_graph=True)
+            model.d_rot.grad = model.d_transl.grad = model.d_expr.grad = None
         loss.backward()
+        loss = loss if lm is None else loss + lm.detach()
         for grp in opt.param_groups:  # staged schedule: parts not yet switched on keep still
             name = grp["name"]
             on = {"skin": model.stage >= 1, "leb": model.stage >= 3 and cfg.use_leb,

@@ -230,3 +230,29 @@ def test_mouth_landmarks_teach_the_audio_to_open_the_jaw(tmp_path):
     full = np.linalg.norm(meta["jaw_rotvec"])
     assert np.corrcoef(jaw, jaw_true)[0, 1] > 0.5
     assert np.ptp(jaw) > 0.1 * full * np.ptp(jaw_true)
+
+
+def test_landmark_term_can_leave_the_pose_corrections_alone(tmp_path):
+    """By default (``landmarks_pose=False``) a training step moves the drawn frame's pose
+    corrections exactly as it does without the landmark term, while the landmark term still
+    reaches the networks; with ``landmarks_pose=True`` it moves the corrections too."""
+    from geoface.splat.thgs import THGSConfig, load_thgs, train_thgs
+
+    d = make_ict_talking(tmp_path / "talk", seconds=1.0, res=32, n_vertices=1200, map_res=128, supersample=1,
+                         seed=3, quiet=True)
+    p = perturb_capture(d, tmp_path / "pert", (2.0, 3.0), seed=0)  # corrections with something to correct
+    models = {}
+    for name, kw in {"off": {"lambda_landmarks": 0.0}, "nets": {"lambda_landmarks": 100.0},
+                     "all": {"lambda_landmarks": 100.0, "landmarks_pose": True}}.items():
+        cfg = THGSConfig(iters=1, stage_scale=0.0, heldout=0.0, seed=0, **kw)  # every stage on, one step
+        train_thgs(p, tmp_path / name, cfg, progress=False, log=None)
+        models[name] = load_thgs(tmp_path / name)
+    off, nets, full = (models[k] for k in ("off", "nets", "all"))
+    assert float(off.d_rot.detach().abs().max()) > 0 and float(off.d_transl.detach().abs().max()) > 0
+    for k in ("d_rot", "d_transl", "d_expr"):
+        assert torch.equal(getattr(off, k), getattr(nets, k)), k
+    assert not torch.equal(off.d_rot, full.d_rot)
+    changed = [not torch.equal(a, b) for a, b in zip(off.artic.parameters(), nets.artic.parameters())]
+    assert any(changed)  # the landmark term trained the audio articulation
+    # model folders saved before the option were trained with the landmarks moving the poses
+    assert THGSConfig.from_dict({"iters": 5}).landmarks_pose is True and THGSConfig().landmarks_pose is False
