@@ -434,7 +434,7 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
             loss = loss + cfg.lambda_normal * model.normal_loss()
         if lm is not None:  # the landmark term's gradient reaches the networks, not the pose corrections
             lm.backward(retain_graph=True)
-            model.d_rot.grad = model.d_transl.grad = model.d_expr.grad = None
+            frame_opt.zero_grad()
         loss.backward()
         loss = loss if lm is None else loss + lm.detach()
         for grp in opt.param_groups:  # staged schedule: parts not yet switched on keep still
