@@ -45,7 +45,10 @@ VARIANTS = {"oracle": ("full", "file"), "full": ("full", "landmarks"),
 #: measured on the validation split before any becomes a default
 PAPER = {"map_theta": {"map_theta": True}, "gm_xsr": {"gm_input": "xsr"},
          "pm_per_component": {"pm_per_component": True}, "split_margin": {"split_margin": 0.002}}
-VARIANTS.update({k: ("full", "landmarks") for k in PAPER})
+#: choices of ours, each alone on top of Full (no pose file), for the validation split
+OURS = {"no_pose_residual": {"pose_residual": False}, "reg_lower": {"registration_landmarks": "lower"},
+        "reg_lower_no_pose_residual": {"registration_landmarks": "lower", "pose_residual": False}}
+VARIANTS.update({k: ("full", "landmarks") for k in {**PAPER, **OURS}})
 MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]
 
 
@@ -82,7 +85,7 @@ def _job_rows(job) -> list:
     torch.set_num_threads(threads)
     ablation, poses = VARIANTS[variant]
     mdir = Path(models) / f"{split}_{data_seed}_{variant}_s{seed}"
-    cfg = HFMConfig(**{**ABLATIONS[ablation], **PAPER.get(variant, {}), "iters": iters, "seed": seed,
+    cfg = HFMConfig(**{**ABLATIONS[ablation], **PAPER.get(variant, {}), **OURS.get(variant, {}), "iters": iters, "seed": seed,
                        "threads": threads})
     info_file = mdir / "train_info.json"
     if info_file.is_file() and (mdir / "model.safetensors").is_file():  # trained before: score it again

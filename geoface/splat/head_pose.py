@@ -161,12 +161,15 @@ def canonical_landmarks(video, mesh_V, mesh_F, pose0=None) -> tuple[list, np.nda
     return [n for n, k in zip(video.names, ok) if k], P[ok]
 
 
-def poses_from_landmarks(video, mesh_V, mesh_F, *, indices=None) -> dict:
+def poses_from_landmarks(video, mesh_V, mesh_F, *, indices=None, fit_names=None) -> dict:
     """Head poses of every frame of ``video`` (an :class:`HMDVideo`) from its landmarks and its
-    canonical head (``mesh_V``, ``mesh_F``; frame 0's pose).  ``indices``: which landmarks to
-    use (default: the iBUG rigid ones when the names are the iBUG 68, else all).  Returns
-    :func:`solve_poses`'s dict plus ``points3d`` [K, 3] and ``names`` of the points used, and
-    ``all_names`` / ``all_points3d``: every landmark that frame 0 places on the head."""
+    canonical head (``mesh_V``, ``mesh_F``; frame 0's pose).  ``indices``: which landmarks place
+    the head (default: the iBUG rigid ones when the names are the iBUG 68, else all); the poses
+    are fitted to those, or to the landmarks named ``fit_names`` when given (e.g.
+    :data:`LOWER_RIGID_NAMES`, those a headset leaves visible).  The pivot is the mean of the
+    placing landmarks either way.  Returns :func:`solve_poses`'s dict plus ``points3d`` [K, 3] and
+    ``names`` of the points fitted, and ``all_names`` / ``all_points3d``: every landmark that frame 0
+    places on the head."""
     from geoface.splat.hfm_data import IBUG68_NAMES, IBUG68_RIGID
 
     names = list(video.names)
@@ -187,6 +190,10 @@ def poses_from_landmarks(video, mesh_V, mesh_F, *, indices=None) -> dict:
         k = [placed.index(n) for n in outline]
         P_all = P_all.copy()
         P_all[k] = triangulate(video.camera, first, video.landmarks[:, [names.index(n) for n in outline]], P_all[k])
+    if fit_names is not None:
+        use = [n for n in names if n in fit_names and n in placed]
+        if len(use) < 4:
+            raise SplatError(f"only {len(use)} of the landmarks to fit the head poses to fall on the head mesh (need 4)")
     P3 = P_all[[placed.index(n) for n in use]]
     out = solve_poses(video.camera, P3, video.landmarks[:, [names.index(n) for n in use]], pivot)
     out.update(points3d=P3, names=use, all_names=placed, all_points3d=P_all)

@@ -50,6 +50,10 @@ def _config(args):
               gm_input=args.gm_input, pm_per_component=args.pm_per_component, split_margin=args.split_margin)
     if args.y_split is not None:
         kw["y_split"] = args.y_split
+    if args.pose_landmarks is not None:
+        kw["registration_landmarks"] = args.pose_landmarks
+    if args.pose_residual is not None:
+        kw["pose_residual"] = args.pose_residual
     kw.update(ABLATIONS[args.ablation])
     return HFMConfig(**kw)
 
@@ -187,6 +191,11 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--poses", choices=("auto", "file", "landmarks"), default="auto",
                    help="registration head poses: head_poses.npz (file), fitted to the landmarks (landmarks), "
                         "or the file when there is one (auto)")
+    t.add_argument("--pose-landmarks", choices=("rigid", "lower"), default=None,
+                   help="registration poses fitted to the landmarks that move little with expressions (rigid), "
+                        "or to those of them below a headset, as the usage poses are (lower); default: the model's")
+    t.add_argument("--pose-residual", action=argparse.BooleanOptionalAction, default=None,
+                   help="the global pose MLP corrects the tracked head pose of each frame (default: the model's)")
     t.add_argument("--device", default=None, help="cpu or cuda (default: cuda when torch sees a GPU)")
     t.add_argument("--seed", type=SEED, default=0)
     t.set_defaults(func=cmd_hmd_train)

@@ -42,7 +42,9 @@ class HFMConfig:
     y_split: float | None = None   # y_t (world metres); None: the registration folder's meta.json
     margin: float = 0.004      # m of Algorithm 1 (metres)
     global_pose: bool = True
+    pose_residual: bool = True  # MLP_pose(θ) corrects the given head pose (eq. 8 after the tracked pose)
     image_pose: bool = True    # learn the whole head pose from the crop (for videos without head_poses.npz)
+    registration_landmarks: str = "rigid"  # without a pose file, fit registration poses to "rigid" or "lower" landmarks
     lambda_pose: float = 100.0  # weight of its loss: squared radians + squared (translation / 0.1 head size)
     gaussian_mapping: bool = True
     feature_mapping: bool = True
@@ -90,6 +92,8 @@ class HFMConfig:
             raise SplatError(f"HFMConfig.lower_keys must be 'sample' or 'top'; got {self.lower_keys!r}")
         if self.margin < 0 or self.split_margin < 0:
             raise SplatError(f"HFMConfig.margin and split_margin must be >= 0; got {self.margin}, {self.split_margin}")
+        if self.registration_landmarks not in ("rigid", "lower"):
+            raise SplatError(f"HFMConfig.registration_landmarks must be 'rigid' or 'lower'; got {self.registration_landmarks!r}")
         if self.gm_input not in ("x", "xsr"):
             raise SplatError(f"HFMConfig.gm_input must be 'x' or 'xsr'; got {self.gm_input!r}")
         if self.pm_per_component and not self.feature_mapping:
@@ -145,7 +149,8 @@ class HFMModel(nn.Module):
         elif cfg.unmapped_upper == "separate":
             self.mlp_up = mlp(e + L, H, 10)
         if cfg.global_pose:
-            self.mlp_pose = mlp(L, 64, 6)
+            if cfg.pose_residual:
+                self.mlp_pose = mlp(L, 64, 6)
             if cfg.image_pose:
                 self.mlp_head_pose = mlp(L, 128, 6)
         if cfg.gaussian_mapping and cfg.map_norm:
@@ -425,7 +430,7 @@ class HFMModel(nn.Module):
         log_scales = g.log_scales + dlogS
         one = torch.tensor([1.0, 0, 0, 0], dtype=X.dtype, device=X.device)
         quats = quat_mul(g.quats / g.quats.norm(dim=-1, keepdim=True), one + dq)
-        if self.cfg.global_pose:
+        if self.cfg.global_pose and self.cfg.pose_residual:
             pose = self.mlp_pose(theta)[0]
             qg = axis_angle_to_quat(pose[:3])
             R = quat_to_rotmat(qg[None])[0]

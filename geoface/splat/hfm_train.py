@@ -88,24 +88,28 @@ def _head_mesh(video):
     return load_mesh(video.mesh_path)
 
 
-def registration_poses(video, poses: str = "auto", log=None, mesh=None) -> dict:
+def registration_poses(video, poses: str = "auto", log=None, mesh=None, fit: str = "rigid") -> dict:
     """Set ``video.poses`` for registration and say where they came from: ``"file"`` (the folder's
     ``head_poses.npz``), ``"landmarks"`` (fitted to the landmarks, :mod:`geoface.splat.head_pose`)
     or ``"auto"`` (the file when there is one).  Returns a summary (source, fit error) with the
     landmarks placed on the canonical head (``landmarks3d``).  ``mesh``: the loaded head mesh
-    (default: the folder's)."""
+    (default: the folder's).  ``fit``: the landmarks the poses are fitted to, ``"rigid"`` (all
+    that move little with expressions) or ``"lower"`` (those of them a headset leaves visible,
+    :data:`~geoface.splat.head_pose.LOWER_RIGID_NAMES`, as the usage video's poses are fitted)."""
     if poses not in ("auto", "file", "landmarks"):
         raise SplatError(f"poses must be 'auto', 'file' or 'landmarks'; got {poses!r}")
     if poses == "file" and video.poses is None:
         raise SplatError("--poses file: the registration folder has no head_poses.npz")
-    from geoface.splat.head_pose import canonical_landmarks, poses_from_landmarks
+    from geoface.splat.head_pose import LOWER_RIGID_NAMES, canonical_landmarks, poses_from_landmarks
 
     m = mesh if mesh is not None else _head_mesh(video)
     if video.poses is not None and poses != "landmarks":
         R, t, p = video.poses
         names, P = canonical_landmarks(video, m.V, m.F, (R[0], t[0], p))
         return {"poses": "file", "landmarks3d": {"names": names, "points": P.round(7).tolist()}}
-    fit = poses_from_landmarks(video, m.V, m.F)
+    if fit not in ("rigid", "lower"):
+        raise SplatError(f"registration landmarks must be 'rigid' or 'lower'; got {fit!r}")
+    fit = poses_from_landmarks(video, m.V, m.F, fit_names=LOWER_RIGID_NAMES if fit == "lower" else None)
     names, P = fit["all_names"], fit["all_points3d"]
     video.poses = (fit["R"], fit["t"], fit["pivot"])
     info = {"poses": "landmarks", "pose_landmarks": len(fit["names"]),
@@ -150,7 +154,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     rng = np.random.default_rng(cfg.seed)
     video = load_video(reg_dir, need_mesh=True, frames=frames)
     mesh = _head_mesh(video)
-    pose_info = registration_poses(video, poses, log, mesh)
+    pose_info = registration_poses(video, poses, log, mesh, fit=cfg.registration_landmarks)
     model = build_model(video, cfg, mesh)
     model.landmarks3d = pose_info.pop("landmarks3d")  # for the usage video's landmarks (hfm_usage.usage_poses)
     targets = None
@@ -280,6 +284,7 @@ def load_hfm(model_dir) -> HFMModel:
     conf.setdefault("feat_norm", False)  # and MLP_mapping read f_U as W_gm gave it
     conf.setdefault("mapping_heads", 1)
     conf.setdefault("image_pose", False)  # before the field: no pose read from the crop
+    conf.setdefault("pose_residual", True)  # and MLP_pose always corrected the given pose
     if not conf.get("gaussian_mapping", True):  # before the field: the unmapped upper face had its own MLP
         conf.setdefault("unmapped_upper", "separate" if any(k.startswith("mlp_up.") for k in sd) else "shared")
     cfg = HFMConfig.from_dict(conf, where=f"{d}/config.json")

@@ -398,6 +398,25 @@ def test_global_pose_is_a_rigid_motion_about_the_centre():
     assert torch.allclose(d.means, want, atol=1e-6)
 
 
+def test_without_the_pose_residual_the_pose_read_from_the_crop_is_the_pose():
+    """``pose_residual=False``: no MLP_pose; the head pose the model reads from the crop (or the
+    one given) moves the Gaussians alone, and an older model folder's config loads with it on."""
+    m = _model(500, pose_residual=False)
+    assert not hasattr(m, "mlp_pose") and m.predicts_head_pose
+    w, t = torch.tensor([0.0, 0.2, 0.0]), torch.tensor([0.05, 0.0, 0.1])
+    with torch.no_grad():
+        m.mlp_head_pose[-1].bias.copy_(torch.cat([w, t]))
+        theta = torch.zeros(1, 128)
+        read = m.deform(theta)
+        still = m.deform(theta, read_pose=False)
+    c, s = m.center, float(m.scale)
+    R = torch.tensor([[math.cos(0.2), 0, math.sin(0.2)], [0, 1, 0], [-math.sin(0.2), 0, math.cos(0.2)]])
+    assert torch.allclose(read.means, (still.means - c) @ R.T + c + t * s * 0.1, atol=1e-6)
+    assert torch.allclose(still.means, m.gaussians.means, atol=1e-6)  # zero last layers: no deformation
+    with pytest.raises(SplatError, match="registration_landmarks"):
+        HFMConfig(registration_landmarks="upper")
+
+
 def test_encoder_shapes_and_config_errors():
     m = _model(200)
     assert m.encoder(torch.rand(2, 3, 128, 128)).shape == (2, 128)
@@ -677,9 +696,11 @@ def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
     # the paper's elements as options; saved in the model's config
     m5 = tmp_path / "m5"
     assert main(["hmd", "train", str(reg), "-o", str(m5), "--iters", "3", "--no-densify", "--map-theta", "--gm-input",
-                 "xsr", "--pm-per-component", "--split-margin", "0.002", "-q"]) == 0
+                 "xsr", "--pm-per-component", "--split-margin", "0.002", "--no-pose-residual", "--pose-landmarks", "lower",
+                 "-q"]) == 0
     c5 = load_hfm(m5).cfg
     assert c5.map_theta and c5.gm_input == "xsr" and c5.pm_per_component and c5.split_margin == 0.002
+    assert not c5.pose_residual and c5.registration_landmarks == "lower"
     assert main(["hmd", "train", str(reg), "-o", str(tmp_path / "m6"), "--gm-input", "s", "-q"]) == 2
     assert main(["hmd", "remove", str(md), str(use), "-o", str(tmp_path / "out")]) == 0
     assert len(list((tmp_path / "out" / "frames").glob("*.png"))) == 2
