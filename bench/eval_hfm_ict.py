@@ -5,6 +5,7 @@
     python bench/eval_hfm_ict.py run --out DIR [--splits test] [--seeds 0,1] [--jobs 4] [--device cuda]
     python bench/eval_hfm_ict.py run --out DIR --group test/0/oracle,full --group val/0,1/full,map_theta/10 ...
     python bench/eval_hfm_ict.py poses --out DIR [--splits val,test]
+    python bench/eval_hfm_ict.py calibration --out DIR --group val/0/full/10,22,23,24 [--grid 0:0,8:0.01,...]
     python bench/eval_hfm_ict.py table --out DIR
 
 ``data`` writes one capture per identity seed (:func:`geoface.splat.hfm_ict.make_ict_hmd`: a
@@ -17,11 +18,16 @@ talking, emoting, lit ICT person, registration and usage videos of different seq
 * ``no_gaussian_feature_mapping``, ``no_global_pose`` — the paper's ablations, no pose file;
 * ``map_theta``, ``gm_xsr``, ``pm_per_component``, ``split_margin`` — Full with one of the paper's
   elements that the defaults leave out (:data:`PAPER`), for the choice on the validation split;
+* ``no_pose_residual``, ``reg_lower``, ``reg_lower_no_pose_residual`` — Full without the residual pose
+  MLP, with registration poses fitted to the lower landmarks, or both (:data:`OURS`; validation);
 
 and scores each on the usage video (PSNR/SSIM: whole face, the region the headset hides, its
 expression region); the no-file models with the usage pose fitted to the landmarks below the
-headset (``usage_poses: landmarks``), read from the crop alone (``image``) and, to separate what
-the pose estimate costs, the true one (``file``).  One JSON line per score in ``DIR/results.jsonl``;
+headset and calibrated to the registration frame (``usage_poses: landmarks``; a model trained
+before the calibration existed gets it from its registration video first), the same uncalibrated
+(``landmarks_uncalibrated``), read from the crop alone (``image``) and, to separate what the pose
+estimate costs, the true one (``file``).  One JSON line per score in ``DIR/results.jsonl``;
+``calibration`` scores trained models with each calibration setting of ``--grid``;
 ``poses`` scores the head poses alone against the truth: registration poses fitted to the 68
 landmarks, usage poses fitted to those below the headset.  ``table`` prints means, the pairs, and whole face / occluded PSNR per person and model seed.  Choose settings with ``--splits val``; report ``test``.
 """
@@ -95,12 +101,30 @@ def _job_rows(job) -> list:
         info = {k: v for k, v in info.items() if k != "history"}
         info_file.write_text(json.dumps(info))
     model = load_hfm(mdir)
+    calibrated_after = False
+    if model.pose_calibration is None and cfg.pose_calibration and poses != "file":
+        # trained before the calibration existed: learn it now from the same registration poses
+        # (fitted to the landmarks as training fitted them), as training does
+        from dataclasses import replace
+
+        from geoface.mesh.io import load_mesh
+        from geoface.splat.hfm_train import calibrate_usage_poses, registration_poses
+
+        reg = load_video(Path(d) / "registration", need_mesh=True)
+        registration_poses(reg, poses, None, load_mesh(reg.mesh_path), fit=model.cfg.registration_landmarks)
+        model.cfg = replace(model.cfg, pose_calibration=cfg.pose_calibration, pose_calibration_ridge=cfg.pose_calibration_ridge)
+        calibrated_after = calibrate_usage_poses(model, reg, "landmarks") is not None
     rows = []
     video = load_video(Path(d) / "usage")
-    for usage_poses in (("file",) if poses == "file" else ("landmarks", "image", "file")):
-        r = evaluate_hmd(model, video, poses=usage_poses)
+    cal = model.pose_calibration
+    for usage_poses in (("file",) if poses == "file" else ("landmarks", "landmarks_uncalibrated", "image", "file")):
+        if usage_poses == "landmarks_uncalibrated" and cal is None:
+            continue
+        model.pose_calibration = None if usage_poses == "landmarks_uncalibrated" else cal
+        r = evaluate_hmd(model, video, poses=usage_poses.split("_")[0])
         rows.append({"stage": "score", "split": split, "data_seed": data_seed, "seed": seed, "variant": variant,
-                     "usage_poses": usage_poses,
+                     "usage_poses": usage_poses, "pose_calibration": len(cal["basis"]) if cal else 0,
+                     "calibrated_after_training": calibrated_after,
                      "train_seconds": None if info.get("seconds") is None else round(info["seconds"], 1),
                      "pose_fit_rms_px": info.get("pose_fit_rms_px"), "n_gaussians": len(model.gaussians),
                      **{k: (round(float(v), 4) if isinstance(v, (int, float)) else v) for k, v in r.items()}})
@@ -170,6 +194,43 @@ def _poses(a) -> None:
                 f.write(json.dumps(row) + "\n")
 
 
+def _calibration(a) -> None:
+    """Score trained no-file models with the usage pose calibration of each ``--grid`` setting
+    (components:ridge; 0:0 = none), learned from the registration video as training learns it."""
+    import torch
+    from dataclasses import replace
+
+    from geoface.mesh.io import load_mesh
+    from geoface.splat.hfm import evaluate_hmd, load_hfm
+    from geoface.splat.hfm_data import load_video
+    from geoface.splat.hfm_train import calibrate_usage_poses, registration_poses
+
+    torch.set_num_threads(a.threads)
+    models = Path(a.models or Path(a.out) / "models")
+    data = Path(a.data) if a.data else Path(a.out) / "data"
+    for split, seeds, variants, *people in (g.split("/") for g in a.group):
+        default = a.val if split == "val" else a.test
+        for seed in (int(x) for x in seeds.split(",")):
+            for s in ([int(x) for x in people[0].split(",")] if people else default):
+                for v in variants.split(","):
+                    model = load_hfm(models / f"{split}_{s}_{v}_s{seed}")
+                    reg = load_video(data / f"{split}_{s}" / "registration", need_mesh=True)
+                    registration_poses(reg, "landmarks", None, load_mesh(reg.mesh_path), fit=model.cfg.registration_landmarks)
+                    use = load_video(data / f"{split}_{s}" / "usage")
+                    for g in a.grid:
+                        k, ridge = g.split(":")
+                        model.cfg = replace(model.cfg, pose_calibration=int(k), pose_calibration_ridge=float(ridge))
+                        calibrate_usage_poses(model, reg, "landmarks")
+                        r = evaluate_hmd(model, use, poses="landmarks")
+                        row = {"stage": "calibration", "split": split, "data_seed": s, "seed": seed, "variant": v,
+                               "components": int(k), "ridge": float(ridge),
+                               **{k: round(float(r[k]), 4) for k in ("psnr_face", "ssim_face", "psnr_occluded",
+                                                                     "ssim_occluded", "psnr_expression")}}
+                        print(json.dumps(row), flush=True)
+                        with (Path(a.out) / "results.jsonl").open("a") as f:
+                            f.write(json.dumps(row) + "\n")
+
+
 def _table(a) -> None:
     rows = [json.loads(x) for x in (Path(a.out) / "results.jsonl").read_text().splitlines() if '"score"' in x]
     keys = ("psnr_face", "ssim_face", "psnr_occluded", "ssim_occluded", "psnr_expression")
@@ -181,19 +242,20 @@ def _table(a) -> None:
         print("| variant | usage poses | n | " + " | ".join(keys) + " |")
         print("|---|---|---|" + "---|" * len(keys))
         for v in VARIANTS:
-            for up in ("file", "landmarks", "image"):
+            for up in ("file", "landmarks", "landmarks_uncalibrated", "image"):
                 g = [r for r in sel if r["variant"] == v and r["usage_poses"] == up]
                 if g:
                     print(f"| {v} | {up} | {len(g)} | " + " | ".join(f"{np.mean([r[k] for r in g]):.3f}" for k in keys) + " |")
         base = {(r["data_seed"], r["seed"]): r for r in sel if r["variant"] == "full" and r["usage_poses"] == "landmarks"}
-        for v, up in [("oracle", "file")] + [(v, "landmarks") for v in VARIANTS if v not in ("oracle", "full")]:
+        for v, up in [("oracle", "file"), ("full", "landmarks_uncalibrated")] + [
+                (v, "landmarks") for v in VARIANTS if v not in ("oracle", "full")]:
             pairs = [(base[k], r) for r in sel if r["variant"] == v and r["usage_poses"] == up
                      for k in [(r["data_seed"], r["seed"])] if k in base]
             if pairs:
                 d = {k: [b[k] - o[k] for b, o in pairs] for k in ("psnr_face", "psnr_occluded")}
-                print(f"full (no pose file) − {v}: " + ", ".join(
+                print(f"full (no pose file) − {v} ({up}): " + ", ".join(
                     f"{k} {np.mean(x):+.2f} dB ({sum(y > 0 for y in x)} of {len(x)} better)" for k, x in d.items()))
-        cols = [("oracle", "file")] + [(v, "landmarks") for v in MAIN[1:]]
+        cols = [("oracle", "file"), ("full", "landmarks_uncalibrated")] + [(v, "landmarks") for v in MAIN[1:]]
         print("\n| person | model seed | " + " | ".join(f"{v} ({up})" for v, up in cols) + " |")
         print("|---|---|" + "---|" * len(cols))
         for key in sorted({(r["data_seed"], r["seed"]) for r in sel}):
@@ -205,7 +267,7 @@ def _table(a) -> None:
 def main(argv=None) -> int:
     ints = lambda s: [int(x) for x in s.split(",") if x]  # noqa: E731
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("stage", choices=("data", "run", "poses", "table"))
+    ap.add_argument("stage", choices=("data", "run", "poses", "calibration", "table"))
     ap.add_argument("--out", required=True)
     ap.add_argument("--val", type=ints, default=[10])
     ap.add_argument("--test", type=ints, default=[11, 12, 13])
@@ -225,12 +287,14 @@ def main(argv=None) -> int:
                          "(repeatable; instead of --splits/--seeds/--variants)")
     ap.add_argument("--models", default=None, help="run: where the models go (default OUT/models)")
     ap.add_argument("--data", default=None, help="where the captures are (default OUT/data)")
+    ap.add_argument("--grid", type=lambda s: s.split(","), default="0:0,4:0.01,8:0.001,8:0.01,8:0.1,12:0.01,16:0.001,16:0.01,16:0.1,24:0.01",
+                    help="calibration: COMPONENTS:RIDGE settings of the usage pose calibration (0:0 = none)")
     a = ap.parse_args(argv)
     bad = [v for v in a.variants if v not in VARIANTS]
     if bad:
         ap.error(f"unknown variants {bad}; choose from {list(VARIANTS)}")
     os.makedirs(a.out, exist_ok=True)
-    {"data": _data, "run": _run, "poses": _poses, "table": _table}[a.stage](a)
+    {"data": _data, "run": _run, "poses": _poses, "calibration": _calibration, "table": _table}[a.stage](a)
     return 0
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from geoface.splat.errors import SplatError
 
 __all__ = ["landmarks_on_mesh", "solve_poses", "triangulate", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
-           "rotation_vector", "LOWER_RIGID_NAMES"]
+           "rotation_vector", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "LOWER_RIGID_NAMES"]
 
 #: iBUG names below a headset that move little with expressions (nose base, the jaw line's ends)
 LOWER_RIGID_NAMES = ("nose_tip", "nose_base_0", "nose_base_1", "nose_base_2", "nose_base_3", "nose_base_4",
@@ -198,3 +198,95 @@ def poses_from_landmarks(video, mesh_V, mesh_F, *, indices=None, fit_names=None)
     out = solve_poses(video.camera, P3, video.landmarks[:, [names.index(n) for n in use]], pivot)
     out.update(points3d=P3, names=use, all_names=placed, all_points3d=P_all)
     return out
+
+
+def ray_offsets(camera, R, t, pivot, points3d, points2d) -> np.ndarray:
+    """[T, K, 3]: for each frame and point, the shortest move (in the canonical frame) that puts
+    ``points3d`` [K, 3], seen in the frame's pose ``X' = R (X − pivot) + pivot + t``, on the camera
+    ray of its landmark ``points2d`` [T, K, 2] — what the landmarks say the face did beside the
+    rigid motion, to first order."""
+    Rc, tc = np.asarray(camera.R, np.float64), np.asarray(camera.t, np.float64)
+    C = -Rc.T @ tc
+    P, obs, piv = (np.asarray(a, np.float64) for a in (points3d, points2d, pivot))
+    R, t = np.asarray(R, np.float64), np.asarray(t, np.float64)
+    out = np.zeros(obs.shape[:2] + (3,))
+    for f in range(len(obs)):
+        X = (P - piv) @ R[f].T + piv + t[f]
+        d = np.stack([(obs[f, :, 0] - camera.cx) / camera.fx, (obs[f, :, 1] - camera.cy) / camera.fy,
+                      np.ones(len(P))], 1) @ Rc  # ray directions in the world
+        s = ((X - C) * d).sum(1) / (d * d).sum(1)
+        out[f] = (C + d * s[:, None] - X) @ R[f]
+    return out
+
+
+def _pose_delta(R0, t0, R1, t1) -> np.ndarray:
+    """[T, 6]: pose 1 against pose 0 (same pivot): rotation vector of R0ᵀ R1, t1 − t0."""
+    return np.array([np.r_[rotation_vector(R0[f].T @ R1[f]), t1[f] - t0[f]] for f in range(len(R0))])
+
+
+def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses, *, fit_names=LOWER_RIGID_NAMES,
+                          feature_names=(), components: int = 8, ridge: float = 0.01) -> dict | None:
+    """How the head poses fitted to the landmarks below a headset (``fit_names``) miss the poses
+    that define a model's frame, as a linear function of the lower face's shape, learned on the
+    registration video where both are known.
+
+    Expressions move the lower "rigid" landmarks (a sneer lifts the nose wings, a smile pulls
+    them), and the pose fitted to them alone tilts with the expression (0.3–0.6° on some ICT
+    people's usage videos), while the registration poses, fitted to all rigid landmarks with the
+    eye corners and nose bridge, tilt in their own way — the frame the avatar learned.  Per
+    registration frame: ``Y`` = the registration pose against the lower-landmark pose (rotation
+    vector, translation; about the fitted points' mean); features = :func:`ray_offsets` of the
+    landmarks ``feature_names`` (the lower face's, mouth included) against the lower-landmark
+    pose; ``Y`` is regressed on the leading ``components`` principal components of the features by
+    ridge regression (``ridge``: the penalty relative to the components' mean variance).
+
+    ``names`` / ``points3d``: the landmarks placed on the canonical head; ``landmarks``
+    [T, K, 2] the video's, named ``frame_names``; ``poses`` = (R [T, 3, 3], t [T, 3], pivot).
+    Returns a JSON-able dict for :func:`apply_lower_calibration`, or None when fewer than 4 fit
+    points or fewer frames than components + 2 are there."""
+    placed = {n: i for i, n in enumerate(names)}
+    col = {n: i for i, n in enumerate(frame_names)}
+    fit = [n for n in fit_names if n in placed and n in col]
+    feat = [n for n in feature_names if n in placed and n in col]
+    obs = np.asarray(landmarks, np.float64)
+    ok = np.isfinite(obs[:, [col[n] for n in fit + feat]]).all((1, 2))
+    k = int(min(components, 3 * len(feat)))
+    if len(fit) < 4 or k < 1 or ok.sum() < k + 2:
+        return None
+    P = np.asarray(points3d, np.float64)
+    Pf = P[[placed[n] for n in fit]]
+    piv = Pf.mean(0)
+    R, t, p = (np.asarray(a, np.float64) for a in poses)
+    R, t, obs = R[ok], t[ok], obs[ok]
+    t = np.array([(p - R[f] @ p + t[f]) - (piv - R[f] @ piv) for f in range(len(R))])  # about piv
+    low = solve_poses(camera, Pf, obs[:, [col[n] for n in fit]], piv)
+    Y = _pose_delta(low["R"], low["t"], R, t)
+    F = ray_offsets(camera, low["R"], low["t"], piv, P[[placed[n] for n in feat]],
+                    obs[:, [col[n] for n in feat]]).reshape(len(Y), -1)
+    mean, off = F.mean(0), Y.mean(0)
+    _, S, Vt = np.linalg.svd(F - mean, full_matrices=False)
+    Z = (F - mean) @ Vt[:k].T
+    lam = ridge * float(np.mean(S[:k] ** 2))
+    W = np.linalg.solve(Z.T @ Z + lam * np.eye(k), Z.T @ (Y - off))
+    return {"fit_names": fit, "names": feat, "pivot": piv.tolist(), "mean": mean.tolist(), "basis": Vt[:k].tolist(),
+            "weights": W.tolist(), "offset": off.tolist()}
+
+
+def apply_lower_calibration(cal: dict, camera, points3d_of: dict, landmarks, frame_names, R, t, pivot):
+    """Correct poses (R [T, 3, 3], t [T, 3], about ``pivot``) fitted to a video's lower landmarks
+    by :func:`calibrate_lower_poses`' ``cal``; ``points3d_of``: name → canonical point.  Returns
+    (R, t) about the same pivot, or None when the video lacks one of the landmarks ``cal`` reads."""
+    col = {n: i for i, n in enumerate(frame_names)}
+    if any(n not in col or n not in points3d_of for n in cal["names"]):
+        return None
+    obs = np.asarray(landmarks, np.float64)[:, [col[n] for n in cal["names"]]]
+    if not np.isfinite(obs).all():
+        return None
+    R, t, p = np.asarray(R, np.float64), np.asarray(t, np.float64), np.asarray(pivot, np.float64)
+    piv = np.asarray(cal["pivot"], np.float64)
+    tq = np.array([(p - R[f] @ p + t[f]) - (piv - R[f] @ piv) for f in range(len(R))])
+    F = ray_offsets(camera, R, tq, piv, np.array([points3d_of[n] for n in cal["names"]]), obs).reshape(len(R), -1)
+    D = ((F - np.asarray(cal["mean"])) @ np.asarray(cal["basis"]).T) @ np.asarray(cal["weights"]) + np.asarray(cal["offset"])
+    R2 = np.array([R[f] @ rodrigues(D[f, :3]) for f in range(len(R))])
+    t2 = tq + D[:, 3:]
+    return R2, np.array([(piv - R2[f] @ piv + t2[f]) - (p - R2[f] @ p) for f in range(len(R))])

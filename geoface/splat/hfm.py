@@ -49,6 +49,10 @@ a headset hides the upper face is restored from the visible lower face alone:
    it in the camera's frame) or, as in the paper, from the lower-face image: MLP_head_pose(θ)
    (``image_pose``) predicts (ω, τ) of the whole head pose and is trained during registration on
    the registration poses (squared error, ``lambda_pose``; the encoder learns from it too).
+   ``pose_residual=False`` leaves MLP_pose out and keeps the pose read from the crop. Poses fitted
+   to the usage video's lower landmarks are calibrated into the registration poses' frame by a
+   linear model learned during registration (``pose_calibration``;
+   :func:`geoface.splat.head_pose.calibrate_lower_poses`).
 7. **Correlation-weight sampling** (eq. 9–10): the mapping runs between 512 upper and 512 lower
    *key* Gaussians only — upper keys by farthest-point sampling of the canonical positions,
    lower keys 512 drawn without replacement with probability proportional to their correlation

@@ -45,6 +45,8 @@ class HFMConfig:
     pose_residual: bool = True  # MLP_pose(θ) corrects the given head pose (eq. 8 after the tracked pose)
     image_pose: bool = True    # learn the whole head pose from the crop (for videos without head_poses.npz)
     registration_landmarks: str = "rigid"  # without a pose file, fit registration poses to "rigid" or "lower" landmarks
+    pose_calibration: int = 8  # components of the lower-landmark pose calibration learned in registration (0: none)
+    pose_calibration_ridge: float = 0.01
     lambda_pose: float = 100.0  # weight of its loss: squared radians + squared (translation / 0.1 head size)
     gaussian_mapping: bool = True
     feature_mapping: bool = True
@@ -92,6 +94,9 @@ class HFMConfig:
             raise SplatError(f"HFMConfig.lower_keys must be 'sample' or 'top'; got {self.lower_keys!r}")
         if self.margin < 0 or self.split_margin < 0:
             raise SplatError(f"HFMConfig.margin and split_margin must be >= 0; got {self.margin}, {self.split_margin}")
+        if self.pose_calibration < 0 or self.pose_calibration_ridge < 0:
+            raise SplatError(f"HFMConfig.pose_calibration and pose_calibration_ridge must be >= 0; got "
+                             f"{self.pose_calibration}, {self.pose_calibration_ridge}")
         if self.registration_landmarks not in ("rigid", "lower"):
             raise SplatError(f"HFMConfig.registration_landmarks must be 'rigid' or 'lower'; got {self.registration_landmarks!r}")
         if self.gm_input not in ("x", "xsr"):
@@ -169,6 +174,9 @@ class HFMModel(nn.Module):
         #: the registration landmarks on the canonical head ({"names", "points" [K][3]}), for
         #: fitting a usage video's head pose to its landmarks (saved in config.json)
         self.landmarks3d: dict | None = None
+        #: how poses fitted to the lower landmarks miss the registration frame
+        #: (:func:`geoface.splat.head_pose.calibrate_lower_poses`; saved in config.json)
+        self.pose_calibration: dict | None = None
         self.keys_l: Tensor | None = None
         self.wdist: tuple[Tensor, Tensor] | None = None
 

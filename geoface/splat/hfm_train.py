@@ -121,6 +121,29 @@ def registration_poses(video, poses: str = "auto", log=None, mesh=None, fit: str
     return info
 
 
+def calibrate_usage_poses(model: HFMModel, video, source: str = "landmarks") -> dict | None:
+    """Learn ``model.pose_calibration`` from the registration ``video`` (its ``poses`` set, as
+    :func:`registration_poses` leaves them; ``source``: where they came from, "file" or
+    "landmarks"): how head poses fitted to the landmarks below a headset
+    miss the registration poses, as a function of the lower face's landmarks
+    (:func:`~geoface.splat.head_pose.calibrate_lower_poses`, ``pose_calibration`` components).
+    None (nothing learned) without iBUG-68 landmarks, with ``pose_calibration=0``, or when the
+    registration poses were fitted to the lower landmarks themselves."""
+    from geoface.splat.hfm_data import IBUG68_LOWER, IBUG68_NAMES
+    from geoface.splat.head_pose import calibrate_lower_poses
+
+    cfg, lm = model.cfg, model.landmarks3d
+    model.pose_calibration = None
+    lowered = source == "landmarks" and cfg.registration_landmarks == "lower"
+    if not cfg.pose_calibration or lm is None or lowered or tuple(video.names) != tuple(IBUG68_NAMES):
+        return None
+    model.pose_calibration = calibrate_lower_poses(
+        video.camera, lm["names"], lm["points"], video.landmarks, video.names, video.poses,
+        feature_names=[IBUG68_NAMES[i] for i in IBUG68_LOWER], components=cfg.pose_calibration,
+        ridge=cfg.pose_calibration_ridge)
+    return model.pose_calibration
+
+
 def build_model(video, cfg: HFMConfig, mesh=None) -> HFMModel:
     """Canonical Gaussians from the registration head mesh (one per vertex, THGS init);
     ``mesh``: that mesh loaded (default: read from the folder)."""
@@ -157,6 +180,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     pose_info = registration_poses(video, poses, log, mesh, fit=cfg.registration_landmarks)
     model = build_model(video, cfg, mesh)
     model.landmarks3d = pose_info.pop("landmarks3d")  # for the usage video's landmarks (hfm_usage.usage_poses)
+    calibrate_usage_poses(model, video, pose_info["poses"])
     targets = None
     if model.predicts_head_pose:  # what mlp_head_pose learns to read from the crop
         R, tr, piv = video.poses
@@ -271,6 +295,8 @@ def save_hfm(model: HFMModel, out_dir) -> None:
             "y_split": model.y_split, "n_gaussians": len(model.gaussians)}
     if getattr(model, "landmarks3d", None):
         meta["landmarks3d"] = model.landmarks3d
+    if getattr(model, "pose_calibration", None):
+        meta["pose_calibration"] = model.pose_calibration
     write_model_dir(out_dir, model, meta)
 
 
@@ -285,6 +311,7 @@ def load_hfm(model_dir) -> HFMModel:
     conf.setdefault("mapping_heads", 1)
     conf.setdefault("image_pose", False)  # before the field: no pose read from the crop
     conf.setdefault("pose_residual", True)  # and MLP_pose always corrected the given pose
+    conf.setdefault("pose_calibration", 0)  # and learned no calibration of the lower-landmark poses
     if not conf.get("gaussian_mapping", True):  # before the field: the unmapped upper face had its own MLP
         conf.setdefault("unmapped_upper", "separate" if any(k.startswith("mlp_up.") for k in sd) else "shared")
     cfg = HFMConfig.from_dict(conf, where=f"{d}/config.json")
@@ -315,6 +342,26 @@ def load_hfm(model_dir) -> HFMModel:
         except (KeyError, TypeError, ValueError) as e:
             raise ModelFolderError(f"{d}/config.json: landmarks3d needs names and [K, 3] points ({e})") from None
         model.landmarks3d = {"names": names, "points": pts.tolist()}
+    model.pose_calibration = _read_calibration(meta.get("pose_calibration"), d)
     model.eval()
     model.refresh_keys()
     return model
+
+
+def _read_calibration(cal, d):
+    """config.json's ``pose_calibration`` checked for shape (None stays None)."""
+    if cal is None:
+        return None
+    from .errors import ModelFolderError
+
+    try:
+        fit, names = [str(n) for n in cal["fit_names"]], [str(n) for n in cal["names"]]
+        a = {k: np.asarray(cal[k], np.float64) for k in ("pivot", "mean", "basis", "weights", "offset")}
+        k = a["basis"].shape[0] if a["basis"].ndim == 2 else -1
+        want = {"pivot": (3,), "mean": (3 * len(names),), "basis": (k, 3 * len(names)), "weights": (k, 6), "offset": (6,)}
+        bad = [n for n, shp in want.items() if a[n].shape != shp or not np.isfinite(a[n]).all()]
+        if k < 1 or len(fit) < 4 or bad:
+            raise ValueError(f"bad {bad or 'sizes'}")
+    except (KeyError, TypeError, ValueError) as e:
+        raise ModelFolderError(f"{d}/config.json: pose_calibration is malformed ({e})") from None
+    return {"fit_names": fit, "names": names, **{n: v.tolist() for n, v in a.items()}}

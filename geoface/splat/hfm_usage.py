@@ -26,13 +26,15 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     * ``"landmarks"`` — fitted to the frame's landmarks below the headset that move little with
       expressions (nose base, the jaw line's ends: :data:`~geoface.splat.head_pose.LOWER_RIGID_NAMES`,
       or every landmark the registration placed on the head for other names), by the robust PnP of
-      :mod:`geoface.splat.head_pose`, starting from the pose the model reads from the first crop;
+      :mod:`geoface.splat.head_pose`, starting from the pose the model reads from the first crop,
+      then corrected into the registration poses' frame by the model's ``pose_calibration`` when
+      it has one and the video has the lower-face landmarks it reads;
     * ``"image"`` — read from each lower-face crop by the model (None is returned: the model does it
       per frame);
     * ``"auto"`` — the file, else the landmarks (at least 4 such points), else the image.
 
     Returns ``((R [T, 3, 3], t [T, 3], pivot [3]) or None, source)``."""
-    from geoface.splat.head_pose import LOWER_RIGID_NAMES, solve_poses
+    from geoface.splat.head_pose import LOWER_RIGID_NAMES, apply_lower_calibration, solve_poses
 
     if source not in POSE_SOURCES:
         raise SplatError(f"poses must be one of {POSE_SOURCES}; got {source!r}")
@@ -61,7 +63,13 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
         R0, t0, c = (a.double().cpu().numpy() for a in model.head_pose_from_params(q))
         init = (R0, (c - R0 @ c + t0) - (piv - R0 @ piv))
     fit = solve_poses(video.camera, P, video.landmarks[:, idx], piv, init=init)
-    return (fit["R"], fit["t"], fit["pivot"]), "landmarks"
+    R, t = fit["R"], fit["t"]
+    cal = getattr(model, "pose_calibration", None)
+    if cal is not None and sorted(cal["fit_names"]) == sorted(use):  # in the registration poses' frame
+        got = apply_lower_calibration(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
+        if got is not None:
+            R, t = got
+    return (R, t, piv), "landmarks"
 
 
 def _frame_input(video, t: int, size: int, boxes: np.ndarray) -> tuple[Tensor, Tensor]:
