@@ -2,7 +2,7 @@
 """Evaluate THGS on a synthetic talking head: full model, without LEB, without SAAM.
 
     python bench/eval_thgs.py [--seconds 8] [--res 128] [--vertices 6000] [--iters 3000]
-                              [--head procedural|ict] [--perturb 3,5] [--saam-from 0.4] [--out DIR] [--quick]
+                              [--head procedural|ict] [--perturb 3,5] [--saam-from 0.4] [--seed 0] [--out DIR] [--quick]
 
 1. writes the synthetic talking data (``geoface talk synth [--head ict]``): a speech-like WAV
    drives the jaw and lips; the tracker poses hold only the head pose and the non-mouth
@@ -49,6 +49,7 @@ def main(argv=None) -> int:
     ap.add_argument("--perturb", default=None, metavar="DEG,MM",
                     help="ict: also train the full model on a copy whose tracked poses are off by this much")
     ap.add_argument("--data-seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="model seed (initialisation, frame order)")
     ap.add_argument("--saam-from", type=float, default=0.1)
     ap.add_argument("--variants", default=",".join(VARIANTS))
     ap.add_argument("--lambda-landmarks", type=float, default=None,
@@ -95,13 +96,13 @@ def main(argv=None) -> int:
     loaded = {}
     for name, ddir, opts in runs:
         lam = {} if a.lambda_landmarks is None else {"lambda_landmarks": a.lambda_landmarks}
-        cfg = THGSConfig(iters=a.iters, stage_scale=scale, seed=0, **{**lam, **opts})
+        cfg = THGSConfig(iters=a.iters, stage_scale=scale, seed=a.seed, **{**lam, **opts})
         info = train_thgs(ddir, out / f"model_{name}", cfg, progress=False)
         h = info["history"]
         if ddir not in loaded:  # the variants on one capture share its frames in memory
             loaded[ddir] = load_talking(ddir)
         ev = evaluate_thgs(load_thgs(out / f"model_{name}"), loaded[ddir])
-        emit(stage="heldout", variant=name, train_seconds=round(info["seconds"], 1), gaussians=info["n_gaussians"],
+        emit(stage="heldout", variant=name, seed=a.seed, train_seconds=round(info["seconds"], 1), gaussians=info["n_gaussians"],
              loss_first=round(float(np.mean([r["loss"] for r in h[:20]])), 4),
              loss_last=round(float(np.mean([r["loss"] for r in h[-20:]])), 4), **rnd(ev))
     (out / "results.json").write_text(json.dumps(rows, indent=1))

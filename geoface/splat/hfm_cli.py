@@ -81,7 +81,9 @@ def cmd_hmd_train(args) -> int:
           f"{info['n_gaussians']} Gaussians ({info['n_upper']} upper), {info['dropped_children']} split children "
           f"dropped at the boundary; weights averaged over the last {info['averaged_steps']} steps; head poses "
           + ("from head_poses.npz" if info["poses"] == "file" else
-             f"fitted to {info['pose_landmarks']} landmarks (median {info['pose_fit_rms_px']} px)"))
+             f"fitted to {info['pose_landmarks']} landmarks (median {info['pose_fit_rms_px']} px)")
+          + (f"; usage poses from the lower landmarks calibrated to them ({info['pose_calibration']} components)"
+             if info.get("pose_calibration") else ""))
     return 0
 
 

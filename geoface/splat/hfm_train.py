@@ -109,12 +109,12 @@ def registration_poses(video, poses: str = "auto", log=None, mesh=None, fit: str
         return {"poses": "file", "landmarks3d": {"names": names, "points": P.round(7).tolist()}}
     if fit not in ("rigid", "lower"):
         raise SplatError(f"registration landmarks must be 'rigid' or 'lower'; got {fit!r}")
-    fit = poses_from_landmarks(video, m.V, m.F, fit_names=LOWER_RIGID_NAMES if fit == "lower" else None)
-    names, P = fit["all_names"], fit["all_points3d"]
-    video.poses = (fit["R"], fit["t"], fit["pivot"])
-    info = {"poses": "landmarks", "pose_landmarks": len(fit["names"]),
-            "pose_fit_rms_px": round(float(np.nanmedian(fit["rms_px"])), 3),
-            "pose_fit_worst_px": round(float(np.nanmax(fit["rms_px"])), 3),
+    res = poses_from_landmarks(video, m.V, m.F, fit_names=LOWER_RIGID_NAMES if fit == "lower" else None)
+    names, P = res["all_names"], res["all_points3d"]
+    video.poses = (res["R"], res["t"], res["pivot"])
+    info = {"poses": "landmarks", "pose_landmarks": len(res["names"]),
+            "pose_fit_rms_px": round(float(np.nanmedian(res["rms_px"])), 3),
+            "pose_fit_worst_px": round(float(np.nanmax(res["rms_px"])), 3),
             "landmarks3d": {"names": names, "points": P.round(7).tolist()}}
     if log:
         log(f"hfm: head poses from {info['pose_landmarks']} landmarks per frame (median fit {info['pose_fit_rms_px']} px)")
@@ -180,7 +180,8 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     pose_info = registration_poses(video, poses, log, mesh, fit=cfg.registration_landmarks)
     model = build_model(video, cfg, mesh)
     model.landmarks3d = pose_info.pop("landmarks3d")  # for the usage video's landmarks (hfm_usage.usage_poses)
-    calibrate_usage_poses(model, video, pose_info["poses"])
+    cal = calibrate_usage_poses(model, video, pose_info["poses"])
+    pose_info["pose_calibration"] = len(cal["basis"]) if cal else 0
     targets = None
     if model.predicts_head_pose:  # what mlp_head_pose learns to read from the crop
         R, tr, piv = video.poses
