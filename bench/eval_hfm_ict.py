@@ -105,15 +105,8 @@ def _job_rows(job) -> list:
     if model.pose_calibration is None and cfg.pose_calibration and poses != "file":
         # trained before the calibration existed: learn it now from the same registration poses
         # (fitted to the landmarks as training fitted them), as training does
-        from dataclasses import replace
-
-        from geoface.mesh.io import load_mesh
-        from geoface.splat.hfm_train import calibrate_usage_poses, registration_poses
-
-        reg = load_video(Path(d) / "registration", need_mesh=True)
-        registration_poses(reg, poses, None, load_mesh(reg.mesh_path), fit=model.cfg.registration_landmarks)
-        model.cfg = replace(model.cfg, pose_calibration=cfg.pose_calibration, pose_calibration_ridge=cfg.pose_calibration_ridge)
-        calibrated_after = calibrate_usage_poses(model, reg, "landmarks") is not None
+        reg = _registration(Path(d) / "registration", model)
+        calibrated_after = _recalibrate(model, reg, cfg.pose_calibration, cfg.pose_calibration_ridge) is not None
     rows = []
     video = load_video(Path(d) / "usage")
     cal = model.pose_calibration
@@ -165,14 +158,14 @@ def _run(a) -> None:
 
 def _poses(a) -> None:
     from geoface.mesh.io import load_mesh
-    from geoface.splat.head_pose import LOWER_RIGID_NAMES, poses_from_landmarks, rotation_vector, solve_poses
+    from geoface.splat.head_pose import LOWER_RIGID_NAMES, poses_from_landmarks, repivot, rotation_vector, solve_poses
     from geoface.splat.hfm_data import load_video
 
     def errors(fit_R, fit_t, piv, video):
         R, t, p = video.poses
         ang = [np.degrees(np.linalg.norm(rotation_vector(R[f].T @ fit_R[f]))) for f in range(len(R))]
         # the same rigid motion moves the pivot to the same place: compare translations about ``piv``
-        mm = [1000 * np.linalg.norm(fit_t[f] - ((p - R[f] @ p + t[f]) - (piv - R[f] @ piv))) for f in range(len(R))]
+        mm = 1000 * np.linalg.norm(fit_t - repivot(R, t, p, piv), axis=1)
         return {"deg_mean": round(float(np.mean(ang)), 3), "deg_max": round(float(np.max(ang)), 3),
                 "mm_mean": round(float(np.mean(mm)), 2), "mm_max": round(float(np.max(mm)), 2)}
 
@@ -194,16 +187,35 @@ def _poses(a) -> None:
                 f.write(json.dumps(row) + "\n")
 
 
+def _registration(reg_dir, model):
+    """The registration video with the poses the model was trained in, fitted to the landmarks as
+    training fits them."""
+    from geoface.mesh.io import load_mesh
+    from geoface.splat.hfm_data import load_video
+    from geoface.splat.hfm_train import registration_poses
+
+    reg = load_video(reg_dir, need_mesh=True)
+    registration_poses(reg, "landmarks", None, load_mesh(reg.mesh_path), fit=model.cfg.registration_landmarks)
+    return reg
+
+
+def _recalibrate(model, reg, components: int, ridge: float):
+    """Learn the model's usage pose calibration anew from ``reg`` with these settings (None: none learned)."""
+    from dataclasses import replace
+
+    from geoface.splat.hfm_train import calibrate_usage_poses
+
+    model.cfg = replace(model.cfg, pose_calibration=components, pose_calibration_ridge=ridge)
+    return calibrate_usage_poses(model, reg, "landmarks")
+
+
 def _calibration(a) -> None:
     """Score trained no-file models with the usage pose calibration of each ``--grid`` setting
     (components:ridge; 0:0 = none), learned from the registration video as training learns it."""
     import torch
-    from dataclasses import replace
 
-    from geoface.mesh.io import load_mesh
     from geoface.splat.hfm import evaluate_hmd, load_hfm
     from geoface.splat.hfm_data import load_video
-    from geoface.splat.hfm_train import calibrate_usage_poses, registration_poses
 
     torch.set_num_threads(a.threads)
     models = Path(a.models or Path(a.out) / "models")
@@ -214,13 +226,11 @@ def _calibration(a) -> None:
             for s in ([int(x) for x in people[0].split(",")] if people else default):
                 for v in variants.split(","):
                     model = load_hfm(models / f"{split}_{s}_{v}_s{seed}")
-                    reg = load_video(data / f"{split}_{s}" / "registration", need_mesh=True)
-                    registration_poses(reg, "landmarks", None, load_mesh(reg.mesh_path), fit=model.cfg.registration_landmarks)
+                    reg = _registration(data / f"{split}_{s}" / "registration", model)
                     use = load_video(data / f"{split}_{s}" / "usage")
                     for g in a.grid:
                         k, ridge = g.split(":")
-                        model.cfg = replace(model.cfg, pose_calibration=int(k), pose_calibration_ridge=float(ridge))
-                        calibrate_usage_poses(model, reg, "landmarks")
+                        _recalibrate(model, reg, int(k), float(ridge))
                         r = evaluate_hmd(model, use, poses="landmarks")
                         row = {"stage": "calibration", "split": split, "data_seed": s, "seed": seed, "variant": v,
                                "components": int(k), "ridge": float(ridge),

@@ -24,7 +24,7 @@ import numpy as np
 from geoface.splat.errors import SplatError
 
 __all__ = ["landmarks_on_mesh", "solve_poses", "triangulate", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
-           "rotation_vector", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "LOWER_RIGID_NAMES"]
+           "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "LOWER_RIGID_NAMES"]
 
 #: iBUG names below a headset that move little with expressions (nose base, the jaw line's ends)
 LOWER_RIGID_NAMES = ("nose_tip", "nose_base_0", "nose_base_1", "nose_base_2", "nose_base_3", "nose_base_4",
@@ -219,6 +219,14 @@ def ray_offsets(camera, R, t, pivot, points3d, points2d) -> np.ndarray:
     return out
 
 
+def repivot(R, t, pivot, new_pivot) -> np.ndarray:
+    """Translations [T, 3] that express the motions ``X' = R (X − pivot) + pivot + t`` (R [T, 3, 3],
+    t [T, 3]) about ``new_pivot`` instead: the same rigid motions, another centre."""
+    R, t = np.asarray(R, np.float64), np.asarray(t, np.float64)
+    p, q = np.asarray(pivot, np.float64), np.asarray(new_pivot, np.float64)
+    return (p - R @ p + t) - (q - R @ q)
+
+
 def _pose_delta(R0, t0, R1, t1) -> np.ndarray:
     """[T, 6]: pose 1 against pose 0 (same pivot): rotation vector of R0ᵀ R1, t1 − t0."""
     return np.array([np.r_[rotation_vector(R0[f].T @ R1[f]), t1[f] - t0[f]] for f in range(len(R0))])
@@ -257,8 +265,8 @@ def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses
     Pf = P[[placed[n] for n in fit]]
     piv = Pf.mean(0)
     R, t, p = (np.asarray(a, np.float64) for a in poses)
-    R, t, obs = R[ok], t[ok], obs[ok]
-    t = np.array([(p - R[f] @ p + t[f]) - (piv - R[f] @ piv) for f in range(len(R))])  # about piv
+    R, obs = R[ok], obs[ok]
+    t = repivot(R, t[ok], p, piv)
     low = solve_poses(camera, Pf, obs[:, [col[n] for n in fit]], piv)
     Y = _pose_delta(low["R"], low["t"], R, t)
     F = ray_offsets(camera, low["R"], low["t"], piv, P[[placed[n] for n in feat]],
@@ -284,9 +292,9 @@ def apply_lower_calibration(cal: dict, camera, points3d_of: dict, landmarks, fra
         return None
     R, t, p = np.asarray(R, np.float64), np.asarray(t, np.float64), np.asarray(pivot, np.float64)
     piv = np.asarray(cal["pivot"], np.float64)
-    tq = np.array([(p - R[f] @ p + t[f]) - (piv - R[f] @ piv) for f in range(len(R))])
+    tq = repivot(R, t, p, piv)
     F = ray_offsets(camera, R, tq, piv, np.array([points3d_of[n] for n in cal["names"]]), obs).reshape(len(R), -1)
     D = ((F - np.asarray(cal["mean"])) @ np.asarray(cal["basis"]).T) @ np.asarray(cal["weights"]) + np.asarray(cal["offset"])
     R2 = np.array([R[f] @ rodrigues(D[f, :3]) for f in range(len(R))])
     t2 = tq + D[:, 3:]
-    return R2, np.array([(piv - R2[f] @ piv + t2[f]) - (p - R2[f] @ p) for f in range(len(R))])
+    return R2, repivot(R2, t2, piv, p)

@@ -34,7 +34,7 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     * ``"auto"`` — the file, else the landmarks (at least 4 such points), else the image.
 
     Returns ``((R [T, 3, 3], t [T, 3], pivot [3]) or None, source)``."""
-    from geoface.splat.head_pose import LOWER_RIGID_NAMES, apply_lower_calibration, solve_poses
+    from geoface.splat.head_pose import LOWER_RIGID_NAMES, apply_lower_calibration, repivot, solve_poses
 
     if source not in POSE_SOURCES:
         raise SplatError(f"poses must be one of {POSE_SOURCES}; got {source!r}")
@@ -61,7 +61,7 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
         boxes = video.boxes()
         q = model.head_pose_params(model.encoder(*_frame_input(video, 0, model.cfg.crop, boxes)))[0]
         R0, t0, c = (a.double().cpu().numpy() for a in model.head_pose_from_params(q))
-        init = (R0, (c - R0 @ c + t0) - (piv - R0 @ piv))
+        init = (R0, repivot(R0, t0, c, piv))
     fit = solve_poses(video.camera, P, video.landmarks[:, idx], piv, init=init)
     R, t = fit["R"], fit["t"]
     cal = getattr(model, "pose_calibration", None)
