@@ -171,7 +171,7 @@ def _poses(a) -> None:
 
     for split in a.splits:
         for s in (a.val if split == "val" else a.test):
-            d = Path(a.out) / "data" / f"{split}_{s}"
+            d = (Path(a.data) if a.data else Path(a.out) / "data") / f"{split}_{s}"
             reg, use = load_video(d / "registration", need_mesh=True), load_video(d / "usage")
             m = load_mesh(reg.mesh_path)
             fit = poses_from_landmarks(reg, m.V, m.F)
