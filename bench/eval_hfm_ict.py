@@ -18,8 +18,9 @@ talking, emoting, lit ICT person, registration and usage videos of different seq
 * ``no_gaussian_feature_mapping``, ``no_global_pose`` — the paper's ablations, no pose file;
 * ``map_theta``, ``gm_xsr``, ``pm_per_component``, ``split_margin`` — Full with one of the paper's
   elements that the defaults leave out (:data:`PAPER`), for the choice on the validation split;
-* ``no_pose_residual``, ``reg_lower``, ``reg_lower_no_pose_residual`` — Full without the residual pose
-  MLP, with registration poses fitted to the lower landmarks, or both (:data:`OURS`; validation);
+* ``pose_residual``, ``no_pose_residual``, ``reg_lower``, ``reg_lower_no_pose_residual`` — Full with
+  or without the residual pose MLP (the default leaves it out), with registration poses fitted to the
+  lower landmarks, or both (:data:`OURS`; validation);
 
 and scores each on the usage video (PSNR/SSIM: whole face, the region the headset hides, its
 expression region); the no-file models with the usage pose fitted to the landmarks below the
@@ -52,7 +53,7 @@ VARIANTS = {"oracle": ("full", "file"), "full": ("full", "landmarks"),
 PAPER = {"map_theta": {"map_theta": True}, "gm_xsr": {"gm_input": "xsr"},
          "pm_per_component": {"pm_per_component": True}, "split_margin": {"split_margin": 0.002}}
 #: choices of ours, each alone on top of Full (no pose file), for the validation split
-OURS = {"no_pose_residual": {"pose_residual": False}, "reg_lower": {"registration_landmarks": "lower"},
+OURS = {"pose_residual": {"pose_residual": True}, "no_pose_residual": {"pose_residual": False}, "reg_lower": {"registration_landmarks": "lower"},
         "reg_lower_no_pose_residual": {"registration_landmarks": "lower", "pose_residual": False}}
 VARIANTS.update({k: ("full", "landmarks") for k in {**PAPER, **OURS}})
 MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]

@@ -42,7 +42,7 @@ class HFMConfig:
     y_split: float | None = None   # y_t (world metres); None: the registration folder's meta.json
     margin: float = 0.004      # m of Algorithm 1 (metres)
     global_pose: bool = True
-    pose_residual: bool = True  # MLP_pose(θ) corrects the given head pose (eq. 8 after the tracked pose)
+    pose_residual: bool = False  # MLP_pose(θ) corrects the given head pose (eq. 8 after the tracked pose)
     image_pose: bool = True    # learn the whole head pose from the crop (for videos without head_poses.npz)
     registration_landmarks: str = "rigid"  # without a pose file, fit registration poses to "rigid" or "lower" landmarks
     pose_calibration: int = 8  # components of the lower-landmark pose calibration learned in registration (0: none)

@@ -387,7 +387,7 @@ def test_without_the_mapping_one_deformation_field_moves_both_halves():
 
 
 def test_global_pose_is_a_rigid_motion_about_the_centre():
-    m = _model(500)
+    m = _model(500, pose_residual=True)  # the residual pose MLP (off by default)
     w, t = torch.tensor([0.0, 0.3, 0.0]), torch.tensor([0.1, 0.0, -0.2])
     with torch.no_grad():
         m.mlp_pose[-1].bias.copy_(torch.cat([w, t]))
