@@ -143,8 +143,6 @@ def _run(a) -> None:
                 if not (d / "usage" / "meta.json").is_file():
                     raise SystemExit(f"{d}: no capture; run the data stage first")
                 for v in variants.split(","):
-                    if v not in VARIANTS:
-                        raise SystemExit(f"unknown variant {v!r}; choose from {list(VARIANTS)}")
                     jobs.append((str(d), split, s, seed, v, a.iters, a.threads, a.device, models))
     res = Path(a.out) / "results.jsonl"
     ctx = mp.get_context("spawn")
@@ -301,7 +299,10 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", type=lambda s: s.split(","), default="0:0,4:0.01,8:0.001,8:0.01,8:0.1,12:0.01,16:0.001,16:0.01,16:0.1,24:0.01",
                     help="calibration: COMPONENTS:RIDGE settings of the usage pose calibration (0:0 = none)")
     a = ap.parse_args(argv)
-    bad = [v for v in a.variants if v not in VARIANTS]
+    if any(len(g.split("/")) not in (3, 4) for g in a.group):
+        ap.error("--group: SPLIT/SEEDS/VARIANTS[/PEOPLE], e.g. test/0,1/full,oracle")
+    named = a.variants + [v for g in a.group for v in g.split("/")[2].split(",")]
+    bad = [v for v in named if v not in VARIANTS]
     if bad:
         ap.error(f"unknown variants {bad}; choose from {list(VARIANTS)}")
     os.makedirs(a.out, exist_ok=True)
