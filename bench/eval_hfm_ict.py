@@ -198,19 +198,20 @@ def _registration(reg_dir, model):
     return reg
 
 
-def _recalibrate(model, reg, components: int, ridge: float):
+def _recalibrate(model, reg, components: int, ridge: float, weighted: bool = False):
     """Learn the model's usage pose calibration anew from ``reg`` with these settings (None: none learned)."""
     from dataclasses import replace
 
     from geoface.splat.hfm_train import calibrate_usage_poses
 
-    model.cfg = replace(model.cfg, pose_calibration=components, pose_calibration_ridge=ridge)
+    model.cfg = replace(model.cfg, pose_calibration=components, pose_calibration_ridge=ridge,
+                        pose_calibration_weighted=weighted)
     return calibrate_usage_poses(model, reg, "landmarks")
 
 
 def _calibration(a) -> None:
     """Score trained no-file models with the usage pose calibration of each ``--grid`` setting
-    (components:ridge; 0:0 = none), learned from the registration video as training learns it."""
+    (components:ridge[:w]; 0:0 = none; w: weighted), learned from the registration video as training learns it."""
     import torch
 
     from geoface.splat.hfm import evaluate_hmd, load_hfm
@@ -228,11 +229,11 @@ def _calibration(a) -> None:
                     reg = _registration(data / f"{split}_{s}" / "registration", model)
                     use = load_video(data / f"{split}_{s}" / "usage")
                     for g in a.grid:
-                        k, ridge = g.split(":")
-                        _recalibrate(model, reg, int(k), float(ridge))
+                        k, ridge, *w = g.split(":")
+                        _recalibrate(model, reg, int(k), float(ridge), weighted=w == ["w"])
                         r = evaluate_hmd(model, use, poses="landmarks")
                         row = {"stage": "calibration", "split": split, "data_seed": s, "seed": seed, "variant": v,
-                               "components": int(k), "ridge": float(ridge),
+                               "components": int(k), "ridge": float(ridge), "weighted": w == ["w"],
                                **{k: round(float(r[k]), 4) for k in ("psnr_face", "ssim_face", "psnr_occluded",
                                                                      "ssim_occluded", "psnr_expression")}}
                         print(json.dumps(row), flush=True)
@@ -297,7 +298,8 @@ def main(argv=None) -> int:
     ap.add_argument("--models", default=None, help="run: where the models go (default OUT/models)")
     ap.add_argument("--data", default=None, help="where the captures are (default OUT/data)")
     ap.add_argument("--grid", type=lambda s: s.split(","), default="0:0,4:0.01,8:0.001,8:0.01,8:0.1,12:0.01,16:0.001,16:0.01,16:0.1,24:0.01",
-                    help="calibration: COMPONENTS:RIDGE settings of the usage pose calibration (0:0 = none)")
+                    help="calibration: COMPONENTS:RIDGE[:w] settings of the usage pose calibration (0:0 = none; "
+                         ":w = its poses weigh the landmarks by how little they moved)")
     a = ap.parse_args(argv)
     if any(len(g.split("/")) not in (3, 4) for g in a.group):
         ap.error("--group: SPLIT/SEEDS/VARIANTS[/PEOPLE], e.g. test/0,1/full,oracle")

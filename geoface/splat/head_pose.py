@@ -24,7 +24,7 @@ import numpy as np
 from geoface.splat.errors import SplatError
 
 __all__ = ["landmarks_on_mesh", "solve_poses", "triangulate", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
-           "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "LOWER_RIGID_NAMES"]
+           "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "rigidity_weights", "LOWER_RIGID_NAMES"]
 
 #: iBUG names below a headset that move little with expressions (nose base, the jaw line's ends)
 LOWER_RIGID_NAMES = ("nose_tip", "nose_base_0", "nose_base_1", "nose_base_2", "nose_base_3", "nose_base_4",
@@ -84,17 +84,23 @@ def _project(camera, X):
     return np.stack([camera.fx * Xc[:, 0] / Xc[:, 2] + camera.cx, camera.fy * Xc[:, 1] / Xc[:, 2] + camera.cy], 1)
 
 
-def solve_poses(camera, points3d, points2d, pivot, *, init=None, scale_px: float = 1.0) -> dict:
+def solve_poses(camera, points3d, points2d, pivot, *, init=None, scale_px: float = 1.0, weights=None) -> dict:
     """Per-frame rigid pose of ``points3d`` [K, 3] (canonical) seen at ``points2d`` [T, K, 2].
 
     Returns ``{"R": [T, 3, 3], "t": [T, 3], "pivot": [3], "rms_px": [T], "inliers": [T]}``
     (rms over the points within 3 × ``scale_px`` of their landmark).  Each frame starts from the
     previous frame's solution (``init`` = (R, t) for frame 0, default the identity); NaN
-    landmarks are skipped.  Raises SplatError when a frame has fewer than 4 points."""
+    landmarks are skipped.  ``weights`` [K] (> 0): each point's weight in the least squares
+    (e.g. :func:`rigidity_weights`), default equal.  Raises SplatError when a frame has fewer
+    than 4 points."""
     from scipy.optimize import least_squares
 
     P = np.asarray(points3d, np.float64)
     obs = np.asarray(points2d, np.float64)
+    w = np.ones(len(P)) if weights is None else np.asarray(weights, np.float64)
+    if w.shape != (len(P),) or not (np.isfinite(w).all() and (w > 0).all()):
+        raise SplatError(f"solve_poses: weights must be {len(P)} positive numbers")
+    sw = np.sqrt(w)
     piv = np.asarray(pivot, np.float64)
     T = len(obs)
     R0, t0 = (np.eye(3), np.zeros(3)) if init is None else (np.asarray(init[0], np.float64), np.asarray(init[1], np.float64))
@@ -104,17 +110,17 @@ def solve_poses(camera, points3d, points2d, pivot, *, init=None, scale_px: float
         ok = np.isfinite(obs[f]).all(1) & np.isfinite(P).all(1)
         if ok.sum() < 4:
             raise SplatError(f"frame {f}: only {int(ok.sum())} usable landmarks for the head pose (need 4)")
-        Q, q = P[ok] - piv, obs[f][ok]
+        Q, q, wk = P[ok] - piv, obs[f][ok], sw[ok, None]
 
         def resid(x):
             X = Q @ rodrigues(x[:3]).T + piv + x[3:]
-            return (_project(camera, X) - q).ravel()
+            return ((_project(camera, X) - q) * wk).ravel()
 
         # soft-L1 first (close to convex), then Cauchy from there (ignores moved points more)
         sol = least_squares(resid, x, loss="soft_l1", f_scale=2 * scale_px, method="trf", x_scale="jac", max_nfev=200)
         sol = least_squares(resid, sol.x, loss="cauchy", f_scale=scale_px, method="trf", x_scale="jac", max_nfev=200)
         x = sol.x
-        e = np.linalg.norm(sol.fun.reshape(-1, 2), axis=1)
+        e = np.linalg.norm(sol.fun.reshape(-1, 2) / wk, axis=1)
         good = e < 3 * scale_px
         Rs[f], ts[f] = rodrigues(x[:3]), x[3:]
         rms[f] = float(np.sqrt(np.mean(e[good] ** 2))) if good.any() else float("nan")
@@ -219,6 +225,20 @@ def ray_offsets(camera, R, t, pivot, points3d, points2d) -> np.ndarray:
     return out
 
 
+def rigidity_weights(camera, R, t, pivot, points3d, points2d, floor_m: float = 3e-4) -> np.ndarray:
+    """[K] weights, mean 1, of landmarks by how little they move on the head: 1 / (v + ``floor_m``²)
+    with v the variance over the frames of :func:`ray_offsets` (what the landmark did beside the
+    rigid motion ``R``, ``t`` about ``pivot``).  On a person's registration video this says which
+    of the "rigid" landmarks stay put through that person's expressions (the jaw line's ends and
+    the nose tip, more than the nose wings), for fitting poses to them (:func:`solve_poses`)."""
+    off = ray_offsets(camera, R, t, pivot, points3d, points2d)
+    ok = np.isfinite(off).all(2)
+    v = np.array([np.mean(np.sum((off[ok[:, k], k] - off[ok[:, k], k].mean(0)) ** 2, 1)) if ok[:, k].sum() > 1
+                  else np.nan for k in range(off.shape[1])])
+    w = 1.0 / (np.where(np.isfinite(v), v, np.nanmax(v, initial=0.0)) + floor_m**2)
+    return w / w.mean()
+
+
 def repivot(R, t, pivot, new_pivot) -> np.ndarray:
     """Translations [T, 3] that express the motions ``X' = R (X − pivot) + pivot + t`` (R [T, 3, 3],
     t [T, 3]) about ``new_pivot`` instead: the same rigid motions, another centre."""
@@ -233,7 +253,8 @@ def _pose_delta(R0, t0, R1, t1) -> np.ndarray:
 
 
 def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses, *, fit_names=LOWER_RIGID_NAMES,
-                          feature_names=(), components: int = 8, ridge: float = 0.01) -> dict | None:
+                          feature_names=(), components: int = 8, ridge: float = 0.01,
+                          weighted: bool = False) -> dict | None:
     """How the head poses fitted to the landmarks below a headset (``fit_names``) miss the poses
     that define a model's frame, as a linear function of the lower face's shape, learned on the
     registration video where both are known.
@@ -247,6 +268,9 @@ def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses
     landmarks ``feature_names`` (the lower face's, mouth included) against the lower-landmark
     pose; ``Y`` is regressed on the leading ``components`` principal components of the features by
     ridge regression (``ridge``: the penalty relative to the components' mean variance).
+    ``weighted``: the lower-landmark poses weigh each fit point by how little it moved in these
+    frames (:func:`rigidity_weights` against ``poses``; saved as ``fit_weights``, and the usage
+    poses must be fitted with them).
 
     ``names`` / ``points3d``: the landmarks placed on the canonical head; ``landmarks``
     [T, K, 2] the video's, named ``frame_names``; ``poses`` = (R [T, 3, 3], t [T, 3], pivot).
@@ -267,7 +291,9 @@ def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses
     R, t, p = (np.asarray(a, np.float64) for a in poses)
     R, obs = R[ok], obs[ok]
     t = repivot(R, t[ok], p, piv)
-    low = solve_poses(camera, Pf, obs[:, [col[n] for n in fit]], piv)
+    fit_obs = obs[:, [col[n] for n in fit]]
+    w = rigidity_weights(camera, R, t, piv, Pf, fit_obs) if weighted else None
+    low = solve_poses(camera, Pf, fit_obs, piv, weights=w)
     Y = _pose_delta(low["R"], low["t"], R, t)
     F = ray_offsets(camera, low["R"], low["t"], piv, P[[placed[n] for n in feat]],
                     obs[:, [col[n] for n in feat]]).reshape(len(Y), -1)
@@ -277,7 +303,7 @@ def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses
     lam = ridge * float(np.mean(S[:k] ** 2))
     W = np.linalg.solve(Z.T @ Z + lam * np.eye(k), Z.T @ (Y - off))
     return {"fit_names": fit, "names": feat, "pivot": piv.tolist(), "mean": mean.tolist(), "basis": Vt[:k].tolist(),
-            "weights": W.tolist(), "offset": off.tolist()}
+            "weights": W.tolist(), "offset": off.tolist(), **({"fit_weights": w.tolist()} if weighted else {})}
 
 
 def apply_lower_calibration(cal: dict, camera, points3d_of: dict, landmarks, frame_names, R, t, pivot):

@@ -126,7 +126,8 @@ def calibrate_usage_poses(model: HFMModel, video, source: str = "landmarks") -> 
     :func:`registration_poses` leaves them; ``source``: where they came from, "file" or
     "landmarks"): how head poses fitted to the landmarks below a headset
     miss the registration poses, as a function of the lower face's landmarks
-    (:func:`~geoface.splat.head_pose.calibrate_lower_poses`, ``pose_calibration`` components).
+    (:func:`~geoface.splat.head_pose.calibrate_lower_poses`, ``pose_calibration`` components;
+    ``pose_calibration_weighted``: those poses weigh each landmark by how little it moved).
     None (nothing learned) without iBUG-68 landmarks, with ``pose_calibration=0``, or when the
     registration poses were fitted to the lower landmarks themselves."""
     from geoface.splat.hfm_data import IBUG68_LOWER, IBUG68_NAMES
@@ -140,7 +141,7 @@ def calibrate_usage_poses(model: HFMModel, video, source: str = "landmarks") -> 
     model.pose_calibration = calibrate_lower_poses(
         video.camera, lm["names"], lm["points"], video.landmarks, video.names, video.poses,
         feature_names=[IBUG68_NAMES[i] for i in IBUG68_LOWER], components=cfg.pose_calibration,
-        ridge=cfg.pose_calibration_ridge)
+        ridge=cfg.pose_calibration_ridge, weighted=cfg.pose_calibration_weighted)
     return model.pose_calibration
 
 
@@ -361,6 +362,10 @@ def _read_calibration(cal, d):
         k = a["basis"].shape[0] if a["basis"].ndim == 2 else -1
         want = {"pivot": (3,), "mean": (3 * len(names),), "basis": (k, 3 * len(names)), "weights": (k, 6), "offset": (6,)}
         bad = [n for n, shp in want.items() if a[n].shape != shp or not np.isfinite(a[n]).all()]
+        if "fit_weights" in cal:
+            a["fit_weights"] = np.asarray(cal["fit_weights"], np.float64)
+            if a["fit_weights"].shape != (len(fit),) or not (a["fit_weights"] > 0).all():
+                bad.append("fit_weights")
         if k < 1 or len(fit) < 4 or bad:
             raise ValueError(f"bad {bad or 'sizes'}")
     except (KeyError, TypeError, ValueError) as e:

@@ -62,10 +62,14 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
         q = model.head_pose_params(model.encoder(*_frame_input(video, 0, model.cfg.crop, boxes)))[0]
         R0, t0, c = (a.double().cpu().numpy() for a in model.head_pose_from_params(q))
         init = (R0, repivot(R0, t0, c, piv))
-    fit = solve_poses(video.camera, P, video.landmarks[:, idx], piv, init=init)
-    R, t = fit["R"], fit["t"]
     cal = getattr(model, "pose_calibration", None)
-    if cal is not None and sorted(cal["fit_names"]) == sorted(use):  # in the registration poses' frame
+    calibrated = cal is not None and sorted(cal["fit_names"]) == sorted(use)
+    w = None
+    if calibrated and "fit_weights" in cal:  # the weights the calibration's poses were fitted with
+        w = [dict(zip(cal["fit_names"], cal["fit_weights"]))[n] for n in use]
+    fit = solve_poses(video.camera, P, video.landmarks[:, idx], piv, init=init, weights=w)
+    R, t = fit["R"], fit["t"]
+    if calibrated:  # in the registration poses' frame
         got = apply_lower_calibration(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
         if got is not None:
             R, t = got

@@ -209,6 +209,45 @@ def test_lower_pose_calibration_undoes_the_tilt_expressions_give_the_lower_landm
     assert calibrate_lower_poses(cam, names, P, obs, names, (R, t, piv), fit_names=fit_names[:3]) is None
 
 
+def test_rigidity_weights_favour_the_points_that_stay_and_the_weighted_fit_tilts_less():
+    """On a rig where expressions move 4 of 12 "rigid" points (nose wings: a sneer), the weights
+    learned from registration frames put the moving points at under a tenth of the still ones, the
+    pose weighted by them tilts under half as much with the expression as the equal-weight fit on
+    held-out frames, a weighted calibration saves them (``fit_weights``) and bad weights are refused."""
+    from geoface.splat.head_pose import calibrate_lower_poses, rigidity_weights
+
+    rng = np.random.default_rng(5)
+    cam = look_at([0, 0, 0.5], [0, 0, 0], width=256, height=256, fov_y_deg=30)
+    P = rng.normal(0, 1, (12, 3)) * [0.06, 0.03, 0.02]
+    piv = np.array([0.0, 0.0, -0.05])
+    mode = np.zeros((12, 3))
+    mode[:4] = [0, 0.004, 0.002]
+
+    def frames(T, strength):
+        R = np.stack([rodrigues(rng.normal(0, 1, 3) * np.radians(4)) for _ in range(T)])
+        t = rng.normal(0, 0.004, (T, 3))
+        c = rng.uniform(0, strength, T)
+        obs = np.stack([cam.project((P + c[f] * mode - piv) @ R[f].T + piv + t[f])[0] for f in range(T)])
+        return R, t, obs + rng.normal(0, 0.05, obs.shape)
+
+    R, t, obs = frames(150, 1.0)
+    w = rigidity_weights(cam, R, t, piv, P, obs)
+    assert w.shape == (12,) and abs(w.mean() - 1) < 1e-9 and w[:4].max() < 0.1 * w[4:].min()
+    R2, t2, obs2 = frames(40, 1.5)
+    plain, weighted = solve_poses(cam, P, obs2, piv), solve_poses(cam, P, obs2, piv, weights=w)
+    tilt = [np.mean([_angle_deg(R2[f], fit["R"][f]) for f in range(40)]) for fit in (plain, weighted)]
+    assert tilt[0] > 0.1 and tilt[1] < 0.5 * tilt[0]
+    names = [f"r{i}" for i in range(12)]
+    cal = calibrate_lower_poses(cam, names, P, obs, names, (R, t, piv), fit_names=names, feature_names=names,
+                                components=4, weighted=True)
+    assert np.allclose(cal["fit_weights"], w)
+    assert "fit_weights" not in calibrate_lower_poses(cam, names, P, obs, names, (R, t, piv), fit_names=names,
+                                                      feature_names=names, components=4)
+    for bad in (w[:5], -w, w * np.nan):
+        with pytest.raises(SplatError, match="weights"):
+            solve_poses(cam, P, obs2[:2], piv, weights=bad)
+
+
 def test_poses_fitted_to_the_landmarks_below_a_headset(ict_capture):
     """``fit_names``: the poses fitted to the 12 lower landmarks (nose base, jaw ends) that a usage
     video keeps, the head placed (and the jaw outline triangulated) as with the rigid set: same
@@ -280,6 +319,25 @@ def test_hfm_without_a_pose_file_learns_the_pose_from_the_crop(ict_capture, tmp_
     (tmp_path / "m" / "config.json").write_text(json.dumps(conf))
     with pytest.raises(SplatError, match="pose_calibration is malformed"):
         load_hfm(tmp_path / "m")
+    # weighted: the calibration keeps the landmark weights, the usage fit uses them, saved and loaded
+    from dataclasses import replace
+
+    from geoface.splat.hfm_train import calibrate_usage_poses, save_hfm
+
+    v.poses = (fit["R"], fit["t"], fit["pivot"])
+    m.cfg = replace(m.cfg, pose_calibration_weighted=True)
+    wcal = calibrate_usage_poses(m, v)
+    assert len(wcal["fit_weights"]) == 12 and abs(np.mean(wcal["fit_weights"]) - 1) < 1e-9
+    (Rw, _, _), _ = usage_poses(m, video, "landmarks")
+    assert 1e-4 < max(_angle_deg(a, b) for a, b in zip(R, Rw)) < 1.0
+    save_hfm(m, tmp_path / "mw")
+    assert np.allclose(load_hfm(tmp_path / "mw").pose_calibration["fit_weights"], wcal["fit_weights"])
+    conf = json.loads((tmp_path / "mw" / "config.json").read_text())
+    conf["pose_calibration"]["fit_weights"][0] = -1.0
+    (tmp_path / "mw" / "config.json").write_text(json.dumps(conf))
+    with pytest.raises(SplatError, match="fit_weights"):
+        load_hfm(tmp_path / "mw")
+    m.cfg, m.pose_calibration = replace(m.cfg, pose_calibration_weighted=False), cal
     ev = evaluate_hmd(m, video, poses="landmarks")
     assert 5 < ev["psnr_face"] < 60 and ev["poses"] == "landmarks"
     m.landmarks3d = None
