@@ -54,6 +54,8 @@ def _config(args):
         kw["registration_landmarks"] = args.pose_landmarks
     if args.pose_residual is not None:
         kw["pose_residual"] = args.pose_residual
+    if args.calibration_weights is not None:
+        kw["pose_calibration_weighted"] = args.calibration_weights
     kw.update(ABLATIONS[args.ablation])
     return HFMConfig(**kw)
 
@@ -198,6 +200,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                         "or to those of them below a headset, as the usage poses are (lower); default: the model's")
     t.add_argument("--pose-residual", action=argparse.BooleanOptionalAction, default=None,
                    help="the global pose MLP corrects the tracked head pose of each frame (default: the model's)")
+    t.add_argument("--calibration-weights", action=argparse.BooleanOptionalAction, default=None,
+                   help="the usage pose calibration weighs each lower landmark by how little it moved in "
+                        "registration (default: the model's)")
     t.add_argument("--device", default=None, help="cpu or cuda (default: cuda when torch sees a GPU)")
     t.add_argument("--seed", type=SEED, default=0)
     t.set_defaults(func=cmd_hmd_train)
