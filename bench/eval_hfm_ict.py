@@ -103,11 +103,13 @@ def _job_rows(job) -> list:
         info_file.write_text(json.dumps(info))
     model = load_hfm(mdir)
     calibrated_after = False
-    if model.pose_calibration is None and cfg.pose_calibration and poses != "file":
-        # trained before the calibration existed: learn it now from the same registration poses
-        # (fitted to the landmarks as training fitted them), as training does
+    cal = model.pose_calibration
+    if (cal is None or ("fit_weights" in cal) != cfg.pose_calibration_weighted) and cfg.pose_calibration and poses != "file":
+        # trained before the calibration (or its weighting) existed: learn it now from the same
+        # registration poses (fitted to the landmarks as training fitted them), as training does
         reg = _registration(Path(d) / "registration", model)
-        calibrated_after = _recalibrate(model, reg, cfg.pose_calibration, cfg.pose_calibration_ridge) is not None
+        calibrated_after = _recalibrate(model, reg, cfg.pose_calibration, cfg.pose_calibration_ridge,
+                                        cfg.pose_calibration_weighted) is not None
     rows = []
     video = load_video(Path(d) / "usage")
     cal = model.pose_calibration

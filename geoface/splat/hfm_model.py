@@ -47,7 +47,7 @@ class HFMConfig:
     registration_landmarks: str = "rigid"  # without a pose file, fit registration poses to "rigid" or "lower" landmarks
     pose_calibration: int = 8  # components of the lower-landmark pose calibration learned in registration (0: none)
     pose_calibration_ridge: float = 0.01
-    pose_calibration_weighted: bool = False  # its lower-landmark poses weigh each landmark by how little it moved
+    pose_calibration_weighted: bool = True  # its lower-landmark poses weigh each landmark by how little it moved
     lambda_pose: float = 100.0  # weight of its loss: squared radians + squared (translation / 0.1 head size)
     gaussian_mapping: bool = True
     feature_mapping: bool = True
