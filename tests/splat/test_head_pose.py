@@ -319,25 +319,27 @@ def test_hfm_without_a_pose_file_learns_the_pose_from_the_crop(ict_capture, tmp_
     (tmp_path / "m" / "config.json").write_text(json.dumps(conf))
     with pytest.raises(SplatError, match="pose_calibration is malformed"):
         load_hfm(tmp_path / "m")
-    # weighted: the calibration keeps the landmark weights, the usage fit uses them, saved and loaded
+    # the default calibration weighs the landmarks (saved and loaded with it); the usage fit uses
+    # the weights, and equal weights give other poses
     from dataclasses import replace
 
     from geoface.splat.hfm_train import calibrate_usage_poses, save_hfm
 
+    assert m.cfg.pose_calibration_weighted
+    assert len(cal["fit_weights"]) == 12 and abs(np.mean(cal["fit_weights"]) - 1) < 1e-9
     v.poses = (fit["R"], fit["t"], fit["pivot"])
-    m.cfg = replace(m.cfg, pose_calibration_weighted=True)
-    wcal = calibrate_usage_poses(m, v)
-    assert len(wcal["fit_weights"]) == 12 and abs(np.mean(wcal["fit_weights"]) - 1) < 1e-9
-    (Rw, _, _), _ = usage_poses(m, video, "landmarks")
-    assert 1e-4 < max(_angle_deg(a, b) for a, b in zip(R, Rw)) < 1.0
+    m.cfg = replace(m.cfg, pose_calibration_weighted=False)
+    assert "fit_weights" not in calibrate_usage_poses(m, v)
+    (Rp, _, _), _ = usage_poses(m, video, "landmarks")
+    assert 1e-4 < max(_angle_deg(a, b) for a, b in zip(R, Rp)) < 1.0
+    m.cfg, m.pose_calibration = replace(m.cfg, pose_calibration_weighted=True), cal
     save_hfm(m, tmp_path / "mw")
-    assert np.allclose(load_hfm(tmp_path / "mw").pose_calibration["fit_weights"], wcal["fit_weights"])
+    assert np.allclose(load_hfm(tmp_path / "mw").pose_calibration["fit_weights"], cal["fit_weights"])
     conf = json.loads((tmp_path / "mw" / "config.json").read_text())
     conf["pose_calibration"]["fit_weights"][0] = -1.0
     (tmp_path / "mw" / "config.json").write_text(json.dumps(conf))
     with pytest.raises(SplatError, match="fit_weights"):
         load_hfm(tmp_path / "mw")
-    m.cfg, m.pose_calibration = replace(m.cfg, pose_calibration_weighted=False), cal
     ev = evaluate_hmd(m, video, poses="landmarks")
     assert 5 < ev["psnr_face"] < 60 and ev["poses"] == "landmarks"
     m.landmarks3d = None
