@@ -364,7 +364,7 @@ def _read_calibration(cal, d):
         bad = [n for n, shp in want.items() if a[n].shape != shp or not np.isfinite(a[n]).all()]
         if "fit_weights" in cal:
             a["fit_weights"] = np.asarray(cal["fit_weights"], np.float64)
-            if a["fit_weights"].shape != (len(fit),) or not (a["fit_weights"] > 0).all():
+            if a["fit_weights"].shape != (len(fit),) or not (np.isfinite(a["fit_weights"]).all() and (a["fit_weights"] > 0).all()):
                 bad.append("fit_weights")
         if k < 1 or len(fit) < 4 or bad:
             raise ValueError(f"bad {bad or 'sizes'}")

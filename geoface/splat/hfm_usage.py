@@ -66,7 +66,8 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     calibrated = cal is not None and sorted(cal["fit_names"]) == sorted(use)
     w = None
     if calibrated and "fit_weights" in cal:  # the weights the calibration's poses were fitted with
-        w = [dict(zip(cal["fit_names"], cal["fit_weights"]))[n] for n in use]
+        weight_of = dict(zip(cal["fit_names"], cal["fit_weights"]))
+        w = [weight_of[n] for n in use]
     fit = solve_poses(video.camera, P, video.landmarks[:, idx], piv, init=init, weights=w)
     R, t = fit["R"], fit["t"]
     if calibrated:  # in the registration poses' frame
