@@ -18,9 +18,10 @@ talking, emoting, lit ICT person, registration and usage videos of different seq
 * ``no_gaussian_feature_mapping``, ``no_global_pose`` — the paper's ablations, no pose file;
 * ``map_theta``, ``gm_xsr``, ``pm_per_component``, ``split_margin`` — Full with one of the paper's
   elements that the defaults leave out (:data:`PAPER`), for the choice on the validation split;
-* ``pose_residual``, ``no_pose_residual``, ``reg_lower``, ``reg_lower_no_pose_residual`` — Full with
-  or without the residual pose MLP (the default leaves it out), with registration poses fitted to the
-  lower landmarks, or both (:data:`OURS`; validation);
+* ``pose_residual``, ``no_pose_residual``, ``reg_lower``, ``reg_lower_no_pose_residual``, ``pose_refine`` —
+  Full with or without the residual pose MLP (the default leaves it out), with registration poses
+  fitted to the lower landmarks, or both, or with the registration poses corrected per frame by the
+  image loss (:data:`OURS`; validation);
 
 and scores each on the usage video (PSNR/SSIM: whole face, the region the headset hides, its
 expression region); the no-file models with the usage pose fitted to the landmarks below the
@@ -54,7 +55,8 @@ PAPER = {"map_theta": {"map_theta": True}, "gm_xsr": {"gm_input": "xsr"},
          "pm_per_component": {"pm_per_component": True}, "split_margin": {"split_margin": 0.002}}
 #: choices of ours, each alone on top of Full (no pose file), for the validation split
 OURS = {"pose_residual": {"pose_residual": True}, "no_pose_residual": {"pose_residual": False}, "reg_lower": {"registration_landmarks": "lower"},
-        "reg_lower_no_pose_residual": {"registration_landmarks": "lower", "pose_residual": False}}
+        "reg_lower_no_pose_residual": {"registration_landmarks": "lower", "pose_residual": False},
+        "pose_refine": {"pose_refine": True}}
 VARIANTS.update({k: ("full", "landmarks") for k in {**PAPER, **OURS}})
 MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]
 
@@ -100,6 +102,8 @@ def _job_rows(job) -> list:
     else:
         info = train_hfm(Path(d) / "registration", mdir, cfg, progress=False, log=None, poses=poses, device=device)
         info = {k: v for k, v in info.items() if k != "history"}
+        if poses != "file":
+            info.update(_registration_error(Path(d) / "registration", mdir))
         info_file.write_text(json.dumps(info))
     model = load_hfm(mdir)
     calibrated_after = False
@@ -107,7 +111,7 @@ def _job_rows(job) -> list:
     if (cal is None or ("fit_weights" in cal) != cfg.pose_calibration_weighted) and cfg.pose_calibration and poses != "file":
         # trained before the calibration (or its weighting) existed: learn it now from the same
         # registration poses (fitted to the landmarks as training fitted them), as training does
-        reg = _registration(Path(d) / "registration", model)
+        reg = _registration(Path(d) / "registration", model, mdir)
         calibrated_after = _recalibrate(model, reg, cfg.pose_calibration, cfg.pose_calibration_ridge,
                                         cfg.pose_calibration_weighted) is not None
     rows = []
@@ -123,6 +127,7 @@ def _job_rows(job) -> list:
                      "calibrated_after_training": calibrated_after,
                      "train_seconds": None if info.get("seconds") is None else round(info["seconds"], 1),
                      "pose_fit_rms_px": info.get("pose_fit_rms_px"), "n_gaussians": len(model.gaussians),
+                     **{k: info[k] for k in ("registration_pose_deg", "registration_pose_mm") if k in info},
                      **{k: (round(float(v), 4) if isinstance(v, (int, float)) else v) for k, v in r.items()}})
     return rows
 
@@ -188,16 +193,37 @@ def _poses(a) -> None:
                 f.write(json.dumps(row) + "\n")
 
 
-def _registration(reg_dir, model):
-    """The registration video with the poses the model was trained in, fitted to the landmarks as
-    training fits them."""
+def _registration(reg_dir, model, model_dir=None):
+    """The registration video with the poses the model was trained in: those its folder saved
+    (training corrected them), else fitted to the landmarks as training fits them."""
     from geoface.mesh.io import load_mesh
     from geoface.splat.hfm_data import load_video
-    from geoface.splat.hfm_train import registration_poses
+    from geoface.splat.hfm_train import load_registration_poses, registration_poses
 
     reg = load_video(reg_dir, need_mesh=True)
     registration_poses(reg, "landmarks", None, load_mesh(reg.mesh_path), fit=model.cfg.registration_landmarks)
+    saved = load_registration_poses(model_dir, len(reg)) if model_dir is not None else None
+    if saved is not None:
+        reg.poses = saved
     return reg
+
+
+def _registration_error(reg_dir, model_dir) -> dict:
+    """How far the registration poses a no-file model was fitted in are from the true ones
+    (``head_poses.npz``), frame by frame about their mean offset (the frame the avatar learned):
+    root-mean-square degrees and millimetres (at the pivot)."""
+    from geoface.splat.hfm import load_hfm
+    from geoface.splat.hfm_data import load_video
+    from geoface.splat.head_pose import repivot, rotation_vector
+
+    reg = _registration(reg_dir, load_hfm(model_dir), model_dir)
+    R, t, p = reg.poses
+    Rt, tt, pt = load_video(reg_dir).poses
+    tt = repivot(Rt, tt, pt, p)
+    rv = np.degrees([rotation_vector(Rt[f].T @ R[f]) for f in range(len(R))])
+    dt = 1000 * (np.asarray(t) - tt)
+    rms = lambda x: round(float(np.sqrt(((x - x.mean(0)) ** 2).sum(1).mean())), 3)  # noqa: E731
+    return {"registration_pose_deg": rms(rv), "registration_pose_mm": rms(dt)}
 
 
 def _recalibrate(model, reg, components: int, ridge: float, weighted: bool = False):
@@ -228,7 +254,7 @@ def _calibration(a) -> None:
             for s in ([int(x) for x in people[0].split(",")] if people else default):
                 for v in variants.split(","):
                     model = load_hfm(models / f"{split}_{s}_{v}_s{seed}")
-                    reg = _registration(data / f"{split}_{s}" / "registration", model)
+                    reg = _registration(data / f"{split}_{s}" / "registration", model, models / f"{split}_{s}_{v}_s{seed}")
                     use = load_video(data / f"{split}_{s}" / "usage")
                     for g in a.grid:
                         k, ridge, *w = g.split(":")

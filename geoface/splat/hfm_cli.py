@@ -56,6 +56,8 @@ def _config(args):
         kw["pose_residual"] = args.pose_residual
     if args.calibration_weights is not None:
         kw["pose_calibration_weighted"] = args.calibration_weights
+    if args.pose_refine is not None:
+        kw["pose_refine"] = args.pose_refine
     kw.update(ABLATIONS[args.ablation])
     return HFMConfig(**kw)
 
@@ -203,6 +205,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--calibration-weights", action=argparse.BooleanOptionalAction, default=None,
                    help="the usage pose calibration weighs each lower landmark by how little it moved in "
                         "registration (default: the model's)")
+    t.add_argument("--pose-refine", action=argparse.BooleanOptionalAction, default=None,
+                   help="registration poses fitted to the landmarks are corrected frame by frame with the "
+                        "image loss (default: the model's)")
     t.add_argument("--device", default=None, help="cpu or cuda (default: cuda when torch sees a GPU)")
     t.add_argument("--seed", type=SEED, default=0)
     t.set_defaults(func=cmd_hmd_train)

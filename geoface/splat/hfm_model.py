@@ -48,6 +48,8 @@ class HFMConfig:
     pose_calibration: int = 8  # components of the lower-landmark pose calibration learned in registration (0: none)
     pose_calibration_ridge: float = 0.01
     pose_calibration_weighted: bool = True  # its lower-landmark poses weigh each landmark by how little it moved
+    pose_refine: bool = False  # registration poses fitted to landmarks get per-frame corrections learned with the images
+    lr_pose: float = 4e-3      # their step: radians per visit of a frame at a typical misfit (FrameCorrections)
     lambda_pose: float = 100.0  # weight of its loss: squared radians + squared (translation / 0.1 head size)
     gaussian_mapping: bool = True
     feature_mapping: bool = True
@@ -104,6 +106,8 @@ class HFMConfig:
             raise SplatError(f"HFMConfig.gm_input must be 'x' or 'xsr'; got {self.gm_input!r}")
         if self.pm_per_component and not self.feature_mapping:
             raise SplatError("HFMConfig.pm_per_component needs feature_mapping (MLP_pm)")
+        if not self.lr_pose > 0:
+            raise SplatError(f"HFMConfig.lr_pose must be > 0; got {self.lr_pose!r}")
         if not 0 < self.map_norm_momentum <= 1:
             raise SplatError(f"HFMConfig.map_norm_momentum must be in (0, 1]; got {self.map_norm_momentum}")
         if not 0 <= self.warmup < 1:

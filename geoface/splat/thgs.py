@@ -39,6 +39,7 @@ from torch import Tensor, nn
 
 from geoface.mesh.core import vertex_normals
 from geoface.splat.errors import SplatError
+from geoface.splat.corrections import FrameCorrections  # noqa: F401  (also imported from here)
 from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat, rotmat_to_quat_torch
 from geoface.splat.kinematics import axis_angle_to_matrix, joint_transforms
 
@@ -322,42 +323,6 @@ class THGSModel(nn.Module):
         """Eq. 19: mean squared distance of each Gaussian to its parent vertex (metres²)."""
         g = self.gaussians
         return ((g.means - self.V0[g.parent]) ** 2).sum(-1).mean()
-
-
-class FrameCorrections:
-    """Steps for per-frame corrections (pose, expression), one frame at a time.
-
-    A frame's row of ``d_rot``/``d_transl``/``d_expr`` gets a gradient only when that frame is
-    drawn, once every few hundred steps. Adam keeps moving every row on its stale momentum, and
-    normalises each step to about the learning rate whatever the gradient: the corrections then
-    wander (5.5° on an ICT capture whose poses were exact). Here only the drawn row moves, by
-    its gradient over a root-mean-square shared by all frames (RMSprop, per joint and axis):
-    steps grow with the misfit and vanish where the frame fits."""
-
-    def __init__(self, params_lrs, beta: float = 0.99, eps: float = 1e-12):
-        # per tensor: its rate, which of a row's entries may move (a bool mask broadcast over the
-        # row; all when not given), the running mean square of its gradients, and how many it has
-        # had (expression corrections start a stage later than pose ones: each debiases by its own count)
-        self.items = []
-        for p, lr, *mask in params_lrs:
-            m = torch.as_tensor(mask[0], dtype=p.dtype) if mask else torch.ones(())
-            self.items.append([p, float(lr), m, torch.zeros(p.shape[1:]), 0])
-        self.beta, self.eps = beta, eps
-
-    @torch.no_grad()
-    def step(self, row: int) -> None:
-        for item in self.items:
-            p, lr, m, v, n = item
-            if p.grad is None:
-                continue
-            item[4] = n = n + 1
-            g = p.grad[row] * m
-            v.mul_(self.beta).add_((1 - self.beta) * g * g)
-            p[row] -= lr * g / ((v / (1 - self.beta ** n)).sqrt() + self.eps)
-
-    def zero_grad(self) -> None:
-        for p, *_ in self.items:
-            p.grad = None
 
 
 def _split(n: int, heldout: float):

@@ -404,3 +404,104 @@ def test_cli_ict_capture_and_pose_sources(ict_capture, tmp_path, capsys):
     finally:
         (tmp_path / "hp.npz").rename(use / "head_poses.npz")
     assert main(["hmd", "train", str(reg), "-o", str(tmp_path / "m2"), "--iters", "3", "--device", "cuda:99", "-q"]) == 2
+
+
+def test_corrected_pose_turns_the_head_about_its_centre_before_the_tracked_pose():
+    from geoface.splat.corrections import corrected_pose
+
+    rng = np.random.default_rng(3)
+    R, t, p, c = rodrigues(rng.normal(size=3) * 0.3), rng.normal(size=3), rng.normal(size=3), rng.normal(size=3)
+    w, d = rng.normal(size=3) * 0.1, rng.normal(size=3) * 0.01
+    X = rng.normal(size=(5, 3))
+    want = ((X - c) @ rodrigues(w).T + c + d - p) @ R.T + p + t
+    Rn, tn, pn = (a.numpy() for a in corrected_pose(*(torch.tensor(a) for a in (R, t, p, w, d, c))))
+    assert np.allclose((X - pn) @ Rn.T + pn + tn, want, atol=1e-12)
+    Rz, tz, _ = corrected_pose(*(torch.tensor(a) for a in (R, t, p, 0 * w, 0 * d, c)))
+    assert np.allclose(Rz.numpy(), R) and np.allclose(tz.numpy(), t)
+
+
+def test_pose_corrections_learned_with_the_image_undo_tracking_errors(ict_capture):
+    """Frames rendered by a fixed avatar at the true poses, the poses then turned 2° and moved
+    3 mm: the per-frame corrections that training learns with the image loss bring them back."""
+    from geoface.mesh.io import load_mesh
+    from geoface.splat.hfm import HFMConfig
+    from geoface.splat.hfm_train import _PoseRefinement, build_model
+    from geoface.splat.rasterizer import rasterize
+
+    reg, _ = ict_capture
+    v = load_video(reg, need_mesh=True, frames=slice(1, 3))
+    cfg = HFMConfig(n_keys=64, crop=64, lr_pose=4e-3)
+    model = build_model(v, cfg, load_mesh(v.mesh_path))
+    theta = torch.zeros(1, cfg.latent_dim)
+    R, t, p = v.poses
+    with torch.no_grad():
+        frames = [rasterize(model.deform(theta, (R[f], t[f], p)), v.camera)[0] for f in range(len(v))]
+    rng = np.random.default_rng(0)
+    axes = rng.normal(size=(len(v), 3))
+    Rp = np.stack([rodrigues(np.radians(2.0) * a / np.linalg.norm(a)) @ R[f] for f, a in enumerate(axes)])
+    tp = t + 0.003 * rng.normal(size=t.shape) / np.sqrt(3)
+    v.poses = (Rp, tp, p)
+    refine = _PoseRefinement(v, model, cfg, "cpu")
+    # the corrected pose is the tracked pose's motion after the correction's; only the upper face
+    # (above y_t) passes gradient to the correction
+    with torch.no_grad():
+        refine.d_rot[0] = torch.tensor([0.01, -0.02, 0.005])
+    g0, g1 = refine.posed(theta, 0), model.deform(theta, refine.pose(0))
+    torch.testing.assert_close(g0.means, g1.means)
+    torch.testing.assert_close(g0.quats, g1.quats, atol=1e-2, rtol=0)  # orientations: the tracked pose's
+    up = model.upper_mask()
+    assert 0 < int(up.sum()) < len(up)
+    g0.means[~up].sum().backward()
+    assert refine.d_rot.grad is None or not refine.d_rot.grad.any()
+    refine.posed(theta, 0).means[up].sum().backward()
+    assert refine.d_rot.grad[0].abs().sum() > 0
+    refine.opt.zero_grad()
+    with torch.no_grad():
+        refine.d_rot.zero_()
+
+    def errors():
+        Rc, tc, pc = v.poses
+        return (max(_angle_deg(R[f], Rc[f]) for f in range(len(v))),
+                max(np.linalg.norm(t[f] - tc[f]) for f in range(len(v))))  # the pivot's motion
+
+    before = errors()
+    sweeps = 80
+    for k in range(sweeps):
+        for f in range(len(v)):
+            rgb = rasterize(refine.posed(theta, f), v.camera)[0]
+            (rgb - frames[f]).abs().mean().backward()
+            model.zero_grad(set_to_none=True)
+            refine.step(f, k / (sweeps - 1))
+    info = refine.finish()
+    after = errors()
+    assert before[0] > 1.9 and after[0] < 0.2, (before, after)
+    assert after[1] < 0.3 * before[1], (before, after)
+    assert info["pose_refined"] and 1.0 < info["pose_correction_deg"][0] < 3.0
+
+
+def test_training_corrects_the_landmark_poses_saves_them_and_calibrates_to_them(ict_capture, tmp_path):
+    from geoface.mesh.io import load_mesh
+    from geoface.splat.hfm import HFMConfig, load_hfm, train_hfm
+    from geoface.splat.hfm_train import load_registration_poses
+
+    reg, _ = ict_capture
+    cfg = HFMConfig(iters=40, warmup=0.2, densify=False, seed=0, n_keys=64, crop=64, pose_refine=True, lr_pose=4e-3)
+    info = train_hfm(reg, tmp_path / "m", cfg, progress=False, log=None, poses="landmarks")
+    assert info["pose_refined"] and 0 < info["pose_correction_deg"][0] <= info["pose_correction_deg"][1] < 2.0
+    v = load_video(reg, need_mesh=True)
+    mesh = load_mesh(v.mesh_path)
+    fit = poses_from_landmarks(v, mesh.V, mesh.F)
+    R, t, p = load_registration_poses(tmp_path / "m", len(v))
+    moved = [_angle_deg(fit["R"][f], R[f]) for f in range(len(v))]
+    assert np.allclose(p, fit["pivot"]) and 1e-3 < max(moved) < 2.0
+    m = load_hfm(tmp_path / "m")
+    assert m.cfg.pose_refine and m.pose_calibration is not None  # learned from the corrected poses
+    with pytest.raises(SplatError, match="registration poses of this model"):
+        load_registration_poses(tmp_path / "m", len(v) + 1)
+    np.savez(tmp_path / "m" / "registration_poses.npz", R=R[:, :2], t=t, pivot=p)
+    with pytest.raises(SplatError, match="registration poses of this model"):
+        load_registration_poses(tmp_path / "m")
+    # trained again into the folder without corrections: the stale file goes
+    train_hfm(reg, tmp_path / "m", HFMConfig(iters=2, densify=False, n_keys=64, crop=64), progress=False, log=None,
+              poses="landmarks")
+    assert load_registration_poses(tmp_path / "m") is None

@@ -378,7 +378,7 @@ def test_cli(talk_dir, tmp_path, capsys):
 def test_frame_corrections_move_only_the_drawn_frame_by_its_gradient():
     """Only the drawn frame's row moves; its first step is the rate (the gradient over its own
     root-mean-square); a tensor that gets gradients later debiases by its own count."""
-    from geoface.splat.thgs import FrameCorrections
+    from geoface.splat.corrections import FrameCorrections
 
     a = torch.nn.Parameter(torch.zeros(5, 3))
     b = torch.nn.Parameter(torch.zeros(5, 2))
