@@ -16,7 +16,7 @@ import numpy as np
 
 from geoface.splat.errors import SplatError
 
-__all__ = ["read_wav", "log_mel", "audio_features", "envelope"]
+__all__ = ["read_wav", "log_mel", "audio_features", "envelope", "audio_context"]
 
 #: sample rates read_wav accepts (log-mel features need at least ~100 samples per 10 ms hop)
 MIN_SAMPLE_RATE = 8000
@@ -121,3 +121,19 @@ def envelope(x, sr: int, fps: float, n_frames: int) -> np.ndarray:
     edges = (np.arange(n_frames + 1) / fps * sr).astype(int)
     return np.array([np.sqrt(np.mean(x[a:b] ** 2)) if b > a and a < len(x) else 0.0
                      for a, b in zip(edges[:-1], edges[1:])])
+
+
+def audio_context(features, window: int) -> np.ndarray:
+    """Each frame's features beside those of the ``window`` frames before and after it:
+    ``(T, D)`` → ``(T, (2 window + 1) D)``, in the order −window … +window (the first and last
+    frames repeated past the ends).  Lips move ahead of and behind the sound they make, so one
+    frame's spectrum says less about the mouth than its neighbours' do."""
+    A = np.asarray(features, dtype=np.float32)
+    if A.ndim != 2:
+        raise SplatError(f"audio features must be (frames, D); got shape {A.shape}")
+    if window < 0:
+        raise SplatError(f"the audio window must be >= 0 frames; got {window}")
+    if window == 0 or not len(A):
+        return A
+    idx = np.clip(np.arange(len(A))[:, None] + np.arange(-window, window + 1)[None], 0, len(A) - 1)
+    return A[idx].reshape(len(A), -1)

@@ -105,12 +105,13 @@ def _thgs_drive(model, source: Path, fps: float) -> AvatarDrive:
         rot, transl, expr, what = np.zeros((T, J, 3)), np.zeros((T, 3)), np.zeros((T, K)), source.name
     else:
         raise SplatError(f"{source}: a talking avatar is driven by a WAV or a `talk synth` data folder")
-    if audio.shape[1] != model.audio_ref.shape[0]:
+    if audio.shape[1] != model.audio_dim:
         raise SplatError(f"{source}: {audio.shape[1]} audio features per frame; the model was trained on "
-                         f"{model.audio_ref.shape[0]}")
+                         f"{model.audio_dim}")
+    audio = model.audio_input(audio)
 
     def g(t):
-        return model(rot[t], transl[t], expr[t], torch.as_tensor(audio[t], dtype=torch.float32))
+        return model(rot[t], transl[t], expr[t], audio[t])
 
     return AvatarDrive(len(rot), float(fps), what, "thgs", g, frames)
 

@@ -207,6 +207,7 @@ class THGSConfig:
     lambda_leb: float = 0.1
     lambda_normal: float = 0.01   # refinement stage (from the blendshape stage on)
     lambda_landmarks: float = 1.0  # mouth landmarks (landmarks.json) from the expression stage on
+    audio_window: int = 0  # SAAM and the audio articulation read the features of this many frames each side too
     landmarks_pose: bool = False   # True: the landmark term also moves the per-frame pose corrections
     lr_means: float = 1.6e-4
     lr_nets: float = 1e-3
@@ -217,6 +218,8 @@ class THGSConfig:
     threads: int | None = None
 
     def __post_init__(self):
+        if self.audio_window < 0:
+            raise SplatError(f"THGSConfig.audio_window must be >= 0 frames; got {self.audio_window}")
         if self.iters < 1 or self.voxel_res < 2 or not 0 <= self.heldout < 1:
             raise SplatError(f"bad THGS config: iters={self.iters}, voxel_res={self.voxel_res}, heldout={self.heldout}")
 
@@ -241,6 +244,8 @@ class THGSModel(nn.Module):
     def __init__(self, tpl, cfg: THGSConfig, audio_dim: int, n_frames: int = 0, gaussians: Gaussians | None = None):
         super().__init__()
         self.cfg = cfg
+        self.audio_dim = audio_dim  # features per frame; the networks read 2 audio_window + 1 frames of them
+        audio_dim = audio_dim * (2 * cfg.audio_window + 1)
         self.template = tpl
         C = np.full((len(tpl.V), 3), 0.5)
         self.gaussians = gaussians or Gaussians.from_mesh(tpl.V, tpl.F, C, opacity=cfg.init_opacity)
@@ -263,6 +268,13 @@ class THGSModel(nn.Module):
         self.d_transl = nn.Parameter(torch.zeros(n_frames, 3))    # … and root translation corrections
         self.d_expr = nn.Parameter(torch.zeros(n_frames, K))      # per-frame expression corrections
         self.stage = 4  # all parts on (training sets it)
+
+    def audio_input(self, features) -> Tensor:
+        """[T, D] per-frame audio features → [T, (2 audio_window + 1) D], what :meth:`forward`
+        takes per frame (:func:`~geoface.splat.audio.audio_context`)."""
+        from geoface.splat.audio import audio_context
+
+        return torch.as_tensor(audio_context(features, self.cfg.audio_window))
 
     def normalize_audio(self, a: Tensor) -> Tensor:
         return (a - self.audio_ref) / self.audio_scale
@@ -345,8 +357,8 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     rng = np.random.default_rng(cfg.seed)
     data = load_talking(data_dir)
     tr, _ = _split(len(data), cfg.heldout)
-    A = torch.tensor(data.audio)
-    model = THGSModel(data.template, cfg, A.shape[1], len(data))
+    model = THGSModel(data.template, cfg, data.audio.shape[1], len(data))
+    A = model.audio_input(data.audio)
     model.audio_ref.copy_(torch.quantile(A[tr], 0.02, dim=0))
     model.audio_scale.copy_(A[tr].std(0).clamp_min(1e-3))
     model.tracked_joints.copy_(torch.as_tensor(data.tracked_joints))
@@ -427,7 +439,7 @@ def save_thgs(model: THGSModel, out_dir) -> None:
     from geoface.splat.model_dir import write_model_dir
 
     out = write_model_dir(out_dir, model, {"format": "geoface-thgs", "version": 1, "config": asdict(model.cfg),
-                                           "audio_dim": int(model.audio_ref.shape[0]),
+                                           "audio_dim": int(model.audio_dim),
                                            "n_frames": int(model.d_rot.shape[0])})
     model.template.save(out / "template.npz")
 
@@ -468,6 +480,7 @@ def render_frames(model: THGSModel, camera, rot, transl, expr, audio, frames=Non
     out, times = [], []
     bg = torch.zeros(3)
     idx = range(len(rot)) if frames is None else frames
+    audio = None if audio is None else model.audio_input(audio)
     for t in idx:
         t0 = time.perf_counter()
         gd = model(rot[t], transl[t], expr[t], None if audio is None else torch.as_tensor(audio[t]))
@@ -497,9 +510,8 @@ def animate(model: THGSModel, audio_path, out_dir=None, *, poses=None, fps: floa
     elif T is None:
         raise SplatError("with precomputed audio features give --poses (they fix the frame count)")
     A = audio_features(p, T, fps)
-    if A.shape[1] != model.audio_ref.shape[0]:
-        raise SplatError(f"{p}: {A.shape[1]} audio features per frame; the model was trained on "
-                         f"{model.audio_ref.shape[0]}")
+    if A.shape[1] != model.audio_dim:
+        raise SplatError(f"{p}: {A.shape[1]} audio features per frame; the model was trained on {model.audio_dim}")
     if poses is None:
         rot, transl, expr = np.zeros((T, J, 3)), np.zeros((T, 3)), np.zeros((T, K))
     if camera is None:

@@ -16,6 +16,8 @@ from geoface._args import SEED, add_json, json_to_stdout, number, write_json
 
 #: THGSConfig.lambda_landmarks's default (kept here so that building the parser imports no torch)
 THGS_LANDMARK_WEIGHT = 1.0
+#: THGSConfig.audio_window's default (likewise)
+THGS_AUDIO_WINDOW = 0
 
 
 def cmd_talk_synth(args) -> int:
@@ -59,7 +61,8 @@ def cmd_talk_train(args) -> int:
         raise GeofaceError(f"{out} already holds a model; use --force to replace it")
     cfg = THGSConfig(iters=args.iters, stage_scale=args.stage_scale, use_leb=not args.no_leb,
                      use_saam=not args.no_saam, use_audio_pose=not args.no_audio_pose,
-                     lambda_landmarks=args.landmark_weight, heldout=args.heldout, seed=args.seed, threads=args.threads)
+                     lambda_landmarks=args.landmark_weight, heldout=args.heldout, seed=args.seed, threads=args.threads,
+                     audio_window=args.audio_window)
     info = train_thgs(args.data_dir, out, cfg, progress=None if not _quiet(args) else False)
     h = info["history"]
     first = sum(r["loss"] for r in h[:20]) / len(h[:20])
@@ -143,6 +146,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--landmark-weight", type=number(float, 0, 1e6), default=THGS_LANDMARK_WEIGHT, metavar="W",
                    help=f"weight of the mouth landmarks of DATA_DIR/landmarks.json, when it has one "
                         f"({THGS_LANDMARK_WEIGHT}; 0: not used)")
+    t.add_argument("--audio-window", type=number(int, 0, 100), default=THGS_AUDIO_WINDOW, metavar="N",
+                   help="the audio modules also read the features of N frames before and after each frame "
+                        f"({THGS_AUDIO_WINDOW})")
     t.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.2, help="last fraction of frames kept out of training (0.2)")
     t.add_argument("--threads", type=number(int, 1, 1024), default=None)
     t.add_argument("--seed", type=SEED, default=0)

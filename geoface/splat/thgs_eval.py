@@ -87,9 +87,10 @@ def lip_gaps(model: THGSModel, data, frames, lip_vertices) -> np.ndarray:
     the two template vertices ``lip_vertices`` (upper and lower inner lip), posed by the
     frame's tracking and audio: how far the avatar opens its mouth."""
     sel = model.gaussians_of(lip_vertices)
+    A = model.audio_input(data.audio)
     out = []
     for t in frames:
-        X = model(data.rot[t], data.transl[t], data.expr[t], torch.as_tensor(data.audio[t])).means
+        X = model(data.rot[t], data.transl[t], data.expr[t], A[t]).means
         out.append(float(torch.linalg.norm(X[sel[0]].mean(0) - X[sel[1]].mean(0))))
     return np.asarray(out)
 

@@ -414,3 +414,44 @@ def test_tracked_masks_default_to_all_and_reject_bad_shapes(tmp_path):
         np.savez(p, rot=np.zeros((2, 4, 3)), transl=np.zeros((2, 3)), expr=np.zeros((2, 5)), **bad)
         with pytest.raises(SplatError, match="tracked_"):
             load_tracked(p, 4, 5)
+
+
+def test_audio_context_stacks_the_neighbouring_frames_and_repeats_the_ends():
+    from geoface.splat.audio import audio_context
+
+    A = np.arange(12, dtype=np.float32).reshape(4, 3)
+    C = audio_context(A, 1)
+    assert C.shape == (4, 9)
+    assert np.array_equal(C[1], np.r_[A[0], A[1], A[2]]) and np.array_equal(C[0], np.r_[A[0], A[0], A[1]])
+    assert np.array_equal(C[3], np.r_[A[2], A[3], A[3]])
+    assert np.array_equal(audio_context(A, 0), A)
+    with pytest.raises(SplatError):
+        audio_context(A, -1)
+    with pytest.raises(SplatError):
+        audio_context(A[0], 1)
+
+
+def test_audio_window_trains_saves_and_drives_with_the_neighbouring_frames(talk_dir, tmp_path):
+    """With ``audio_window`` the networks read 2 W + 1 frames of features; the folder keeps the
+    per-frame count, so the same WAV or features drive it, and a frame's neighbours change it."""
+    from geoface.splat.thgs import render_frames
+    from geoface.splat.thgs_data import load_talking
+
+    cfg = THGSConfig(iters=30, stage_scale=0.0004, audio_window=2)
+    train_thgs(talk_dir, tmp_path / "m", cfg, progress=False)
+    m = load_thgs(tmp_path / "m")
+    d = load_talking(talk_dir)
+    assert m.cfg.audio_window == 2 and m.audio_dim == 40 and m.audio_ref.shape == (200,)
+    assert m.artic.mlp[0].in_features == 200 and float(m.artic.mlp[-1].weight.detach().abs().max()) > 0
+    A = m.audio_input(d.audio)
+    assert A.shape == (50, 200) and torch.equal(A[10, 80:120], torch.as_tensor(d.audio[10]))
+    # frame 10 rendered from the whole sequence, then with its neighbours' sound silenced
+    r0 = render_frames(m, d.camera, d.rot, d.transl, d.expr, d.audio, frames=[10])[0]
+    quiet = d.audio.copy()
+    quiet[[8, 9, 11, 12]] = d.audio.min(0)
+    r1 = render_frames(m, d.camera, d.rot, d.transl, d.expr, quiet, frames=[10])[0]
+    assert np.abs(r0 - r1).max() > 1e-4
+    ev = evaluate_thgs(m, d)
+    assert 5 < ev["psnr"] < 60
+    with pytest.raises(SplatError, match="audio_window must be >= 0"):
+        THGSConfig(audio_window=-1)
