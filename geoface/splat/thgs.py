@@ -207,7 +207,7 @@ class THGSConfig:
     lambda_leb: float = 0.1
     lambda_normal: float = 0.01   # refinement stage (from the blendshape stage on)
     lambda_landmarks: float = 1.0  # mouth landmarks (landmarks.json) from the expression stage on
-    audio_window: int = 0  # SAAM and the audio articulation read the features of this many frames each side too
+    audio_window: int = 2  # SAAM and the audio articulation read the features of this many frames each side too
     landmarks_pose: bool = False   # True: the landmark term also moves the per-frame pose corrections
     lr_means: float = 1.6e-4
     lr_nets: float = 1e-3
@@ -233,8 +233,9 @@ class THGSConfig:
 
         from .errors import ModelFolderError
 
-        # saved before the audio articulation: none; before landmarks_pose: the landmarks moved the poses
-        return config_from_dict(cls, {"use_audio_pose": False, "landmarks_pose": True, **d}, where=where,
+        # saved before the audio articulation: none; before landmarks_pose: the landmarks moved the poses;
+        # before audio_window: one frame's features
+        return config_from_dict(cls, {"use_audio_pose": False, "landmarks_pose": True, "audio_window": 0, **d}, where=where,
                                 error=ModelFolderError)
 
 

@@ -17,7 +17,7 @@ from geoface._args import SEED, add_json, json_to_stdout, number, write_json
 #: THGSConfig.lambda_landmarks's default (kept here so that building the parser imports no torch)
 THGS_LANDMARK_WEIGHT = 1.0
 #: THGSConfig.audio_window's default (likewise)
-THGS_AUDIO_WINDOW = 0
+THGS_AUDIO_WINDOW = 2
 
 
 def cmd_talk_synth(args) -> int:

@@ -63,7 +63,7 @@ def test_joint_quaternions_are_exact_and_have_gradients_at_the_rest_pose():
 
 
 def test_identity_pose_returns_the_canonical_gaussians(tpl):
-    m = THGSModel(tpl, THGSConfig(), audio_dim=8)
+    m = THGSModel(tpl, THGSConfig(audio_window=0), audio_dim=8)  # forward takes one frame's 8 features
     J, K = len(tpl.joints), tpl.n_expr
     with torch.no_grad():
         g = m(np.zeros((J, 3)), np.zeros(3), np.zeros(K), torch.zeros(8))
@@ -240,7 +240,7 @@ def test_audio_articulation_drives_only_the_untracked_dofs(tpl):
     z = art(torch.zeros(8))
     assert torch.allclose(z[0], torch.zeros(4, 3), atol=1e-7) and torch.allclose(z[1], torch.zeros(3), atol=1e-7)
     J, K = len(tpl.joints), tpl.n_expr
-    m = THGSModel(tpl, THGSConfig(use_saam=False), audio_dim=8)
+    m = THGSModel(tpl, THGSConfig(use_saam=False, audio_window=0), audio_dim=8)
     with torch.no_grad():
         for p in m.artic.mlp.parameters():
             p.add_(torch.randn_like(p) * 0.3)
@@ -259,7 +259,7 @@ def test_audio_articulation_drives_only_the_untracked_dofs(tpl):
     assert torch.allclose(silent, m.gaussians.means, atol=1e-6) and torch.equal(tracked, silent)
     d = (moved - silent).norm(dim=1)
     assert float(d.max()) > 1e-5
-    m2 = THGSModel(tpl, THGSConfig(use_saam=False), audio_dim=8)  # the jaw alone untracked
+    m2 = THGSModel(tpl, THGSConfig(use_saam=False, audio_window=0), audio_dim=8)  # the jaw alone untracked
     m2.load_state_dict(m.state_dict())
     with torch.no_grad():
         m2.tracked_joints[tpl.jaw] = False
@@ -455,3 +455,5 @@ def test_audio_window_trains_saves_and_drives_with_the_neighbouring_frames(talk_
     assert 5 < ev["psnr"] < 60
     with pytest.raises(SplatError, match="audio_window must be >= 0"):
         THGSConfig(audio_window=-1)
+    # the default reads two frames each side; a folder saved before the option read one frame
+    assert THGSConfig().audio_window == 2 and THGSConfig.from_dict({}).audio_window == 0
