@@ -97,15 +97,17 @@ def _job_rows(job) -> list:
     cfg = HFMConfig(**{**ABLATIONS[ablation], **PAPER.get(variant, {}), **OURS.get(variant, {}), "iters": iters, "seed": seed,
                        "threads": threads})
     info_file = mdir / "train_info.json"
-    if info_file.is_file() and (mdir / "model.safetensors").is_file():  # trained before: score it again
+    trained = not (info_file.is_file() and (mdir / "model.safetensors").is_file())
+    if not trained:  # trained before: score it again
         info = json.loads(info_file.read_text())
     else:
         info = train_hfm(Path(d) / "registration", mdir, cfg, progress=False, log=None, poses=poses, device=device)
         info = {k: v for k, v in info.items() if k != "history"}
-        if poses != "file":
-            info.update(_registration_error(Path(d) / "registration", mdir))
-        info_file.write_text(json.dumps(info))
     model = load_hfm(mdir)
+    if trained:
+        if poses != "file":
+            info.update(_registration_error(Path(d) / "registration", model, mdir))
+        info_file.write_text(json.dumps(info))
     calibrated_after = False
     cal = model.pose_calibration
     if (cal is None or ("fit_weights" in cal) != cfg.pose_calibration_weighted) and cfg.pose_calibration and poses != "file":
@@ -201,22 +203,22 @@ def _registration(reg_dir, model, model_dir=None):
     from geoface.splat.hfm_train import load_registration_poses, registration_poses
 
     reg = load_video(reg_dir, need_mesh=True)
-    registration_poses(reg, "landmarks", None, load_mesh(reg.mesh_path), fit=model.cfg.registration_landmarks)
     saved = load_registration_poses(model_dir, len(reg)) if model_dir is not None else None
     if saved is not None:
         reg.poses = saved
+    else:
+        registration_poses(reg, "landmarks", None, load_mesh(reg.mesh_path), fit=model.cfg.registration_landmarks)
     return reg
 
 
-def _registration_error(reg_dir, model_dir) -> dict:
+def _registration_error(reg_dir, model, model_dir) -> dict:
     """How far the registration poses a no-file model was fitted in are from the true ones
     (``head_poses.npz``), frame by frame about their mean offset (the frame the avatar learned):
     root-mean-square degrees and millimetres (at the pivot)."""
-    from geoface.splat.hfm import load_hfm
     from geoface.splat.hfm_data import load_video
     from geoface.splat.head_pose import repivot, rotation_vector
 
-    reg = _registration(reg_dir, load_hfm(model_dir), model_dir)
+    reg = _registration(reg_dir, model, model_dir)
     R, t, p = reg.poses
     Rt, tt, pt = load_video(reg_dir).poses
     tt = repivot(Rt, tt, pt, p)

@@ -48,7 +48,6 @@ class FrameCorrections:
             p.grad = None
 
 
-
 def corrected_pose(R: Tensor, t: Tensor, pivot: Tensor, d_rot: Tensor, d_t: Tensor, center: Tensor):
     """The pose (R', t', pivot) of a tracked pose X' = R (X − pivot) + pivot + t corrected on the
     head: X' = R (R_d (X − c) + c + d_t − pivot) + pivot + t, R_d the rotation of the rotation

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -297,8 +298,6 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     if refine is not None:
         save_registration_poses(out_dir, *video.poses)
     else:  # a folder trained again without corrections keeps none of the last run's
-        from pathlib import Path
-
         Path(out_dir, REGISTRATION_POSES).unlink(missing_ok=True)
     return {**pose_info, "seconds": seconds, "frames": len(imgs), "warmup_steps": n_warm,
             "averaged_steps": average.steps if average is not None else 0, "history": history, "n_gaussians": len(g), "n_upper": int(model.upper_mask().sum()),
@@ -378,8 +377,6 @@ REGISTRATION_POSES = "registration_poses.npz"
 def save_registration_poses(out_dir, R, t, pivot) -> None:
     """The registration poses a model was fitted in (``registration_poses.npz``: R [N, 3, 3],
     t [N, 3], pivot [3], as ``head_poses.npz``), for models whose poses training corrected."""
-    from pathlib import Path
-
     from geoface._io import atomic_path
 
     with atomic_path(Path(out_dir) / REGISTRATION_POSES, suffix=".npz") as tmp:
@@ -388,8 +385,6 @@ def save_registration_poses(out_dir, R, t, pivot) -> None:
 
 def load_registration_poses(model_dir, n_frames: int | None = None):
     """(R, t, pivot) saved by :func:`save_registration_poses`, or None when the folder has none."""
-    from pathlib import Path
-
     from .errors import ModelFolderError
 
     path = Path(model_dir) / REGISTRATION_POSES

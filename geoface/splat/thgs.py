@@ -39,7 +39,7 @@ from torch import Tensor, nn
 
 from geoface.mesh.core import vertex_normals
 from geoface.splat.errors import SplatError
-from geoface.splat.corrections import FrameCorrections  # noqa: F401  (also imported from here)
+from geoface.splat.corrections import FrameCorrections
 from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat, rotmat_to_quat_torch
 from geoface.splat.kinematics import axis_angle_to_matrix, joint_transforms
 
@@ -484,7 +484,7 @@ def render_frames(model: THGSModel, camera, rot, transl, expr, audio, frames=Non
     audio = None if audio is None else model.audio_input(audio)
     for t in idx:
         t0 = time.perf_counter()
-        gd = model(rot[t], transl[t], expr[t], None if audio is None else torch.as_tensor(audio[t]))
+        gd = model(rot[t], transl[t], expr[t], None if audio is None else audio[t])
         out.append(rasterize(gd, camera, background=bg)[0].clamp(0, 1).numpy())
         times.append(time.perf_counter() - t0)
     return np.stack(out), np.asarray(times)
