@@ -56,6 +56,9 @@ def main(argv=None) -> int:
                     help="weight of the mouth-landmark loss for every variant but no_landmarks (default: THGSConfig's)")
     ap.add_argument("--out", default="/tmp/geoface_eval_thgs")
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--lr-pose", type=float, default=None, help="THGSConfig.lr_pose (default: its default)")
+    ap.add_argument("--pose-decay", type=float, default=None, help="THGSConfig.pose_decay (default: its default)")
+    ap.add_argument("--device", default="cpu", help="training device: cpu or cuda (scoring runs on the CPU)")
     ap.add_argument("--quick", action="store_true")
     a = ap.parse_args(argv)
     if a.threads:
@@ -95,9 +98,10 @@ def main(argv=None) -> int:
     rnd = lambda v: {k: rnd(x) for k, x in v.items()} if isinstance(v, dict) else round(v, 4)  # noqa: E731
     loaded = {}
     for name, ddir, opts in runs:
-        lam = {} if a.lambda_landmarks is None else {"lambda_landmarks": a.lambda_landmarks}
+        lam = {k: v for k, v in (("lambda_landmarks", a.lambda_landmarks), ("lr_pose", a.lr_pose),
+                                 ("pose_decay", a.pose_decay)) if v is not None}
         cfg = THGSConfig(iters=a.iters, stage_scale=scale, seed=a.seed, **{**lam, **opts})
-        info = train_thgs(ddir, out / f"model_{name}", cfg, progress=False)
+        info = train_thgs(ddir, out / f"model_{name}", cfg, progress=False, device=a.device)
         h = info["history"]
         if ddir not in loaded:  # the variants on one capture share its frames in memory
             loaded[ddir] = load_talking(ddir)

@@ -26,8 +26,8 @@ class FrameCorrections:
         # had (expression corrections start a stage later than pose ones: each debiases by its own count)
         self.items = []
         for p, lr, *mask in params_lrs:
-            m = torch.as_tensor(mask[0], dtype=p.dtype) if mask else torch.ones(())
-            self.items.append([p, float(lr), m, torch.zeros(p.shape[1:]), 0])
+            m = torch.as_tensor(mask[0], dtype=p.dtype, device=p.device) if mask else torch.ones((), device=p.device)
+            self.items.append([p, float(lr), m, torch.zeros(p.shape[1:], device=p.device), 0])
         self.beta, self.eps = beta, eps
 
     @torch.no_grad()

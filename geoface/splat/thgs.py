@@ -113,7 +113,7 @@ class ExpressionBlendshapes(nn.Module):
 
 def mouth_gaussians(X, box, margin: float = 0.02) -> Tensor:
     """Bool [N]: inside the mouth/teeth box grown by ``margin`` (THGS: teeth bbox + 0.02)."""
-    box = torch.as_tensor(np.asarray(box), dtype=X.dtype, device=X.device)
+    box = box.to(X) if torch.is_tensor(box) else torch.as_tensor(np.asarray(box), dtype=X.dtype, device=X.device)
     return ((X >= box[0] - margin) & (X <= box[1] + margin)).all(-1)
 
 
@@ -212,6 +212,7 @@ class THGSConfig:
     lr_means: float = 1.6e-4
     lr_nets: float = 1e-3
     lr_pose: float = 5e-3  # per-frame corrections: radians per step at a typical misfit (FrameCorrections)
+    pose_decay: float = 1.0  # … falling this many times, exponentially, from their first step to the last
     heldout: float = 0.2
     init_opacity: float = 0.5
     seed: int = 0
@@ -220,6 +221,8 @@ class THGSConfig:
     def __post_init__(self):
         if self.audio_window < 0:
             raise SplatError(f"THGSConfig.audio_window must be >= 0 frames; got {self.audio_window}")
+        if not (self.lr_pose > 0 and self.pose_decay >= 1):
+            raise SplatError(f"THGSConfig: need lr_pose > 0 and pose_decay >= 1; got {self.lr_pose}, {self.pose_decay}")
         if self.iters < 1 or self.voxel_res < 2 or not 0 <= self.heldout < 1:
             raise SplatError(f"bad THGS config: iters={self.iters}, voxel_res={self.voxel_res}, heldout={self.heldout}")
 
@@ -282,9 +285,10 @@ class THGSModel(nn.Module):
 
     def forward(self, rot, transl, expr, audio=None, frame: int | None = None) -> GaussianTensors:
         g = self.gaussians
-        rot = torch.as_tensor(rot, dtype=torch.float32)
-        transl = torch.as_tensor(transl, dtype=torch.float32)
-        expr = torch.as_tensor(expr, dtype=torch.float32)
+        dev = self.V0.device
+        rot, transl, expr = (torch.as_tensor(a, dtype=torch.float32, device=dev) for a in (rot, transl, expr))
+        if audio is not None:
+            audio = torch.as_tensor(audio, dtype=torch.float32, device=dev)
         if frame is not None and len(self.d_rot):
             if self.stage >= 1:
                 rot = rot + self.d_rot[frame]
@@ -292,7 +296,7 @@ class THGSModel(nn.Module):
             if self.stage >= 2:
                 expr = expr + self.d_expr[frame]
         if self.artic is not None and audio is not None and self.stage >= 2:
-            dr, de = self.artic(self.normalize_audio(torch.as_tensor(audio, dtype=torch.float32)))
+            dr, de = self.artic(self.normalize_audio(audio))
             rot = rot + dr * (~self.tracked_joints)[:, None]
             expr = expr + de * ~self.tracked_expr
         Xc = g.means
@@ -302,10 +306,10 @@ class THGSModel(nn.Module):
         if self.saam is not None and audio is not None and self.stage >= 4:
             m = mouth_gaussians(Xc.detach(), self.saam.box, self.saam.margin)
             if bool(m.any()):
-                d = self.saam(Xc[m], self.normalize_audio(torch.as_tensor(audio, dtype=torch.float32)))
+                d = self.saam(Xc[m], self.normalize_audio(audio))
                 X = X.clone()
                 X[m] = X[m] + d[:, :3] * 0.01
-                one = torch.tensor([1.0, 0, 0, 0])
+                one = torch.tensor([1.0, 0, 0, 0], device=dev)
                 quats = quats.clone()
                 quats[m] = quat_mul(quats[m] / quats[m].norm(dim=-1, keepdim=True), one + d[:, 3:7])
                 log_scales = log_scales.clone()
@@ -343,8 +347,12 @@ def _split(n: int, heldout: float):
     return np.arange(k), np.arange(k, n)
 
 
-def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=None, log=print) -> dict:
-    """Fit a THGS avatar to a talking data folder (first 1 − heldout of the frames)."""
+def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=None, log=print,
+               device: str = "cpu") -> dict:
+    """Fit a THGS avatar to a talking data folder (first 1 − heldout of the frames).  ``device``:
+    "cpu" or "cuda" (the gsplat rasteriser when installed, else the torch one on the GPU); the
+    saved model is the same either way."""
+    from geoface.nn.config import resolve_device
     from geoface.nn.losses import dssim
     from geoface.progress import progress as bar
     from geoface.splat.density import make_optimizer
@@ -364,6 +372,9 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     model.audio_scale.copy_(A[tr].std(0).clamp_min(1e-3))
     model.tracked_joints.copy_(torch.as_tensor(data.tracked_joints))
     model.tracked_expr.copy_(torch.as_tensor(data.tracked_expr))
+    dev = resolve_device(device, SplatError) or "cpu"
+    model.to(dev)
+    A = A.to(dev)
     g = model.gaussians
     ext = float(np.ptp(data.template.V, 0).max())
     opt = make_optimizer(g, {"means": cfg.lr_means * ext, "log_scales": 5e-3, "quats": 1e-3,
@@ -380,13 +391,13 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
         opt.add_param_group({"params": list(model.saam.parameters()), "lr": cfg.lr_nets, "name": "saam"})
     if model.artic is not None:
         opt.add_param_group({"params": list(model.artic.parameters()), "lr": cfg.lr_nets, "name": "artic"})
-    imgs = torch.tensor(data.frames)
+    imgs = torch.tensor(data.frames, device=dev)
     lmk = mouth_landmark_targets(data) if cfg.lambda_landmarks > 0 else None
     if lmk is not None:  # the Gaussian bound to each landmark's vertex
         lmk = ([int(i[0]) for i in model.gaussians_of(lmk[0])], lmk[1])
     stages = cfg.stages()
     history, order = [], []
-    bg = torch.zeros(3)
+    bg = torch.zeros(3, device=dev)
     t0 = time.perf_counter()
     steps = range(cfg.iters)
     if not callable(progress):
@@ -425,12 +436,12 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
         opt.step()
         opt.zero_grad(set_to_none=True)
         if model.stage >= 1:  # pose corrections from the first stage (expression ones act from the second)
-            frame_opt.step(f)
+            frame_opt.step(f, cfg.pose_decay ** -((it - stages[0]) / max(cfg.iters - 1 - stages[0], 1)))
         frame_opt.zero_grad()
         history.append({"step": it, "loss": float(loss.detach()), "l1": float(l1.detach()), "stage": model.stage})
         if callable(progress) and (it % 50 == 0 or it == cfg.iters - 1):
             progress(it, history[-1])
-    save_thgs(model, out_dir)
+    save_thgs(model.cpu(), out_dir)
     from geoface.splat.hfm_data import camera_to_json
     (Path(out_dir) / "camera.json").write_text(json.dumps(camera_to_json(data.camera)))
     return {"seconds": time.perf_counter() - t0, "history": history, "stages": stages, "n_gaussians": len(g)}

@@ -63,7 +63,12 @@ def cmd_talk_train(args) -> int:
                      use_saam=not args.no_saam, use_audio_pose=not args.no_audio_pose,
                      lambda_landmarks=args.landmark_weight, heldout=args.heldout, seed=args.seed, threads=args.threads,
                      audio_window=args.audio_window)
-    info = train_thgs(args.data_dir, out, cfg, progress=None if not _quiet(args) else False)
+    device = args.device
+    if device is None:
+        import torch
+
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    info = train_thgs(args.data_dir, out, cfg, progress=None if not _quiet(args) else False, device=device)
     h = info["history"]
     first = sum(r["loss"] for r in h[:20]) / len(h[:20])
     last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])
@@ -152,6 +157,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.2, help="last fraction of frames kept out of training (0.2)")
     t.add_argument("--threads", type=number(int, 1, 1024), default=None)
     t.add_argument("--seed", type=SEED, default=0)
+    t.add_argument("--device", default=None, help="cpu or cuda (default: cuda when torch sees a GPU)")
     t.set_defaults(func=cmd_talk_train)
     a = hs.add_parser("animate", parents=[common], help="drive a trained avatar by speech (frames, FPS)")
     a.add_argument("model_dir", metavar="MODEL_DIR")

@@ -149,7 +149,7 @@ def landmark_loss(means, camera, points, delta: float = 1.0):
     ``means`` [M, 3] (torch, world) and the landmarks ``points`` [M, 2] (pixels)."""
     import torch
 
-    d = camera.project(means)[0] - torch.as_tensor(points, dtype=means.dtype)
+    d = camera.project(means)[0] - torch.as_tensor(points, dtype=means.dtype, device=means.device)
     return ((d.pow(2).sum(-1) + delta**2).sqrt() - delta).mean() / camera.width
 
 

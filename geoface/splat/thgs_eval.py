@@ -52,23 +52,31 @@ def head_pose_errors(template, rot, transl, true_rot, true_transl) -> dict:
     """Per-frame error of the head's rigid motion against the truth, whichever joints carry it:
     the transform of the template's head joint (the jaw's parent) from each pose — the angle
     between the rotations (degrees) and the distance (mm) the head's centre lands apart —
-    mean, median and max over the frames."""
+    mean, median and max over the frames; and the mean of the same about the frames' mean offset
+    (``*_about_mean``: an avatar that learned itself shifted as a whole against the truth is
+    posed by poses shifted back, which it renders alike)."""
     from scipy.spatial.transform import Rotation
 
     joints = torch.tensor(template.joints)
     h = int(template.parents[template.jaw]) if template.jaw >= 0 else len(template.joints) - 1
     c = torch.tensor(template.V[template.head_mask].mean(0) if template.head_mask.any() else template.V.mean(0))
-    ang, dist = [], []
+    ang, dist, rv, dc = [], [], [], []
     for r, t, r0, t0 in zip(rot, transl, true_rot, true_transl):
         A = joint_transforms(joints, template.parents, torch.as_tensor(r, dtype=torch.float64),
                              torch.as_tensor(t, dtype=torch.float64))[h]
         B = joint_transforms(joints, template.parents, torch.as_tensor(r0, dtype=torch.float64),
                              torch.as_tensor(t0, dtype=torch.float64))[h]
-        ang.append(Rotation.from_matrix((A[:3, :3] @ B[:3, :3].T).numpy()).magnitude())
-        dist.append(float(torch.linalg.norm(A[:3, :3] @ c + A[:3, 3] - B[:3, :3] @ c - B[:3, 3])))
+        d = A[:3, :3] @ c + A[:3, 3] - B[:3, :3] @ c - B[:3, 3]
+        rv.append(Rotation.from_matrix((A[:3, :3] @ B[:3, :3].T).numpy()).as_rotvec())
+        ang.append(float(np.linalg.norm(rv[-1])))
+        dc.append(d.numpy())
+        dist.append(float(torch.linalg.norm(d)))
     ang, dist = np.degrees(ang), np.asarray(dist) * 1000
+    rv, dc = np.asarray(rv), np.asarray(dc)
     return {"rot_deg_mean": float(ang.mean()), "rot_deg_median": float(np.median(ang)), "rot_deg_max": float(ang.max()),
-            "mm_mean": float(dist.mean()), "mm_median": float(np.median(dist)), "mm_max": float(dist.max())}
+            "mm_mean": float(dist.mean()), "mm_median": float(np.median(dist)), "mm_max": float(dist.max()),
+            "rot_deg_about_mean": float(np.degrees(np.linalg.norm(rv - rv.mean(0), axis=1)).mean()),
+            "mm_about_mean": float(1000 * np.linalg.norm(dc - dc.mean(0), axis=1).mean())}
 
 
 def corrected_poses(model: THGSModel, rot, transl):

@@ -457,3 +457,50 @@ def test_audio_window_trains_saves_and_drives_with_the_neighbouring_frames(talk_
         THGSConfig(audio_window=-1)
     # the default reads two frames each side; a folder saved before the option read one frame
     assert THGSConfig().audio_window == 2 and THGSConfig.from_dict({}).audio_window == 0
+
+
+def test_pose_decay_lets_the_corrections_settle_and_is_checked(talk_dir, tmp_path):
+    # the same training with the corrections' rate falling 100-fold: the last visits barely move them
+    from geoface.splat.thgs_data import load_talking
+
+    got = {}
+    for decay in (1.0, 100.0):
+        cfg = THGSConfig(iters=60, stage_scale=0.0005, pose_decay=decay, lr_pose=0.02)
+        train_thgs(talk_dir, tmp_path / f"m{decay}", cfg, progress=False)
+        got[decay] = load_thgs(tmp_path / f"m{decay}").d_rot.detach()
+    d = load_talking(talk_dir)
+    tr = slice(0, 40)
+    size = {k: float(v[tr][:, d.tracked_joints].abs().mean()) for k, v in got.items()}
+    assert size[100.0] < 0.6 * size[1.0] and size[100.0] > 0
+    with pytest.raises(SplatError, match="pose_decay"):
+        THGSConfig(pose_decay=0.5)
+    assert THGSConfig.from_dict({"iters": 10}).pose_decay == 1.0  # folders saved before the option
+
+
+def test_device_cuda_without_a_gpu_is_one_line(talk_dir, tmp_path, monkeypatch, capsys):
+    from geoface.cli import main
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(SplatError, match="no CUDA"):
+        train_thgs(talk_dir, tmp_path / "m", THGSConfig(iters=2), progress=False, device="cuda")
+    assert main(["talk", "train", str(talk_dir), "-o", str(tmp_path / "m"), "--iters", "2", "--device", "cuda"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "CUDA" in err[0]
+    assert not (tmp_path / "m" / "model.safetensors").exists()
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_training_on_the_gpu_saves_a_cpu_model_that_renders_alike(talk_dir, tmp_path):
+    cfg = THGSConfig(iters=40, stage_scale=0.0005)
+    info = train_thgs(talk_dir, tmp_path / "m", cfg, progress=False, device="cuda")
+    h = [r["loss"] for r in info["history"]]
+    assert np.mean(h[-10:]) < 0.8 * np.mean(h[:10])
+    m = load_thgs(tmp_path / "m")
+    assert all(p.device.type == "cpu" for p in m.parameters())
+    from geoface.splat.thgs_data import load_talking
+
+    ev = evaluate_thgs(m, load_talking(talk_dir))
+    assert 5 < ev["psnr"] < 60
+    ref = tmp_path / "cpu"
+    train_thgs(talk_dir, ref, cfg, progress=False)
+    assert abs(ev["psnr"] - evaluate_thgs(load_thgs(ref), load_talking(talk_dir))["psnr"]) < 2.0
