@@ -3,6 +3,7 @@
 
     python bench/eval_thgs.py [--seconds 8] [--res 128] [--vertices 6000] [--iters 3000]
                               [--head procedural|ict] [--perturb 3,5] [--saam-from 0.4] [--seed 0] [--out DIR] [--quick]
+                              [--lr-pose R] [--pose-decay F] [--device cpu|cuda]
 
 1. writes the synthetic talking data (``geoface talk synth [--head ict]``): a speech-like WAV
    drives the jaw and lips; the tracker poses hold only the head pose and the non-mouth

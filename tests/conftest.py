@@ -8,6 +8,25 @@ import numpy as np
 import pytest
 
 os.environ.setdefault("GEOFACE_QUIET", "1")
+# pytest-xdist runs a worker per core: each gets its share of the cores for its math libraries.
+# Left at their default (every core each), the workers' thread pools fight over the cores and a
+# torch-heavy test can run ten times slower while another worker is busy too.
+if os.environ.get("PYTEST_XDIST_WORKER_COUNT"):
+    _share = str(max(1, (os.cpu_count() or 1) // int(os.environ["PYTEST_XDIST_WORKER_COUNT"])))
+    for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(_var, _share)
+
+
+@pytest.fixture(autouse=True)
+def _threads():
+    """Each test starts with the worker's share of threads (a test that trains with a config's
+    ``threads`` changes torch's process-wide setting)."""
+    if os.environ.get("PYTEST_XDIST_WORKER_COUNT"):
+        import torch
+
+        torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
+    yield
+
 
 @pytest.fixture(autouse=True)
 def _strict():

@@ -211,8 +211,8 @@ class THGSConfig:
     landmarks_pose: bool = False   # True: the landmark term also moves the per-frame pose corrections
     lr_means: float = 1.6e-4
     lr_nets: float = 1e-3
-    lr_pose: float = 5e-3  # per-frame corrections: radians per step at a typical misfit (FrameCorrections)
-    pose_decay: float = 1.0  # … falling this many times, exponentially, from their first step to the last
+    lr_pose: float = 1e-2  # per-frame corrections: radians per step at a typical misfit (FrameCorrections)
+    pose_decay: float = 10.0  # … falling this many times, exponentially, from their first step to the last
     heldout: float = 0.2
     init_opacity: float = 0.5
     seed: int = 0
@@ -237,8 +237,9 @@ class THGSConfig:
         from .errors import ModelFolderError
 
         # saved before the audio articulation: none; before landmarks_pose: the landmarks moved the poses;
-        # before audio_window: one frame's features
-        return config_from_dict(cls, {"use_audio_pose": False, "landmarks_pose": True, "audio_window": 0, **d}, where=where,
+        # before audio_window: one frame's features; before pose_decay: a constant rate
+        return config_from_dict(cls, {"use_audio_pose": False, "landmarks_pose": True, "audio_window": 0, "pose_decay": 1.0,
+                                      **d}, where=where,
                                 error=ModelFolderError)
 
 

@@ -18,6 +18,8 @@ from geoface._args import SEED, add_json, json_to_stdout, number, write_json
 THGS_LANDMARK_WEIGHT = 1.0
 #: THGSConfig.audio_window's default (likewise)
 THGS_AUDIO_WINDOW = 2
+#: THGSConfig.lr_pose's and pose_decay's defaults (likewise)
+THGS_LR_POSE, THGS_POSE_DECAY = 1e-2, 10.0
 
 
 def cmd_talk_synth(args) -> int:
@@ -62,7 +64,7 @@ def cmd_talk_train(args) -> int:
     cfg = THGSConfig(iters=args.iters, stage_scale=args.stage_scale, use_leb=not args.no_leb,
                      use_saam=not args.no_saam, use_audio_pose=not args.no_audio_pose,
                      lambda_landmarks=args.landmark_weight, heldout=args.heldout, seed=args.seed, threads=args.threads,
-                     audio_window=args.audio_window)
+                     audio_window=args.audio_window, lr_pose=args.lr_pose, pose_decay=args.pose_decay)
     device = args.device
     if device is None:
         import torch
@@ -154,6 +156,10 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--audio-window", type=number(int, 0, 100), default=THGS_AUDIO_WINDOW, metavar="N",
                    help="the audio modules also read the features of N frames before and after each frame "
                         f"({THGS_AUDIO_WINDOW})")
+    t.add_argument("--lr-pose", type=number(float, 0, 1, lo_open=True), default=THGS_LR_POSE, metavar="RAD",
+                   help=f"step of the per-frame pose corrections, radians at a typical misfit ({THGS_LR_POSE:g})")
+    t.add_argument("--pose-decay", type=number(float, 1, 1e6), default=THGS_POSE_DECAY, metavar="F",
+                   help=f"the corrections' step falls F times by the last training step ({THGS_POSE_DECAY:g})")
     t.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.2, help="last fraction of frames kept out of training (0.2)")
     t.add_argument("--threads", type=number(int, 1, 1024), default=None)
     t.add_argument("--seed", type=SEED, default=0)

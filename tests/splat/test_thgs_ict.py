@@ -151,12 +151,18 @@ def test_cli_talk_synth_ict_with_perturbed_tracking_trains_and_reports_pose_erro
     assert "off by 3° / 5 mm" in capsys.readouterr().out
     assert main(["talk", "train", str(d), "-o", str(tmp_path / "m"), "--iters", "3", "--heldout", "0.2", "-q"]) == 0
     from geoface.splat.thgs import THGSConfig, load_thgs
-    from geoface.splat.thgs_cli import THGS_AUDIO_WINDOW, THGS_LANDMARK_WEIGHT
+    from geoface.splat.thgs_cli import THGS_AUDIO_WINDOW, THGS_LANDMARK_WEIGHT, THGS_LR_POSE, THGS_POSE_DECAY
 
     assert THGS_LANDMARK_WEIGHT == THGSConfig().lambda_landmarks == load_thgs(tmp_path / "m").cfg.lambda_landmarks
     assert THGS_AUDIO_WINDOW == THGSConfig().audio_window == load_thgs(tmp_path / "m").cfg.audio_window
     assert main(["talk", "train", str(d), "-o", str(tmp_path / "mw"), "--iters", "2", "--audio-window", "3", "-q"]) == 0
     assert load_thgs(tmp_path / "mw").cfg.audio_window == 3
+    c = load_thgs(tmp_path / "m").cfg
+    assert (THGS_LR_POSE, THGS_POSE_DECAY) == (THGSConfig().lr_pose, THGSConfig().pose_decay) == (c.lr_pose, c.pose_decay)
+    assert main(["talk", "train", str(d), "-o", str(tmp_path / "mp"), "--iters", "2", "--lr-pose", "0.003",
+                 "--pose-decay", "1", "-q"]) == 0
+    assert (load_thgs(tmp_path / "mp").cfg.lr_pose, load_thgs(tmp_path / "mp").cfg.pose_decay) == (0.003, 1.0)
+    assert main(["talk", "train", str(d), "-o", str(tmp_path / "mp2"), "--pose-decay", "0.5", "-q"]) == 2
     assert main(["talk", "train", str(d), "-o", str(tmp_path / "mw2"), "--audio-window", "-1", "-q"]) == 2
     assert main(["talk", "train", str(d), "-o", str(tmp_path / "m0"), "--iters", "2", "--landmark-weight", "0", "-q"]) == 0
     assert load_thgs(tmp_path / "m0").cfg.lambda_landmarks == 0
