@@ -53,8 +53,8 @@ def head_pose_errors(template, rot, transl, true_rot, true_transl) -> dict:
     the transform of the template's head joint (the jaw's parent) from each pose — the angle
     between the rotations (degrees) and the distance (mm) the head's centre lands apart —
     mean, median and max over the frames; and the mean of the same about the frames' mean offset
-    (``*_about_mean``: an avatar that learned itself shifted as a whole against the truth is
-    posed by poses shifted back, which it renders alike)."""
+    in the head's frame (``*_about_mean``: an avatar that learned itself shifted as a whole on
+    the template is posed by poses shifted back, which it renders alike)."""
     from scipy.spatial.transform import Rotation
 
     joints = torch.tensor(template.joints)
@@ -67,9 +67,9 @@ def head_pose_errors(template, rot, transl, true_rot, true_transl) -> dict:
         B = joint_transforms(joints, template.parents, torch.as_tensor(r0, dtype=torch.float64),
                              torch.as_tensor(t0, dtype=torch.float64))[h]
         d = A[:3, :3] @ c + A[:3, 3] - B[:3, :3] @ c - B[:3, 3]
-        rv.append(Rotation.from_matrix((A[:3, :3] @ B[:3, :3].T).numpy()).as_rotvec())
-        ang.append(float(np.linalg.norm(rv[-1])))
-        dc.append(d.numpy())
+        ang.append(Rotation.from_matrix((A[:3, :3] @ B[:3, :3].T).numpy()).magnitude())
+        rv.append(Rotation.from_matrix((B[:3, :3].T @ A[:3, :3]).numpy()).as_rotvec())  # in the head's frame
+        dc.append((B[:3, :3].T @ d).numpy())
         dist.append(float(torch.linalg.norm(d)))
     ang, dist = np.degrees(ang), np.asarray(dist) * 1000
     rv, dc = np.asarray(rv), np.asarray(dc)

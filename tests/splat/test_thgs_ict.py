@@ -86,10 +86,19 @@ def test_head_pose_errors_measure_angle_and_displacement(person_tpl):
     assert e["rot_deg_max"] < 1e-6 and e["mm_max"] < 1e-6
     e = head_pose_errors(tpl, rot, tr + [0.005, 0, 0], rot, tr)
     assert e["rot_deg_max"] < 1e-6 and abs(e["mm_mean"] - 5.0) < 1e-6
+    still = np.zeros_like(rot)
+    e = head_pose_errors(tpl, still, tr + [0.005, 0, 0], still, tr)
+    assert e["mm_about_mean"] < 1e-6  # a constant shift is no error about the mean offset
+    moved = tr + np.array([[0.005, 0, 0], [-0.005, 0, 0], [0.005, 0, 0], [-0.005, 0, 0]]) + [0, 0.003, 0]
+    e = head_pose_errors(tpl, still, moved, still, tr)
+    assert abs(e["mm_about_mean"] - 5.0) < 1e-6 and e["mm_mean"] > 5.5
     other = rot.copy()
     other[:, 2, 0] += np.radians(2.0)  # a nod on the head joint counts as much as one on the root
     e = head_pose_errors(tpl, other, tr, rot, tr)
-    assert abs(e["rot_deg_mean"] - 2.0) < 1e-6
+    assert abs(e["rot_deg_mean"] - 2.0) < 1e-6 and e["rot_deg_about_mean"] < 1e-6
+    other[::2, 2, 0] -= np.radians(4.0)  # ±2° about the same axis: 2° each about the mean offset
+    e = head_pose_errors(tpl, other, tr, rot, tr)
+    assert abs(e["rot_deg_about_mean"] - 2.0) < 1e-6 and abs(e["rot_deg_mean"] - 2.0) < 1e-6
 
 
 def test_talking_capture_lets_the_audio_drive_the_mouth_and_perturbs_tracking(tmp_path):
