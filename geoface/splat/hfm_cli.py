@@ -19,6 +19,15 @@ def _quiet(args) -> bool:
     return bool(getattr(args, "quiet", False) or QUIET)
 
 
+def _train_device(args) -> str:
+    """``--device`` of a training command: as given, else cuda when torch sees a GPU."""
+    if args.device is not None:
+        return args.device
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
 def cmd_hmd_synth(args) -> int:
     from .hfm_data import make_synthetic_hmd
 
@@ -71,13 +80,8 @@ def cmd_hmd_train(args) -> int:
     if (out / "model.safetensors").exists() and not args.force:
         raise GeofaceError(f"{out} already holds a model; use --force to replace it")
     cfg = _config(args)
-    device = args.device
-    if device is None:
-        import torch
-
-        device = "cuda" if torch.cuda.is_available() else "cpu"
     info = train_hfm(args.reg_dir, out, cfg, progress=None if not _quiet(args) else False, log=log,
-                     poses=args.poses, device=device)
+                     poses=args.poses, device=_train_device(args))
     h = info["history"]
     first = sum(r["loss"] for r in h[:20]) / len(h[:20])
     last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])

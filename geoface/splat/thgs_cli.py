@@ -11,7 +11,7 @@ from geoface.errors import GeofaceError
 
 __all__ = ["register"]
 
-from geoface.splat.hfm_cli import _quiet  # noqa: E402  (argparse only, no torch)
+from geoface.splat.hfm_cli import _quiet, _train_device  # noqa: E402  (argparse only, no torch)
 from geoface._args import SEED, add_json, json_to_stdout, number, write_json
 
 #: THGSConfig.lambda_landmarks's default (kept here so that building the parser imports no torch)
@@ -65,12 +65,7 @@ def cmd_talk_train(args) -> int:
                      use_saam=not args.no_saam, use_audio_pose=not args.no_audio_pose,
                      lambda_landmarks=args.landmark_weight, heldout=args.heldout, seed=args.seed, threads=args.threads,
                      audio_window=args.audio_window, lr_pose=args.lr_pose, pose_decay=args.pose_decay)
-    device = args.device
-    if device is None:
-        import torch
-
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    info = train_thgs(args.data_dir, out, cfg, progress=None if not _quiet(args) else False, device=device)
+    info = train_thgs(args.data_dir, out, cfg, progress=None if not _quiet(args) else False, device=_train_device(args))
     h = info["history"]
     first = sum(r["loss"] for r in h[:20]) / len(h[:20])
     last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])

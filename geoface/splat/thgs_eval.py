@@ -67,8 +67,8 @@ def head_pose_errors(template, rot, transl, true_rot, true_transl) -> dict:
         B = joint_transforms(joints, template.parents, torch.as_tensor(r0, dtype=torch.float64),
                              torch.as_tensor(t0, dtype=torch.float64))[h]
         d = A[:3, :3] @ c + A[:3, 3] - B[:3, :3] @ c - B[:3, 3]
-        ang.append(Rotation.from_matrix((A[:3, :3] @ B[:3, :3].T).numpy()).magnitude())
         rv.append(Rotation.from_matrix((B[:3, :3].T @ A[:3, :3]).numpy()).as_rotvec())  # in the head's frame
+        ang.append(float(np.linalg.norm(rv[-1])))  # the angle of A Bᵀ too (the same rotation, conjugated)
         dc.append((B[:3, :3].T @ d).numpy())
         dist.append(float(torch.linalg.norm(d)))
     ang, dist = np.degrees(ang), np.asarray(dist) * 1000
