@@ -29,7 +29,9 @@ headset and calibrated to the registration frame (``usage_poses: landmarks``; a 
 before the calibration existed gets it from its registration video first), the same uncalibrated
 (``landmarks_uncalibrated``), read from the crop alone (``image``) and, to separate what the pose
 estimate costs, the true one (``file``).  One JSON line per score in ``DIR/results.jsonl``;
-``calibration`` scores trained models with each calibration setting of ``--grid``;
+``calibration`` scores trained models with each calibration setting of ``--grid``
+(components:ridge[:w][:eN]: w weighs the landmarks, eN sees each registration frame N more times with
+generic expressions);
 ``poses`` scores the head poses alone against the truth: registration poses fitted to the 68
 landmarks, usage poses fitted to those below the headset.  ``table`` prints means, the pairs, and whole face / occluded PSNR per person and model seed.  Choose settings with ``--splits val``; report ``test``.
 """
@@ -228,14 +230,14 @@ def _registration_error(reg_dir, model, model_dir) -> dict:
     return {"registration_pose_deg": rms(rv), "registration_pose_mm": rms(dt)}
 
 
-def _recalibrate(model, reg, components: int, ridge: float, weighted: bool = False):
+def _recalibrate(model, reg, components: int, ridge: float, weighted: bool = False, expressions: int = 0):
     """Learn the model's usage pose calibration anew from ``reg`` with these settings (None: none learned)."""
     from dataclasses import replace
 
     from geoface.splat.hfm_train import calibrate_usage_poses
 
     model.cfg = replace(model.cfg, pose_calibration=components, pose_calibration_ridge=ridge,
-                        pose_calibration_weighted=weighted)
+                        pose_calibration_weighted=weighted, pose_calibration_expressions=expressions)
     return calibrate_usage_poses(model, reg, "landmarks")
 
 
@@ -259,11 +261,12 @@ def _calibration(a) -> None:
                     reg = _registration(data / f"{split}_{s}" / "registration", model, models / f"{split}_{s}_{v}_s{seed}")
                     use = load_video(data / f"{split}_{s}" / "usage")
                     for g in a.grid:
-                        k, ridge, *w = g.split(":")
-                        _recalibrate(model, reg, int(k), float(ridge), weighted=w == ["w"])
+                        k, ridge, *flags = g.split(":")
+                        draws = int(next((f[1:] for f in flags if f.startswith("e")), 0))
+                        _recalibrate(model, reg, int(k), float(ridge), weighted="w" in flags, expressions=draws)
                         r = evaluate_hmd(model, use, poses="landmarks")
                         row = {"stage": "calibration", "split": split, "data_seed": s, "seed": seed, "variant": v,
-                               "components": int(k), "ridge": float(ridge), "weighted": w == ["w"],
+                               "components": int(k), "ridge": float(ridge), "weighted": "w" in flags, "expressions": draws,
                                **{k: round(float(r[k]), 4) for k in ("psnr_face", "ssim_face", "psnr_occluded",
                                                                      "ssim_occluded", "psnr_expression")}}
                         print(json.dumps(row), flush=True)
@@ -328,8 +331,9 @@ def main(argv=None) -> int:
     ap.add_argument("--models", default=None, help="run: where the models go (default OUT/models)")
     ap.add_argument("--data", default=None, help="where the captures are (default OUT/data)")
     ap.add_argument("--grid", type=lambda s: s.split(","), default="0:0,4:0.01,8:0.001,8:0.01,8:0.1,12:0.01,16:0.001,16:0.01,16:0.1,24:0.01",
-                    help="calibration: COMPONENTS:RIDGE[:w] settings of the usage pose calibration (0:0 = none; "
-                         ":w = its poses weigh the landmarks by how little they moved)")
+                    help="calibration: COMPONENTS:RIDGE[:w][:eN] settings of the usage pose calibration (0:0 = none; "
+                         ":w = its poses weigh the landmarks by how little they moved; :eN = each registration "
+                         "frame also seen N times with generic expressions)")
     a = ap.parse_args(argv)
     if any(len(g.split("/")) not in (3, 4) for g in a.group):
         ap.error("--group: SPLIT/SEEDS/VARIANTS[/PEOPLE], e.g. test/0,1/full,oracle")

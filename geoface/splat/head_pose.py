@@ -24,7 +24,8 @@ import numpy as np
 from geoface.splat.errors import SplatError
 
 __all__ = ["landmarks_on_mesh", "solve_poses", "triangulate", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
-           "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "rigidity_weights", "LOWER_RIGID_NAMES"]
+           "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "rigidity_weights",
+           "landmark_expressions", "LOWER_RIGID_NAMES"]
 
 #: iBUG names below a headset that move little with expressions (nose base, the jaw line's ends)
 LOWER_RIGID_NAMES = ("nose_tip", "nose_base_0", "nose_base_1", "nose_base_2", "nose_base_3", "nose_base_4",
@@ -254,7 +255,8 @@ def _pose_delta(R0, t0, R1, t1) -> np.ndarray:
 
 def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses, *, fit_names=LOWER_RIGID_NAMES,
                           feature_names=(), components: int = 8, ridge: float = 0.01,
-                          weighted: bool = False) -> dict | None:
+                          weighted: bool = False, expressions: dict | None = None, draws: int = 0,
+                          seed: int = 0) -> dict | None:
     """How the head poses fitted to the landmarks below a headset (``fit_names``) miss the poses
     that define a model's frame, as a linear function of the lower face's shape, learned on the
     registration video where both are known.
@@ -271,6 +273,11 @@ def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses
     ``weighted``: the lower-landmark poses weigh each fit point by how little it moved in these
     frames (:func:`rigidity_weights` against ``poses``; saved as ``fit_weights``, and the usage
     poses must be fitted with them).
+    ``expressions`` (name → [J, 3], :func:`landmark_expressions`) with ``draws`` > 0: each
+    registration frame is also seen ``draws`` times with 1–3 random expressions of that basis (weights
+    uniform in [0, 1]) added to its landmarks, in its registration pose, so the regression also
+    learns expressions the person did not make in registration (a usage video's broad smile); the
+    weights of ``weighted`` are the registration frames' alone (the person's own).
 
     ``names`` / ``points3d``: the landmarks placed on the canonical head; ``landmarks``
     [T, K, 2] the video's, named ``frame_names``; ``poses`` = (R [T, 3, 3], t [T, 3], pivot).
@@ -293,6 +300,12 @@ def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses
     t = repivot(R, t[ok], p, piv)
     fit_obs = obs[:, [col[n] for n in fit]]
     w = rigidity_weights(camera, R, t, piv, Pf, fit_obs) if weighted else None
+    if expressions is not None and draws > 0 and all(n in expressions for n in fit + feat):
+        used = [col[n] for n in fit + feat]
+        obs, R, t = _with_expressions(camera, P[[placed[n] for n in fit + feat]], obs, used, R, t, piv,
+                                      np.stack([np.asarray(expressions[n], np.float64) for n in fit + feat], 1),
+                                      draws, seed)
+        fit_obs = obs[:, [col[n] for n in fit]]
     low = solve_poses(camera, Pf, fit_obs, piv, weights=w)
     Y = _pose_delta(low["R"], low["t"], R, t)
     F = ray_offsets(camera, low["R"], low["t"], piv, P[[placed[n] for n in feat]],
@@ -304,6 +317,51 @@ def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses
     W = np.linalg.solve(Z.T @ Z + lam * np.eye(k), Z.T @ (Y - off))
     return {"fit_names": fit, "names": feat, "pivot": piv.tolist(), "mean": mean.tolist(), "basis": Vt[:k].tolist(),
             "weights": W.tolist(), "offset": off.tolist(), **({"fit_weights": w.tolist()} if weighted else {})}
+
+
+def _with_expressions(camera, P, obs, cols, R, t, piv, B, draws: int, seed: int):
+    """The frames (landmarks ``obs`` [T, K, 2], poses R, t about ``piv``) followed by ``draws`` copies
+    of each with 1–3 random rows of ``B`` [J, k, 3] (weights in [0, 1]) added, in the canonical
+    frame, to where the landmarks ``cols`` (canonical points ``P`` [k, 3]) were, seen in the frame's pose."""
+    rng = np.random.default_rng(seed)
+    off = ray_offsets(camera, R, t, piv, P, obs[:, cols])
+    T, J = len(obs), len(B)
+    new = np.repeat(obs, draws, 0)
+    for i in range(T * draws):
+        f, w = i // draws, np.zeros(J)
+        pick = rng.choice(J, size=int(rng.integers(1, min(3, J) + 1)), replace=False)
+        w[pick] = rng.uniform(0.0, 1.0, len(pick))
+        X = (P + off[f] + np.einsum("j,jkc->kc", w, B) - piv) @ R[f].T + piv + t[f]
+        new[i, cols] = _project(camera, X)
+    return np.concatenate([obs, new]), np.concatenate([R, np.repeat(R, draws, 0)]), np.concatenate([t, np.repeat(t, draws, 0)])
+
+
+def landmark_expressions(names, points3d, *, model=None) -> dict | None:
+    """How the expressions of the ICT-FaceKit model (built from scans of real people; shipped with
+    geoface) move the iBUG-68 landmarks ``names`` placed at ``points3d`` [K, 3] on a head: name →
+    [J, 3] displacements (metres) of its J lower-face blendshapes (brows and lids left out), from the
+    model's mean head, turned and scaled into the head's frame by the similarity that best maps the
+    model's landmarks onto ``points3d``.  None when fewer than 6 names are iBUG-68 or the model is
+    not found."""
+    from geoface.splat.hfm_data import IBUG68_NAMES
+    from geoface.synth.ict import find_model, load_ict_model
+
+    idx = [IBUG68_NAMES.index(n) if n in IBUG68_NAMES else -1 for n in names]
+    ok = np.array(idx) >= 0
+    if ok.sum() < 6 or (model is None and find_model(required=False) is None):
+        return None
+    model = model if model is not None else load_ict_model()
+    base = model.shape(None)
+    L = model.landmarks
+    keep = [n for n in model.expression_names if not n.startswith(("eye", "brow"))]
+    D = np.array([(model.shape(None, {n: 1.0}) - base)[L] for n in keep])  # [J, 68, 3], model units
+    src, dst = base[L][np.array(idx)[ok]], np.asarray(points3d, np.float64)[ok]
+    A, Bd = src - src.mean(0), dst - dst.mean(0)
+    U, S, Vt = np.linalg.svd(Bd.T @ A)
+    E = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    Q = U @ E @ Vt
+    scale = float((S * np.diag(E)).sum() / (A**2).sum())
+    return {n: scale * D[:, i] @ Q.T for n, i in zip(names, idx) if i >= 0}
 
 
 def apply_lower_calibration(cal: dict, camera, points3d_of: dict, landmarks, frame_names, R, t, pivot):

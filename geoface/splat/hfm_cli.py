@@ -65,6 +65,8 @@ def _config(args):
         kw["pose_residual"] = args.pose_residual
     if args.calibration_weights is not None:
         kw["pose_calibration_weighted"] = args.calibration_weights
+    if args.calibration_expressions is not None:
+        kw["pose_calibration_expressions"] = args.calibration_expressions
     if args.pose_refine is not None:
         kw["pose_refine"] = args.pose_refine
     kw.update(ABLATIONS[args.ablation])
@@ -209,6 +211,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--calibration-weights", action=argparse.BooleanOptionalAction, default=None,
                    help="the usage pose calibration weighs each lower landmark by how little it moved in "
                         "registration (default: the model's)")
+    t.add_argument("--calibration-expressions", type=int, default=None, metavar="N",
+                   help="the usage pose calibration also sees each registration frame N times with generic "
+                        "expressions of the ICT-FaceKit model added to its landmarks (0: off; default: the model's)")
     t.add_argument("--pose-refine", action=argparse.BooleanOptionalAction, default=None,
                    help="registration poses fitted to the landmarks are corrected frame by frame with the "
                         "image loss (default: the model's)")

@@ -132,17 +132,19 @@ def calibrate_usage_poses(model: HFMModel, video, source: str = "landmarks") -> 
     None (nothing learned) without iBUG-68 landmarks, with ``pose_calibration=0``, or when the
     registration poses were fitted to the lower landmarks themselves."""
     from geoface.splat.hfm_data import IBUG68_LOWER, IBUG68_NAMES
-    from geoface.splat.head_pose import calibrate_lower_poses
+    from geoface.splat.head_pose import calibrate_lower_poses, landmark_expressions
 
     cfg, lm = model.cfg, model.landmarks3d
     model.pose_calibration = None
     lowered = source == "landmarks" and cfg.registration_landmarks == "lower"
     if not cfg.pose_calibration or lm is None or lowered or tuple(video.names) != tuple(IBUG68_NAMES):
         return None
+    draws = cfg.pose_calibration_expressions
     model.pose_calibration = calibrate_lower_poses(
         video.camera, lm["names"], lm["points"], video.landmarks, video.names, video.poses,
         feature_names=[IBUG68_NAMES[i] for i in IBUG68_LOWER], components=cfg.pose_calibration,
-        ridge=cfg.pose_calibration_ridge, weighted=cfg.pose_calibration_weighted)
+        ridge=cfg.pose_calibration_ridge, weighted=cfg.pose_calibration_weighted,
+        expressions=landmark_expressions(lm["names"], lm["points"]) if draws else None, draws=draws, seed=cfg.seed)
     return model.pose_calibration
 
 

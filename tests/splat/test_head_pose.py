@@ -505,3 +505,80 @@ def test_training_corrects_the_landmark_poses_saves_them_and_calibrates_to_them(
     train_hfm(reg, tmp_path / "m", HFMConfig(iters=2, densify=False, n_keys=64, crop=64), progress=False, log=None,
               poses="landmarks")
     assert load_registration_poses(tmp_path / "m") is None
+
+
+def test_expression_draws_teach_the_calibration_a_smile_registration_never_made():
+    """Registration frames hold only the jaw and a faint sneer; the held-out frames a broad smile
+    that lifts the 4 nose points and pulls the mouth. Calibrated on registration alone the smile's
+    tilt stays (the regression never saw it); with each registration frame also seen twice with
+    random expressions of a basis holding the smile (``expressions``, ``draws``), the tilt falls
+    to under a third, while on frames like registration's the draws cost nothing."""
+    from geoface.splat.head_pose import apply_lower_calibration, calibrate_lower_poses
+
+    rng = np.random.default_rng(8)
+    cam = look_at([0, 0, 0.5], [0, 0, 0], width=256, height=256, fov_y_deg=30)
+    fit_names = [f"r{i}" for i in range(12)]
+    names = fit_names + [f"m{i}" for i in range(16)]
+    P = np.r_[rng.normal(0, 1, (12, 3)) * [0.06, 0.03, 0.02], rng.normal(0, 1, (16, 3)) * [0.03, 0.01, 0.01] - [0, 0.05, 0]]
+    piv = np.array([0.0, 0.0, -0.05])
+    modes = np.zeros((3, 28, 3))
+    modes[0, :4] = [0, 0.004, 0.002]  # sneer
+    modes[0, 12:20] = [0, 0.003, 0]
+    modes[1, :4] = [0.0, 0.003, -0.003]  # smile: the nose points lift and go back, the mouth widens
+    modes[1, 12:28] = rng.normal(0, 0.004, (16, 3))
+    modes[2, 20:28] = [0, -0.008, 0]  # jaw
+
+    def frames(T, lo, hi):
+        R = np.stack([rodrigues(rng.normal(0, 1, 3) * np.radians(4)) for _ in range(T)])
+        t = rng.normal(0, 0.004, (T, 3))
+        c = rng.uniform(lo, hi, (T, 3))
+        obs = np.stack([cam.project((P + np.tensordot(c[f], modes, 1) - piv) @ R[f].T + piv + t[f])[0] for f in range(T)])
+        return R, t, obs + rng.normal(0, 0.05, obs.shape)
+
+    R, t, obs = frames(80, [0, 0, 0], [0.2, 0, 1])
+    basis = {n: modes[:, k] for k, n in enumerate(names)}
+    kw = dict(fit_names=fit_names, feature_names=names[12:], components=12, ridge=1e-4)
+    plain = calibrate_lower_poses(cam, names, P, obs, names, (R, t, piv), **kw)
+    drawn = calibrate_lower_poses(cam, names, P, obs, names, (R, t, piv), expressions=basis, draws=2, **kw)
+
+    def tilt(cal, R2, obs2):
+        low = solve_poses(cam, P[:12], obs2[:, :12], piv)
+        Rc, _ = apply_lower_calibration(cal, cam, dict(zip(names, P)), obs2, names, low["R"], low["t"], piv)
+        return np.mean([_angle_deg(R2[f], Rc[f]) for f in range(len(R2))])
+
+    R2, _, obs2 = frames(20, [0, 0.8, 0], [0.2, 1.0, 1])  # a broad smile
+    assert tilt(plain, R2, obs2) > 0.3 and tilt(drawn, R2, obs2) < tilt(plain, R2, obs2) / 3
+    R3, _, obs3 = frames(20, [0, 0, 0], [0.2, 0, 1])  # as in registration
+    assert tilt(drawn, R3, obs3) < tilt(plain, R3, obs3) + 0.05
+    # the draws are seeded; a basis that lacks a name in use is not drawn from
+    few = (R[:16], t[:16], piv)
+    assert (calibrate_lower_poses(cam, names, P, obs[:16], names, few, expressions=basis, draws=1, **kw)
+            == calibrate_lower_poses(cam, names, P, obs[:16], names, few, expressions=basis, draws=1, **kw))
+    partial = {n: v for n, v in basis.items() if n != "m3"}
+    assert (calibrate_lower_poses(cam, names, P, obs[:16], names, few, expressions=partial, draws=1, **kw)
+            == calibrate_lower_poses(cam, names, P, obs[:16], names, few, **kw))
+
+
+def test_landmark_expressions_are_the_ict_blendshapes_in_the_heads_frame():
+    """On the ICT-FaceKit mean head turned by 20°, scaled to metres and moved, the displacements of
+    each landmark are the model's own, turned and scaled alike; brows and lids are left out;
+    landmarks of other names are skipped, and too few iBUG names give None."""
+    from geoface.splat.head_pose import landmark_expressions
+    from geoface.synth.ict import load_ict_model
+
+    model = load_ict_model()
+    base = model.shape(None)
+    L = model.landmarks
+    Q = rodrigues(np.radians([5.0, 20.0, -3.0]))
+    pts = 0.01 * base[L] @ Q.T + [0.01, -0.02, 0.3]
+    names = list(IBUG68_NAMES)
+    got = landmark_expressions(names + ["ear"], np.r_[pts, [[0, 0, 0]]], model=model)
+    keep = [n for n in model.expression_names if not n.startswith(("eye", "brow"))]
+    assert set(got) == set(names) and len(keep) < len(model.expression_names)
+    k = names.index("mouth_left")
+    j = keep.index("mouthSmile_L")
+    want = 0.01 * (model.shape(None, {"mouthSmile_L": 1.0}) - base)[L[k]] @ Q.T
+    assert got["mouth_left"].shape == (len(keep), 3) and np.linalg.norm(want) > 1e-3
+    assert np.allclose(got["mouth_left"][j], want, atol=1e-9)
+    assert np.abs(got["eye_left_0"]).max() < 1e-3  # a smile barely moves the eye corners; no lid shapes kept
+    assert landmark_expressions(names[:5], pts[:5], model=model) is None
