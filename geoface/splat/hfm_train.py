@@ -425,6 +425,7 @@ def load_hfm(model_dir) -> HFMModel:
     conf.setdefault("image_pose", False)  # before the field: no pose read from the crop
     conf.setdefault("pose_residual", True)  # and MLP_pose always corrected the given pose
     conf.setdefault("pose_calibration", 0)  # and learned no calibration of the lower-landmark poses
+    conf.setdefault("pose_calibration_expressions", 0)  # and drew no expressions for it
     if not conf.get("gaussian_mapping", True):  # before the field: the unmapped upper face had its own MLP
         conf.setdefault("unmapped_upper", "separate" if any(k.startswith("mlp_up.") for k in sd) else "shared")
     cfg = HFMConfig.from_dict(conf, where=f"{d}/config.json")
