@@ -160,6 +160,14 @@ def test_poses_from_the_landmarks_of_an_ict_capture(ict_capture):
     assert np.median(fit["rms_px"]) < 0.5 and len(fit["names"]) >= 12
 
 
+def _lower_rig(rng):
+    """A camera, 12 "rigid" points (``r*``) and 16 mouth points (``m*``) of a lower face, and a pivot."""
+    cam = look_at([0, 0, 0.5], [0, 0, 0], width=256, height=256, fov_y_deg=30)
+    fit_names = [f"r{i}" for i in range(12)]
+    P = np.r_[rng.normal(0, 1, (12, 3)) * [0.06, 0.03, 0.02], rng.normal(0, 1, (16, 3)) * [0.03, 0.01, 0.01] - [0, 0.05, 0]]
+    return cam, fit_names, fit_names + [f"m{i}" for i in range(16)], P, np.array([0.0, 0.0, -0.05])
+
+
 def test_lower_pose_calibration_undoes_the_tilt_expressions_give_the_lower_landmarks():
     """Two expressions move 4 "rigid" nose points up and forward (a sneer) and the mouth points
     with them (and a third moves the mouth alone): the pose fitted to the 12 lower points then tilts
@@ -170,11 +178,7 @@ def test_lower_pose_calibration_undoes_the_tilt_expressions_give_the_lower_landm
     from geoface.splat.head_pose import apply_lower_calibration, calibrate_lower_poses
 
     rng = np.random.default_rng(3)
-    cam = look_at([0, 0, 0.5], [0, 0, 0], width=256, height=256, fov_y_deg=30)
-    fit_names = [f"r{i}" for i in range(12)]
-    names = fit_names + [f"m{i}" for i in range(16)]
-    P = np.r_[rng.normal(0, 1, (12, 3)) * [0.06, 0.03, 0.02], rng.normal(0, 1, (16, 3)) * [0.03, 0.01, 0.01] - [0, 0.05, 0]]
-    piv = np.array([0.0, 0.0, -0.05])
+    cam, fit_names, names, P, piv = _lower_rig(rng)
     modes = np.zeros((3, 28, 3))
     modes[0, :4] = [0, 0.004, 0.002]  # sneer: the nose points lift, the upper lip with them
     modes[0, 12:20] = [0, 0.003, 0]
@@ -516,11 +520,7 @@ def test_expression_draws_teach_the_calibration_a_smile_registration_never_made(
     from geoface.splat.head_pose import apply_lower_calibration, calibrate_lower_poses
 
     rng = np.random.default_rng(8)
-    cam = look_at([0, 0, 0.5], [0, 0, 0], width=256, height=256, fov_y_deg=30)
-    fit_names = [f"r{i}" for i in range(12)]
-    names = fit_names + [f"m{i}" for i in range(16)]
-    P = np.r_[rng.normal(0, 1, (12, 3)) * [0.06, 0.03, 0.02], rng.normal(0, 1, (16, 3)) * [0.03, 0.01, 0.01] - [0, 0.05, 0]]
-    piv = np.array([0.0, 0.0, -0.05])
+    cam, fit_names, names, P, piv = _lower_rig(rng)
     modes = np.zeros((3, 28, 3))
     modes[0, :4] = [0, 0.004, 0.002]  # sneer
     modes[0, 12:20] = [0, 0.003, 0]
