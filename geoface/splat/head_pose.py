@@ -300,11 +300,10 @@ def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses
     t = repivot(R, t[ok], p, piv)
     fit_obs = obs[:, [col[n] for n in fit]]
     w = rigidity_weights(camera, R, t, piv, Pf, fit_obs) if weighted else None
-    if expressions is not None and draws > 0 and all(n in expressions for n in fit + feat):
-        used = [col[n] for n in fit + feat]
-        obs, R, t = _with_expressions(camera, P[[placed[n] for n in fit + feat]], obs, used, R, t, piv,
-                                      np.stack([np.asarray(expressions[n], np.float64) for n in fit + feat], 1),
-                                      draws, seed)
+    both = fit + feat
+    if expressions is not None and draws > 0 and all(n in expressions for n in both):
+        obs, R, t = _with_expressions(camera, P[[placed[n] for n in both]], obs, [col[n] for n in both], R, t, piv,
+                                      np.stack([np.asarray(expressions[n], np.float64) for n in both], 1), draws, seed)
         fit_obs = obs[:, [col[n] for n in fit]]
     low = solve_poses(camera, Pf, fit_obs, piv, weights=w)
     Y = _pose_delta(low["R"], low["t"], R, t)
@@ -353,8 +352,8 @@ def landmark_expressions(names, points3d, *, model=None) -> dict | None:
     model = model if model is not None else load_ict_model()
     base = model.shape(None)
     L = model.landmarks
-    keep = [n for n in model.expression_names if not n.startswith(("eye", "brow"))]
-    D = np.array([(model.shape(None, {n: 1.0}) - base)[L] for n in keep])  # [J, 68, 3], model units
+    keep = [j for j, n in enumerate(model.expression_names) if not n.startswith(("eye", "brow"))]
+    D = np.asarray(model.expression_modes, np.float64)[keep][:, L]  # [J, 68, 3], model units (shape is linear in them)
     src, dst = base[L][np.array(idx)[ok]], np.asarray(points3d, np.float64)[ok]
     A, Bd = src - src.mean(0), dst - dst.mean(0)
     U, S, Vt = np.linalg.svd(Bd.T @ A)
