@@ -30,8 +30,10 @@ before the calibration existed gets it from its registration video first), the s
 (``landmarks_uncalibrated``), read from the crop alone (``image``) and, to separate what the pose
 estimate costs, the true one (``file``).  One JSON line per score in ``DIR/results.jsonl``;
 ``calibration`` scores trained models with each calibration setting of ``--grid``
-(components:ridge[:w][:eN]: w weighs the landmarks, eN sees each registration frame N more times with
-generic expressions);
+(components:ridge[:w][:eN][:hR]: w weighs the landmarks, eN sees each registration frame N more times with
+generic expressions, hR corrects the usage poses by the headset masks, :mod:`geoface.splat.headset_pose`,
+with expression-map ridge R; each row also says how far those usage poses put the upper and the lower landmarks
+from where the true poses put them, ``upper_px`` / ``lower_px``);
 ``poses`` scores the head poses alone against the truth: registration poses fitted to the 68
 landmarks, usage poses fitted to those below the headset.  ``table`` prints means, the pairs, and whole face / occluded PSNR per person and model seed.  Choose settings with ``--splits val``; report ``test``.
 """
@@ -243,7 +245,10 @@ def _recalibrate(model, reg, components: int, ridge: float, weighted: bool = Fal
 
 def _calibration(a) -> None:
     """Score trained no-file models with the usage pose calibration of each ``--grid`` setting
-    (components:ridge[:w]; 0:0 = none; w: weighted), learned from the registration video as training learns it."""
+    (components:ridge[:w][:eN][:hR]; 0:0 = none; w: weighted; hR: usage poses corrected by the headset
+    masks with expression-map ridge R), learned from the registration video as training learns it."""
+    from dataclasses import replace
+
     import torch
 
     from geoface.splat.hfm import evaluate_hmd, load_hfm
@@ -263,15 +268,40 @@ def _calibration(a) -> None:
                     for g in a.grid:
                         k, ridge, *flags = g.split(":")
                         draws = int(next((f[1:] for f in flags if f.startswith("e")), 0))
+                        hs = next((float(f[1:]) for f in flags if f.startswith("h")), None)
                         _recalibrate(model, reg, int(k), float(ridge), weighted="w" in flags, expressions=draws)
+                        model.cfg = replace(model.cfg, headset_pose=hs is not None, headset_pose_ridge=hs or 0.0)
                         r = evaluate_hmd(model, use, poses="landmarks")
+                        r.update(_upper_error(model, use))
                         row = {"stage": "calibration", "split": split, "data_seed": s, "seed": seed, "variant": v,
                                "components": int(k), "ridge": float(ridge), "weighted": "w" in flags, "expressions": draws,
+                               "headset_ridge": hs, "poses": r["poses"], "upper_px": r["upper_px"], "lower_px": r["lower_px"],
                                **{k: round(float(r[k]), 4) for k in ("psnr_face", "ssim_face", "psnr_occluded",
                                                                      "ssim_occluded", "psnr_expression")}}
                         print(json.dumps(row), flush=True)
                         with (Path(a.out) / "results.jsonl").open("a") as f:
                             f.write(json.dumps(row) + "\n")
+
+
+def _upper_error(model, use) -> dict:
+    """How far the usage poses (fitted to the landmarks, as the model's settings say) put the head's
+    upper (iBUG 17–47: brows, nose bridge, eyes) and lower landmarks from where the true poses put
+    them: mean image distance, pixels."""
+    from geoface.splat.hfm_data import IBUG68_NAMES
+    from geoface.splat.hfm_usage import usage_poses
+    from geoface.splat.head_pose import repivot
+
+    (R, t, piv), _ = usage_poses(model, use, "landmarks")
+    Rt, tt, pt = use.poses
+    tt = repivot(Rt, tt, pt, piv)
+    known = dict(zip(model.landmarks3d["names"], np.asarray(model.landmarks3d["points"])))
+    out = {}
+    for key, names in (("upper_px", IBUG68_NAMES[17:48]), ("lower_px", IBUG68_NAMES[:17] + IBUG68_NAMES[48:])):
+        X = np.array([known[n] for n in names if n in known]) - piv
+        d = [np.linalg.norm(use.camera.project(X @ R[f].T + piv + t[f])[0] - use.camera.project(X @ Rt[f].T + piv + tt[f])[0],
+                            axis=1).mean() for f in range(len(R))]
+        out[key] = round(float(np.mean(d)), 4)
+    return out
 
 
 def _table(a) -> None:
@@ -331,9 +361,10 @@ def main(argv=None) -> int:
     ap.add_argument("--models", default=None, help="run: where the models go (default OUT/models)")
     ap.add_argument("--data", default=None, help="where the captures are (default OUT/data)")
     ap.add_argument("--grid", type=lambda s: s.split(","), default="0:0,4:0.01,8:0.001,8:0.01,8:0.1,12:0.01,16:0.001,16:0.01,16:0.1,24:0.01",
-                    help="calibration: COMPONENTS:RIDGE[:w][:eN] settings of the usage pose calibration (0:0 = none; "
+                    help="calibration: COMPONENTS:RIDGE[:w][:eN][:hR] settings of the usage pose calibration (0:0 = none; "
                          ":w = its poses weigh the landmarks by how little they moved; :eN = each registration "
-                         "frame also seen N times with generic expressions)")
+                         "frame also seen N times with generic expressions; :hR = usage poses corrected by the "
+                         "headset masks, expression-map ridge R)")
     a = ap.parse_args(argv)
     if any(len(g.split("/")) not in (3, 4) for g in a.group):
         ap.error("--group: SPLIT/SEEDS/VARIANTS[/PEOPLE], e.g. test/0,1/full,oracle")

@@ -24,7 +24,7 @@ import numpy as np
 from geoface.splat.errors import SplatError
 
 __all__ = ["landmarks_on_mesh", "solve_poses", "triangulate", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
-           "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "rigidity_weights",
+           "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "calibration_scores", "rigidity_weights",
            "landmark_expressions", "LOWER_RIGID_NAMES"]
 
 #: iBUG names below a headset that move little with expressions (nose base, the jaw line's ends)
@@ -363,10 +363,11 @@ def landmark_expressions(names, points3d, *, model=None) -> dict | None:
     return {n: scale * D[:, i] @ Q.T for n, i in zip(names, idx) if i >= 0}
 
 
-def apply_lower_calibration(cal: dict, camera, points3d_of: dict, landmarks, frame_names, R, t, pivot):
-    """Correct poses (R [T, 3, 3], t [T, 3], about ``pivot``) fitted to a video's lower landmarks
-    by :func:`calibrate_lower_poses`' ``cal``; ``points3d_of``: name → canonical point.  Returns
-    (R, t) about the same pivot, or None when the video lacks one of the landmarks ``cal`` reads."""
+def calibration_scores(cal: dict, camera, points3d_of: dict, landmarks, frame_names, R, t, pivot) -> np.ndarray | None:
+    """[T, k]: the lower face's expression features that :func:`calibrate_lower_poses`' ``cal``
+    reads, per frame (its principal-component scores, zero at the registration's mean face), for
+    poses (R [T, 3, 3], t [T, 3], about ``pivot``) fitted to the video's lower landmarks;
+    ``points3d_of``: name → canonical point.  None when the video lacks one of the landmarks."""
     col = {n: i for i, n in enumerate(frame_names)}
     if any(n not in col or n not in points3d_of for n in cal["names"]):
         return None
@@ -375,9 +376,22 @@ def apply_lower_calibration(cal: dict, camera, points3d_of: dict, landmarks, fra
         return None
     R, t, p = np.asarray(R, np.float64), np.asarray(t, np.float64), np.asarray(pivot, np.float64)
     piv = np.asarray(cal["pivot"], np.float64)
+    F = ray_offsets(camera, R, repivot(R, t, p, piv), piv, np.array([points3d_of[n] for n in cal["names"]]),
+                    obs).reshape(len(R), -1)
+    return (F - np.asarray(cal["mean"])) @ np.asarray(cal["basis"]).T
+
+
+def apply_lower_calibration(cal: dict, camera, points3d_of: dict, landmarks, frame_names, R, t, pivot):
+    """Correct poses (R [T, 3, 3], t [T, 3], about ``pivot``) fitted to a video's lower landmarks
+    by :func:`calibrate_lower_poses`' ``cal``; ``points3d_of``: name → canonical point.  Returns
+    (R, t) about the same pivot, or None when the video lacks one of the landmarks ``cal`` reads."""
+    Z = calibration_scores(cal, camera, points3d_of, landmarks, frame_names, R, t, pivot)
+    if Z is None:
+        return None
+    R, t, p = np.asarray(R, np.float64), np.asarray(t, np.float64), np.asarray(pivot, np.float64)
+    piv = np.asarray(cal["pivot"], np.float64)
     tq = repivot(R, t, p, piv)
-    F = ray_offsets(camera, R, tq, piv, np.array([points3d_of[n] for n in cal["names"]]), obs).reshape(len(R), -1)
-    D = ((F - np.asarray(cal["mean"])) @ np.asarray(cal["basis"]).T) @ np.asarray(cal["weights"]) + np.asarray(cal["offset"])
+    D = Z @ np.asarray(cal["weights"]) + np.asarray(cal["offset"])
     R2 = np.array([R[f] @ rodrigues(D[f, :3]) for f in range(len(R))])
     t2 = tq + D[:, 3:]
     return R2, repivot(R2, t2, piv, p)

@@ -52,7 +52,9 @@ a headset hides the upper face is restored from the visible lower face alone:
    ``pose_residual=False`` leaves MLP_pose out and keeps the pose read from the crop. Poses fitted
    to the usage video's lower landmarks are calibrated into the registration poses' frame by a
    linear model learned during registration (``pose_calibration``;
-   :func:`geoface.splat.head_pose.calibrate_lower_poses`).
+   :func:`geoface.splat.head_pose.calibrate_lower_poses`), and, with ``headset_pose``, moved by
+   what the lower face's expressions do to where the headset's silhouette lies
+   (:mod:`geoface.splat.headset_pose`).
 7. **Correlation-weight sampling** (eq. 9–10): the mapping runs between 512 upper and 512 lower
    *key* Gaussians only — upper keys by farthest-point sampling of the canonical positions,
    lower keys 512 drawn without replacement with probability proportional to their correlation

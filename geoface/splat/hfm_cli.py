@@ -97,14 +97,26 @@ def cmd_hmd_train(args) -> int:
     return 0
 
 
+def _load_for_usage(args):
+    """The model of ``args.model_dir`` with ``--headset-pose/--no-headset-pose`` applied."""
+    from dataclasses import replace
+
+    from .hfm import load_hfm
+
+    model = load_hfm(args.model_dir)
+    if args.headset_pose is not None:
+        model.cfg = replace(model.cfg, headset_pose=args.headset_pose)
+    return model
+
+
 def cmd_hmd_remove(args) -> int:
-    from .hfm import load_hfm, remove_hmd
+    from .hfm import remove_hmd
 
     if args.output is None and args.video is None:
         raise GeofaceError("say where the frames go: -o OUT_DIR (PNG frames) and/or --video OUT.mp4")
     if args.video is not None and Path(args.video).suffix.lower() != ".mp4":
         raise GeofaceError(f"--video: an .mp4 path; got {args.video}")
-    model = load_hfm(args.model_dir)
+    model = _load_for_usage(args)
     from .hfm_data import load_video
 
     video = load_video(args.usage_dir)
@@ -137,9 +149,9 @@ def cmd_hmd_remove(args) -> int:
 
 
 def cmd_hmd_eval(args) -> int:
-    from .hfm import evaluate_hmd, load_hfm
+    from .hfm import evaluate_hmd
 
-    model = load_hfm(args.model_dir)
+    model = _load_for_usage(args)
     from .hfm_data import load_video
 
     res = evaluate_hmd(model, load_video(args.usage_dir), poses=args.poses)
@@ -231,6 +243,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="head pose per frame: USAGE_DIR/head_poses.npz (file; a headset's own tracking), fitted to the "
                         "landmarks below the headset (landmarks), read from the lower-face crop (image), or the first "
                         "of these the folder allows (auto)")
+    r.add_argument("--headset-pose", action=argparse.BooleanOptionalAction, default=None,
+                   help="with --poses landmarks (or auto without a pose file): also correct the poses by where the "
+                        "headset masks (USAGE_DIR/hmd_masks) lie (default: the model's setting)")
     r.add_argument("--no-composite", action="store_true", help="write the avatar renders, not frames with the HMD region replaced")
     r.set_defaults(func=cmd_hmd_remove)
     from .drive_cli import add_export_parser
@@ -243,6 +258,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="head pose per frame: USAGE_DIR/head_poses.npz (file; a headset's own tracking), fitted to the "
                         "landmarks below the headset (landmarks), read from the lower-face crop (image), or the first "
                         "of these the folder allows (auto)")
+    e.add_argument("--headset-pose", action=argparse.BooleanOptionalAction, default=None,
+                   help="with --poses landmarks (or auto without a pose file): also correct the poses by where the "
+                        "headset masks (USAGE_DIR/hmd_masks) lie (default: the model's setting)")
     add_json(e, "the figures")
     e.set_defaults(func=cmd_hmd_eval)
 

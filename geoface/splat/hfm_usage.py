@@ -28,13 +28,18 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
       or every landmark the registration placed on the head for other names), by the robust PnP of
       :mod:`geoface.splat.head_pose`, starting from the pose the model reads from the first crop,
       then corrected into the registration poses' frame by the model's ``pose_calibration`` when
-      it has one and the video has the lower-face landmarks it reads;
+      it has one and the video has the lower-face landmarks it reads; with ``cfg.headset_pose``
+      and the video's ``hmd_masks``, then moved by what the lower face's expressions do to the
+      headset silhouette's place (:mod:`geoface.splat.headset_pose`: a broad smile that the
+      registration never showed tilts the calibrated pose; the headset, rigid with the head, does
+      not smile) — source ``"landmarks+headset"``;
     * ``"image"`` — read from each lower-face crop by the model (None is returned: the model does it
       per frame);
     * ``"auto"`` — the file, else the landmarks (at least 4 such points), else the image.
 
     Returns ``((R [T, 3, 3], t [T, 3], pivot [3]) or None, source)``."""
-    from geoface.splat.head_pose import LOWER_RIGID_NAMES, apply_lower_calibration, repivot, solve_poses
+    from geoface.splat.head_pose import (LOWER_RIGID_NAMES, apply_lower_calibration, calibration_scores, repivot,
+                                         solve_poses)
 
     if source not in POSE_SOURCES:
         raise SplatError(f"poses must be one of {POSE_SOURCES}; got {source!r}")
@@ -70,11 +75,25 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
         w = [weight_of[n] for n in use]
     fit = solve_poses(video.camera, P, video.landmarks[:, idx], piv, init=init, weights=w)
     R, t = fit["R"], fit["t"]
-    if calibrated:  # in the registration poses' frame
-        got = apply_lower_calibration(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
-        if got is not None:
-            R, t = got
-    return (R, t, piv), "landmarks"
+    if not calibrated:
+        return (R, t, piv), "landmarks"
+    # in the registration poses' frame
+    got = apply_lower_calibration(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
+    if got is None:
+        return (R, t, piv), "landmarks"
+    Rc, tc = got
+    anchor = known.get("nose_bridge_0")  # where a headset sits
+    if not model.cfg.headset_pose or video.hmd_masks is None or anchor is None:
+        return (Rc, tc, piv), "landmarks"
+    from geoface.splat.headset_pose import headset_centroids, headset_components, headset_poses
+
+    whole = int(np.isfinite(headset_centroids(video.hmd_masks)).all(1).sum())
+    if headset_components(whole, len(cal["basis"])) < 1:  # too few whole silhouettes for the model
+        return (Rc, tc, piv), "landmarks"
+    Z = calibration_scores(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
+    Rh, th, _ = headset_poses(video.camera, Rc, tc, piv, P, video.hmd_masks, anchor, Z, weights=w,
+                              ridge=model.cfg.headset_pose_ridge)
+    return (Rh, th, piv), "landmarks+headset"
 
 
 def _frame_input(video, t: int, size: int, boxes: np.ndarray) -> tuple[Tensor, Tensor]:

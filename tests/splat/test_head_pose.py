@@ -346,6 +346,20 @@ def test_hfm_without_a_pose_file_learns_the_pose_from_the_crop(ict_capture, tmp_
         load_hfm(tmp_path / "mw")
     ev = evaluate_hmd(m, video, poses="landmarks")
     assert 5 < ev["psnr_face"] < 60 and ev["poses"] == "landmarks"
+    # headset_pose: with 18 whole headset masks (the three frames six times) the calibrated poses
+    # are also moved by the headset's silhouette, within what the landmarks allow; with three the
+    # masks are too few for its model and the calibrated poses stay
+    tile = lambda a: np.concatenate([a] * 6)  # noqa: E731
+    v18 = replace(video, frames=tile(video.frames), masks=tile(video.masks), landmarks=tile(video.landmarks),
+                  hmd_masks=tile(video.hmd_masks), gt=None, gt_static_upper=None, poses=None)
+    m.cfg = replace(m.cfg, headset_pose=True)
+    (Rh, th, ph), src = usage_poses(m, v18, "landmarks")
+    assert src == "landmarks+headset"
+    assert 1e-6 < max(_angle_deg(a, b) for a, b in zip(tile(R), Rh))
+    for f in range(18):
+        assert _angle_deg(Rt[f % 3], Rh[f]) < 1.5
+    assert usage_poses(m, video, "landmarks")[1] == "landmarks"
+    m.cfg = replace(m.cfg, headset_pose=False)
     m.landmarks3d = None
     with pytest.raises(SplatError, match="need 4"):
         usage_poses(m, video, "landmarks")
@@ -400,6 +414,9 @@ def test_cli_ict_capture_and_pose_sources(ict_capture, tmp_path, capsys):
     assert "fitted to" in capsys.readouterr().out
     assert main(["hmd", "eval", str(md), str(use), "--poses", "landmarks"]) == 0
     assert "head poses: landmarks" in capsys.readouterr().out
+    # three usage masks are too few for the headset's model: the option runs and says the source
+    assert main(["hmd", "eval", str(md), str(use), "--poses", "landmarks", "--headset-pose"]) == 0
+    assert "head poses: landmarks)" in capsys.readouterr().out
     (use / "head_poses.npz").rename(tmp_path / "hp.npz")
     try:
         assert main(["hmd", "eval", str(md), str(use), "--poses", "file"]) == 2
