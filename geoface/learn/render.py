@@ -110,21 +110,11 @@ def similarity_align(P: np.ndarray, Q: np.ndarray, mask=None) -> np.ndarray:
     >>> bool(np.allclose(similarity_align(2 * P + 1, P), P))
     True
     """
-    P, Q = np.asarray(P, np.float64), np.asarray(Q, np.float64)
-    m = np.ones(len(P), bool) if mask is None else np.asarray(mask, bool)
-    if m.sum() < 3:
-        return P.copy()
-    a, b = P[m], Q[m]
-    mu_a, mu_b = a.mean(0), b.mean(0)
-    a0, b0 = a - mu_a, b - mu_b
-    S = b0.T @ a0 / len(a)
-    U, d, Vt = np.linalg.svd(S)
-    D = np.eye(3)
-    D[2, 2] = np.sign(np.linalg.det(U) * np.linalg.det(Vt)) or 1.0
-    R = U @ D @ Vt
-    var_a = (a0 ** 2).sum() / len(a)
-    s = float(np.trace(np.diag(d) @ D) / var_a) if var_a > 0 else 1.0
-    return (P - mu_a) @ (s * R).T + mu_b
+    from geoface.mesh.align import similarity_transform
+
+    P = np.asarray(P, np.float64)
+    s, R, t = similarity_transform(P, Q, mask)
+    return P @ (s * R).T + t
 
 
 def grid_image(tiles: np.ndarray, *, gap: int = 2, row_labels=None, col_labels=None) -> np.ndarray:

@@ -342,6 +342,7 @@ def landmark_expressions(names, points3d, *, model=None) -> dict | None:
     model's mean head, turned and scaled into the head's frame by the similarity that best maps the
     model's landmarks onto ``points3d``.  None when fewer than 6 names are iBUG-68 or the model is
     not found."""
+    from geoface.mesh.align import similarity_transform
     from geoface.splat.hfm_data import IBUG68_NAMES
     from geoface.synth.ict import find_model, load_ict_model
 
@@ -354,12 +355,7 @@ def landmark_expressions(names, points3d, *, model=None) -> dict | None:
     L = model.landmarks
     keep = [j for j, n in enumerate(model.expression_names) if not n.startswith(("eye", "brow"))]
     D = np.asarray(model.expression_modes, np.float64)[keep][:, L]  # [J, 68, 3], model units (shape is linear in them)
-    src, dst = base[L][np.array(idx)[ok]], np.asarray(points3d, np.float64)[ok]
-    A, Bd = src - src.mean(0), dst - dst.mean(0)
-    U, S, Vt = np.linalg.svd(Bd.T @ A)
-    E = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    Q = U @ E @ Vt
-    scale = float((S * np.diag(E)).sum() / (A**2).sum())
+    scale, Q, _ = similarity_transform(base[L][np.array(idx)[ok]], np.asarray(points3d, np.float64)[ok])
     return {n: scale * D[:, i] @ Q.T for n, i in zip(names, idx) if i >= 0}
 
 
