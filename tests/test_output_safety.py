@@ -406,9 +406,9 @@ def test_killed_dataset_build_stops_its_workers(tmp_path, sig):
     heads = tmp_path / "heads"
     heads.mkdir()
     for s in range(3):
-        assert run("synth", "head", "-o", heads / f"t{s}.obj", "--vertices", "12000", "--seed", s)[0] == 0
+        assert run("synth", "head", "-o", heads / f"t{s}.obj", "--vertices", "8000", "--seed", s)[0] == 0
     out = tmp_path / "ds"
-    argv = ("dataset", "build", heads, out, "--res", "256", "--augment", "4", "--workers", "2")
+    argv = ("dataset", "build", heads, out, "--res", "128", "--augment", "2", "--workers", "2")
     p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", *map(str, argv)])
     # kill it while its workers convert (not after a fixed delay: a fast machine finishes first)
     deadline = time.time() + 60

@@ -26,6 +26,11 @@ cannot know it.
    landmarks' own information metric ``JᵀJ``) whose predicted centroid is moved by ``−B z``:
    the two directions the centroid sees are corrected, the other four stay the landmarks'.
    :func:`headset_poses` does 1–3.
+
+On the ICT-FaceKit validation people whose usage video smiles beyond their registration video it
+halves the upper face's pose error against the truth, yet the restored frames lose (the avatar
+learned its face under the registration poses, whose own error moves with the expression):
+``HFMConfig.headset_pose`` is off by default (``docs/hmd.md``).
 """
 from __future__ import annotations
 
@@ -35,6 +40,7 @@ from geoface.splat.errors import SplatError
 from geoface.splat.head_pose import _project, rodrigues, rotation_vector
 
 __all__ = ["headset_centroids", "headset_components", "fit_headset", "refine_with_headset", "headset_poses"]
+
 
 def headset_centroids(masks, min_pixels: int = 20) -> np.ndarray:
     """[T, 2] centroid (x, y pixels) of each headset mask [T, H, W]; NaN where the mask has fewer

@@ -206,7 +206,7 @@ class THGSConfig:
     lambda_vertex: float = 1e-2
     lambda_leb: float = 0.1
     lambda_normal: float = 0.01   # refinement stage (from the blendshape stage on)
-    lambda_landmarks: float = 1.0  # mouth landmarks (landmarks.json) from the expression stage on
+    lambda_landmarks: float = 3.0  # mouth landmarks (landmarks.json) from the expression stage on
     audio_window: int = 2  # SAAM and the audio articulation read the features of this many frames each side too
     landmarks_pose: bool = False   # True: the landmark term also moves the per-frame pose corrections
     lr_means: float = 1.6e-4

@@ -15,7 +15,7 @@ from geoface.splat.hfm_cli import _quiet, _train_device  # noqa: E402  (argparse
 from geoface._args import SEED, add_json, json_to_stdout, number, write_json
 
 #: THGSConfig.lambda_landmarks's default (kept here so that building the parser imports no torch)
-THGS_LANDMARK_WEIGHT = 1.0
+THGS_LANDMARK_WEIGHT = 3.0
 #: THGSConfig.audio_window's default (likewise)
 THGS_AUDIO_WINDOW = 2
 #: THGSConfig.lr_pose's and pose_decay's defaults (likewise)

@@ -104,7 +104,7 @@ def test_dataset_ict_builds_resumes_and_records_labels(tmp_path):
         assert r["metrics"]["roi_vertices"] == 9409  # the model's face area is the ROI
     before = (out / "manifest.jsonl").read_text()
     assert main(args) == 0 and (out / "manifest.jsonl").read_text() == before  # resumed: nothing to do
-    assert main([*args[:4], "3", *args[5:]]) == 2  # another source (count) is refused ...
-    assert main([*args[:4], "3", *args[5:], "--force"]) == 0  # ... unless rebuilt
+    assert main([*args[:4], "1", *args[5:]]) == 2  # another source (count) is refused ...
+    assert main([*args[:4], "1", *args[5:], "--force"]) == 0  # ... unless rebuilt
     rows = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
-    assert len({r["item"] for r in rows}) == 3
+    assert len({r["item"] for r in rows}) == 1
