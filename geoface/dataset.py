@@ -9,7 +9,8 @@ K of the 8 corner sets).  Item ``k`` of ``head_007.obj`` is written to
 ``OUT_DIR/manifest.jsonl`` gets one line per item processed, written by the driver only:
 ``item``, ``mesh``, ``corner_set``, ``status`` (``ok`` / ``failed``), ``error``, ``seconds``,
 ``metrics`` (distortion, OT iterations, coverage, face pixel share, reconstruction error) and,
-when labels are given, ``labels`` and ``prompt``.  The last line of an item wins.
+when labels are given, ``labels`` and ``prompt``.  The last line of an item wins; a rebuild with
+other options or another source (``rebuild``, ``--force``) starts the manifest afresh.
 
 * A failing mesh (corrupt file, impossible topology, a solver failure) is logged and recorded
   as ``failed``; the run goes on.
@@ -446,6 +447,10 @@ def _build(sources, out_dir, opts: DatasetOptions, lab: dict | None, source: dic
     changed = _record_options(out, opts, rebuild, source)
     if before is not None:
         before()
+    if changed and (out / MANIFEST).is_file():  # rebuilt with other options or source: the old rows are stale
+        from ._io import atomic_write_text
+
+        atomic_write_text(out / MANIFEST, "")
     manifest = {} if changed else read_manifest(out)
     todo, skipped = _plan(sources, out, opts, manifest, retry_failed)
     total = len(todo) + len(skipped)
