@@ -25,7 +25,7 @@ cannot know it.
 3. :func:`refine_with_headset`: per frame, the pose nearest the landmark pose (in the
    landmarks' own information metric ``JᵀJ``) whose predicted centroid is moved by ``−B z``:
    the two directions the centroid sees are corrected, the other four stay the landmarks'.
-   :func:`headset_poses` does 1–3.
+   :func:`headset_poses` does 2–3 from the centroids of 1.
 
 On the ICT-FaceKit validation people whose usage video smiles beyond their registration video it
 halves the upper face's pose error against the truth, yet the restored frames lose (the avatar
@@ -159,10 +159,11 @@ def refine_with_headset(camera, R, t, pivot, points3d, headset: dict, targets, *
     return R2, t2
 
 
-def headset_poses(camera, R, t, pivot, points3d, masks, init, scores, *, weights=None,
+def headset_poses(camera, R, t, pivot, points3d, centroids, init, scores, *, weights=None,
                   ridge: float = 0.1) -> tuple[np.ndarray, np.ndarray, dict]:
     """Poses (R [T, 3, 3], t [T, 3] about ``pivot``, fitted to the landmarks ``points3d`` [K, 3]
-    with ``weights`` and calibrated) corrected by the headset ``masks`` [T, H, W]: the headset
+    with ``weights`` and calibrated) corrected by the headset masks' ``centroids`` [T, 2]
+    (:func:`headset_centroids`): the headset
     model fitted with the expression ``scores`` [T, k] (:func:`fit_headset`; ``init``: a head
     point near the headset), then each frame's pose moved so that the predicted centroid moves by
     what the expressions did to it (``−B z``; frames whose mask is cut off are corrected too).  The
@@ -170,17 +171,17 @@ def headset_poses(camera, R, t, pivot, points3d, masks, init, scores, *, weights
     Returns (R, t, info: the model's misfit, usable frames, mean and largest correction in
     pixels)."""
     R, t, piv = (np.asarray(a, np.float64) for a in (R, t, pivot))
-    cen = headset_centroids(masks)
-    k = headset_components(int(np.isfinite(cen).all(1).sum()), np.shape(scores)[1])
+    cen = np.asarray(centroids, np.float64)
+    whole = int(np.isfinite(cen).all(1).sum())
+    k = headset_components(whole, np.shape(scores)[1])
     if k < 1:
-        raise SplatError(f"{int(np.isfinite(cen).all(1).sum())} whole headset masks are too few for the headset's "
-                         "model (need 18)")
+        raise SplatError(f"{whole} whole headset masks are too few for the headset's model (need 18)")
     Z = np.asarray(scores, np.float64)[:, :k]
     h = fit_headset(camera, R, t, piv, cen, init, scores=Z, ridge=ridge)
     shift = -Z @ h["expression"].T
     targets = _predict(camera, R, t, piv, h["anchor"], h["view"]) + shift
     R2, t2 = refine_with_headset(camera, R, t, piv, points3d, h, targets, weights=weights)
     n = np.linalg.norm(shift, axis=1)
-    info = {"headset_rms_px": round(h["rms_px"], 4), "headset_frames": int(np.isfinite(cen).all(1).sum()),
+    info = {"headset_rms_px": round(h["rms_px"], 4), "headset_frames": whole,
             "headset_shift_px_mean": round(float(n.mean()), 4), "headset_shift_px_max": round(float(n.max()), 4)}
     return R2, t2, info

@@ -87,12 +87,11 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
         return (Rc, tc, piv), "landmarks"
     from geoface.splat.headset_pose import headset_centroids, headset_components, headset_poses
 
-    whole = int(np.isfinite(headset_centroids(video.hmd_masks)).all(1).sum())
-    if headset_components(whole, len(cal["basis"])) < 1:  # too few whole silhouettes for the model
+    cen = headset_centroids(video.hmd_masks)
+    if headset_components(int(np.isfinite(cen).all(1).sum()), len(cal["basis"])) < 1:  # too few whole silhouettes
         return (Rc, tc, piv), "landmarks"
     Z = calibration_scores(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
-    Rh, th, _ = headset_poses(video.camera, Rc, tc, piv, P, video.hmd_masks, anchor, Z, weights=w,
-                              ridge=model.cfg.headset_pose_ridge)
+    Rh, th, _ = headset_poses(video.camera, Rc, tc, piv, P, cen, anchor, Z, weights=w, ridge=model.cfg.headset_pose_ridge)
     return (Rh, th, piv), "landmarks+headset"
 
 

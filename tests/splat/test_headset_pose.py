@@ -102,13 +102,13 @@ def test_headset_corrects_what_an_unseen_expression_did_to_the_landmark_poses():
         cam, R, t, piv, masks, P, Rb, tb, Z = _rig(seed=seed)
         before = _err_px(cam, R, t, Rb, tb, piv, centre)
         assert before > 0.5
-        R2, t2, info = headset_poses(cam, Rb, tb, piv, P, masks, INIT, Z)
+        R2, t2, info = headset_poses(cam, Rb, tb, piv, P, headset_centroids(masks), INIT, Z)
         after = _err_px(cam, R, t, R2, t2, piv, centre)
         assert after < 0.7 * before, (seed, before, after)  # 0.58 -> 0.34-0.37 px at the default ridge
         assert _err_px(cam, R, t, R2, t2, piv, _box()[1::2]) < _err_px(cam, R, t, Rb, tb, piv, _box()[1::2])
         assert info["headset_frames"] == len(R) and info["headset_shift_px_max"] > 0.3
         # right poses stay nearly right: what the expression map takes up from noise is small
-        R3, t3, _ = headset_poses(cam, R, t, piv, P, masks, INIT, Z)
+        R3, t3, _ = headset_poses(cam, R, t, piv, P, headset_centroids(masks), INIT, Z)
         assert _err_px(cam, R, t, R3, t3, piv, _box()[1::2]) < 0.12
     with pytest.raises(SplatError, match="too few"):
-        headset_poses(cam, R[:17], t[:17], piv, P, masks[:17], INIT, Z[:17])
+        headset_poses(cam, R[:17], t[:17], piv, P, headset_centroids(masks[:17]), INIT, Z[:17])
