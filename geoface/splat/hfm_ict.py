@@ -177,7 +177,8 @@ class ICTPerson:
         lab = rest.labels
         self.V0 = V0 = rest.V * _CM
         Vu, self.Fu, self.UVu, self.src = unweld_uv(rest.V, rest.F, rest.UV, rest.FUV, with_source=True)
-        self.eyes = _ict_eyes(model.shape(ident, parts=ICT_PARTS), self.src, rest, rng)
+        self.V_identity = model.shape(ident, parts=ICT_PARTS)  # cm; every frame adds its expression to it
+        self.eyes = _ict_eyes(self.V_identity, self.src, rest, rng)
         self.maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)), regions=regions)
         self.lights = random_lights(rng, int(rng.integers(2, 4)))
         self.solids = [(lab[self.src] == k, c, s) for k, (c, s) in _SOLIDS.items()]
@@ -196,7 +197,7 @@ class ICTPerson:
 
     def shape(self, expr: dict) -> np.ndarray:
         """The person's vertices (metres, canonical pose) under ARKit weights ``expr``."""
-        return self.model.shape(self.ident, expr, parts=ICT_PARTS) * _CM
+        return self.model.add_expression(self.V_identity, expr, parts=ICT_PARTS) * _CM
 
     def render(self, expr: dict, R, tr, headset: bool = False):
         """→ (posed vertices, RGB [res, res, 3], alpha [res, res], headset mask or None): the

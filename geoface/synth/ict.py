@@ -449,6 +449,12 @@ class ICTFaceModel:
         v = self.view(parts)
         a = self.identity_weights(identity, n_identity=n_identity)
         V = v.neutral + np.tensordot(a, v.identity_modes[: len(a)], axes=1) if len(a) else v.neutral.copy()
+        return self.add_expression(V, expression, parts)
+
+    def add_expression(self, V: np.ndarray, expression: dict | None, parts=DEFAULT_PARTS) -> np.ndarray:
+        """``V`` (a shape of ``parts``, cm) with the blendshapes of ``expression`` added: what
+        :meth:`shape` does after the identity, for callers that pose one identity many times."""
+        v = self.view(parts)
         for name, w in self.check_expression(expression).items():
             V = V + w * v.expression_modes[self.expression_names.index(name)]
         return V

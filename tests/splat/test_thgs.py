@@ -465,7 +465,7 @@ def test_pose_decay_lets_the_corrections_settle_and_is_checked(talk_dir, tmp_pat
 
     got = {}
     for decay in (1.0, 100.0):
-        cfg = THGSConfig(iters=60, stage_scale=0.0005, pose_decay=decay, lr_pose=0.02)
+        cfg = THGSConfig(iters=30, stage_scale=0.0005, pose_decay=decay, lr_pose=0.02)
         train_thgs(talk_dir, tmp_path / f"m{decay}", cfg, progress=False)
         got[decay] = load_thgs(tmp_path / f"m{decay}").d_rot.detach()
     d = load_talking(talk_dir)

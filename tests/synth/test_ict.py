@@ -122,6 +122,11 @@ def test_heads_are_linear_in_the_weights():
     assert np.abs(both - (ha + hb)).max() < 1e-6 * max(1.0, np.abs(both).max())  # float32 modes
     half = m.shape(0.5 * a) - n0
     assert np.allclose(2 * half, m.shape(a) - n0, atol=1e-6)
+    # an identity posed many times: its shape once, each expression added to it
+    assert np.array_equal(m.add_expression(m.shape(a), ea), m.shape(a, ea))
+    assert not np.array_equal(m.add_expression(m.shape(a), eb), m.shape(a, ea))
+    with pytest.raises(GeofaceError, match="unknown expression"):
+        m.add_expression(m.shape(a), {"wink": 1.0})
     # a seed is the N(0, 1) draw
     assert np.array_equal(m.identity_weights(5), np.random.default_rng(5).standard_normal(100))
     with pytest.raises(GeofaceError, match="unknown part"):
