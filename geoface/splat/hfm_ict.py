@@ -177,7 +177,7 @@ class ICTPerson:
         lab = rest.labels
         self.V0 = V0 = rest.V * _CM
         Vu, self.Fu, self.UVu, self.src = unweld_uv(rest.V, rest.F, rest.UV, rest.FUV, with_source=True)
-        self.V_identity = model.shape(ident, parts=ICT_PARTS)  # cm; every frame adds its expression to it
+        self.V_identity = rest.V  # cm, the expressionless shape; every frame adds its expression to it
         self.eyes = _ict_eyes(self.V_identity, self.src, rest, rng)
         self.maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)), regions=regions)
         self.lights = random_lights(rng, int(rng.integers(2, 4)))
