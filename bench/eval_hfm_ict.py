@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """HFM-GS on ICT-FaceKit people without the head-pose file: held-out identities, paired variants.
 
-    python bench/eval_hfm_ict.py data --out DIR [--val 10 --test 11,12,13] [--frames 200 --usage 50]
+    python bench/eval_hfm_ict.py data --out DIR [--val 10 --test 11,12,13] [--frames 200 --usage 50] [--rom 3]
     python bench/eval_hfm_ict.py run --out DIR [--splits test] [--seeds 0,1] [--jobs 4] [--device cuda]
     python bench/eval_hfm_ict.py run --out DIR --group test/0/oracle,full --group val/0,1/full,map_theta/10 ...
     python bench/eval_hfm_ict.py poses --out DIR [--splits val,test]
@@ -74,7 +74,7 @@ def _data(a) -> None:
             if (d / "usage" / "meta.json").is_file():
                 continue
             t0 = time.time()
-            make_ict_hmd(d, frames=a.frames, usage_frames=a.usage, res=a.res, seed=s, quiet=True)
+            make_ict_hmd(d, frames=a.frames, usage_frames=a.usage, res=a.res, seed=s, rom=a.rom, quiet=True)
             print(json.dumps({"stage": "data", "split": split, "seed": s, "seconds": round(time.time() - t0, 1)}), flush=True)
 
 
@@ -347,6 +347,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--usage", type=int, default=50)
     ap.add_argument("--res", type=int, default=128)
+    ap.add_argument("--rom", type=float, default=0.0,
+                    help="data: seconds of range of motion that open each registration video (0: none)")
     ap.add_argument("--splits", type=lambda s: s.split(","), default=["test"])
     ap.add_argument("--seeds", type=ints, default=[0, 1])
     ap.add_argument("--variants", type=lambda s: s.split(","), default=MAIN,

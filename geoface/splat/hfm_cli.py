@@ -41,7 +41,8 @@ def cmd_hmd_synth(args) -> int:
             from .hfm_ict import make_ict_hmd
 
             reg, use = make_ict_hmd(tmp, frames=args.frames, usage_frames=args.usage_frames, res=args.res,
-                                    seed=args.seed, motion=args.motion, jitter=args.jitter, quiet=_quiet(args))
+                                    seed=args.seed, motion=args.motion, jitter=args.jitter, rom=args.rom,
+                                    quiet=_quiet(args))
         else:
             reg, use = make_synthetic_hmd(tmp, frames=args.frames, heldout=args.heldout, res=args.res,
                                           n_vertices=args.vertices, seed=args.seed, motion=args.motion,
@@ -188,6 +189,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     s.add_argument("--vertices", type=number(int, 1000, 200_000), default=8000, help="procedural head vertices (8000)")
     s.add_argument("--motion", type=number(float, 0, 100), default=1.0, help="head motion scale (1; 0 = still)")
     s.add_argument("--jitter", type=number(float, 0, 100), default=1.0, help="--head ict: camera shake scale (1)")
+    s.add_argument("--rom", type=number(float, 0, 3600), default=0.0, metavar="SECONDS",
+                   help="--head ict: the registration video opens with a range of motion of this length: surprise, "
+                        "smile and anger in turn at full weight (0: none)")
     s.add_argument("--seed", type=SEED, default=0)
     s.set_defaults(func=cmd_hmd_synth)
     t = hs.add_parser("train", parents=[common], help="register a person from an unoccluded video folder")

@@ -58,7 +58,7 @@ def _smooth(x: np.ndarray, width: float) -> np.ndarray:
 
 
 def arkit_curves(T: int, rng, *, fps: float = 25.0, loudness=None, talk: float = 1.0, emote: float = 1.0,
-                 blink: bool = True) -> list[dict]:
+                 blink: bool = True, rom: float = 0.0) -> list[dict]:
     """``T`` frames of ARKit blendshape weights in [0, 1] (a list of dicts, model names).
 
     * speech: phrases of 1–3 s with pauses; within a phrase syllables at 3–5 per second open the
@@ -66,7 +66,11 @@ def arkit_curves(T: int, rng, *, fps: float = 25.0, loudness=None, talk: float =
       ``loudness`` ([T] ≥ 0, e.g. an audio envelope per frame) the jaw follows it instead;
     * emotions: surprise, smile and anger, smooth and often at rest, each coupling upper and lower
       face; ``emote`` scales them, ``talk`` the speech;
-    * blinks every 2–6 s (both eyes, 0.2 s)."""
+    * blinks every 2–6 s (both eyes, 0.2 s);
+    * with ``rom`` > 0 seconds, a range of motion first (from 0.2 s on, as a registration session asks
+      of a person): surprise, smile and anger in turn, each rising to its full weight, held and
+      released in a third of ``rom``, without speech; speech and the free emotions ease in over the
+      next 0.5 s.  The random draws are the same with or without it."""
     t = np.arange(T) / fps
     # phrases: on/off spans
     on = np.zeros(T)
@@ -96,6 +100,15 @@ def arkit_curves(T: int, rng, *, fps: float = 25.0, loudness=None, talk: float =
         ph = rng.uniform(0, 2 * np.pi, 3)
         w = sum(np.sin(2 * np.pi * f[j] * t + ph[j]) / (j + 1) for j in range(3))
         emo[:, k] = np.clip((w - 0.3) / 1.1, 0, 1) ** 1.2
+    if rom > 0:
+        from geoface.splat.template import _smooth as _ease
+
+        free = _ease((t - 0.2 - rom) / 0.5)
+        seg = rom / 3
+        ramp = [_ease((t - 0.2 - k * seg) / (0.3 * seg)) * (1 - _ease((t - 0.2 - (k + 0.7) * seg) / (0.3 * seg)))
+                for k in range(3)]
+        emo = emo * free[:, None] + np.stack(ramp, 1)
+        on, syl = on * free, syl * free
     sur, smi, ang = (emote * emo).T
     blinks = np.zeros(T)
     if blink:
@@ -235,13 +248,16 @@ class ICTPerson:
 
 def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res: int = 128, identity=None,
                  seed: int = 0, motion: float = 1.0, jitter: float = 1.0, fps: float = 25.0, map_res: int = 512,
-                 gaussians: int = 12000, supersample: int = 2, quiet: bool | None = None) -> tuple[Path, Path]:
+                 gaussians: int = 12000, supersample: int = 2, rom: float = 0.0,
+                 quiet: bool | None = None) -> tuple[Path, Path]:
     """Write ``out/registration`` (``frames`` frames) and ``out/usage`` (``usage_frames``, default a
     quarter of ``frames``) of one ICT-FaceKit person (format: :mod:`geoface.splat.hfm_data`; what
     is rendered: the module doc); returns both folders.
 
     ``identity``: the model's identity weights (a sequence of up to 100 numbers) or None (drawn
-    from ``seed``); ``gaussians``: vertices of ``head.ply``, the decimated canonical head."""
+    from ``seed``); ``gaussians``: vertices of ``head.ply``, the decimated canonical head; ``rom``:
+    seconds of the registration video that go through the emotions at full weight first (a
+    range of motion, :func:`arkit_curves`; 0: none, the expressions are free throughout)."""
     from geoface.mesh.io import save_mesh
     from geoface.progress import progress
     from geoface.splat.hfm_data import IBUG68_NAMES, IBUG68_LOWER, _rot, _write_png, camera_to_json
@@ -249,6 +265,9 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
     usage_frames = max(5, frames // 4) if usage_frames is None else int(usage_frames)
     if frames < 5 or usage_frames < 1:
         raise SplatError(f"need frames >= 5 and usage_frames >= 1; got {frames}, {usage_frames}")
+    if not (0 <= rom and 0.2 + rom <= frames / fps):
+        raise SplatError(f"the range of motion ({rom} s) must fit in the registration video ({frames / fps - 0.2:.1f} s after "
+                         "its first 0.2 s)")
     out = Path(out)
     rng = np.random.default_rng([seed, 7101])
     person = ICTPerson(rng, identity=identity, res=res, map_res=map_res, supersample=supersample)
@@ -257,7 +276,7 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
 
     n_all = frames + usage_frames
     rng_r, rng_u = (np.random.default_rng([seed, 7102, k]) for k in range(2))
-    seqs = {"registration": (arkit_curves(frames, rng_r, fps=fps), _motion(frames, rng_r, fps, motion, jitter, 10)),
+    seqs = {"registration": (arkit_curves(frames, rng_r, fps=fps, rom=rom), _motion(frames, rng_r, fps, motion, jitter, 10)),
             "usage": (arkit_curves(usage_frames, rng_u, fps=fps), _motion(usage_frames, rng_u, fps, motion, jitter, 0))}
     # registration frame 0: the person at rest in the canonical pose (head.ply)
     seqs["registration"][0][0] = {k: 0.0 for k in seqs["registration"][0][0]}
@@ -301,7 +320,7 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
         (d / "camera.json").write_text(json.dumps(camera_to_json(cam)))
         (d / "meta.json").write_text(json.dumps({
             "y_split": y_split, "up": [0, 1, 0], "source": "ICT-FaceKit", "seed": seed, "fps": fps,
-            "identity": [round(float(x), 5) for x in ident], "lights": [a.tolist() for a in person.lights],
+            "identity": [round(float(x), 5) for x in ident], "rom_seconds": rom if which == "registration" else 0.0, "lights": [a.tolist() for a in person.lights],
             "upper_blendshapes": sorted(n for n in exprs[0] if is_upper_blendshape(n)), "frames": log[which]}))
     Vi, Fi, Ci = person.init_mesh(gaussians)
     save_mesh(dirs["registration"] / "head.ply", V=Vi, F=Fi, colors=Ci)

@@ -127,6 +127,27 @@ def test_ict_capture_folders(ict_capture):
     assert max(jaw[0]) > 0.05
 
 
+def test_range_of_motion_opens_the_registration_with_each_emotion_at_full_weight():
+    """``rom`` seconds: surprise, smile and anger each reach weight 1 in their own third (one at a
+    time, no speech), the free sequence after it is the one drawn without it, and a range of
+    motion longer than the video is refused."""
+    from geoface.splat.hfm_ict import arkit_curves, make_ict_hmd
+
+    fps, T = 25.0, 200
+    free, rom = (arkit_curves(T, np.random.default_rng(3), fps=fps, rom=r) for r in (0.0, 3.0))
+    w = lambda c, k: np.array([f[k] for f in c])  # noqa: E731
+    t = np.arange(T) / fps
+    for j, k in enumerate(("browOuterUp_L", "mouthSmile_L", "browDown_L")):
+        part = (t >= 0.2 + j) & (t < 0.2 + j + 1)
+        assert w(rom, k)[part].max() > 0.999 and w(rom, k)[(t >= 0.2) & (t < 3.2) & ~part].max() < 0.01
+    assert w(rom, "mouthFunnel")[t < 3.2].max() == 0 and w(rom, "mouthClose")[t < 3.2].max() == 0
+    after = t >= 3.7
+    for k in free[0]:
+        assert np.array_equal(w(free, k)[after], w(rom, k)[after]), k
+    with pytest.raises(SplatError, match="range of motion"):
+        make_ict_hmd("unused", frames=20, rom=1.0, quiet=True)
+
+
 def test_lit_frames_change_with_pose_under_fixed_lights(ict_capture):
     """The lights stay in the world: the same person in two poses is not just a moved image —
     shading changes (a frame's mean brightness differs beyond what a small move explains)."""
@@ -408,6 +429,10 @@ def test_cli_ict_capture_and_pose_sources(ict_capture, tmp_path, capsys):
 
     reg, use = ict_capture
     assert main(["hmd", "synth", str(reg.parent), "--head", "ict", "-q"]) == 2  # never into a non-empty folder
+    capsys.readouterr()
+    assert main(["hmd", "synth", str(tmp_path / "r"), "--head", "ict", "--frames", "20", "--rom", "1", "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "range of motion" in err[0] and not (tmp_path / "r").exists()
     md = tmp_path / "m"
     assert main(["hmd", "train", str(reg), "-o", str(md), "--iters", "3", "--no-densify", "--poses", "landmarks",
                  "--device", "cpu", "-q"]) == 0
