@@ -11,7 +11,8 @@ What :func:`make_ict_hmd` renders, frame by frame:
   (syllables in phrases, vowels that round the lips), emotions that couple upper and lower face
   (surprise: brows up, eyes wide, jaw open; smile: cheeks and lower lids up; anger: brows down,
   frown, sneer) and blinks.  The registration and the usage video are *different* sequences
-  (other phrases, emotions and blinks), not two halves of one;
+  (other phrases, emotions and blinks), not two halves of one; the registration video may open
+  with a range of motion (``rom``: each emotion in turn at full weight);
 * **lighting**: Lambert + GGX specular (:func:`geoface.skin.render.shade`) under lights that
   stay fixed in the world while the head turns, so shading changes with the pose;
 * **motion**: a rigid head motion (yaw, pitch, roll, translation) about the neck and a small
@@ -320,7 +321,8 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
         (d / "camera.json").write_text(json.dumps(camera_to_json(cam)))
         (d / "meta.json").write_text(json.dumps({
             "y_split": y_split, "up": [0, 1, 0], "source": "ICT-FaceKit", "seed": seed, "fps": fps,
-            "identity": [round(float(x), 5) for x in ident], "rom_seconds": rom if which == "registration" else 0.0, "lights": [a.tolist() for a in person.lights],
+            "identity": [round(float(x), 5) for x in ident], "rom_seconds": rom if which == "registration" else 0.0,
+            "lights": [a.tolist() for a in person.lights],
             "upper_blendshapes": sorted(n for n in exprs[0] if is_upper_blendshape(n)), "frames": log[which]}))
     Vi, Fi, Ci = person.init_mesh(gaussians)
     save_mesh(dirs["registration"] / "head.ply", V=Vi, F=Fi, colors=Ci)
