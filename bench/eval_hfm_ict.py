@@ -35,7 +35,7 @@ generic expressions, hR corrects the usage poses by the headset masks, :mod:`geo
 with expression-map ridge R; each row also says how far those usage poses put the upper and the lower landmarks
 from where the true poses put them, ``upper_px`` / ``lower_px``);
 ``poses`` scores the head poses alone against the truth: registration poses fitted to the 68
-landmarks, usage poses fitted to those below the headset.  ``table`` prints means, the pairs, and whole face / occluded PSNR per person and model seed.  Choose settings with ``--splits val``; report ``test``.
+landmarks' rigid set (and to the stable and the lower set), usage poses fitted to those below the headset.  ``table`` prints means, the pairs, and whole face / occluded PSNR per person and model seed.  Choose settings with ``--splits val``; report ``test``.
 """
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ PAPER = {"map_theta": {"map_theta": True}, "gm_xsr": {"gm_input": "xsr"},
 #: choices of ours, each alone on top of Full (no pose file), for the validation split
 OURS = {"pose_residual": {"pose_residual": True}, "no_pose_residual": {"pose_residual": False}, "reg_lower": {"registration_landmarks": "lower"},
         "reg_lower_no_pose_residual": {"registration_landmarks": "lower", "pose_residual": False},
-        "pose_refine": {"pose_refine": True}}
+        "pose_refine": {"pose_refine": True}, "reg_stable": {"registration_landmarks": "stable"}}
 VARIANTS.update({k: ("full", "landmarks") for k in {**PAPER, **OURS}})
 MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]
 
@@ -157,9 +157,12 @@ def _run(a) -> None:
                     raise SystemExit(f"{d}: no capture; run the data stage first")
                 for v in variants.split(","):
                     jobs.append((str(d), split, s, seed, v, a.iters, a.threads, a.device, models))
+    from geoface.dataset import _die_with_parent
+
     res = Path(a.out) / "results.jsonl"
     ctx = mp.get_context("spawn")
-    with ctx.Pool(a.jobs) as pool, res.open("a") as f:
+    # the runs end with this driver (killed or interrupted), instead of training on for minutes
+    with ctx.Pool(a.jobs, initializer=_die_with_parent, initargs=(os.getpid(),)) as pool, res.open("a") as f:
         for rows in pool.imap_unordered(_job, jobs):
             for r in rows:
                 line = json.dumps(r)
@@ -169,17 +172,25 @@ def _run(a) -> None:
 
 
 def _poses(a) -> None:
+    from dataclasses import replace
+
     from geoface.mesh.io import load_mesh
     from geoface.splat.head_pose import LOWER_RIGID_NAMES, poses_from_landmarks, repivot, rotation_vector, solve_poses
     from geoface.splat.hfm_data import load_video
+    from geoface.splat.hfm_train import registration_poses
 
     def errors(fit_R, fit_t, piv, video):
         R, t, p = video.poses
-        ang = [np.degrees(np.linalg.norm(rotation_vector(R[f].T @ fit_R[f]))) for f in range(len(R))]
+        rv = np.array([rotation_vector(R[f].T @ fit_R[f]) for f in range(len(R))])
+        ang = np.degrees(np.linalg.norm(rv, axis=1))
         # the same rigid motion moves the pivot to the same place: compare translations about ``piv``
-        mm = 1000 * np.linalg.norm(fit_t - repivot(R, t, p, piv), axis=1)
+        dt = 1000 * (fit_t - repivot(R, t, p, piv))
+        mm = np.linalg.norm(dt, axis=1)
+        # about the mean offset (the frame an avatar learns): root mean square over the frames
+        centred = np.degrees(np.sqrt(((rv - rv.mean(0)) ** 2).sum(1).mean())), np.sqrt(((dt - dt.mean(0)) ** 2).sum(1).mean())
         return {"deg_mean": round(float(np.mean(ang)), 3), "deg_max": round(float(np.max(ang)), 3),
-                "mm_mean": round(float(np.mean(mm)), 2), "mm_max": round(float(np.max(mm)), 2)}
+                "mm_mean": round(float(np.mean(mm)), 2), "mm_max": round(float(np.max(mm)), 2),
+                "deg_centred": round(float(centred[0]), 3), "mm_centred": round(float(centred[1]), 2)}
 
     for split in a.splits:
         for s in (a.val if split == "val" else a.test):
@@ -194,6 +205,10 @@ def _poses(a) -> None:
             row = {"stage": "poses", "split": split, "data_seed": s,
                    "registration": {**errors(fit["R"], fit["t"], fit["pivot"], reg), "landmarks": len(fit["names"])},
                    "usage": {**errors(uf["R"], uf["t"], fit["pivot"], use), "landmarks": len(sel)}}
+            for key in ("stable", "lower"):  # the other landmark sets of registration (HFMConfig.registration_landmarks)
+                v = replace(reg, poses=None)
+                info = registration_poses(v, "landmarks", mesh=m, fit=key)
+                row[f"registration_{key}"] = {**errors(*v.poses[:2], v.poses[2], reg), "landmarks": info["pose_landmarks"]}
             print(json.dumps(row), flush=True)
             with (Path(a.out) / "results.jsonl").open("a") as f:
                 f.write(json.dumps(row) + "\n")

@@ -219,9 +219,10 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--poses", choices=("auto", "file", "landmarks"), default="auto",
                    help="registration head poses: head_poses.npz (file), fitted to the landmarks (landmarks), "
                         "or the file when there is one (auto)")
-    t.add_argument("--pose-landmarks", choices=("rigid", "lower"), default=None,
+    t.add_argument("--pose-landmarks", choices=("rigid", "stable", "lower"), default=None,
                    help="registration poses fitted to the landmarks that move little with expressions (rigid), "
-                        "or to those of them below a headset, as the usage poses are (lower); default: the model's")
+                        "to those of them that stay put best (stable: jaw line ends, nose ridge and tip, eye corners), "
+                        "or to those below a headset, as the usage poses are (lower); default: the model's")
     t.add_argument("--pose-residual", action=argparse.BooleanOptionalAction, default=None,
                    help="the global pose MLP corrects the tracked head pose of each frame (default: the model's)")
     t.add_argument("--calibration-weights", action=argparse.BooleanOptionalAction, default=None,

@@ -105,8 +105,9 @@ class HFMConfig:
                              f">= 0; got {self.pose_calibration}, {self.pose_calibration_ridge}, {self.pose_calibration_expressions}")
         if not self.headset_pose_ridge >= 0:
             raise SplatError(f"HFMConfig.headset_pose_ridge must be >= 0; got {self.headset_pose_ridge!r}")
-        if self.registration_landmarks not in ("rigid", "lower"):
-            raise SplatError(f"HFMConfig.registration_landmarks must be 'rigid' or 'lower'; got {self.registration_landmarks!r}")
+        if self.registration_landmarks not in ("rigid", "stable", "lower"):
+            raise SplatError("HFMConfig.registration_landmarks must be 'rigid', 'stable' or 'lower'; "
+                             f"got {self.registration_landmarks!r}")
         if self.gm_input not in ("x", "xsr"):
             raise SplatError(f"HFMConfig.gm_input must be 'x' or 'xsr'; got {self.gm_input!r}")
         if self.pm_per_component and not self.feature_mapping:

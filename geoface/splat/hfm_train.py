@@ -95,22 +95,27 @@ def registration_poses(video, poses: str = "auto", log=None, mesh=None, fit: str
     or ``"auto"`` (the file when there is one).  Returns a summary (source, fit error) with the
     landmarks placed on the canonical head (``landmarks3d``).  ``mesh``: the loaded head mesh
     (default: the folder's).  ``fit``: the landmarks the poses are fitted to, ``"rigid"`` (all
-    that move little with expressions) or ``"lower"`` (those of them a headset leaves visible,
-    :data:`~geoface.splat.head_pose.LOWER_RIGID_NAMES`, as the usage video's poses are fitted)."""
+    that move little with expressions), ``"stable"`` (those of them that stay put best,
+    :data:`~geoface.splat.head_pose.STABLE_NAMES`; iBUG 68 videos, else as "rigid") or ``"lower"``
+    (those a headset leaves visible, :data:`~geoface.splat.head_pose.LOWER_RIGID_NAMES`, as the usage
+    video's poses are fitted)."""
     if poses not in ("auto", "file", "landmarks"):
         raise SplatError(f"poses must be 'auto', 'file' or 'landmarks'; got {poses!r}")
     if poses == "file" and video.poses is None:
         raise SplatError("--poses file: the registration folder has no head_poses.npz")
-    from geoface.splat.head_pose import LOWER_RIGID_NAMES, canonical_landmarks, poses_from_landmarks
+    from geoface.splat.head_pose import LOWER_RIGID_NAMES, STABLE_NAMES, canonical_landmarks, poses_from_landmarks
 
     m = mesh if mesh is not None else _head_mesh(video)
     if video.poses is not None and poses != "landmarks":
         R, t, p = video.poses
         names, P = canonical_landmarks(video, m.V, m.F, (R[0], t[0], p))
         return {"poses": "file", "landmarks3d": {"names": names, "points": P.round(7).tolist()}}
-    if fit not in ("rigid", "lower"):
-        raise SplatError(f"registration landmarks must be 'rigid' or 'lower'; got {fit!r}")
-    res = poses_from_landmarks(video, m.V, m.F, fit_names=LOWER_RIGID_NAMES if fit == "lower" else None)
+    if fit not in ("rigid", "stable", "lower"):
+        raise SplatError(f"registration landmarks must be 'rigid', 'stable' or 'lower'; got {fit!r}")
+    stable = None
+    if fit == "stable" and set(STABLE_NAMES) <= set(video.names):  # else (not the iBUG 68) as "rigid"
+        stable = [video.names.index(n) for n in STABLE_NAMES]
+    res = poses_from_landmarks(video, m.V, m.F, indices=stable, fit_names=LOWER_RIGID_NAMES if fit == "lower" else None)
     names, P = res["all_names"], res["all_points3d"]
     video.poses = (res["R"], res["t"], res["pivot"])
     info = {"poses": "landmarks", "pose_landmarks": len(res["names"]),
