@@ -162,7 +162,7 @@ def _run(a) -> None:
     res = Path(a.out) / "results.jsonl"
     ctx = mp.get_context("spawn")
     # the runs end with this driver (killed or interrupted), instead of training on for minutes
-    with ctx.Pool(a.jobs, initializer=_die_with_parent, initargs=(os.getpid(),)) as pool, res.open("a") as f:
+    with ctx.Pool(a.jobs, initializer=_die_with_parent, initargs=(os.getpid(), False)) as pool, res.open("a") as f:
         for rows in pool.imap_unordered(_job, jobs):
             for r in rows:
                 line = json.dumps(r)

@@ -282,9 +282,11 @@ def _executor(workers: int, scheduler: str | None):
     return pool.submit, as_completed, close
 
 
-def _die_with_parent(parent: int) -> None:
+def _die_with_parent(parent: int, unwind: bool = True) -> None:
     """Worker initializer: end this worker when the driver dies (even by SIGKILL), instead
-    of writing on for minutes (Linux: PR_SET_PDEATHSIG; elsewhere a watcher thread)."""
+    of writing on for minutes (Linux: PR_SET_PDEATHSIG; elsewhere a watcher thread).  ``unwind``:
+    SIGTERM raises KeyboardInterrupt, so that the item in hand cleans up (else SIGTERM ends the
+    worker as it always does, quietly: what ``multiprocessing.Pool`` sends its workers on closing)."""
     import signal
     import sys
     import threading
@@ -302,7 +304,8 @@ def _die_with_parent(parent: int) -> None:
     def on_term(signum, frame):  # unwind: the item's temporary folder is removed on the way out
         raise KeyboardInterrupt
 
-    signal.signal(signal.SIGTERM, on_term)
+    if unwind:
+        signal.signal(signal.SIGTERM, on_term)
 
     def watch():
         while True:
