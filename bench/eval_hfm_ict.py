@@ -30,7 +30,8 @@ before the calibration existed gets it from its registration video first), the s
 (``landmarks_uncalibrated``), read from the crop alone (``image``) and, to separate what the pose
 estimate costs, the true one (``file``).  One JSON line per score in ``DIR/results.jsonl``;
 ``calibration`` scores trained models with each calibration setting of ``--grid``
-(components:ridge[:w][:eN][:hR]: w weighs the landmarks, eN sees each registration frame N more times with
+(components:ridge[:w][:s][:eN][:hR]: w weighs the landmarks, s fits the usage poses to the 8 stable lower landmarks,
+eN sees each registration frame N more times with
 generic expressions, hR corrects the usage poses by the headset masks, :mod:`geoface.splat.headset_pose`,
 with expression-map ridge R; each row also says how far those usage poses put the upper and the lower landmarks
 from where the true poses put them, ``upper_px`` / ``lower_px``);
@@ -247,20 +248,22 @@ def _registration_error(reg_dir, model, model_dir) -> dict:
     return {"registration_pose_deg": rms(rv), "registration_pose_mm": rms(dt)}
 
 
-def _recalibrate(model, reg, components: int, ridge: float, weighted: bool = False, expressions: int = 0):
+def _recalibrate(model, reg, components: int, ridge: float, weighted: bool = False, expressions: int = 0,
+                 usage_landmarks: str = "lower"):
     """Learn the model's usage pose calibration anew from ``reg`` with these settings (None: none learned)."""
     from dataclasses import replace
 
     from geoface.splat.hfm_train import calibrate_usage_poses
 
     model.cfg = replace(model.cfg, pose_calibration=components, pose_calibration_ridge=ridge,
-                        pose_calibration_weighted=weighted, pose_calibration_expressions=expressions)
+                        pose_calibration_weighted=weighted, pose_calibration_expressions=expressions,
+                        usage_landmarks=usage_landmarks)
     return calibrate_usage_poses(model, reg, "landmarks")
 
 
 def _calibration(a) -> None:
     """Score trained no-file models with the usage pose calibration of each ``--grid`` setting
-    (components:ridge[:w][:eN][:hR]; 0:0 = none; w: weighted; hR: usage poses corrected by the headset
+    (components:ridge[:w][:s][:eN][:hR]; 0:0 = none; w: weighted; s: the stable lower landmarks; hR: usage poses corrected by the headset
     masks with expression-map ridge R), learned from the registration video as training learns it."""
     from dataclasses import replace
 
@@ -284,12 +287,14 @@ def _calibration(a) -> None:
                         k, ridge, *flags = g.split(":")
                         draws = int(next((f[1:] for f in flags if f.startswith("e")), 0))
                         hs = next((float(f[1:]) for f in flags if f.startswith("h")), None)
-                        _recalibrate(model, reg, int(k), float(ridge), weighted="w" in flags, expressions=draws)
+                        _recalibrate(model, reg, int(k), float(ridge), weighted="w" in flags, expressions=draws,
+                                     usage_landmarks="stable" if "s" in flags else "lower")
                         model.cfg = replace(model.cfg, headset_pose=hs is not None, headset_pose_ridge=hs or 0.0)
                         r = evaluate_hmd(model, use, poses="landmarks")
                         r.update(_upper_error(model, use))
                         row = {"stage": "calibration", "split": split, "data_seed": s, "seed": seed, "variant": v,
                                "components": int(k), "ridge": float(ridge), "weighted": "w" in flags, "expressions": draws,
+                               "usage_landmarks": model.cfg.usage_landmarks,
                                "headset_ridge": hs, "poses": r["poses"], "upper_px": r["upper_px"], "lower_px": r["lower_px"],
                                **{k: round(float(r[k]), 4) for k in ("psnr_face", "ssim_face", "psnr_occluded",
                                                                      "ssim_occluded", "psnr_expression")}}
@@ -378,8 +383,9 @@ def main(argv=None) -> int:
     ap.add_argument("--models", default=None, help="run: where the models go (default OUT/models)")
     ap.add_argument("--data", default=None, help="where the captures are (default OUT/data)")
     ap.add_argument("--grid", type=lambda s: s.split(","), default="0:0,4:0.01,8:0.001,8:0.01,8:0.1,12:0.01,16:0.001,16:0.01,16:0.1,24:0.01",
-                    help="calibration: COMPONENTS:RIDGE[:w][:eN][:hR] settings of the usage pose calibration (0:0 = none; "
-                         ":w = its poses weigh the landmarks by how little they moved; :eN = each registration "
+                    help="calibration: COMPONENTS:RIDGE[:w][:s][:eN][:hR] settings of the usage pose calibration (0:0 = none; "
+                         ":w = its poses weigh the landmarks by how little they moved; :s = usage poses fitted to the "
+                         "8 stable lower landmarks; :eN = each registration "
                          "frame also seen N times with generic expressions; :hR = usage poses corrected by the "
                          "headset masks, expression-map ridge R)")
     a = ap.parse_args(argv)

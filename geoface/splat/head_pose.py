@@ -25,11 +25,15 @@ from geoface.splat.errors import SplatError
 
 __all__ = ["landmarks_on_mesh", "solve_poses", "triangulate", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
            "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "calibration_scores", "rigidity_weights",
-           "landmark_expressions", "LOWER_RIGID_NAMES", "STABLE_NAMES"]
+           "landmark_expressions", "LOWER_RIGID_NAMES", "LOWER_STABLE_NAMES", "STABLE_NAMES"]
 
 #: iBUG names below a headset that move little with expressions (nose base, the jaw line's ends)
 LOWER_RIGID_NAMES = ("nose_tip", "nose_base_0", "nose_base_1", "nose_base_2", "nose_base_3", "nose_base_4",
                      "jaw_00", "jaw_01", "jaw_02", "jaw_14", "jaw_15", "jaw_16")
+#: those of them that stay put best (the nose tip, the middle three points of the nose base, the
+#: jaw line's two outermost points each side): no nose wings, which a sneer or a smile lifts, and
+#: no third jaw points, which the mouth moves
+LOWER_STABLE_NAMES = ("nose_tip", "nose_base_1", "nose_base_2", "nose_base_3", "jaw_00", "jaw_01", "jaw_15", "jaw_16")
 #: iBUG names of the rigid landmarks that stay put best through expressions: the jaw line's two
 #: outermost points each side, the nose ridge below its top, the nose tip and the middle of the nose
 #: base, the eye corners (no nose wings, which a sneer or a smile lifts; no top of the nose ridge,

@@ -64,6 +64,8 @@ def _config(args):
         kw["registration_landmarks"] = args.pose_landmarks
     if args.pose_residual is not None:
         kw["pose_residual"] = args.pose_residual
+    if args.usage_landmarks is not None:
+        kw["usage_landmarks"] = args.usage_landmarks
     if args.calibration_weights is not None:
         kw["pose_calibration_weighted"] = args.calibration_weights
     if args.calibration_expressions is not None:
@@ -223,6 +225,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="registration poses fitted to the landmarks that move little with expressions (rigid), "
                         "to those of them that stay put best (stable: jaw line ends, nose ridge and tip, eye corners), "
                         "or to those below a headset, as the usage poses are (lower); default: the model's")
+    t.add_argument("--usage-landmarks", choices=("lower", "stable"), default=None,
+                   help="the landmarks below a headset that usage poses are fitted to (and the calibration learns): "
+                        "the 12 rigid ones (lower) or the 8 of them that stay put best (stable); default: the model's")
     t.add_argument("--pose-residual", action=argparse.BooleanOptionalAction, default=None,
                    help="the global pose MLP corrects the tracked head pose of each frame (default: the model's)")
     t.add_argument("--calibration-weights", action=argparse.BooleanOptionalAction, default=None,

@@ -44,7 +44,8 @@ class HFMConfig:
     global_pose: bool = True
     pose_residual: bool = False  # MLP_pose(θ) corrects the given head pose (eq. 8 after the tracked pose)
     image_pose: bool = True    # learn the whole head pose from the crop (for videos without head_poses.npz)
-    registration_landmarks: str = "rigid"  # without a pose file, fit registration poses to "rigid" or "lower" landmarks
+    registration_landmarks: str = "rigid"  # without a pose file, fit registration poses to "rigid", "stable" or "lower" landmarks
+    usage_landmarks: str = "lower"  # usage poses are fitted to the 12 "lower" rigid landmarks or their 8 "stable" ones
     pose_calibration: int = 8  # components of the lower-landmark pose calibration learned in registration (0: none)
     pose_calibration_ridge: float = 0.01
     pose_calibration_weighted: bool = True  # its lower-landmark poses weigh each landmark by how little it moved
@@ -108,6 +109,8 @@ class HFMConfig:
         if self.registration_landmarks not in ("rigid", "stable", "lower"):
             raise SplatError("HFMConfig.registration_landmarks must be 'rigid', 'stable' or 'lower'; "
                              f"got {self.registration_landmarks!r}")
+        if self.usage_landmarks not in ("lower", "stable"):
+            raise SplatError(f"HFMConfig.usage_landmarks must be 'lower' or 'stable'; got {self.usage_landmarks!r}")
         if self.gm_input not in ("x", "xsr"):
             raise SplatError(f"HFMConfig.gm_input must be 'x' or 'xsr'; got {self.gm_input!r}")
         if self.pm_per_component and not self.feature_mapping:
@@ -120,6 +123,14 @@ class HFMConfig:
             raise SplatError(f"HFMConfig.warmup is a fraction of iters in [0, 1); got {self.warmup}")
         if not 0 <= self.ema < 1:
             raise SplatError(f"HFMConfig.ema is a decay per step in [0, 1); got {self.ema}")
+
+    @property
+    def usage_fit_names(self) -> tuple:
+        """The landmarks below a headset that the usage poses are fitted to (``usage_landmarks``):
+        :data:`~geoface.splat.head_pose.LOWER_RIGID_NAMES` or :data:`~geoface.splat.head_pose.LOWER_STABLE_NAMES`."""
+        from geoface.splat.head_pose import LOWER_RIGID_NAMES, LOWER_STABLE_NAMES
+
+        return LOWER_STABLE_NAMES if self.usage_landmarks == "stable" else LOWER_RIGID_NAMES
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -146,7 +146,7 @@ def calibrate_usage_poses(model: HFMModel, video, source: str = "landmarks") -> 
         return None
     draws = cfg.pose_calibration_expressions
     model.pose_calibration = calibrate_lower_poses(
-        video.camera, lm["names"], lm["points"], video.landmarks, video.names, video.poses,
+        video.camera, lm["names"], lm["points"], video.landmarks, video.names, video.poses, fit_names=cfg.usage_fit_names,
         feature_names=[IBUG68_NAMES[i] for i in IBUG68_LOWER], components=cfg.pose_calibration,
         ridge=cfg.pose_calibration_ridge, weighted=cfg.pose_calibration_weighted,
         expressions=landmark_expressions(lm["names"], lm["points"]) if draws else None, draws=draws, seed=cfg.seed)

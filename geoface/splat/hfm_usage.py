@@ -25,7 +25,8 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     * ``"file"`` — the folder's ``head_poses.npz`` (a headset's own tracking in the camera's frame);
     * ``"landmarks"`` — fitted to the frame's landmarks below the headset that move little with
       expressions (nose base, the jaw line's ends: :data:`~geoface.splat.head_pose.LOWER_RIGID_NAMES`,
-      or every landmark the registration placed on the head for other names), by the robust PnP of
+      or the 8 of them in :data:`~geoface.splat.head_pose.LOWER_STABLE_NAMES` with ``cfg.usage_landmarks``
+      "stable"; every landmark the registration placed on the head for other names), by the robust PnP of
       :mod:`geoface.splat.head_pose`, starting from the pose the model reads from the first crop,
       then corrected into the registration poses' frame by the model's ``pose_calibration`` when
       it has one and the video has the lower-face landmarks it reads; with ``cfg.headset_pose``
@@ -38,8 +39,7 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     * ``"auto"`` — the file, else the landmarks (at least 4 such points), else the image.
 
     Returns ``((R [T, 3, 3], t [T, 3], pivot [3]) or None, source)``."""
-    from geoface.splat.head_pose import (LOWER_RIGID_NAMES, apply_lower_calibration, calibration_scores, repivot,
-                                         solve_poses)
+    from geoface.splat.head_pose import apply_lower_calibration, calibration_scores, repivot, solve_poses
 
     if source not in POSE_SOURCES:
         raise SplatError(f"poses must be one of {POSE_SOURCES}; got {source!r}")
@@ -51,7 +51,8 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     use = []
     if lm is not None:
         known = dict(zip(lm["names"], lm["points"]))
-        rigid = [n for n in video.names if n in LOWER_RIGID_NAMES and n in known]
+        fit_set = model.cfg.usage_fit_names
+        rigid = [n for n in video.names if n in fit_set and n in known]
         use = rigid if rigid else [n for n in video.names if n in known]
     if source == "landmarks" and len(use) < 4:
         raise SplatError(f"poses 'landmarks': {len(use)} of the usage landmarks are known on the head (need 4; "

@@ -404,6 +404,26 @@ def test_hfm_without_a_pose_file_learns_the_pose_from_the_crop(ict_capture, tmp_
         load_hfm(tmp_path / "mw")
     ev = evaluate_hmd(m, video, poses="landmarks")
     assert 5 < ev["psnr_face"] < 60 and ev["poses"] == "landmarks"
+    # usage_landmarks "stable": the calibration and the usage poses use the 8 stable lower landmarks;
+    # a calibration learned on the other set is not applied to them (the uncalibrated fit instead)
+    from geoface.splat.head_pose import LOWER_STABLE_NAMES, solve_poses as solve
+
+    m.cfg = replace(m.cfg, usage_landmarks="stable")
+    known = dict(zip(m.landmarks3d["names"], np.asarray(m.landmarks3d["points"])))
+    use8 = [n for n in video.names if n in LOWER_STABLE_NAMES and n in known]
+    P8 = np.array([known[n] for n in use8])
+    plain = solve(video.camera, P8, video.landmarks[:, [video.names.index(n) for n in use8]], P8.mean(0))
+    (Rs, _, _), _ = usage_poses(m, video, "landmarks")  # the 12-point calibration does not fit: left out
+    assert max(_angle_deg(a, b) for a, b in zip(Rs, plain["R"])) < 0.05
+    cal8 = calibrate_usage_poses(m, v)
+    assert sorted(cal8["fit_names"]) == sorted(use8) and len(use8) == 8 and len(cal8["fit_weights"]) == 8
+    (R8, _, _), src = usage_poses(m, video, "landmarks")
+    assert src == "landmarks" and 1e-4 < max(_angle_deg(a, b) for a, b in zip(R8, plain["R"])) < 1.0
+    for f in range(len(video)):
+        assert _angle_deg(Rt[f], R8[f]) < 1.5
+    m.cfg, m.pose_calibration = replace(m.cfg, usage_landmarks="lower"), cal
+    with pytest.raises(SplatError, match="usage_landmarks"):
+        HFMConfig(usage_landmarks="upper")
     # headset_pose: with 18 whole headset masks (the three frames six times) the calibrated poses
     # are also moved by the headset's silhouette, within what the landmarks allow; with three the
     # masks are too few for its model and the calibrated poses stay

@@ -697,11 +697,12 @@ def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
     m5 = tmp_path / "m5"
     assert main(["hmd", "train", str(reg), "-o", str(m5), "--iters", "3", "--no-densify", "--map-theta", "--gm-input",
                  "xsr", "--pm-per-component", "--split-margin", "0.002", "--no-pose-residual", "--pose-landmarks", "lower",
-                 "--calibration-weights", "--calibration-expressions", "2", "--pose-refine", "-q"]) == 0
+                 "--calibration-weights", "--calibration-expressions", "2", "--pose-refine", "--usage-landmarks", "stable",
+                 "-q"]) == 0
     c5 = load_hfm(m5).cfg
     assert c5.map_theta and c5.gm_input == "xsr" and c5.pm_per_component and c5.split_margin == 0.002
     assert not c5.pose_residual and c5.registration_landmarks == "lower" and c5.pose_calibration_weighted
-    assert c5.pose_calibration_expressions == 2
+    assert c5.pose_calibration_expressions == 2 and c5.usage_landmarks == "stable"
     assert c5.pose_refine and not (m5 / "registration_poses.npz").exists()  # the folder's pose file: nothing to correct
     assert main(["hmd", "train", str(reg), "-o", str(tmp_path / "m6"), "--gm-input", "s", "-q"]) == 2
     assert main(["hmd", "train", str(reg), "-o", str(tmp_path / "m7"), "--calibration-expressions", "-1", "-q"]) == 2
