@@ -120,7 +120,7 @@ def _job_rows(job) -> list:
         # registration poses (fitted to the landmarks as training fitted them), as training does
         reg = _registration(Path(d) / "registration", model, mdir)
         calibrated_after = _recalibrate(model, reg, cfg.pose_calibration, cfg.pose_calibration_ridge,
-                                        cfg.pose_calibration_weighted) is not None
+                                        cfg.pose_calibration_weighted, usage_landmarks=cfg.usage_landmarks) is not None
     rows = []
     video = load_video(Path(d) / "usage")
     cal = model.pose_calibration
