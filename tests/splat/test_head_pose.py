@@ -302,9 +302,8 @@ def test_poses_fitted_to_the_landmarks_below_a_headset(ict_capture):
 def test_stable_registration_landmarks_ignore_the_points_expressions_move(ict_capture):
     """``registration_poses(fit="stable")`` places the head (and triangulates the jaw line) with
     :data:`STABLE_NAMES` alone and fits the poses to them, within 1° and 2 mm across the view of the
-    truth; when a sneer-like
-    motion lifts the nose wings, the top of the nose ridge and the jaw line's third points by 1.5 px
-    the rigid-set poses tilt with it and the stable-set poses do not move."""
+    truth; when a sneer-like motion lifts the nose wings, the top of the nose ridge and the jaw
+    line's third points by 1.5 px the rigid-set poses tilt with it and the stable-set poses do not move."""
     from dataclasses import replace
 
     from geoface.mesh.io import load_mesh
