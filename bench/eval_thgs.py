@@ -31,7 +31,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 VARIANTS = {"full": {}, "no_leb": {"use_leb": False}, "no_saam": {"use_saam": False},
             "no_audio_pose": {"use_audio_pose": False}, "no_landmarks": {"lambda_landmarks": 0.0},
-            "landmarks_move_poses": {"landmarks_pose": True}, "audio_window": {"audio_window": 2}, "no_audio_window": {"audio_window": 0}}
+            "landmarks_move_poses": {"landmarks_pose": True}, "audio_window": {"audio_window": 2}, "no_audio_window": {"audio_window": 0},
+            "no_prefit": {"artic_prefit": False}}
 
 
 def main(argv=None) -> int:
@@ -109,7 +110,8 @@ def main(argv=None) -> int:
         ev = evaluate_thgs(load_thgs(out / f"model_{name}"), loaded[ddir])
         emit(stage="heldout", variant=name, seed=a.seed, train_seconds=round(info["seconds"], 1), gaussians=info["n_gaussians"],
              loss_first=round(float(np.mean([r["loss"] for r in h[:20]])), 4),
-             loss_last=round(float(np.mean([r["loss"] for r in h[-20:]])), 4), **rnd(ev))
+             loss_last=round(float(np.mean([r["loss"] for r in h[-20:]])), 4), artic_prefit=rnd(info["artic_prefit"]),
+             **rnd(ev))
     (out / "results.json").write_text(json.dumps(rows, indent=1))
     return 0
 

@@ -25,26 +25,28 @@ def axis_angle_to_matrix(w: Tensor) -> Tensor:  # [..., 3] -> [..., 3, 3] (Rodri
 
 
 def joint_transforms(joints: Tensor, parents, rot: Tensor, transl: Tensor | None = None) -> Tensor:
-    """[J, 4, 4] transforms A_j mapping rest-pose points bound to joint j to the posed ones.
+    """[..., J, 4, 4] transforms A_j mapping rest-pose points bound to joint j to the posed ones.
 
-    ``joints`` [J, 3] rest positions, ``parents`` (J,) (−1 root, parents first), ``rot`` [J, 3]
-    local axis-angle rotations about each joint, ``transl`` [3] root translation."""
+    ``joints`` [J, 3] rest positions, ``parents`` (J,) (−1 root, parents first), ``rot`` [..., J, 3]
+    local axis-angle rotations about each joint, ``transl`` [..., 3] root translation; leading
+    dimensions (frames) are a batch."""
     J = len(joints)
-    R = axis_angle_to_matrix(rot)
+    R = axis_angle_to_matrix(rot)  # [..., J, 3, 3]
+    batch = rot.shape[:-2]
     G = []
     for j in range(J):
         p = int(parents[j])
         t = joints[j] - (joints[p] if p >= 0 else 0.0)
-        L = torch.eye(4, dtype=joints.dtype, device=joints.device)
-        L = L.clone()
-        L[:3, :3] = R[j]
-        L[:3, 3] = t
+        L = torch.zeros(batch + (4, 4), dtype=joints.dtype, device=joints.device)
+        L[..., :3, :3] = R[..., j, :, :]
+        L[..., :3, 3] = t
+        L[..., 3, 3] = 1.0
         G.append(L if p < 0 else G[p] @ L)
-    G = torch.stack(G)
+    G = torch.stack(G, -3)
     if transl is not None:
         G = G.clone()
-        G[:, :3, 3] = G[:, :3, 3] + transl
+        G[..., :3, 3] = G[..., :3, 3] + transl[..., None, :]
     # A_j = G_j · G_j(0)⁻¹ with G_j(0) a pure translation by the rest joint position
     A = G.clone()
-    A[:, :3, 3] = G[:, :3, 3] - (G[:, :3, :3] @ joints[..., None])[..., 0]
+    A[..., :3, 3] = G[..., :3, 3] - (G[..., :3, :3] @ joints[..., None])[..., 0]
     return A

@@ -178,9 +178,9 @@ class AudioArticulation(nn.Module):
         nn.init.zeros_(self.mlp[-1].weight)
         nn.init.zeros_(self.mlp[-1].bias)
 
-    def forward(self, audio: Tensor) -> tuple[Tensor, Tensor]:  # [D] -> ([J, 3], [K])
-        o = (self.mlp(audio[None]) - self.mlp(torch.zeros_like(audio)[None]))[0]
-        return o[: self.J * 3].view(self.J, 3), o[self.J * 3:]
+    def forward(self, audio: Tensor) -> tuple[Tensor, Tensor]:  # [..., D] -> ([..., J, 3], [..., K])
+        o = self.mlp(audio) - self.mlp(torch.zeros_like(audio))
+        return o[..., : self.J * 3].unflatten(-1, (self.J, 3)), o[..., self.J * 3:]
 
 
 # ============================================================================ the avatar
@@ -207,6 +207,8 @@ class THGSConfig:
     lambda_leb: float = 0.1
     lambda_normal: float = 0.01   # refinement stage (from the blendshape stage on)
     lambda_landmarks: float = 3.0  # mouth landmarks (landmarks.json) from the expression stage on
+    #: fit the audio articulation to the training frames' mouth landmarks when it switches on (thgs_prefit)
+    artic_prefit: bool = True
     audio_window: int = 2  # SAAM and the audio articulation read the features of this many frames each side too
     landmarks_pose: bool = False   # True: the landmark term also moves the per-frame pose corrections
     lr_means: float = 1.6e-4
@@ -237,8 +239,9 @@ class THGSConfig:
         from .errors import ModelFolderError
 
         # saved before the audio articulation: none; before landmarks_pose: the landmarks moved the poses;
-        # before audio_window: one frame's features; before pose_decay: a constant rate
+        # before audio_window: one frame's features; before pose_decay: a constant rate; before artic_prefit: none
         return config_from_dict(cls, {"use_audio_pose": False, "landmarks_pose": True, "audio_window": 0, "pose_decay": 1.0,
+                                      "artic_prefit": False,
                                       **d}, where=where,
                                 error=ModelFolderError)
 
@@ -359,6 +362,7 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     from geoface.splat.density import make_optimizer
     from geoface.splat.rasterizer import rasterize
     from geoface.splat.thgs_data import landmark_loss, load_talking, mouth_landmark_targets
+    from geoface.splat.thgs_prefit import prefit_training
 
     cfg = cfg or THGSConfig()
     if cfg.threads:
@@ -403,8 +407,11 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     steps = range(cfg.iters)
     if not callable(progress):
         steps = bar(steps, "training THGS", total=cfg.iters, quiet=None if progress is None else not progress)
+    prefit = None
     for it in steps:
         model.stage = sum(it >= s for s in stages)
+        if model.stage >= 2 and prefit is None:
+            prefit = prefit_training(model, data, tr, A, lmk) if cfg.artic_prefit else {}
         if not order:
             order = list(rng.permutation(tr))
         f = int(order.pop())
@@ -445,7 +452,9 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     save_thgs(model.cpu(), out_dir)
     from geoface.splat.hfm_data import camera_to_json
     (Path(out_dir) / "camera.json").write_text(json.dumps(camera_to_json(data.camera)))
-    return {"seconds": time.perf_counter() - t0, "history": history, "stages": stages, "n_gaussians": len(g)}
+    return {"seconds": time.perf_counter() - t0, "history": history, "stages": stages, "n_gaussians": len(g),
+            "artic_prefit": prefit or {}}
+
 
 
 def save_thgs(model: THGSModel, out_dir) -> None:

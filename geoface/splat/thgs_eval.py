@@ -18,7 +18,8 @@ from geoface.splat.errors import SplatError
 from geoface.splat.kinematics import joint_transforms
 from geoface.splat.thgs import THGSModel, _split, lbs, render_frames
 
-__all__ = ["evaluate_thgs", "mouth_openness", "head_pose_errors", "corrected_poses", "lip_gaps"]
+__all__ = ["evaluate_thgs", "mouth_openness", "head_pose_errors", "corrected_poses", "lip_gaps", "lip_points",
+           "true_lip_gaps_px"]
 
 
 def _mouth_rect(model: THGSModel, camera, rot, transl, pad: int = 2, box=None):
@@ -90,17 +91,38 @@ def corrected_poses(model: THGSModel, rot, transl):
 
 
 @torch.no_grad()
-def lip_gaps(model: THGSModel, data, frames, lip_vertices) -> np.ndarray:
-    """Per frame, the distance (scene units) between the mean centres of the Gaussians bound to
-    the two template vertices ``lip_vertices`` (upper and lower inner lip), posed by the
-    frame's tracking and audio: how far the avatar opens its mouth."""
+def lip_points(model: THGSModel, data, frames, lip_vertices) -> np.ndarray:
+    """[T, 2, 3] per frame, the mean centres of the Gaussians bound to the two template vertices
+    ``lip_vertices`` (upper and lower inner lip), posed by the frame's tracking and audio."""
     sel = model.gaussians_of(lip_vertices)
     A = model.audio_input(data.audio)
     out = []
     for t in frames:
         X = model(data.rot[t], data.transl[t], data.expr[t], A[t]).means
-        out.append(float(torch.linalg.norm(X[sel[0]].mean(0) - X[sel[1]].mean(0))))
-    return np.asarray(out)
+        out.append(torch.stack([X[sel[0]].mean(0), X[sel[1]].mean(0)]).numpy())
+    return np.asarray(out, np.float64).reshape(-1, 2, 3)
+
+
+def lip_gaps(model: THGSModel, data, frames, lip_vertices) -> np.ndarray:
+    """Per frame, the distance (scene units) between the :func:`lip_points`: how far the avatar
+    opens its mouth."""
+    P = lip_points(model, data, frames, lip_vertices)
+    return np.linalg.norm(P[:, 0] - P[:, 1], axis=-1)
+
+
+def true_lip_gaps_px(data):
+    """[T] the capture's own lip gap in the image (pixels): ``meta.json``'s ``lip_gap_px`` (the
+    true inner-lip points projected), else the distance of the iBUG inner-lip landmarks 62 and 66
+    of ``landmarks.json``; None when neither is there."""
+    if "lip_gap_px" in data.meta:
+        return np.asarray(data.meta["lip_gap_px"], np.float64)
+    from geoface.splat.hfm_data import IBUG68_NAMES
+
+    names = list(data.landmark_names or ())
+    up, lo = (IBUG68_NAMES[i] for i in (62, 66))
+    if data.landmarks is None or up not in names or lo not in names:
+        return None
+    return np.linalg.norm(data.landmarks[:, names.index(up)] - data.landmarks[:, names.index(lo)], axis=-1)
 
 
 def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
@@ -144,11 +166,18 @@ def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
                mouth_open_corr_real=corr(open_r, open_g),
                frames=len(te), fps=float(1 / np.median(times)))
     if "lip_vertices" in data.meta and "lip_gap_m" in data.meta:  # the mouth's opening, geometrically
-        gap = lip_gaps(model, data, te, data.meta["lip_vertices"])
+        P = lip_points(model, data, te, data.meta["lip_vertices"])
+        gap = np.linalg.norm(P[:, 0] - P[:, 1], axis=-1)
         true = np.asarray(data.meta["lip_gap_m"], np.float64)[te]
         out.update(lip_gap_corr_loudness=corr(gap, env), lip_gap_corr_loudness_real=corr(true, env),
                    lip_gap_corr_real=corr(gap, true), lip_gap_std_mm=float(np.std(gap) * 1000),
                    lip_gap_std_mm_real=float(np.std(true) * 1000))
+        true_px = true_lip_gaps_px(data)
+        if true_px is not None:  # … and as the camera sees it: the depth of an opening is not in the image
+            uv = data.camera.project(P.reshape(-1, 3))[0].reshape(-1, 2, 2)
+            px = np.linalg.norm(uv[:, 0] - uv[:, 1], axis=-1)
+            out.update(lip_gap_px_std=float(np.std(px)), lip_gap_px_std_real=float(np.std(true_px[te])),
+                       lip_gap_px_corr_real=corr(px, true_px[te]))
     truth = Path(data.meta.get("_folder", "")) / "poses_true.npz"
     if truth.is_file():  # a capture with perturbed tracking: how far the corrections took the poses
         tr, _ = _split(len(data), h)

@@ -16,6 +16,8 @@
   With ``perturb=(degrees, mm)`` the tracked head pose of every frame is off by that much (a
   random axis and direction per frame) — the truth is in ``poses_true.npz`` — so that the joint
   optimisation of pose corrections can be measured (:func:`geoface.splat.thgs_eval.head_pose_errors`).
+  ``meta.json`` holds each frame's true gap between the inner lips' middles, in metres
+  (``lip_gap_m``) and as the camera sees it, in pixels (``lip_gap_px``).
 
 Units are metres.
 """
@@ -261,13 +263,14 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
     rot = np.zeros((T, J, 3))
     transl = np.zeros((T, 3))
     expr = np.zeros((T, len(names)))
-    jaw, gap, marks = [], [], []
+    jaw, gap, gap_px, marks = [], [], [], []
     lips = person.rest.landmarks[list(LIP_POINTS)]
     noise = np.random.default_rng([seed, 7203])
     for k in progress(range(T), "rendering ICT talking video", total=T, quiet=quiet):
         R = _rot(*ang[k])
         V, rgb, alpha, _ = person.render(curves[k], R, tr[k])
         gap.append(float(np.linalg.norm(np.subtract(*V[lips]))))  # the true lip gap (a rigid motion keeps it)
+        gap_px.append(float(np.linalg.norm(np.subtract(*person.cam.project(V[lips])[0]))))  # … as the camera sees it
         uv = person.cam.project(V[person.rest.landmarks])[0] + noise.normal(0, LANDMARK_NOISE_PX, (68, 2))
         marks.append(np.round(uv, 3).tolist())  # what a face tracker's landmark detector gives
         _write_png(out / "frames" / f"{k:06d}.png", rgb * (alpha[..., None] > 0.5))
@@ -287,5 +290,5 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
         "jaw_open": [round(float(v), 5) for v in jaw], "envelope": [round(float(v), 5) for v in loud],
         "jaw_rotvec": info["jaw_rotvec"], "perturb_deg_mm": [deg, mm], "lips_box": lips_box(person).tolist(),
         "lights": [a.tolist() for a in person.lights], "lip_vertices": lip_vertices(tpl),
-        "lip_gap_m": [round(g, 6) for g in gap]}))
+        "lip_gap_m": [round(g, 6) for g in gap], "lip_gap_px": [round(g, 4) for g in gap_px]}))
     return out
