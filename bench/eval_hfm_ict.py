@@ -158,12 +158,12 @@ def _run(a) -> None:
                     raise SystemExit(f"{d}: no capture; run the data stage first")
                 for v in variants.split(","):
                     jobs.append((str(d), split, s, seed, v, a.iters, a.threads, a.device, models))
-    from geoface.dataset import _die_with_parent
+    from geoface.dataset import die_with_parent
 
     res = Path(a.out) / "results.jsonl"
     ctx = mp.get_context("spawn")
     # the runs end with this driver (killed or interrupted), instead of training on for minutes
-    with ctx.Pool(a.jobs, initializer=_die_with_parent, initargs=(os.getpid(), False)) as pool, res.open("a") as f:
+    with ctx.Pool(a.jobs, initializer=die_with_parent, initargs=(os.getpid(), False)) as pool, res.open("a") as f:
         for rows in pool.imap_unordered(_job, jobs):
             for r in rows:
                 line = json.dumps(r)

@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 VARIANTS = {"full": {}, "no_leb": {"use_leb": False}, "no_saam": {"use_saam": False},
             "no_audio_pose": {"use_audio_pose": False}, "no_landmarks": {"lambda_landmarks": 0.0},
             "landmarks_move_poses": {"landmarks_pose": True}, "audio_window": {"audio_window": 2}, "no_audio_window": {"audio_window": 0},
-            "no_prefit": {"artic_prefit": False}}
+            "prefit": {"artic_prefit": True}}
 
 
 def main(argv=None) -> int:

@@ -39,7 +39,8 @@ from pathlib import Path
 from .errors import GeofaceError
 from .progress import log
 
-__all__ = ["DatasetOptions", "build_dataset", "build_ict_dataset", "find_meshes", "load_labels", "read_manifest", "MESH_SUFFIXES"]
+__all__ = ["DatasetOptions", "build_dataset", "build_ict_dataset", "find_meshes", "load_labels", "read_manifest", "MESH_SUFFIXES",
+           "die_with_parent"]
 
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
 MANIFEST = "manifest.jsonl"
@@ -265,7 +266,7 @@ def _executor(workers: int, scheduler: str | None):
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_die_with_parent,
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=die_with_parent,
                                initargs=(os.getpid(),))
     def close(interrupted: bool = False) -> None:
         if interrupted:  # do not wait for running items: end the workers now (the temporary
@@ -282,7 +283,7 @@ def _executor(workers: int, scheduler: str | None):
     return pool.submit, as_completed, close
 
 
-def _die_with_parent(parent: int, unwind: bool = True) -> None:
+def die_with_parent(parent: int, unwind: bool = True) -> None:
     """Worker initializer: end this worker when the driver dies (even by SIGKILL), instead
     of writing on for minutes (Linux: PR_SET_PDEATHSIG; elsewhere a watcher thread).  ``unwind``:
     SIGTERM raises KeyboardInterrupt, so that the item in hand cleans up (else SIGTERM ends the

@@ -208,7 +208,7 @@ class THGSConfig:
     lambda_normal: float = 0.01   # refinement stage (from the blendshape stage on)
     lambda_landmarks: float = 3.0  # mouth landmarks (landmarks.json) from the expression stage on
     #: fit the audio articulation to the training frames' mouth landmarks when it switches on (thgs_prefit)
-    artic_prefit: bool = True
+    artic_prefit: bool = False
     audio_window: int = 2  # SAAM and the audio articulation read the features of this many frames each side too
     landmarks_pose: bool = False   # True: the landmark term also moves the per-frame pose corrections
     lr_means: float = 1.6e-4
@@ -239,9 +239,8 @@ class THGSConfig:
         from .errors import ModelFolderError
 
         # saved before the audio articulation: none; before landmarks_pose: the landmarks moved the poses;
-        # before audio_window: one frame's features; before pose_decay: a constant rate; before artic_prefit: none
+        # before audio_window: one frame's features; before pose_decay: a constant rate
         return config_from_dict(cls, {"use_audio_pose": False, "landmarks_pose": True, "audio_window": 0, "pose_decay": 1.0,
-                                      "artic_prefit": False,
                                       **d}, where=where,
                                 error=ModelFolderError)
 

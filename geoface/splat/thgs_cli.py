@@ -65,7 +65,7 @@ def cmd_talk_train(args) -> int:
                      use_saam=not args.no_saam, use_audio_pose=not args.no_audio_pose,
                      lambda_landmarks=args.landmark_weight, heldout=args.heldout, seed=args.seed, threads=args.threads,
                      audio_window=args.audio_window, lr_pose=args.lr_pose, pose_decay=args.pose_decay,
-                     artic_prefit=not args.no_prefit)
+                     artic_prefit=args.prefit)
     info = train_thgs(args.data_dir, out, cfg, progress=None if not _quiet(args) else False, device=_train_device(args))
     h = info["history"]
     first = sum(r["loss"] for r in h[:20]) / len(h[:20])
@@ -146,8 +146,8 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--no-saam", action="store_true", help="ablation: no spatial audio attention")
     t.add_argument("--no-audio-pose", action="store_true",
                    help="ablation: the DOFs the tracker does not measure (jaw, mouth) stay at rest instead of following the audio")
-    t.add_argument("--no-prefit", action="store_true",
-                   help="do not fit the audio articulation to the mouth landmarks of all training frames when it switches on")
+    t.add_argument("--prefit", action="store_true",
+                   help="fit the audio articulation to the mouth landmarks of all training frames when it switches on")
     t.add_argument("--landmark-weight", type=number(float, 0, 1e6), default=THGS_LANDMARK_WEIGHT, metavar="W",
                    help=f"weight of the mouth landmarks of DATA_DIR/landmarks.json, when it has one "
                         f"({THGS_LANDMARK_WEIGHT}; 0: not used)")

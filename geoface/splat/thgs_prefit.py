@@ -8,7 +8,9 @@ full-batch Adam on the robust reprojection error (the training's own landmark te
 landmarks' Gaussians, posed by each frame's tracking plus the network's output, over all training
 frames together. The number of steps is chosen on the last ``val_fraction`` of the training
 frames (a contiguous block, so neighbouring frames do not leak), then the fit is redone on all of
-them for that many steps.
+them for that many steps. Off by default (``THGSConfig.artic_prefit``, ``geoface talk train
+--prefit``): on the validation person of docs/thgs.md it gained in the mouth but not over the whole
+image.
 """
 from __future__ import annotations
 

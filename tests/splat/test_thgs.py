@@ -323,8 +323,9 @@ def test_cli(talk_dir, tmp_path, capsys):
     md = tmp_path / "m"
     assert main(["talk", "train", str(talk_dir), "-o", str(md), "--iters", "3", "-q"]) == 0
     assert main(["talk", "train", str(talk_dir), "-o", str(md), "--iters", "3", "-q"]) == 2
-    assert main(["talk", "train", str(talk_dir), "-o", str(tmp_path / "np"), "--iters", "3", "-q", "--no-prefit"]) == 0
-    assert json.loads((tmp_path / "np" / "config.json").read_text())["config"]["artic_prefit"] is False
+    assert json.loads((md / "config.json").read_text())["config"]["artic_prefit"] is False
+    assert main(["talk", "train", str(talk_dir), "-o", str(tmp_path / "pf"), "--iters", "3", "-q", "--prefit"]) == 0
+    assert json.loads((tmp_path / "pf" / "config.json").read_text())["config"]["artic_prefit"] is True
     assert main(["talk", "animate", str(md), "--audio", str(talk_dir / "audio.wav"), "-o", str(tmp_path / "o")]) == 0
     assert len(list((tmp_path / "o" / "frames").glob("*.png"))) == 50
     assert main(["talk", "eval", str(md), str(talk_dir), "--json", str(tmp_path / "e.json")]) == 0

@@ -263,8 +263,7 @@ def test_landmark_term_can_leave_the_pose_corrections_alone(tmp_path):
     models = {}
     for name, kw in {"off": {"lambda_landmarks": 0.0}, "nets": {"lambda_landmarks": 100.0},
                      "all": {"lambda_landmarks": 100.0, "landmarks_pose": True}}.items():
-        # every stage on, one step; no fit of the articulation to the landmarks before it
-        cfg = THGSConfig(iters=1, stage_scale=0.0, heldout=0.0, seed=0, artic_prefit=False, **kw)
+        cfg = THGSConfig(iters=1, stage_scale=0.0, heldout=0.0, seed=0, **kw)  # every stage on, one step
         train_thgs(p, tmp_path / name, cfg, progress=False, log=None)
         models[name] = load_thgs(tmp_path / name)
     off, nets, full = (models[k] for k in ("off", "nets", "all"))

@@ -138,11 +138,11 @@ def test_training_runs_the_prefit_once_and_the_evaluation_reports_the_image_gap(
     from geoface.splat.thgs_eval import evaluate_thgs, true_lip_gaps_px
 
     d, data = capture
-    info = train_thgs(d, tmp_path / "m", THGSConfig(iters=3, stage_scale=0.0, use_saam=False, seed=0), progress=False)
+    info = train_thgs(d, tmp_path / "m", THGSConfig(iters=3, stage_scale=0.0, use_saam=False, seed=0,
+                                                    artic_prefit=True), progress=False)
     assert info["artic_prefit"]["px_after"] < info["artic_prefit"]["px_before"]
-    off = train_thgs(d, tmp_path / "off", THGSConfig(iters=3, stage_scale=0.0, use_saam=False, seed=0,
-                                                      artic_prefit=False), progress=False)
-    assert off["artic_prefit"] == {}
+    off = train_thgs(d, tmp_path / "off", THGSConfig(iters=3, stage_scale=0.0, use_saam=False, seed=0), progress=False)
+    assert off["artic_prefit"] == {} and THGSConfig().artic_prefit is False  # off by default
     assert THGSConfig.from_dict({"iters": 10}).artic_prefit is False  # saved before the option: none
     ev = evaluate_thgs(load_thgs(tmp_path / "m"), data)
     assert ev["lip_gap_px_std_real"] > 0.5 and -1 <= ev["lip_gap_px_corr_real"] <= 1 and ev["lip_gap_px_std"] >= 0
