@@ -455,7 +455,6 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
             "artic_prefit": prefit or {}}
 
 
-
 def save_thgs(model: THGSModel, out_dir) -> None:
     from geoface.splat.model_dir import write_model_dir
 

@@ -66,9 +66,9 @@ def prefit_articulation(model, audio: Tensor, rot, transl, expr, idx, points, ca
         uv = camera.project(Xp.reshape(-1, 3))[0]
         return (uv - P[frames].reshape(-1, 2)).norm(dim=-1).mean()
 
-    def run(frames, steps, val=None):
+    def run(frames, steps, val=None):  # -> (the held-back block's best error, its step)
         opt = torch.optim.Adam(model.artic.parameters(), lr=lr)
-        best, best_step, best_state = float("inf"), 0, None
+        best, best_step = float("inf"), 0
         for s in range(1, steps + 1):
             opt.zero_grad()
             err(frames).backward()
@@ -77,10 +77,10 @@ def prefit_articulation(model, audio: Tensor, rot, transl, expr, idx, points, ca
                 with torch.no_grad():
                     v = float(err(val, robust=False))
                 if v < best:
-                    best, best_step, best_state = v, s, copy.deepcopy(model.artic.state_dict())
+                    best, best_step = v, s
                 elif s - best_step >= patience:
                     break
-        return best, best_step, best_state
+        return best, best_step
 
     allf = torch.arange(T, device=dev)
     with torch.no_grad():
@@ -88,7 +88,7 @@ def prefit_articulation(model, audio: Tensor, rot, transl, expr, idx, points, ca
     start = copy.deepcopy(model.artic.state_dict())
     n_val = int(round(T * val_fraction))
     if n_val >= 2 and T - n_val >= 2:
-        val_px, steps, _ = run(allf[: T - n_val], max_steps, allf[T - n_val:])
+        val_px, steps = run(allf[: T - n_val], max_steps, allf[T - n_val:])
         model.artic.load_state_dict(start)
     else:
         val_px, steps = float("nan"), max_steps
