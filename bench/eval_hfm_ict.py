@@ -158,18 +158,25 @@ def _run(a) -> None:
                     raise SystemExit(f"{d}: no capture; run the data stage first")
                 for v in variants.split(","):
                     jobs.append((str(d), split, s, seed, v, a.iters, a.threads, a.device, models))
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
     from geoface.dataset import die_with_parent
 
     res = Path(a.out) / "results.jsonl"
-    ctx = mp.get_context("spawn")
-    # the runs end with this driver (killed or interrupted), instead of training on for minutes
-    with ctx.Pool(a.jobs, initializer=die_with_parent, initargs=(os.getpid(), False)) as pool, res.open("a") as f:
-        for rows in pool.imap_unordered(_job, jobs):
-            for r in rows:
-                line = json.dumps(r)
-                print(line, flush=True)
-                f.write(line + "\n")
-                f.flush()
+    # the runs end with this driver (killed or interrupted), instead of training on for minutes; a run
+    # killed on its own ends the driver and the other runs (BrokenProcessPool), instead of a wait forever
+    with ProcessPoolExecutor(a.jobs, mp_context=mp.get_context("spawn"), initializer=die_with_parent,
+                             initargs=(os.getpid(), False)) as pool, res.open("a") as f:
+        try:
+            for fut in as_completed([pool.submit(_job, j) for j in jobs]):
+                for r in fut.result():
+                    line = json.dumps(r)
+                    print(line, flush=True)
+                    f.write(line + "\n")
+                    f.flush()
+        except BrokenProcessPool:
+            raise SystemExit(f"eval_hfm_ict: a run's process ended without its result (killed?); the rows so far are in {res}")
 
 
 def _poses(a) -> None:
