@@ -183,22 +183,16 @@ def _poses(a) -> None:
     from dataclasses import replace
 
     from geoface.mesh.io import load_mesh
-    from geoface.splat.head_pose import LOWER_RIGID_NAMES, poses_from_landmarks, repivot, rotation_vector, solve_poses
+    from geoface.splat.head_pose import LOWER_RIGID_NAMES, poses_from_landmarks, solve_poses
     from geoface.splat.hfm_data import load_video
     from geoface.splat.hfm_train import registration_poses
 
     def errors(fit_R, fit_t, piv, video):
-        R, t, p = video.poses
-        rv = np.array([rotation_vector(R[f].T @ fit_R[f]) for f in range(len(R))])
-        ang = np.degrees(np.linalg.norm(rv, axis=1))
-        # the same rigid motion moves the pivot to the same place: compare translations about ``piv``
-        dt = 1000 * (fit_t - repivot(R, t, p, piv))
-        mm = np.linalg.norm(dt, axis=1)
-        # about the mean offset (the frame an avatar learns): root mean square over the frames
-        centred = np.degrees(np.sqrt(((rv - rv.mean(0)) ** 2).sum(1).mean())), np.sqrt(((dt - dt.mean(0)) ** 2).sum(1).mean())
+        rv, dt = _pose_offsets(video.poses, fit_R, fit_t, piv)
+        ang, mm = np.linalg.norm(rv, axis=1), np.linalg.norm(dt, axis=1)
         return {"deg_mean": round(float(np.mean(ang)), 3), "deg_max": round(float(np.max(ang)), 3),
                 "mm_mean": round(float(np.mean(mm)), 2), "mm_max": round(float(np.max(mm)), 2),
-                "deg_centred": round(float(centred[0]), 3), "mm_centred": round(float(centred[1]), 2)}
+                "deg_centred": round(_centred_rms(rv), 3), "mm_centred": round(_centred_rms(dt), 2)}
 
     for split in a.splits:
         for s in (a.val if split == "val" else a.test):
@@ -238,21 +232,32 @@ def _registration(reg_dir, model, model_dir=None):
     return reg
 
 
+def _pose_offsets(true_poses, R, t, pivot):
+    """Per frame, the rotation vector (degrees) and the translation (mm) from the true poses
+    (R, t, pivot) to the poses ``R``, ``t``; translations compared at ``pivot`` (the same rigid
+    motion moves it to the same place)."""
+    from geoface.splat.head_pose import repivot, rotation_vector
+
+    Rt, tt, pt = true_poses
+    rv = np.degrees([rotation_vector(Rt[f].T @ R[f]) for f in range(len(R))])
+    return rv, 1000 * (np.asarray(t) - repivot(Rt, tt, pt, pivot))
+
+
+def _centred_rms(x) -> float:
+    """Root mean square over the frames about the mean offset (the frame an avatar learns)."""
+    return float(np.sqrt(((x - x.mean(0)) ** 2).sum(1).mean()))
+
+
 def _registration_error(reg_dir, model, model_dir) -> dict:
     """How far the registration poses a no-file model was fitted in are from the true ones
     (``head_poses.npz``), frame by frame about their mean offset (the frame the avatar learned):
     root-mean-square degrees and millimetres (at the pivot)."""
     from geoface.splat.hfm_data import load_video
-    from geoface.splat.head_pose import repivot, rotation_vector
 
     reg = _registration(reg_dir, model, model_dir)
     R, t, p = reg.poses
-    Rt, tt, pt = load_video(reg_dir).poses
-    tt = repivot(Rt, tt, pt, p)
-    rv = np.degrees([rotation_vector(Rt[f].T @ R[f]) for f in range(len(R))])
-    dt = 1000 * (np.asarray(t) - tt)
-    rms = lambda x: round(float(np.sqrt(((x - x.mean(0)) ** 2).sum(1).mean())), 3)  # noqa: E731
-    return {"registration_pose_deg": rms(rv), "registration_pose_mm": rms(dt)}
+    rv, dt = _pose_offsets(load_video(reg_dir).poses, R, t, p)
+    return {"registration_pose_deg": round(_centred_rms(rv), 3), "registration_pose_mm": round(_centred_rms(dt), 3)}
 
 
 def _recalibrate(model, reg, components: int, ridge: float, weighted: bool = False, expressions: int = 0,

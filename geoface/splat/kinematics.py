@@ -1,12 +1,13 @@
 """Kinematic chains in torch: axis-angle rotations (Rodrigues, smooth at zero) and the per-joint
-transforms G_j(θ) · G_j(0)⁻¹ of forward kinematics (THGS eq. 4–5), shared by the THGS model
+transforms G_j(θ) · G_j(0)⁻¹ of forward kinematics (THGS eq. 4–5) and the linear blend skinning of
+points by them, shared by the THGS model
 (:mod:`geoface.splat.thgs`) and its data generator (:mod:`geoface.splat.thgs_data`)."""
 from __future__ import annotations
 
 import torch
 from torch import Tensor
 
-__all__ = ["axis_angle_to_matrix", "joint_transforms"]
+__all__ = ["axis_angle_to_matrix", "joint_transforms", "skin_points"]
 
 
 def axis_angle_to_matrix(w: Tensor) -> Tensor:  # [..., 3] -> [..., 3, 3] (Rodrigues, smooth at 0)
@@ -50,3 +51,10 @@ def joint_transforms(joints: Tensor, parents, rot: Tensor, transl: Tensor | None
     A = G.clone()
     A[..., :3, 3] = G[..., :3, 3] - (G[..., :3, :3] @ joints[..., None])[..., 0]
     return A
+
+
+def skin_points(X: Tensor, W: Tensor, A: Tensor) -> Tensor:
+    """x' = Σ w_j A_j x: points X [..., N, 3] with weights W [N, J] under joint transforms
+    A [..., J, 4, 4] (leading dimensions: a batch of frames)."""
+    M = torch.einsum("nj,...jab->...nab", W, A)  # [..., N, 4, 4]
+    return (M[..., :3, :3] @ X[..., None])[..., 0] + M[..., :3, 3]

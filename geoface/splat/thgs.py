@@ -41,7 +41,7 @@ from geoface.mesh.core import vertex_normals
 from geoface.splat.errors import SplatError
 from geoface.splat.corrections import FrameCorrections
 from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat, rotmat_to_quat_torch
-from geoface.splat.kinematics import axis_angle_to_matrix, joint_transforms
+from geoface.splat.kinematics import axis_angle_to_matrix, joint_transforms, skin_points
 
 __all__ = ["axis_angle_to_matrix", "joint_transforms", "VoxelSkinning", "lbs", "rotmat_to_quat_torch",
            "ExpressionBlendshapes", "SpatialAudioAttention", "AudioArticulation", "ExternalAttention", "mouth_gaussians",
@@ -83,8 +83,7 @@ class VoxelSkinning(nn.Module):
 
 def lbs(X: Tensor, quats: Tensor, W: Tensor, A: Tensor) -> tuple[Tensor, Tensor]:
     """Posed means and quaternions: x' = Σ w_j A_j x, q' = normalise(Σ w_j q_j) ⊗ q."""
-    M = torch.einsum("nj,jab->nab", W, A)  # [N, 4, 4]
-    Xp = (M[:, :3, :3] @ X[..., None])[..., 0] + M[:, :3, 3]
+    Xp = skin_points(X, W, A)
     qj = rotmat_to_quat_torch(A[:, :3, :3])
     qj = qj * torch.where(qj[:, :1] < 0, -1.0, 1.0)  # one hemisphere
     qb = W.to(qj.dtype) @ qj

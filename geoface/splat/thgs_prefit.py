@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from geoface.splat.kinematics import joint_transforms
+from geoface.splat.kinematics import joint_transforms, skin_points
 
 __all__ = ["prefit_articulation", "prefit_training", "posed_points"]
 
@@ -35,9 +35,7 @@ def posed_points(model, idx, rot: Tensor, transl: Tensor, expr: Tensor) -> Tenso
     X = Xc + torch.einsum("tk,kmc->tmc", expr, B)
     with torch.no_grad():
         W = model.skin(Xc)  # [M, J]
-    A = joint_transforms(model.joints, model.parents, rot, transl)  # [T, J, 4, 4]
-    M = torch.einsum("mj,tjab->tmab", W, A)
-    return (M[..., :3, :3] @ X[..., None])[..., 0] + M[..., :3, 3]
+    return skin_points(X, W, joint_transforms(model.joints, model.parents, rot, transl))  # A: [T, J, 4, 4]
 
 
 def prefit_articulation(model, audio: Tensor, rot, transl, expr, idx, points, camera, *, max_steps: int = 2000,
