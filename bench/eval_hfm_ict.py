@@ -24,7 +24,8 @@ talking, emoting, lit ICT person, registration and usage videos of different seq
   image loss (:data:`OURS`; validation);
 
 and scores each on the usage video (PSNR/SSIM: whole face, the region the headset hides, its
-expression region); the no-file models with the usage pose fitted to the landmarks below the
+expression region; the occluded region's interior and its outline, the face pixels within 1 px
+of the face's edge); the no-file models with the usage pose fitted to the landmarks below the
 headset and calibrated to the registration frame (``usage_poses: landmarks``; a model trained
 before the calibration existed gets it from its registration video first), the same uncalibrated
 (``landmarks_uncalibrated``), read from the crop alone (``image``) and, to separate what the pose
@@ -367,6 +368,16 @@ def _table(a) -> None:
             got = {(r["variant"], r["usage_poses"]): r for r in sel if (r["data_seed"], r["seed"]) == key}
             print(f"| {key[0]} | {key[1]} | " + " | ".join(
                 f"{got[c]['psnr_face']:.2f} / {got[c]['psnr_occluded']:.2f}" if c in got else "—" for c in cols) + " |")
+        split_cols = [("oracle", "file"), ("full", "file"), ("full", "landmarks")]
+        if any("psnr_occluded_outline" in r for r in sel):  # where in the occluded region the PSNR is lost
+            print("\noccluded region, interior / outline (1 px inside the face's edge) PSNR")
+            print("\n| person | model seed | " + " | ".join(f"{v} ({up})" for v, up in split_cols) + " |")
+            print("|---|---|" + "---|" * len(split_cols))
+            for key in sorted({(r["data_seed"], r["seed"]) for r in sel}):
+                got = {(r["variant"], r["usage_poses"]): r for r in sel if (r["data_seed"], r["seed"]) == key}
+                print(f"| {key[0]} | {key[1]} | " + " | ".join(
+                    f"{got[c]['psnr_occluded_interior']:.2f} / {got[c]['psnr_occluded_outline']:.2f}"
+                    if "psnr_occluded_outline" in got.get(c, {}) else "—" for c in split_cols) + " |")
 
 
 def main(argv=None) -> int:

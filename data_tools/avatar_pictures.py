@@ -1,11 +1,15 @@
 """Pictures of the avatars on ICT-FaceKit captures for the docs, each frame beside its truth.
 
     python data_tools/avatar_pictures.py hmd MODEL_DIR USAGE_DIR OUT.jpg [--frames 5 20 40] [--poses landmarks]
+        [--error-poses landmarks file --gain 4]
     python data_tools/avatar_pictures.py talk MODEL_DIR DATA_DIR OUT.jpg [--count 4]
 
 * ``hmd``: per chosen usage frame, a column of the input (headset on), the restored frame (the
   avatar pasted into the headset's region, poses as ``--poses`` says), the ground truth (the
-  same frame rendered without the headset) and the avatar's own whole render;
+  same frame rendered without the headset) and the avatar's own whole render; with
+  ``--error-poses``, then for each of those pose sources the restored frame's error against the
+  ground truth where the occluded region is scored (face pixels under the headset; absolute
+  difference times ``--gain``);
 * ``talk``: held-out frames of a THGS model (the last fraction its training left out, those with
   the widest range of mouth opening), the render above the real frame.
 """
@@ -42,7 +46,12 @@ def hmd(a) -> "np.ndarray":
     frames = [f for f in a.frames if f < len(video)]
     gt = [_read_png(Path(a.data_dir) / "gt" / f"{f:06d}.png") for f in frames]
     restored = [np.where(video.hmd_masks[f][..., None], renders[f], video.frames[f]) for f in frames]
-    return _grid([[video.frames[f] for f in frames], restored, gt, [renders[f] for f in frames]], a.tile)
+    rows = [[video.frames[f] for f in frames], restored, gt, [renders[f] for f in frames]]
+    for source in a.error_poses:
+        R = renders if source == a.poses else remove_hmd(model, video, poses=source)[0]
+        rows.append([np.abs(R[f] - g) * a.gain * (video.hmd_masks[f] & (g.max(-1) > 0))[..., None]
+                     for f, g in zip(frames, gt)])  # where the occluded-region PSNR is scored
+    return _grid(rows, a.tile)
 
 
 def talk(a) -> "np.ndarray":
@@ -72,6 +81,8 @@ def main() -> int:
     ap.add_argument("out", type=Path)
     ap.add_argument("--frames", type=int, nargs="+", default=[5, 20, 40])
     ap.add_argument("--poses", default="landmarks")
+    ap.add_argument("--error-poses", nargs="*", default=[], help="hmd: a row of errors for each of these pose sources")
+    ap.add_argument("--gain", type=float, default=4.0, help="hmd: how much the error rows are brightened")
     ap.add_argument("--count", type=int, default=4)
     ap.add_argument("--tile", type=int, default=192)
     a = ap.parse_args()

@@ -152,6 +152,8 @@ def cmd_hmd_remove(args) -> int:
 
 
 def cmd_hmd_eval(args) -> int:
+    import numpy as np
+
     from .hfm import evaluate_hmd
 
     model = _load_for_usage(args)
@@ -163,6 +165,9 @@ def cmd_hmd_eval(args) -> int:
           f"PSNR {res['psnr_occluded']:.2f} dB SSIM {res['ssim_occluded']:.4f}; {res['fps']:.1f} FPS "
           f"({res['frames']} frames); expression motion upper {res['upper_motion_mm']:.2f} mm, "
           f"lower {res['lower_motion_mm']:.2f} mm")
+    if not np.isnan(res["psnr_occluded_outline"]):
+        say(f"occluded region: interior PSNR {res['psnr_occluded_interior']:.2f} dB, outline (the face's edge under the "
+            f"headset) {res['psnr_occluded_outline']:.2f} dB")
     if res.get("expression_frames") == 0:
         say("expression region: no usage frame has an upper-face expression to score")
     elif "psnr_expression" in res:

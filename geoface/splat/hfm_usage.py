@@ -163,6 +163,7 @@ def expression_motion(model: HFMModel, video) -> dict:
 
 EXPRESSION_TAU = 0.02     # a pixel belongs to the expression region where it changes by more than this
 EXPRESSION_MIN_PIXELS = 10
+OUTLINE_PX = 1            # the occluded region's outline: face pixels this close to the face's edge
 
 
 def evaluate_hmd(model: HFMModel, video, poses: str = "auto") -> dict:
@@ -177,7 +178,12 @@ def evaluate_hmd(model: HFMModel, video, poses: str = "auto") -> dict:
     occluded-region PSNR of a ~34 dB avatar mostly measures its static quality; ``psnr_expression``
     and ``ssim_expression`` score only what the upper expression changes (frames with at least
     ``EXPRESSION_MIN_PIXELS`` such pixels), and ``psnr_expression_rest`` is what the rest-pose
-    frames themselves score there — an avatar must beat it to show it restored the expression."""
+    frames themselves score there — an avatar must beat it to show it restored the expression.
+
+    The occluded region is also split into its *outline* (``psnr_occluded_outline``: the face
+    pixels within ``OUTLINE_PX`` of the face's edge in the ground truth — under a headset, the
+    crown and the temples against the background, where a head placed a fraction of a pixel off
+    costs most) and the rest (``psnr_occluded_interior``: brows, lids, forehead)."""
     if video.gt is None or video.hmd_masks is None:
         raise SplatError("evaluation needs gt/ and hmd_masks/ in the usage folder")
     R, times, source = _remove(model, video, None, None, True, poses)
@@ -190,6 +196,8 @@ def evaluate_hmd(model: HFMModel, video, poses: str = "auto") -> dict:
 
 def hmd_metrics(R: np.ndarray, video) -> dict:
     """The image metrics of :func:`evaluate_hmd` for renders ``R`` [T, H, W, 3] of ``video``."""
+    from scipy.ndimage import binary_erosion
+
     from geoface.splat.fit import psnr, ssim_masked
 
     if video.gt is None or video.hmd_masks is None:
@@ -198,7 +206,8 @@ def hmd_metrics(R: np.ndarray, video) -> dict:
         raise SplatError(f"renders {R.shape} do not match the usage frames {video.gt.shape}")
     face = video.gt.max(-1) > 0
     rest = video.gt_static_upper
-    rows = {"psnr_face": [], "ssim_face": [], "psnr_occluded": [], "ssim_occluded": []}
+    rows = {"psnr_face": [], "ssim_face": [], "psnr_occluded": [], "ssim_occluded": [], "psnr_occluded_interior": [],
+            "psnr_occluded_outline": []}
     if rest is not None:
         rows.update(psnr_expression=[], ssim_expression=[], psnr_expression_rest=[], expression_pixels=[])
     for t in range(len(video)):
@@ -207,6 +216,9 @@ def hmd_metrics(R: np.ndarray, video) -> dict:
         rows["psnr_occluded"].append(psnr(R[t], video.gt[t], o))
         rows["ssim_face"].append(ssim_masked(R[t], video.gt[t], m))
         rows["ssim_occluded"].append(ssim_masked(R[t], video.gt[t], o))
+        edge = o & ~binary_erosion(m, iterations=OUTLINE_PX, border_value=1)
+        for key, region in (("psnr_occluded_interior", o & ~edge), ("psnr_occluded_outline", edge)):
+            rows[key].append(psnr(R[t], video.gt[t], region) if region.any() else float("nan"))
         if rest is not None:
             e = o & (np.abs(video.gt[t] - rest[t]).max(-1) > EXPRESSION_TAU)
             rows["expression_pixels"].append(float(e.sum()))
@@ -214,7 +226,7 @@ def hmd_metrics(R: np.ndarray, video) -> dict:
                 rows["psnr_expression"].append(psnr(R[t], video.gt[t], e))
                 rows["ssim_expression"].append(ssim_masked(R[t], video.gt[t], e))
                 rows["psnr_expression_rest"].append(psnr(rest[t], video.gt[t], e))
-    out = {k: float(np.nanmean(v)) if len(v) else float("nan") for k, v in rows.items()}
+    out = {k: float(np.nanmean(v)) if np.isfinite(v).any() or np.isinf(v).any() else float("nan") for k, v in rows.items()}
     if rest is not None:
         out["expression_frames"] = len(rows["psnr_expression"])
     return out

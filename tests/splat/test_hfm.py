@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from scipy import ndimage
 
 from geoface.splat.density import DensityConfig
 from geoface.splat.errors import SplatError
@@ -520,6 +521,38 @@ def test_expression_region_metrics():
         hmd_metrics(gt[:, :10], v)
 
 
+def test_occluded_outline_metrics():
+    """The occluded region splits into the face's outline (1 px band inside the face's edge, not
+    the image border) and its interior: a head drawn one pixel low loses at the outline far more
+    than inside; an error only along the outline leaves the interior perfect."""
+    T, H, W = 1, 40, 40
+    yy, xx = np.mgrid[:H, :W]
+    face = (yy - 24.0) ** 2 + (xx - 20.0) ** 2 <= 15.0 ** 2
+    face[-3:] = (np.abs(xx - 20) <= 6)[-3:]  # a neck that leaves through the image border
+    shade = 0.4 + 0.2 * np.sin(xx / 3.0)[..., None] * np.array([1.0, 0.8, 0.6])
+    gt = np.where(face[..., None], shade, 0.0).astype(np.float32)[None]
+    hmd = np.zeros((T, H, W), bool)
+    hmd[:, :22] = True  # the headset hides the crown
+    v = HMDVideo(gt, face[None], np.zeros((T, 4, 2)), list(LOWER_FACE_LANDMARKS), None, 0.0, hmd_masks=hmd, gt=gt)
+    band = face & ~ndimage.binary_erosion(face, iterations=1, border_value=1)
+    assert band[-1].sum() == 2  # the image border is no outline: only the neck's sides are
+    m = hmd_metrics(gt, v)
+    assert m["psnr_occluded_outline"] == m["psnr_occluded_interior"] == float("inf")
+    low = np.roll(gt, 1, axis=1)  # the head one pixel low
+    m = hmd_metrics(low, v)
+    assert m["psnr_occluded_outline"] < m["psnr_occluded_interior"] - 6
+    assert m["psnr_occluded_outline"] < m["psnr_occluded"] < m["psnr_occluded_interior"]
+    rim = np.where(band[None, ..., None], 0.0, gt)  # wrong only along the outline
+    m = hmd_metrics(rim, v)
+    assert m["psnr_occluded_interior"] == float("inf") and np.isfinite(m["psnr_occluded_outline"])
+    n = (band & hmd[0]).sum()
+    mse = ((gt[0] - rim[0]) ** 2)[band & hmd[0]].mean()
+    assert n > 20 and m["psnr_occluded_outline"] == pytest.approx(-10 * np.log10(mse))
+    v0 = HMDVideo(gt, face[None], np.zeros((T, 4, 2)), list(LOWER_FACE_LANDMARKS), None, 0.0,
+                  hmd_masks=np.zeros_like(hmd), gt=gt)
+    assert np.isnan(hmd_metrics(low, v0)["psnr_occluded_outline"])  # nothing occluded: no figure
+
+
 def test_lower_face_crop_contains_the_mouth():
     pts = np.array([[60.0, 50], [50, 70], [70, 70], [60, 90]])  # nose, mouth l/r, chin
     cx, cy, side = lower_face_box(pts)
@@ -733,9 +766,11 @@ def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
         finally:
             view.stop()
     assert main(["hmd", "eval", str(md), str(use), "--json", str(tmp_path / "e.json")]) == 0
-    assert "psnr_occluded" in json.loads((tmp_path / "e.json").read_text())
+    e = json.loads((tmp_path / "e.json").read_text())
+    assert {"psnr_occluded", "psnr_occluded_interior", "psnr_occluded_outline"} <= set(e)
     out = capsys.readouterr().out
     assert "FPS" in out and "occluded region" in out
+    assert ("outline (the face's edge" in out) == (not math.isnan(e["psnr_occluded_outline"]))
     assert main(["hmd", "eval", str(reg), str(use)]) == 2
     assert main(["hmd", "train", str(use), "-o", str(tmp_path / "m3")]) == 2  # no head mesh
     err = capsys.readouterr().err.strip().splitlines()
