@@ -226,7 +226,7 @@ def hmd_metrics(R: np.ndarray, video) -> dict:
                 rows["psnr_expression"].append(psnr(R[t], video.gt[t], e))
                 rows["ssim_expression"].append(ssim_masked(R[t], video.gt[t], e))
                 rows["psnr_expression_rest"].append(psnr(rest[t], video.gt[t], e))
-    out = {k: float(np.nanmean(v)) if np.isfinite(v).any() or np.isinf(v).any() else float("nan") for k, v in rows.items()}
+    out = {k: float("nan") if np.isnan(v).all() else float(np.nanmean(v)) for k, v in rows.items()}  # all NaN: no figure
     if rest is not None:
         out["expression_frames"] = len(rows["psnr_expression"])
     return out
