@@ -361,24 +361,23 @@ def _table(a) -> None:
                 d = {k: [b[k] - o[k] for b, o in pairs] for k in ("psnr_face", "psnr_occluded")}
                 print(f"full (no pose file) − {v} ({up}): " + ", ".join(
                     f"{k} {np.mean(x):+.2f} dB ({sum(y > 0 for y in x)} of {len(x)} better)" for k, x in d.items()))
-        cols = [("oracle", "file"), ("full", "landmarks_uncalibrated")] + [(v, "landmarks") for v in MAIN[1:]]
-        print("\n| person | model seed | " + " | ".join(f"{v} ({up})" for v, up in cols) + " |")
-        print("|---|---|" + "---|" * len(cols))
-        for key in sorted({(r["data_seed"], r["seed"]) for r in sel}):
-            got = {(r["variant"], r["usage_poses"]): r for r in sel if (r["data_seed"], r["seed"]) == key}
-            print(f"| {key[0]} | {key[1]} | " + " | ".join(
-                f"{got[c]['psnr_face']:.2f} / {got[c]['psnr_occluded']:.2f}" if c in got else "—" for c in cols) + " |")
-        split_cols = [("oracle", "file"), ("full", "file"), ("full", "landmarks")]
+        runs = {}  # (person, model seed) -> {(variant, usage poses): row}
+        for r in sel:
+            runs.setdefault((r["data_seed"], r["seed"]), {})[(r["variant"], r["usage_poses"])] = r
+
+        def per_run(cols, a_key, b_key):  # person × model seed: "a / b" of each column
+            print("\n| person | model seed | " + " | ".join(f"{v} ({up})" for v, up in cols) + " |")
+            print("|---|---|" + "---|" * len(cols))
+            for key, got in sorted(runs.items()):
+                print(f"| {key[0]} | {key[1]} | " + " | ".join(
+                    f"{got[c][a_key]:.2f} / {got[c][b_key]:.2f}" if b_key in got.get(c, {}) else "—" for c in cols) + " |")
+
+        per_run([("oracle", "file"), ("full", "landmarks_uncalibrated")] + [(v, "landmarks") for v in MAIN[1:]],
+                "psnr_face", "psnr_occluded")
         if any("psnr_occluded_outline" in r for r in sel):  # where in the occluded region the PSNR is lost
             print("\noccluded region, interior / outline (1 px inside the face's edge) PSNR")
-            print("\n| person | model seed | " + " | ".join(f"{v} ({up})" for v, up in split_cols) + " |")
-            print("|---|---|" + "---|" * len(split_cols))
-            for key in sorted({(r["data_seed"], r["seed"]) for r in sel}):
-                got = {(r["variant"], r["usage_poses"]): r for r in sel if (r["data_seed"], r["seed"]) == key}
-                print(f"| {key[0]} | {key[1]} | " + " | ".join(
-                    f"{got[c]['psnr_occluded_interior']:.2f} / {got[c]['psnr_occluded_outline']:.2f}"
-                    if "psnr_occluded_outline" in got.get(c, {}) else "—" for c in split_cols) + " |")
-
+            per_run([("oracle", "file"), ("full", "file"), ("full", "landmarks")], "psnr_occluded_interior",
+                    "psnr_occluded_outline")
 
 def main(argv=None) -> int:
     ints = lambda s: [int(x) for x in s.split(",") if x]  # noqa: E731
