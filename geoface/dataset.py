@@ -24,7 +24,7 @@ Schedulers: ``workers=1`` runs in this process; ``workers=N`` a local process po
 processes); ``scheduler="tcp://host:8786"`` a Dask distributed cluster (every worker needs
 geoface installed and the input/output folders mounted at the same paths).
 
->>> # build_dataset("meshes/", "dataset/", DatasetOptions(res=128, augment=8), workers=2)  # doctest: +SKIP
+>>> build_dataset("meshes/", "dataset/", DatasetOptions(res=128, augment=8), workers=2)  # doctest: +SKIP
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ measure-preserving map (or stay conformal) → geometry images → reconstructio
 metrics.  ``augment = K`` repeats the parameterization for the first K of the 8 corner sets
 (the paper's augmentation), writing one image set per corner set.
 
->>> # convert(load_mesh("head.obj"), "out/", ConvertOptions(res=256))   # doctest: +SKIP
+>>> convert(load_mesh("head.obj"), "out/", ConvertOptions(res=256))  # doctest: +SKIP
 """
 
 from __future__ import annotations

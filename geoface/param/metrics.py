@@ -13,7 +13,7 @@ count them separately.
 
 >>> from geoface.synth import square_grid
 >>> V, F = square_grid(4)
->>> distortion(V, F, V[:, :2]).summary()["qc_max"]
+>>> round(distortion(V, F, V[:, :2]).summary()["qc_max"], 9)
 1.0
 """
 
@@ -40,24 +40,19 @@ class Distortion:
     def summary(self) -> dict:
         deg = np.zeros_like(self.flipped) if self.degenerate is None else self.degenerate
         ok = ~self.flipped & ~deg & np.isfinite(self.qc)
-        if not ok.any():
-            inf = float("inf")
-            return {"qc_mean": inf, "qc_area_weighted": inf, "qc_p95": inf, "qc_max": inf, "log_area_abs_mean": inf,
-                    "log_area_abs_p95": inf, "area_ratio_max": inf, "flipped": int(self.flipped.sum()), "degenerate": int(deg.sum())}
-        qc = self.qc[ok] if ok.any() else np.array([np.inf])
-        la = np.abs(self.log_area[ok]) if ok.any() else np.array([np.inf])
-        w = self.area_3d[ok] / max(self.area_3d[ok].sum(), 1e-300) if ok.any() else np.array([1.0])
-        return {
-            "qc_mean": float(qc.mean()),
-            "qc_area_weighted": float((qc * w).sum()),
-            "qc_p95": float(np.quantile(qc, 0.95)),
-            "qc_max": float(qc.max()),
-            "log_area_abs_mean": float(la.mean()),
-            "log_area_abs_p95": float(np.quantile(la, 0.95)),
-            "area_ratio_max": float(np.exp(la.max())),
-            "flipped": int(self.flipped.sum()),
-            "degenerate": int(deg.sum()),
-        }
+        return {**_summary_stats(self.qc, self.log_area, self.area_3d, ok), "flipped": int(self.flipped.sum()),
+                "degenerate": int(deg.sum())}
+
+
+def _summary_stats(qc: np.ndarray, log_area: np.ndarray, area_3d: np.ndarray, ok: np.ndarray) -> dict:
+    """QC and area statistics over the faces ``ok`` (all infinite when there are none)."""
+    keys = ("qc_mean", "qc_area_weighted", "qc_p95", "qc_max", "log_area_abs_mean", "log_area_abs_p95", "area_ratio_max")
+    if not ok.any():
+        return dict.fromkeys(keys, float("inf"))
+    qc, la = qc[ok], np.abs(log_area[ok])
+    w = area_3d[ok] / max(area_3d[ok].sum(), 1e-300)
+    vals = (qc.mean(), (qc * w).sum(), np.quantile(qc, 0.95), qc.max(), la.mean(), np.quantile(la, 0.95), np.exp(la.max()))
+    return {k: float(v) for k, v in zip(keys, vals)}
 
 
 def distortion(V, F, UV) -> Distortion:
@@ -127,21 +122,8 @@ class MapDistortion:
 
     def summary(self) -> dict:
         ok = (self.flipped == 0) & np.isfinite(self.qc) & np.isfinite(self.log_area)
-        qc = self.qc[ok] if ok.any() else np.array([np.inf])
-        la = np.abs(self.log_area[ok]) if ok.any() else np.array([np.inf])
-        w = self.area_3d[ok] / max(self.area_3d[ok].sum(), 1e-300) if ok.any() else np.array([1.0])
-        return {
-            "qc_mean": float(qc.mean()),
-            "qc_area_weighted": float((qc * w).sum()),
-            "qc_p95": float(np.quantile(qc, 0.95)),
-            "qc_max": float(qc.max()),
-            "log_area_abs_mean": float(la.mean()),
-            "log_area_abs_p95": float(np.quantile(la, 0.95)),
-            "area_ratio_max": float(np.exp(la.max())),
-            "flipped": int((self.flipped > 0).sum()),
-            "flipped_samples": int(self.flipped.sum()),
-            "level": self.level,
-        }
+        return {**_summary_stats(self.qc, self.log_area, self.area_3d, ok), "flipped": int((self.flipped > 0).sum()),
+                "flipped_samples": int(self.flipped.sum()), "level": self.level}
 
 
 def map_distortion(V, F, mapping, level: int = 4, eps: float = 1e-6) -> MapDistortion:
