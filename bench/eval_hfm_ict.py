@@ -376,8 +376,9 @@ def _table(a) -> None:
                 "psnr_face", "psnr_occluded")
         if any("psnr_occluded_outline" in r for r in sel):  # where in the occluded region the PSNR is lost
             print("\noccluded region, interior / outline (1 px inside the face's edge) PSNR")
-            per_run([("oracle", "file"), ("full", "file"), ("full", "landmarks")], "psnr_occluded_interior",
+            per_run([("oracle", "file"), ("full", "file")] + [(v, "landmarks") for v in MAIN[1:]], "psnr_occluded_interior",
                     "psnr_occluded_outline")
+
 
 def main(argv=None) -> int:
     ints = lambda s: [int(x) for x in s.split(",") if x]  # noqa: E731
