@@ -62,7 +62,8 @@ PAPER = {"map_theta": {"map_theta": True}, "gm_xsr": {"gm_input": "xsr"},
 #: choices of ours, each alone on top of Full (no pose file), for the validation split
 OURS = {"pose_residual": {"pose_residual": True}, "no_pose_residual": {"pose_residual": False}, "reg_lower": {"registration_landmarks": "lower"},
         "reg_lower_no_pose_residual": {"registration_landmarks": "lower", "pose_residual": False},
-        "pose_refine": {"pose_refine": True}, "reg_stable": {"registration_landmarks": "stable"}}
+        "pose_refine": {"pose_refine": True}, "reg_stable": {"registration_landmarks": "stable"},
+        "pose_head_detach": {"image_pose_detach": True}}
 VARIANTS.update({k: ("full", "landmarks") for k in {**PAPER, **OURS}})
 MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]
 

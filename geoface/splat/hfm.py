@@ -48,7 +48,8 @@ a headset hides the upper face is restored from the visible lower face alone:
    use, the pose comes from ``head_poses.npz`` (a headset's own 6-DoF tracking, when the user has
    it in the camera's frame) or, as in the paper, from the lower-face image: MLP_head_pose(θ)
    (``image_pose``) predicts (ω, τ) of the whole head pose and is trained during registration on
-   the registration poses (squared error, ``lambda_pose``; the encoder learns from it too).
+   the registration poses (squared error, ``lambda_pose``; the encoder learns from it too, unless
+   ``image_pose_detach``: then the pose MLP learns alone from the latent).
    ``pose_residual=False`` leaves MLP_pose out and keeps the pose read from the crop. Poses fitted
    to the usage video's lower landmarks are calibrated into the registration poses' frame by a
    linear model learned during registration (``pose_calibration``;

@@ -58,20 +58,12 @@ def _config(args):
     kw = dict(iters=args.iters, seed=args.seed, threads=args.threads, vgg_weights=args.vgg_weights,
               densify=not args.no_densify, warmup=args.warmup, ema=args.ema, map_theta=args.map_theta,
               gm_input=args.gm_input, pm_per_component=args.pm_per_component, split_margin=args.split_margin)
-    if args.y_split is not None:
-        kw["y_split"] = args.y_split
-    if args.pose_landmarks is not None:
-        kw["registration_landmarks"] = args.pose_landmarks
-    if args.pose_residual is not None:
-        kw["pose_residual"] = args.pose_residual
-    if args.usage_landmarks is not None:
-        kw["usage_landmarks"] = args.usage_landmarks
-    if args.calibration_weights is not None:
-        kw["pose_calibration_weighted"] = args.calibration_weights
-    if args.calibration_expressions is not None:
-        kw["pose_calibration_expressions"] = args.calibration_expressions
-    if args.pose_refine is not None:
-        kw["pose_refine"] = args.pose_refine
+    for arg, field in (("y_split", "y_split"), ("pose_landmarks", "registration_landmarks"),
+                       ("pose_residual", "pose_residual"), ("pose_head_detach", "image_pose_detach"),
+                       ("usage_landmarks", "usage_landmarks"), ("calibration_weights", "pose_calibration_weighted"),
+                       ("calibration_expressions", "pose_calibration_expressions"), ("pose_refine", "pose_refine")):
+        if getattr(args, arg) is not None:  # None: the model's default
+            kw[field] = getattr(args, arg)
     kw.update(ABLATIONS[args.ablation])
     return HFMConfig(**kw)
 
@@ -235,6 +227,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                         "the 12 rigid ones (lower) or the 8 of them that stay put best (stable); default: the model's")
     t.add_argument("--pose-residual", action=argparse.BooleanOptionalAction, default=None,
                    help="the global pose MLP corrects the tracked head pose of each frame (default: the model's)")
+    t.add_argument("--pose-head-detach", action=argparse.BooleanOptionalAction, default=None,
+                   help="the pose MLP that reads the head pose from the crop learns alone: its loss does not train "
+                        "the image encoder (default: the model's)")
     t.add_argument("--calibration-weights", action=argparse.BooleanOptionalAction, default=None,
                    help="the usage pose calibration weighs each lower landmark by how little it moved in "
                         "registration (default: the model's)")

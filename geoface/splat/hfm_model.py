@@ -44,6 +44,7 @@ class HFMConfig:
     global_pose: bool = True
     pose_residual: bool = False  # MLP_pose(θ) corrects the given head pose (eq. 8 after the tracked pose)
     image_pose: bool = True    # learn the whole head pose from the crop (for videos without head_poses.npz)
+    image_pose_detach: bool = False  # its loss trains MLP_head_pose alone, not the encoder (θ detached)
     registration_landmarks: str = "rigid"  # without a pose file, fit registration poses to "rigid", "stable" or "lower" landmarks
     usage_landmarks: str = "lower"  # usage poses are fitted to the 12 "lower" rigid landmarks or their 8 "stable" ones
     pose_calibration: int = 8  # components of the lower-landmark pose calibration learned in registration (0: none)

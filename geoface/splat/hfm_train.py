@@ -127,6 +127,13 @@ def registration_poses(video, poses: str = "auto", log=None, mesh=None, fit: str
     return info
 
 
+def head_pose_loss(model: HFMModel, theta: Tensor, target: Tensor) -> Tensor:
+    """Squared error of the head pose MLP_head_pose reads from the latent ``theta`` [1, L] against
+    ``target`` [6]; with ``cfg.image_pose_detach`` it trains the pose MLP alone (θ detached), else
+    the encoder too."""
+    return ((model.head_pose_params(theta.detach() if model.cfg.image_pose_detach else theta)[0] - target) ** 2).sum()
+
+
 def calibrate_usage_poses(model: HFMModel, video, source: str = "landmarks") -> dict | None:
     """Learn ``model.pose_calibration`` from the registration ``video`` (its ``poses`` set, as
     :func:`registration_poses` leaves them; ``source``: where they came from, "file" or
@@ -264,7 +271,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
         lp, loss_img = None, loss.detach()  # the history's "loss": the image (and split) terms
         if model.predicts_head_pose and it >= n_warm:
             target = targets[f] if refine is None else refine.target(f)
-            lp = ((model.head_pose_params(theta)[0] - target) ** 2).sum()
+            lp = head_pose_loss(model, theta, target)
             loss = loss + cfg.lambda_pose * lp
         if strategy is not None:
             strategy.step_pre_backward(info)

@@ -731,11 +731,12 @@ def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
     assert main(["hmd", "train", str(reg), "-o", str(m5), "--iters", "3", "--no-densify", "--map-theta", "--gm-input",
                  "xsr", "--pm-per-component", "--split-margin", "0.002", "--no-pose-residual", "--pose-landmarks", "lower",
                  "--calibration-weights", "--calibration-expressions", "2", "--pose-refine", "--usage-landmarks", "stable",
-                 "-q"]) == 0
+                 "--pose-head-detach", "-q"]) == 0
     c5 = load_hfm(m5).cfg
     assert c5.map_theta and c5.gm_input == "xsr" and c5.pm_per_component and c5.split_margin == 0.002
     assert not c5.pose_residual and c5.registration_landmarks == "lower" and c5.pose_calibration_weighted
     assert c5.pose_calibration_expressions == 2 and c5.usage_landmarks == "stable"
+    assert c5.image_pose_detach and not load_hfm(md).cfg.image_pose_detach
     assert c5.pose_refine and not (m5 / "registration_poses.npz").exists()  # the folder's pose file: nothing to correct
     assert main(["hmd", "train", str(reg), "-o", str(tmp_path / "m6"), "--gm-input", "s", "-q"]) == 2
     assert main(["hmd", "train", str(reg), "-o", str(tmp_path / "m7"), "--calibration-expressions", "-1", "-q"]) == 2
@@ -776,6 +777,26 @@ def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err and all(line.startswith("geoface: error:") for line in err) and "Traceback" not in "".join(err)
     assert not (tmp_path / "m3").exists()
+
+
+def test_pose_head_detach_keeps_the_pose_loss_out_of_the_encoder():
+    """``image_pose_detach``: the head pose loss trains MLP_head_pose and no encoder weight; without
+    it the same loss reaches the encoder."""
+    from geoface.splat.hfm_train import head_pose_loss
+
+    crop, box = torch.rand(1, 3, 128, 128), torch.tensor([[0.5, 0.7, 0.4]])
+    target = torch.tensor([0.1, -0.2, 0.05, 0.3, 0.0, -0.1])
+    grads = {}
+    for detach in (False, True):
+        m = _model(500, image_pose_detach=detach)
+        with torch.no_grad():  # its last layer starts at zero, which would pass no gradient back at all
+            m.mlp_head_pose[-1].weight.normal_(0.0, 0.1, generator=torch.Generator().manual_seed(0))
+        head_pose_loss(m, m.encoder(crop, box), target).backward()
+        enc = [p.grad for p in m.encoder.parameters()]
+        head = [p.grad for p in m.mlp_head_pose.parameters()]
+        assert all(g is not None and torch.isfinite(g).all() for g in head) and any(g.abs().sum() > 0 for g in head)
+        grads[detach] = sum(0.0 if g is None else float(g.abs().sum()) for g in enc)
+    assert grads[False] > 0 and grads[True] == 0.0
 
 
 def test_tracked_head_pose_is_applied_rigidly():
