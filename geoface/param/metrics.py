@@ -55,31 +55,40 @@ def _summary_stats(qc: np.ndarray, log_area: np.ndarray, area_3d: np.ndarray, ok
     return {k: float(v) for k, v in zip(keys, vals)}
 
 
+def _face_frames(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each 3D triangle in its own plane: ``(l1, e2x, e2y)``, its edge 0→1 being ``(l1, 0)`` and
+    its edge 0→2 ``(e2x, e2y)``."""
+    P = V[F]
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    l1 = np.linalg.norm(e1, axis=1)
+    x = e1 / np.maximum(l1, 1e-300)[:, None]
+    e2x = (e2 * x).sum(1)
+    return l1, e2x, np.linalg.norm(e2 - e2x[:, None] * x, axis=1)
+
+
+def _jacobians(q1, q2, l1, e2x, e2y) -> np.ndarray:
+    """[n, 2, 2] Jacobians ``[q1 q2] @ inv([[l1, e2x], [0, e2y]])``: the UV edges ``q1``, ``q2`` [n, 2]
+    of triangles whose own 2D frame is :func:`_face_frames`'."""
+    inv00 = 1.0 / np.maximum(l1, 1e-300)
+    inv11 = 1.0 / np.maximum(e2y, 1e-300)
+    inv01 = -e2x * inv00 * inv11
+    J = np.empty((len(q1), 2, 2))
+    J[:, :, 0] = q1 * inv00[:, None]
+    J[:, :, 1] = q1 * inv01[:, None] + q2 * inv11[:, None]
+    return J
+
+
 def distortion(V, F, UV) -> Distortion:
     """Distortion of the map ``V -> UV`` on every triangle of ``F``."""
     V, F = check_mesh(V, F)
     UV = np.asarray(UV, np.float64)
     if UV.shape != (len(V), 2):
         raise InvalidMeshError(f"UV must have shape ({len(V)}, 2); got {UV.shape}")
-    P = V[F]
-    e1 = P[:, 1] - P[:, 0]
-    e2 = P[:, 2] - P[:, 0]
-    l1 = np.linalg.norm(e1, axis=1)
-    x = e1 / np.maximum(l1, 1e-300)[:, None]
-    e2x = (e2 * x).sum(1)
-    y = e2 - e2x[:, None] * x
-    e2y = np.linalg.norm(y, axis=1)
-    # local 2D frame of the 3D triangle: columns (l1, 0) and (e2x, e2y)
+    l1, e2x, e2y = _face_frames(V, F)
     Q = UV[F]
     q1 = Q[:, 1] - Q[:, 0]
     q2 = Q[:, 2] - Q[:, 0]
-    # J = [q1 q2] @ inv([[l1, e2x], [0, e2y]])
-    inv00 = 1.0 / np.maximum(l1, 1e-300)
-    inv11 = 1.0 / np.maximum(e2y, 1e-300)
-    inv01 = -e2x * inv00 * inv11
-    J = np.empty((len(F), 2, 2))
-    J[:, :, 0] = q1 * inv00[:, None]
-    J[:, :, 1] = q1 * inv01[:, None] + q2 * inv11[:, None]
+    J = _jacobians(q1, q2, l1, e2x, e2y)
     s = np.linalg.svd(J, compute_uv=False)
     det = np.linalg.det(J)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -154,22 +163,9 @@ def map_distortion(V, F, mapping, level: int = 4, eps: float = 1e-6) -> MapDisto
     if uv.shape != (3 * len(face), 2):
         raise InvalidMeshError(f"mapping must return shape ({3 * len(face)}, 2); got {uv.shape}")
     u0, u1, u2 = uv[: len(face)], uv[len(face) : 2 * len(face)], uv[2 * len(face) :]
-    P = V[F]
-    e1 = P[:, 1] - P[:, 0]
-    e2 = P[:, 2] - P[:, 0]
-    l1 = np.linalg.norm(e1, axis=1)
-    x = e1 / np.maximum(l1, 1e-300)[:, None]
-    e2x = (e2 * x).sum(1)
-    e2y = np.linalg.norm(e2 - e2x[:, None] * x, axis=1)
-    # d(uv)/d(b1), d(uv)/d(b2) in the face's own 2D frame: columns (l1, 0), (e2x, e2y)
-    q1 = (u1 - u0) / eps
-    q2 = (u2 - u0) / eps
-    inv00 = np.repeat(1.0 / np.maximum(l1, 1e-300), p)
-    inv11 = np.repeat(1.0 / np.maximum(e2y, 1e-300), p)
-    inv01 = -np.repeat(e2x, p) * inv00 * inv11
-    J = np.empty((len(face), 2, 2))
-    J[:, :, 0] = q1 * inv00[:, None]
-    J[:, :, 1] = q1 * inv01[:, None] + q2 * inv11[:, None]
+    l1, e2x, e2y = _face_frames(V, F)
+    # d(uv)/d(b1), d(uv)/d(b2) at each sample point, against its face's own 2D frame
+    J = _jacobians((u1 - u0) / eps, (u2 - u0) / eps, *(np.repeat(a, p) for a in (l1, e2x, e2y)))
     s = np.linalg.svd(J, compute_uv=False)
     det = np.linalg.det(J)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -52,6 +52,17 @@ def cmd_hmd_synth(args) -> int:
     return 0
 
 
+def _add_usage_pose_options(p) -> None:
+    """``--poses`` and ``--headset-pose`` of ``hmd remove`` and ``hmd eval``."""
+    p.add_argument("--poses", choices=("auto", "file", "landmarks", "image"), default="auto",
+                   help="head pose per frame: USAGE_DIR/head_poses.npz (file; a headset's own tracking), fitted to the "
+                        "landmarks below the headset (landmarks), read from the lower-face crop (image), or the first "
+                        "of these the folder allows (auto)")
+    p.add_argument("--headset-pose", action=argparse.BooleanOptionalAction, default=None,
+                   help="with --poses landmarks (or auto without a pose file): also correct the poses by where the "
+                        "headset masks (USAGE_DIR/hmd_masks) lie (default: the model's setting)")
+
+
 def _config(args):
     from .hfm import ABLATIONS, HFMConfig
 
@@ -249,13 +260,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     r.add_argument("--video", default=None, metavar="OUT.mp4", help="write an H.264 MP4 (with USAGE_DIR/audio.wav if any)")
     r.add_argument("--fps", type=number(float, 0, 240, lo_open=True), default=None,
                    help="frame rate of the video (default: the usage folder's, else 25)")
-    r.add_argument("--poses", choices=("auto", "file", "landmarks", "image"), default="auto",
-                   help="head pose per frame: USAGE_DIR/head_poses.npz (file; a headset's own tracking), fitted to the "
-                        "landmarks below the headset (landmarks), read from the lower-face crop (image), or the first "
-                        "of these the folder allows (auto)")
-    r.add_argument("--headset-pose", action=argparse.BooleanOptionalAction, default=None,
-                   help="with --poses landmarks (or auto without a pose file): also correct the poses by where the "
-                        "headset masks (USAGE_DIR/hmd_masks) lie (default: the model's setting)")
+    _add_usage_pose_options(r)
     r.add_argument("--no-composite", action="store_true", help="write the avatar renders, not frames with the HMD region replaced")
     r.set_defaults(func=cmd_hmd_remove)
     from .drive_cli import add_export_parser
@@ -264,13 +269,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     e = hs.add_parser("eval", parents=[common], help="PSNR/SSIM (whole face, occluded region) and FPS on a usage folder with gt/")
     e.add_argument("model_dir", metavar="MODEL_DIR")
     e.add_argument("usage_dir", metavar="USAGE_DIR")
-    e.add_argument("--poses", choices=("auto", "file", "landmarks", "image"), default="auto",
-                   help="head pose per frame: USAGE_DIR/head_poses.npz (file; a headset's own tracking), fitted to the "
-                        "landmarks below the headset (landmarks), read from the lower-face crop (image), or the first "
-                        "of these the folder allows (auto)")
-    e.add_argument("--headset-pose", action=argparse.BooleanOptionalAction, default=None,
-                   help="with --poses landmarks (or auto without a pose file): also correct the poses by where the "
-                        "headset masks (USAGE_DIR/hmd_masks) lie (default: the model's setting)")
+    _add_usage_pose_options(e)
     add_json(e, "the figures")
     e.set_defaults(func=cmd_hmd_eval)
 
