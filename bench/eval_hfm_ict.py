@@ -21,7 +21,9 @@ talking, emoting, lit ICT person, registration and usage videos of different seq
 * ``pose_residual``, ``no_pose_residual``, ``reg_lower``, ``reg_lower_no_pose_residual``, ``pose_refine`` —
   Full with or without the residual pose MLP (the default leaves it out), with registration poses
   fitted to the lower landmarks, or both, or with the registration poses corrected per frame by the
-  image loss (:data:`OURS`; validation);
+  image loss (:data:`OURS`; validation); ``reg_stable``: registration poses fitted to the stable landmarks;
+  ``pose_head_detach``: the crop's pose MLP learns alone, out of the encoder's training (and
+  ``oracle_pose_head_detach``, the same registered and used with the true poses);
 
 and scores each on the usage video (PSNR/SSIM: whole face, the region the headset hides, its
 expression region; the occluded region's interior and its outline, the face pixels within 1 px
@@ -63,8 +65,8 @@ PAPER = {"map_theta": {"map_theta": True}, "gm_xsr": {"gm_input": "xsr"},
 OURS = {"pose_residual": {"pose_residual": True}, "no_pose_residual": {"pose_residual": False}, "reg_lower": {"registration_landmarks": "lower"},
         "reg_lower_no_pose_residual": {"registration_landmarks": "lower", "pose_residual": False},
         "pose_refine": {"pose_refine": True}, "reg_stable": {"registration_landmarks": "stable"},
-        "pose_head_detach": {"image_pose_detach": True}}
-VARIANTS.update({k: ("full", "landmarks") for k in {**PAPER, **OURS}})
+        "pose_head_detach": {"image_pose_detach": True}, "oracle_pose_head_detach": {"image_pose_detach": True}}
+VARIANTS.update({k: ("full", "file" if k.startswith("oracle") else "landmarks") for k in {**PAPER, **OURS}})
 MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]
 
 
