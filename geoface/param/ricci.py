@@ -136,8 +136,10 @@ class RicciFlowResult:
 
 
 def _energy_terms(lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-face ``2 f_T(lam) - pi/2 sum(lam)`` and angles, for ``lam = 2 log l`` (m, 3)."""
-    ang = corner_angles(np.exp(0.5 * lam))
+    """Per-face ``2 f_T(lam) - pi/2 sum(lam)`` and angles, for ``lam = 2 log l`` (m, 3).  A line
+    search's trial step may overflow the lengths: the energy is then not finite, and the step refused."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        ang = corner_angles(np.exp(0.5 * lam))
     f2 = (ang * lam).sum(1) + 2.0 * lobachevsky(ang).sum(1)
     return f2 - 0.5 * np.pi * lam.sum(1), ang
 

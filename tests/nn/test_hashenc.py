@@ -48,7 +48,7 @@ def test_continuity_across_cells():
     x = torch.tensor([[0.5, 0.3]])
     eps = 1e-6
     d = (enc(x + eps) - enc(x - eps)).abs().max()
-    assert float(d) < 1e-3  # d-linear interpolation is continuous (Lipschitz ~ res)
+    assert float(d.detach()) < 1e-3  # d-linear interpolation is continuous (Lipschitz ~ res)
 
 
 def test_gradcheck_float64():
@@ -69,7 +69,7 @@ def test_fits_a_signal():
     first = None
     for _ in range(150):
         loss = ((head(enc(x)) - y) ** 2).mean()
-        first = first if first is not None else float(loss)
+        first = first if first is not None else float(loss.detach())
         opt.zero_grad()
         loss.backward()
         opt.step()
