@@ -66,7 +66,8 @@ OURS = {"pose_residual": {"pose_residual": True}, "no_pose_residual": {"pose_res
         "reg_lower_no_pose_residual": {"registration_landmarks": "lower", "pose_residual": False},
         "pose_refine": {"pose_refine": True}, "reg_stable": {"registration_landmarks": "stable"},
         "pose_head_detach": {"image_pose_detach": True}, "oracle_pose_head_detach": {"image_pose_detach": True}}
-VARIANTS.update({k: ("full", "file" if k.startswith("oracle") else "landmarks") for k in {**PAPER, **OURS}})
+VARIANTS.update({k: ("full", "landmarks") for k in {**PAPER, **OURS}})
+VARIANTS["oracle_pose_head_detach"] = ("full", "file")  # registered and used with the true poses
 MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]
 
 
