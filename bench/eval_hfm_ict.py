@@ -280,14 +280,16 @@ def _recalibrate(model, reg, components: int, ridge: float, weighted: bool = Fal
 
 def _calibration(a) -> None:
     """Score trained no-file models with the usage pose calibration of each ``--grid`` setting
-    (components:ridge[:w][:s][:eN][:hR]; 0:0 = none; w: weighted; s: the stable lower landmarks; hR: usage poses corrected by the headset
-    masks with expression-map ridge R), learned from the registration video as training learns it."""
+    (components:ridge[:w][:s][:eN][:hR][:aN|:AN]; 0:0 = none; w: weighted; s: the stable lower landmarks; hR: usage poses corrected by the headset
+    masks with expression-map ridge R; aN: then aligned with the image, N steps per frame, turning the head only, AN:
+    also moving it), learned from the registration video as training learns it."""
     from dataclasses import replace
 
     import torch
 
     from geoface.splat.hfm import evaluate_hmd, load_hfm
     from geoface.splat.hfm_data import load_video
+    from geoface.splat.hfm_usage import usage_poses
 
     torch.set_num_threads(a.threads)
     models = Path(a.models or Path(a.out) / "models")
@@ -304,31 +306,35 @@ def _calibration(a) -> None:
                         k, ridge, *flags = g.split(":")
                         draws = int(next((f[1:] for f in flags if f.startswith("e")), 0))
                         hs = next((float(f[1:]) for f in flags if f.startswith("h")), None)
+                        align = next((f for f in flags if f[:1] in "aA"), "a0")
                         _recalibrate(model, reg, int(k), float(ridge), weighted="w" in flags, expressions=draws,
                                      usage_landmarks="stable" if "s" in flags else "lower")
-                        model.cfg = replace(model.cfg, headset_pose=hs is not None, headset_pose_ridge=hs or 0.0)
-                        r = evaluate_hmd(model, use, poses="landmarks")
-                        r.update(_upper_error(model, use))
+                        model.cfg = replace(model.cfg, headset_pose=hs is not None, headset_pose_ridge=hs or 0.0,
+                                            pose_align=int(align[1:]), pose_align_translation=align[0] == "A")
+                        pose, source = usage_poses(model, use, "landmarks")  # once: the alignment is slow
+                        r = evaluate_hmd(model, replace(use, poses=pose), poses="file")
+                        r.update(poses=source, **_upper_error(model, use, pose))
                         row = {"stage": "calibration", "split": split, "data_seed": s, "seed": seed, "variant": v,
                                "components": int(k), "ridge": float(ridge), "weighted": "w" in flags, "expressions": draws,
                                "usage_landmarks": model.cfg.usage_landmarks,
-                               "headset_ridge": hs, "poses": r["poses"], "upper_px": r["upper_px"], "lower_px": r["lower_px"],
+                               "headset_ridge": hs, "align_steps": int(align[1:]), "align_translation": align[0] == "A",
+                               "poses": r["poses"], "upper_px": r["upper_px"], "lower_px": r["lower_px"],
                                **{k: round(float(r[k]), 4) for k in ("psnr_face", "ssim_face", "psnr_occluded",
-                                                                     "ssim_occluded", "psnr_expression")}}
+                                                                     "ssim_occluded", "psnr_expression", "psnr_occluded_interior",
+                                                                     "psnr_occluded_outline")}}
                         print(json.dumps(row), flush=True)
                         with (Path(a.out) / "results.jsonl").open("a") as f:
                             f.write(json.dumps(row) + "\n")
 
 
-def _upper_error(model, use) -> dict:
-    """How far the usage poses (fitted to the landmarks, as the model's settings say) put the head's
+def _upper_error(model, use, pose) -> dict:
+    """How far the usage poses ``pose`` (fitted to the landmarks, as the model's settings say) put the head's
     upper (iBUG 17–47: brows, nose bridge, eyes) and lower landmarks from where the true poses put
     them: mean image distance, pixels."""
     from geoface.splat.hfm_data import IBUG68_NAMES
-    from geoface.splat.hfm_usage import usage_poses
     from geoface.splat.head_pose import repivot
 
-    (R, t, piv), _ = usage_poses(model, use, "landmarks")
+    R, t, piv = pose
     Rt, tt, pt = use.poses
     tt = repivot(Rt, tt, pt, piv)
     known = dict(zip(model.landmarks3d["names"], np.asarray(model.landmarks3d["points"])))

@@ -61,6 +61,12 @@ def _add_usage_pose_options(p) -> None:
     p.add_argument("--headset-pose", action=argparse.BooleanOptionalAction, default=None,
                    help="with --poses landmarks (or auto without a pose file): also correct the poses by where the "
                         "headset masks (USAGE_DIR/hmd_masks) lie (default: the model's setting)")
+    p.add_argument("--pose-align", type=int, default=None, metavar="STEPS",
+                   help="with --poses landmarks (or auto without a pose file): then turn each frame's pose so that the "
+                        "avatar's render matches the pixels outside the headset masks, STEPS gradient steps per frame "
+                        "(0: not; default: the model's setting; slow on a CPU, about 0.25 s a step at 128 px)")
+    p.add_argument("--pose-align-translation", action=argparse.BooleanOptionalAction, default=None,
+                   help="the alignment also moves the head, not only turns it (default: the model's setting)")
 
 
 def _config(args):
@@ -104,14 +110,16 @@ def cmd_hmd_train(args) -> int:
 
 
 def _load_for_usage(args):
-    """The model of ``args.model_dir`` with ``--headset-pose/--no-headset-pose`` applied."""
-    from dataclasses import replace
+    """The model of ``args.model_dir`` with the usage pose options (``--headset-pose``,
+    ``--pose-align``, ``--pose-align-translation``) applied where given."""
+    from .hfm import HFMConfig, load_hfm
 
-    from .hfm import load_hfm
-
+    if args.pose_align is not None and args.pose_align < 0:
+        raise GeofaceError(f"--pose-align: a number of steps per frame, >= 0; got {args.pose_align}")
     model = load_hfm(args.model_dir)
-    if args.headset_pose is not None:
-        model.cfg = replace(model.cfg, headset_pose=args.headset_pose)
+    given = {f: getattr(args, f) for f in ("headset_pose", "pose_align", "pose_align_translation")
+             if getattr(args, f) is not None}
+    model.cfg = HFMConfig(**{**model.cfg.to_dict(), **given}) if given else model.cfg
     return model
 
 

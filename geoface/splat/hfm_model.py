@@ -53,6 +53,8 @@ class HFMConfig:
     pose_calibration_expressions: int = 0  # registration frames seen again with this many generic expressions each (0: none)
     headset_pose: bool = False  # usage poses corrected by where the headset masks lie (geoface.splat.headset_pose)
     headset_pose_ridge: float = 0.1  # the penalty on its expression map
+    pose_align: int = 0        # usage poses from landmarks then aligned with the image: steps per frame (0: not)
+    pose_align_translation: bool = False  # the alignment also moves the head, not only turns it
     pose_refine: bool = False  # registration poses fitted to landmarks get per-frame corrections learned with the images
     lr_pose: float = 4e-3      # their step: radians per visit of a frame at a typical misfit (FrameCorrections)
     lambda_pose: float = 100.0  # weight of its loss: squared radians + squared (translation / 0.1 head size)
@@ -105,6 +107,8 @@ class HFMConfig:
         if self.pose_calibration < 0 or self.pose_calibration_ridge < 0 or self.pose_calibration_expressions < 0:
             raise SplatError(f"HFMConfig.pose_calibration, pose_calibration_ridge and pose_calibration_expressions must be "
                              f">= 0; got {self.pose_calibration}, {self.pose_calibration_ridge}, {self.pose_calibration_expressions}")
+        if self.pose_align < 0:
+            raise SplatError(f"HFMConfig.pose_align is a number of steps per frame, >= 0; got {self.pose_align!r}")
         if not self.headset_pose_ridge >= 0:
             raise SplatError(f"HFMConfig.headset_pose_ridge must be >= 0; got {self.headset_pose_ridge!r}")
         if self.registration_landmarks not in ("rigid", "stable", "lower"):

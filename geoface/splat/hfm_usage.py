@@ -33,7 +33,10 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
       and the video's ``hmd_masks``, then moved by what the lower face's expressions do to the
       headset silhouette's place (:mod:`geoface.splat.headset_pose`: a broad smile that the
       registration never showed tilts the calibrated pose; the headset, rigid with the head, does
-      not smile) — source ``"landmarks+headset"``;
+      not smile) — source ``"landmarks+headset"``; with ``cfg.pose_align`` steps and the video's
+      ``hmd_masks``, then aligned with the image (:func:`~geoface.splat.hfm_align.align_poses`:
+      each frame's pose turned so that the avatar's render matches the pixels the headset leaves
+      visible) — ``"+image"`` added to the source;
     * ``"image"`` — read from each lower-face crop by the model (None is returned: the model does it
       per frame);
     * ``"auto"`` — the file, else the landmarks (at least 4 such points), else the image.
@@ -76,24 +79,28 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
         w = [weight_of[n] for n in use]
     fit = solve_poses(video.camera, P, video.landmarks[:, idx], piv, init=init, weights=w)
     R, t = fit["R"], fit["t"]
-    if not calibrated:
-        return (R, t, piv), "landmarks"
-    # in the registration poses' frame
-    got = apply_lower_calibration(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
-    if got is None:
-        return (R, t, piv), "landmarks"
-    Rc, tc = got
+    got = None  # in the registration poses' frame
+    if calibrated:
+        got = apply_lower_calibration(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
+    pose, source = ((R, t, piv) if got is None else (*got, piv)), "landmarks"
     anchor = known.get("nose_bridge_0")  # where a headset sits
-    if not model.cfg.headset_pose or video.hmd_masks is None or anchor is None:
-        return (Rc, tc, piv), "landmarks"
-    from geoface.splat.headset_pose import headset_centroids, headset_components, headset_poses
+    if got is not None and model.cfg.headset_pose and video.hmd_masks is not None and anchor is not None:
+        from geoface.splat.headset_pose import headset_centroids, headset_components, headset_poses
 
-    cen = headset_centroids(video.hmd_masks)
-    if headset_components(int(np.isfinite(cen).all(1).sum()), len(cal["basis"])) < 1:  # too few whole silhouettes
-        return (Rc, tc, piv), "landmarks"
-    Z = calibration_scores(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
-    Rh, th, _ = headset_poses(video.camera, Rc, tc, piv, P, cen, anchor, Z, weights=w, ridge=model.cfg.headset_pose_ridge)
-    return (Rh, th, piv), "landmarks+headset"
+        cen = headset_centroids(video.hmd_masks)
+        if headset_components(int(np.isfinite(cen).all(1).sum()), len(cal["basis"])) >= 1:  # enough whole silhouettes
+            Z = calibration_scores(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
+            Rh, th, _ = headset_poses(video.camera, *got, piv, P, cen, anchor, Z, weights=w,
+                                      ridge=model.cfg.headset_pose_ridge)
+            pose, source = (Rh, th, piv), "landmarks+headset"
+    if model.cfg.pose_align and video.hmd_masks is not None:
+        from geoface.splat.hfm_align import align_poses
+
+        with torch.enable_grad():
+            pose = align_poses(model, video, pose, steps=model.cfg.pose_align,
+                               translation=model.cfg.pose_align_translation)
+        source += "+image"
+    return pose, source
 
 
 def _frame_input(video, t: int, size: int, boxes: np.ndarray) -> tuple[Tensor, Tensor]:
