@@ -1,7 +1,7 @@
 """Pictures of the avatars on ICT-FaceKit captures for the docs, each frame beside its truth.
 
     python data_tools/avatar_pictures.py hmd MODEL_DIR USAGE_DIR OUT.jpg [--frames 5 20 40] [--poses landmarks]
-        [--error-poses landmarks file --gain 4]
+        [--error-poses landmarks landmarks+image file --gain 4]
     python data_tools/avatar_pictures.py talk MODEL_DIR DATA_DIR OUT.jpg [--count 4]
 
 * ``hmd``: per chosen usage frame, a column of the input (headset on), the restored frame (the
@@ -9,7 +9,8 @@
   same frame rendered without the headset) and the avatar's own whole render; with
   ``--error-poses``, then for each of those pose sources the restored frame's error against the
   ground truth where the occluded region is scored (face pixels under the headset; absolute
-  difference times ``--gain``);
+  difference times ``--gain``); a source ``landmarks+image`` is the landmark poses aligned with
+  the image (``--pose-align 20``);
 * ``talk``: held-out frames of a THGS model (the last fraction its training left out, those with
   the widest range of mouth opening), the render above the real frame.
 """
@@ -33,22 +34,36 @@ def _grid(rows, tile: int):
     return np.concatenate([np.concatenate([t(im) for im in row], 1) for row in rows], 0)
 
 
+def _renders(model, video, source: str):
+    """The avatar's renders of ``video`` in the poses of ``source`` (``landmarks+image``: the
+    landmark poses aligned with the image, 20 steps a frame)."""
+    from dataclasses import replace
+
+    from geoface.splat.hfm_usage import remove_hmd
+
+    cfg = model.cfg
+    model.cfg = replace(cfg, pose_align=20 if source.endswith("+image") else 0)
+    try:
+        return remove_hmd(model, video, poses=source.removesuffix("+image"))[0]
+    finally:
+        model.cfg = cfg
+
+
 def hmd(a) -> "np.ndarray":
     import numpy as np
 
     from geoface.splat.hfm_data import _read_png, load_video
     from geoface.splat.hfm_train import load_hfm
-    from geoface.splat.hfm_usage import remove_hmd
 
     model = load_hfm(a.model_dir)
     video = load_video(a.data_dir)
-    renders, _ = remove_hmd(model, video, poses=a.poses)
+    renders = _renders(model, video, a.poses)
     frames = [f for f in a.frames if f < len(video)]
     gt = [_read_png(Path(a.data_dir) / "gt" / f"{f:06d}.png") for f in frames]
     restored = [np.where(video.hmd_masks[f][..., None], renders[f], video.frames[f]) for f in frames]
     rows = [[video.frames[f] for f in frames], restored, gt, [renders[f] for f in frames]]
     for source in a.error_poses:
-        R = renders if source == a.poses else remove_hmd(model, video, poses=source)[0]
+        R = renders if source == a.poses else _renders(model, video, source)
         rows.append([np.abs(R[f] - g) * a.gain * (video.hmd_masks[f] & (g.max(-1) > 0))[..., None]
                      for f, g in zip(frames, gt)])  # where the occluded-region PSNR is scored
     return _grid(rows, a.tile)

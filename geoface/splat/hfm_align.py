@@ -53,9 +53,10 @@ def align_poses(model, video, pose, *, steps: int = 20, lr: float = 2e-3, transl
         R, t = torch.tensor(R0[f], **f32), torch.tensor(t0[f], **f32)
         target = torch.tensor(video.frames[f], **f32)
         seen = torch.tensor(~video.hmd_masks[f], **f32)
-        with torch.no_grad():
+        with torch.no_grad():  # the frame's avatar, fixed (its opacities and colours are the model's own tensors)
             g = model.deform(model.encoder(*(a.to(dev) for a in _frame_input(video, f, model.cfg.crop, boxes))),
                              None, read_pose=False)
+            g = GaussianTensors(*(a.detach() for a in (g.means, g.log_scales, g.quats, g.opacity_logits, g.colors)))
         d_rot = d_rot.clone().requires_grad_(True)
         d_t = d_t.clone().requires_grad_(translation)
         groups = [{"params": [d_rot], "lr": lr}]

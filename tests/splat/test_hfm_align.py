@@ -97,3 +97,11 @@ def test_cli_aligns_landmark_poses_on_request(rendered, tmp_path, capsys):
     assert main(args + [str(tmp_path / "c.json"), "--pose-align", "-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("geoface: error: --pose-align") and not (tmp_path / "c.json").exists()
+
+
+def test_the_model_is_left_untouched(rendered):
+    model, video, _ = rendered
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    align_poses(model, video, video.poses, steps=2)
+    assert all(p.grad is None for p in model.parameters())
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
