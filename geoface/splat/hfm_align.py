@@ -34,7 +34,7 @@ def align_poses(model, video, pose, *, steps: int = 20, lr: float = 2e-3, transl
     from geoface.progress import progress
     from geoface.splat.corrections import corrected_pose
     from geoface.splat.gaussians import GaussianTensors, quat_mul, rotmat_to_quat_torch
-    from geoface.splat.hfm_usage import _frame_input
+    from geoface.splat.hfm_data import frame_input
     from geoface.splat.rasterizer import rasterize
 
     if video.hmd_masks is None:
@@ -54,7 +54,7 @@ def align_poses(model, video, pose, *, steps: int = 20, lr: float = 2e-3, transl
         target = torch.tensor(video.frames[f], **f32)
         seen = torch.tensor(~video.hmd_masks[f], **f32)
         with torch.no_grad():  # the frame's avatar, fixed (its opacities and colours are the model's own tensors)
-            g = model.deform(model.encoder(*(a.to(dev) for a in _frame_input(video, f, model.cfg.crop, boxes))),
+            g = model.deform(model.encoder(*(a.to(dev) for a in frame_input(video, f, model.cfg.crop, boxes))),
                              None, read_pose=False)
             g = GaussianTensors(*(a.detach() for a in (g.means, g.log_scales, g.quats, g.opacity_logits, g.colors)))
         d_rot = d_rot.clone().requires_grad_(True)

@@ -271,6 +271,15 @@ def crop_lower_face(frame, pts, size: int = 128) -> np.ndarray:
     return np.ascontiguousarray(out.transpose(2, 0, 1))
 
 
+def frame_input(video, t: int, size: int, boxes: np.ndarray):
+    """Frame ``t``'s lower-face crop [1, 3, size, size] and crop box [1, 3] as torch tensors
+    (``boxes`` = ``video.boxes()``), as the HFM-GS encoder takes them."""
+    import torch
+
+    crop = torch.tensor(crop_lower_face(video.frames[t], video.lower_landmarks(t), size))[None]
+    return crop, torch.tensor(boxes[t:t + 1])
+
+
 # ----------------------------------------------------------------------------- synthetic data
 def _drivers(T: int, rng) -> np.ndarray:
     """[T, 3] smooth activations in [0, 1] of (surprise, smile, frown): sums of slow sinusoids,

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch import Tensor
 
 from geoface.splat.errors import SplatError
+from geoface.splat.hfm_data import frame_input
 from geoface.splat.hfm_model import HFMModel
 from geoface.splat.hfm_train import _pose
 
@@ -68,7 +68,7 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     init = None
     if model.predicts_head_pose:  # start from the pose the crop says
         boxes = video.boxes()
-        q = model.head_pose_params(model.encoder(*_frame_input(video, 0, model.cfg.crop, boxes)))[0]
+        q = model.head_pose_params(model.encoder(*frame_input(video, 0, model.cfg.crop, boxes)))[0]
         R0, t0, c = (a.double().cpu().numpy() for a in model.head_pose_from_params(q))
         init = (R0, repivot(R0, t0, c, piv))
     cal = getattr(model, "pose_calibration", None)
@@ -103,15 +103,6 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     return pose, source
 
 
-def _frame_input(video, t: int, size: int, boxes: np.ndarray) -> tuple[Tensor, Tensor]:
-    """Frame ``t``'s lower-face crop [1, 3, size, size] and crop box [1, 3] (``boxes`` =
-    ``video.boxes()``), as the encoder takes them."""
-    from geoface.splat.hfm_data import crop_lower_face
-
-    crop = torch.tensor(crop_lower_face(video.frames[t], video.lower_landmarks(t), size))[None]
-    return crop, torch.tensor(boxes[t:t + 1])
-
-
 def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: bool = True, poses: str = "auto"):
     """Restore every frame of ``video`` (an :class:`HMDVideo`): render the avatar driven by the
     lower-face crop, in the head pose that ``poses`` says (:func:`usage_poses`); where
@@ -141,7 +132,7 @@ def _remove(model, video, out_dir, camera, composite, poses):
     boxes = video.boxes()
     for t in range(len(video)):
         t0 = time.perf_counter()
-        rgb = rasterize(model(*_frame_input(video, t, model.cfg.crop, boxes), _pose(video, t)), cam,
+        rgb = rasterize(model(*frame_input(video, t, model.cfg.crop, boxes), _pose(video, t)), cam,
                         background=bg)[0].clamp(0, 1).numpy()
         times.append(time.perf_counter() - t0 + fit_s)
         renders.append(rgb)
@@ -160,7 +151,7 @@ def expression_motion(model: HFMModel, video) -> dict:
     over the upper and the lower set, in millimetres (scene units are metres). Near zero means
     the avatar ignores the lower face (a collapsed encoder or dead deformation networks)."""
     boxes = video.boxes()
-    P = torch.stack([model(*_frame_input(video, t, model.cfg.crop, boxes), read_pose=False).means
+    P = torch.stack([model(*frame_input(video, t, model.cfg.crop, boxes), read_pose=False).means
                      for t in range(len(video))])
     rms = (P - P.mean(0)).pow(2).sum(-1).mean(0).sqrt() * 1000
     up = model.upper_mask()

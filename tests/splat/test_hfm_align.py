@@ -14,8 +14,7 @@ from geoface.splat.corrections import corrected_pose
 from geoface.splat.errors import SplatError
 from geoface.splat.hfm import HFMConfig, load_hfm, save_hfm, train_hfm
 from geoface.splat.hfm_align import align_poses
-from geoface.splat.hfm_data import load_video
-from geoface.splat.hfm_usage import _frame_input
+from geoface.splat.hfm_data import frame_input, load_video
 from geoface.splat.rasterizer import rasterize
 
 
@@ -35,7 +34,7 @@ def rendered(tmp_path_factory):
     R, t, p = video.poses
     boxes = video.boxes()
     with torch.no_grad():
-        frames = np.stack([rasterize(model(*_frame_input(video, f, model.cfg.crop, boxes), (R[f], t[f], p)),
+        frames = np.stack([rasterize(model(*frame_input(video, f, model.cfg.crop, boxes), (R[f], t[f], p)),
                                      video.camera, background=torch.zeros(3))[0].clamp(0, 1).numpy()
                            for f in range(len(video))])
     return model, replace(video, frames=frames), use
