@@ -117,9 +117,8 @@ def _thgs_drive(model, source: Path, fps: float) -> AvatarDrive:
 
 
 def _hfm_drive(model, source: Path) -> AvatarDrive:
-    from geoface.splat.hfm_data import load_video
+    from geoface.splat.hfm_data import frame_input, load_video
     from geoface.splat.hfm_train import _pose
-    from geoface.splat.hfm_data import frame_input
 
     if not source.is_dir():
         raise SplatError(f"{source}: an HMD avatar is driven by a usage folder (`hmd synth` writes one)")
