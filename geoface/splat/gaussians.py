@@ -153,6 +153,13 @@ class _GaussianOps:
     def covariances(self) -> Tensor:  # [N, 3, 3]
         return covariance(self.log_scales, self.quats)
 
+    def rigidly_moved(self, R: Tensor, t: Tensor, pivot: Tensor) -> "GaussianTensors":
+        """The Gaussians moved by the rigid motion X' = R (X − pivot) + pivot + t (R [3, 3], t and
+        pivot [3]): means moved, rotations turned by R; scales, opacities and colours as they are."""
+        quats = quat_mul(rotmat_to_quat_torch(R[None]).expand(len(self), 4), self.quats)
+        return GaussianTensors((self.means - pivot) @ R.T + pivot + t, self.log_scales, quats, self.opacity_logits,
+                               self.colors)
+
     def rgb(self, cam_center=None) -> Tensor:  # [N, 3]
         """View-dependent colour seen from ``cam_center`` (3,) (ignored for plain RGB)."""
         if not self.is_sh:

@@ -33,7 +33,7 @@ def align_poses(model, video, pose, *, steps: int = 20, lr: float = 2e-3, transl
 
     from geoface.progress import progress
     from geoface.splat.corrections import corrected_pose
-    from geoface.splat.gaussians import GaussianTensors, quat_mul, rotmat_to_quat_torch
+    from geoface.splat.gaussians import GaussianTensors
     from geoface.splat.hfm_data import frame_input
     from geoface.splat.rasterizer import rasterize
 
@@ -65,10 +65,7 @@ def align_poses(model, video, pose, *, steps: int = 20, lr: float = 2e-3, transl
         opt = torch.optim.Adam(groups)
         for _ in range(steps):
             Rn, tn, _ = corrected_pose(R, t, p, d_rot, d_t, model.center)
-            posed = GaussianTensors((g.means - p) @ Rn.T + p + tn, g.log_scales,
-                                    quat_mul(rotmat_to_quat_torch(Rn[None]).expand(len(g.means), 4), g.quats),
-                                    g.opacity_logits, g.colors)
-            img = rasterize(posed, video.camera, background=bg)[0]
+            img = rasterize(g.rigidly_moved(Rn, tn, p), video.camera, background=bg)[0]
             loss = (((img - target) ** 2).sum(-1) * seen).sum() / seen.sum().clamp_min(1.0)
             opt.zero_grad()
             loss.backward()
@@ -76,7 +73,7 @@ def align_poses(model, video, pose, *, steps: int = 20, lr: float = 2e-3, transl
         d_rot, d_t = d_rot.detach(), d_t.detach()
         with torch.no_grad():
             Rn, tn, _ = corrected_pose(R, t, p, d_rot, d_t, model.center)
-        rots.append(Rotation.from_matrix(R0[f].T @ Rn.double().cpu().numpy()).as_rotvec())
+        rots.append(d_rot.double().cpu().numpy())  # the pose is R0 times its rotation
         moves.append(tn.double().cpu().numpy() - t0[f])
     rots, moves = np.asarray(rots), np.asarray(moves)
     if smooth > 0:  # corrections vary slowly; a frame's own is noisy

@@ -9,7 +9,7 @@ import torch
 from torch import Tensor, nn
 
 from geoface.splat.errors import SplatError
-from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat, rotmat_to_quat_torch
+from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat
 from geoface.splat.hfm_blocks import (DeformHeads, ImageEncoder, axis_angle_to_quat, farthest_point_sampling,
                                       inverse_distance_weights, mlp, posenc)
 
@@ -473,12 +473,11 @@ class HFMModel(nn.Module):
             quats = quat_mul(qg[None].expand(n, 4), quats)
         if head_pose is None and read_pose and self.predicts_head_pose:
             head_pose = self.head_pose_from_params(self.head_pose_params(theta)[0])
+        out = GaussianTensors(means, log_scales, quats, g.opacity_logits, g.colors)
         if head_pose is not None:
-            R, t, piv = (torch.as_tensor(a, dtype=X.dtype, device=X.device) if torch.is_tensor(a) else
-                         torch.as_tensor(np.asarray(a), dtype=X.dtype, device=X.device) for a in head_pose)
-            means = (means - piv) @ R.T + piv + t
-            quats = quat_mul(rotmat_to_quat_torch(R[None]).expand(n, 4), quats)
-        return GaussianTensors(means, log_scales, quats, g.opacity_logits, g.colors)
+            out = out.rigidly_moved(*(torch.as_tensor(a, dtype=X.dtype, device=X.device) if torch.is_tensor(a) else
+                                      torch.as_tensor(np.asarray(a), dtype=X.dtype, device=X.device) for a in head_pose))
+        return out
 
     def forward(self, crop: Tensor, box: Tensor | None = None, head_pose=None, read_pose: bool = True) -> GaussianTensors:
         return self.deform(self.encoder(crop, box), head_pose, read_pose)
