@@ -321,7 +321,9 @@ def _calibration(a) -> None:
                                "poses": r["poses"], "upper_px": r["upper_px"], "lower_px": r["lower_px"],
                                **{k: round(float(r[k]), 4) for k in ("psnr_face", "ssim_face", "psnr_occluded",
                                                                      "ssim_occluded", "psnr_expression", "psnr_occluded_interior",
-                                                                     "psnr_occluded_outline")}}
+                                                                     "psnr_occluded_outline")},
+                               **{k: round(float(r[k]), 4) for k in ("expression_beyond", "expression_reach_median",
+                                                                     "expression_reach_max") if k in r}}
                         print(json.dumps(row), flush=True)
                         with (Path(a.out) / "results.jsonl").open("a") as f:
                             f.write(json.dumps(row) + "\n")

@@ -24,7 +24,8 @@ import numpy as np
 from geoface.splat.errors import SplatError
 
 __all__ = ["landmarks_on_mesh", "solve_poses", "triangulate", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
-           "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "calibration_scores", "rigidity_weights",
+           "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "calibration_scores", "expression_reach",
+           "rigidity_weights",
            "landmark_expressions", "LOWER_RIGID_NAMES", "LOWER_STABLE_NAMES", "STABLE_NAMES"]
 
 #: iBUG names below a headset that move little with expressions (nose base, the jaw line's ends)
@@ -291,6 +292,10 @@ def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses
 
     ``names`` / ``points3d``: the landmarks placed on the canonical head; ``landmarks``
     [T, K, 2] the video's, named ``frame_names``; ``poses`` = (R [T, 3, 3], t [T, 3], pivot).
+    With at least four frames per component the dict also keeps how far the frames' features
+    spread along each component (``score_sd``) and the largest distance of a frame from the mean
+    face in those units (``score_reach``), which say when a usage video's expressions lie beyond
+    the calibration's (:func:`expression_reach`).
     Returns a JSON-able dict for :func:`apply_lower_calibration`, or None when fewer than 4 fit
     points or fewer frames than components + 2 are there."""
     placed = {n: i for i, n in enumerate(names)}
@@ -324,8 +329,13 @@ def calibrate_lower_poses(camera, names, points3d, landmarks, frame_names, poses
     Z = (F - mean) @ Vt[:k].T
     lam = ridge * float(np.mean(S[:k] ** 2))
     W = np.linalg.solve(Z.T @ Z + lam * np.eye(k), Z.T @ (Y - off))
-    return {"fit_names": fit, "names": feat, "pivot": piv.tolist(), "mean": mean.tolist(), "basis": Vt[:k].tolist(),
-            "weights": W.tolist(), "offset": off.tolist(), **({"fit_weights": w.tolist()} if weighted else {})}
+    out = {"fit_names": fit, "names": feat, "pivot": piv.tolist(), "mean": mean.tolist(), "basis": Vt[:k].tolist(),
+           "weights": W.tolist(), "offset": off.tolist(), **({"fit_weights": w.tolist()} if weighted else {})}
+    if len(Z) >= 4 * k:  # fewer frames do not say how far the expressions spread
+        sd = Z.std(0)
+        sd = np.maximum(sd, 1e-9 * max(float(sd.max()), 1e-30))  # a component the frames never moved along
+        out.update(score_sd=sd.tolist(), score_reach=float(np.sqrt(((Z / sd) ** 2).sum(1)).max()))
+    return out
 
 
 def _with_expressions(camera, P, obs, cols, R, t, piv, B, draws: int, seed: int):
@@ -385,6 +395,18 @@ def calibration_scores(cal: dict, camera, points3d_of: dict, landmarks, frame_na
     F = ray_offsets(camera, R, repivot(R, t, p, piv), piv, np.array([points3d_of[n] for n in cal["names"]]),
                     obs).reshape(len(R), -1)
     return (F - np.asarray(cal["mean"])) @ np.asarray(cal["basis"]).T
+
+
+def expression_reach(cal: dict, Z) -> np.ndarray | None:
+    """[T]: how far each frame's lower-face expression (``Z``, :func:`calibration_scores`) lies from
+    the registration's mean face, in units of the farthest frame ``cal`` learned from (Mahalanobis
+    distance over the components' spreads, divided by the registration's largest).  Above 1 the
+    expression is beyond any the calibration saw, and its correction an extrapolation.  None when
+    ``Z`` is None or ``cal`` was made before it kept the spreads (``score_sd``, ``score_reach``)."""
+    if Z is None or "score_sd" not in cal or "score_reach" not in cal:
+        return None
+    d = np.sqrt(((np.asarray(Z, np.float64) / np.asarray(cal["score_sd"], np.float64)) ** 2).sum(1))
+    return d / float(cal["score_reach"])
 
 
 def apply_lower_calibration(cal: dict, camera, points3d_of: dict, landmarks, frame_names, R, t, pivot):

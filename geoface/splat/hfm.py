@@ -118,9 +118,9 @@ from geoface.splat.hfm_blocks import (SegregationStrategy, boundary_loss, farthe
                                       inverse_distance_weights, ImageEncoder)
 from geoface.splat.hfm_model import ABLATIONS, HFMConfig, HFMModel, select_keys
 from geoface.splat.hfm_train import VGGPerceptual, build_model, load_hfm, save_hfm, train_hfm
-from geoface.splat.hfm_usage import evaluate_hmd, expression_motion, hmd_metrics, remove_hmd
+from geoface.splat.hfm_usage import evaluate_hmd, expression_coverage, expression_motion, hmd_metrics, remove_hmd
 
 __all__ = ["HFMConfig", "HFMModel", "ImageEncoder", "SegregationStrategy", "WeightAverage", "select_keys",
            "inverse_distance_weights", "farthest_point_sampling", "boundary_loss", "VGGPerceptual",
-           "expression_motion", "build_model", "train_hfm", "save_hfm", "load_hfm", "remove_hmd", "evaluate_hmd",
+           "expression_motion", "expression_coverage", "build_model", "train_hfm", "save_hfm", "load_hfm", "remove_hmd", "evaluate_hmd",
            "hmd_metrics", "ABLATIONS"]

@@ -490,6 +490,13 @@ def _read_calibration(cal, d):
             a["fit_weights"] = np.asarray(cal["fit_weights"], np.float64)
             if a["fit_weights"].shape != (len(fit),) or not (np.isfinite(a["fit_weights"]).all() and (a["fit_weights"] > 0).all()):
                 bad.append("fit_weights")
+        if "score_sd" in cal or "score_reach" in cal:  # models saved before the spreads were kept lack both
+            a["score_sd"] = np.asarray(cal["score_sd"], np.float64)
+            a["score_reach"] = np.asarray(float(cal["score_reach"]))
+            if a["score_sd"].shape != (k,) or not (np.isfinite(a["score_sd"]).all() and (a["score_sd"] > 0).all()):
+                bad.append("score_sd")
+            if not (np.isfinite(a["score_reach"]) and a["score_reach"] > 0):
+                bad.append("score_reach")
         if k < 1 or len(fit) < 4 or bad:
             raise ValueError(f"bad {bad or 'sizes'}")
     except (KeyError, TypeError, ValueError) as e:

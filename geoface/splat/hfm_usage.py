@@ -42,7 +42,7 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     * ``"auto"`` — the file, else the landmarks (at least 4 such points), else the image.
 
     Returns ``((R [T, 3, 3], t [T, 3], pivot [3]) or None, source)``."""
-    from geoface.splat.head_pose import apply_lower_calibration, calibration_scores, repivot, solve_poses
+    from geoface.splat.head_pose import apply_lower_calibration, calibration_scores
 
     if source not in POSE_SOURCES:
         raise SplatError(f"poses must be one of {POSE_SOURCES}; got {source!r}")
@@ -50,38 +50,16 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
         if video.poses is None:
             raise SplatError("poses 'file': the usage folder has no head_poses.npz")
         return video.poses, "file"
-    lm = getattr(model, "landmarks3d", None)
-    use = []
-    if lm is not None:
-        known = dict(zip(lm["names"], lm["points"]))
-        fit_set = model.cfg.usage_fit_names
-        rigid = [n for n in video.names if n in fit_set and n in known]
-        use = rigid if rigid else [n for n in video.names if n in known]
-    if source == "landmarks" and len(use) < 4:
-        raise SplatError(f"poses 'landmarks': {len(use)} of the usage landmarks are known on the head (need 4; "
-                         "the model keeps the registration landmarks since this version)")
-    if source == "image" or len(use) < 4:
+    if source == "image":
         return None, "image"
-    P = np.array([known[n] for n in use])
-    idx = [video.names.index(n) for n in use]
-    piv = P.mean(0)
-    init = None
-    if model.predicts_head_pose:  # start from the pose the crop says
-        boxes = video.boxes()
-        q = model.head_pose_params(model.encoder(*frame_input(video, 0, model.cfg.crop, boxes)))[0]
-        R0, t0, c = (a.double().cpu().numpy() for a in model.head_pose_from_params(q))
-        init = (R0, repivot(R0, t0, c, piv))
-    cal = getattr(model, "pose_calibration", None)
-    calibrated = cal is not None and sorted(cal["fit_names"]) == sorted(use)
-    w = None
-    if calibrated and "fit_weights" in cal:  # the weights the calibration's poses were fitted with
-        weight_of = dict(zip(cal["fit_names"], cal["fit_weights"]))
-        w = [weight_of[n] for n in use]
-    fit = solve_poses(video.camera, P, video.landmarks[:, idx], piv, init=init, weights=w)
-    R, t = fit["R"], fit["t"]
+    lower = _lower_fit(model, video, need=source == "landmarks")
+    if lower is None:
+        return None, "image"
+    R, t, piv, P, known, cal, w = lower
     got = None  # in the registration poses' frame
-    if calibrated:
+    if cal is not None:
         got = apply_lower_calibration(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
+        _warn_beyond(expression_coverage(model, video, lower))
     pose, source = ((R, t, piv) if got is None else (*got, piv)), "landmarks"
     anchor = known.get("nose_bridge_0")  # where a headset sits
     if got is not None and model.cfg.headset_pose and video.hmd_masks is not None and anchor is not None:
@@ -101,6 +79,85 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
                                translation=model.cfg.pose_align_translation)
         source += "+image"
     return pose, source
+
+
+#: share of the usage frames beyond the registration's expressions at which :func:`usage_poses` warns
+BEYOND_WARN = 0.25
+
+
+@torch.no_grad()
+def _lower_fit(model: HFMModel, video, need: bool = False):
+    """The usage poses fitted to the landmarks below the headset, before any correction:
+    (R [T, 3, 3], t [T, 3], pivot, canonical points [K, 3], name → canonical point, the model's
+    calibration when it reads these landmarks else None, the fit's weights or None); None when fewer
+    than 4 of the video's landmarks are known on the head (``need``: raise instead)."""
+    from geoface.splat.head_pose import repivot, solve_poses
+
+    lm = getattr(model, "landmarks3d", None)
+    use = []
+    if lm is not None:
+        known = dict(zip(lm["names"], lm["points"]))
+        fit_set = model.cfg.usage_fit_names
+        rigid = [n for n in video.names if n in fit_set and n in known]
+        use = rigid if rigid else [n for n in video.names if n in known]
+    if need and len(use) < 4:
+        raise SplatError(f"poses 'landmarks': {len(use)} of the usage landmarks are known on the head (need 4; "
+                         "the model keeps the registration landmarks since this version)")
+    if len(use) < 4:
+        return None
+    P = np.array([known[n] for n in use])
+    idx = [video.names.index(n) for n in use]
+    piv = P.mean(0)
+    init = None
+    if model.predicts_head_pose:  # start from the pose the crop says
+        boxes = video.boxes()
+        q = model.head_pose_params(model.encoder(*frame_input(video, 0, model.cfg.crop, boxes)))[0]
+        R0, t0, c = (a.double().cpu().numpy() for a in model.head_pose_from_params(q))
+        init = (R0, repivot(R0, t0, c, piv))
+    cal = getattr(model, "pose_calibration", None)
+    calibrated = cal is not None and sorted(cal["fit_names"]) == sorted(use)
+    w = None
+    if calibrated and "fit_weights" in cal:  # the weights the calibration's poses were fitted with
+        weight_of = dict(zip(cal["fit_names"], cal["fit_weights"]))
+        w = [weight_of[n] for n in use]
+    fit = solve_poses(video.camera, P, video.landmarks[:, idx], piv, init=init, weights=w)
+    return fit["R"], fit["t"], piv, P, known, cal if calibrated else None, w
+
+
+def expression_coverage(model: HFMModel, video, lower=None) -> dict | None:
+    """How far the usage video's lower-face expressions lie beyond those of the registration video
+    the model's pose calibration learned from (:func:`~geoface.splat.head_pose.expression_reach`):
+    ``expression_beyond`` = the share of frames beyond the farthest registration frame,
+    ``expression_reach_median`` / ``_max`` = their distances in units of it.  Beyond it the
+    calibration extrapolates, and the calibrated usage poses (and with them the restored upper
+    face) may be off: a registration video that goes through the person's expressions (a range
+    of motion) covers them.  None without a calibration that keeps its spreads (one learned from
+    fewer than four registration frames per component does not), or without the
+    lower-face landmarks it reads.  ``lower``: the lower-landmark fit, when at hand (internal)."""
+    from geoface.splat.head_pose import calibration_scores, expression_reach
+
+    lower = _lower_fit(model, video) if lower is None else lower
+    if lower is None or lower[5] is None:
+        return None
+    R, t, piv, _, known, cal, _ = lower
+    r = expression_reach(cal, calibration_scores(cal, video.camera, known, video.landmarks, video.names, R, t, piv))
+    if r is None:
+        return None
+    return {"expression_beyond": float((r > 1).mean()), "expression_reach_median": float(np.median(r)),
+            "expression_reach_max": float(r.max())}
+
+
+def _warn_beyond(cov: dict | None) -> None:
+    """A :class:`~geoface.errors.GeofaceWarning` when much of the usage video is beyond the registration's expressions."""
+    if cov is not None and cov["expression_beyond"] >= BEYOND_WARN:
+        import warnings
+
+        from geoface.errors import GeofaceWarning
+
+        warnings.warn(f"{cov['expression_beyond']:.0%} of the usage frames show lower-face expressions beyond any of the "
+                      f"registration video (up to {cov['expression_reach_max']:.1f}x its range): the usage poses' "
+                      "calibration extrapolates there and the restored upper face may sit off; register with a video "
+                      "that goes through the person's expressions", GeofaceWarning, stacklevel=4)  # the caller of usage_poses (under no_grad)
 
 
 def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: bool = True, poses: str = "auto"):
@@ -181,12 +238,16 @@ def evaluate_hmd(model: HFMModel, video, poses: str = "auto") -> dict:
     The occluded region is also split into its *outline* (``psnr_occluded_outline``: the face
     pixels within ``OUTLINE_PX`` of the face's edge in the ground truth — under a headset, the
     crown and the temples against the background, where a head placed a fraction of a pixel off
-    costs most) and the rest (``psnr_occluded_interior``: brows, lids, forehead)."""
+    costs most) and the rest (``psnr_occluded_interior``: brows, lids, forehead). With usage poses
+    fitted to the landmarks, also how far the usage expressions lie beyond the registration's
+    (:func:`expression_coverage`; ``expression_beyond`` etc.)."""
     if video.gt is None or video.hmd_masks is None:
         raise SplatError("evaluation needs gt/ and hmd_masks/ in the usage folder")
     R, times, source = _remove(model, video, None, None, True, poses)
     out = hmd_metrics(R, video)
     out["poses"] = source
+    if source.startswith("landmarks"):
+        out.update(expression_coverage(model, video) or {})
     out.update(expression_motion(model, video))
     out.update(frames=len(video), fps=float(1.0 / np.median(times)), seconds_per_frame=float(np.median(times)))
     return out

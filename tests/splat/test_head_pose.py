@@ -403,6 +403,46 @@ def test_hfm_without_a_pose_file_learns_the_pose_from_the_crop(ict_capture, tmp_
         load_hfm(tmp_path / "mw")
     ev = evaluate_hmd(m, video, poses="landmarks")
     assert 5 < ev["psnr_face"] < 60 and ev["poses"] == "landmarks"
+    # the calibration keeps how far the registration's expressions spread; a usage video whose mouth
+    # is stretched beyond them lies beyond on every frame, and its usage poses come with a warning
+    import warnings
+
+    from geoface.errors import GeofaceWarning
+    from geoface.splat.hfm_data import IBUG68_NAMES
+    from geoface.splat.hfm_usage import expression_coverage
+
+    assert "score_sd" not in cal and expression_coverage(m, video) is None  # 12 frames: too few for 8 components
+    assert "expression_beyond" not in ev
+    m.cfg = replace(m.cfg, pose_calibration=2)
+    cal2 = calibrate_usage_poses(m, v)
+    assert len(cal2["score_sd"]) == 2 and cal2["score_reach"] > 1
+    save_hfm(m, tmp_path / "m2c")
+    m.cfg, m.pose_calibration = replace(m.cfg, pose_calibration=8), cal
+    m2 = load_hfm(tmp_path / "m2c")
+    assert np.allclose(m2.pose_calibration["score_sd"], cal2["score_sd"])
+    cov = expression_coverage(m2, video)
+    assert 0 <= cov["expression_beyond"] <= 1 and cov["expression_reach_median"] < 3
+    assert evaluate_hmd(m2, video, poses="landmarks")["expression_beyond"] == cov["expression_beyond"]
+    wide = video.landmarks.copy()
+    mouth = [video.names.index(n) for n in IBUG68_NAMES[48:]]
+    mid = wide[:, mouth].mean(1, keepdims=True)
+    wide[:, mouth] = mid + 2.0 * (wide[:, mouth] - mid)
+    stretched = replace(video, landmarks=wide)
+    got = expression_coverage(m2, stretched)
+    assert got["expression_beyond"] == 1.0 and got["expression_reach_median"] > 1
+    with pytest.warns(GeofaceWarning, match="beyond any of the registration video"):
+        usage_poses(m2, stretched, "landmarks")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", GeofaceWarning)
+        usage_poses(m2, stretched, "image")  # no landmark poses, nothing to say
+        m2.pose_calibration = {k: v for k, v in cal2.items() if not k.startswith("score_")}  # saved before the spreads
+        assert expression_coverage(m2, stretched) is None
+        usage_poses(m2, stretched, "landmarks")
+    conf = json.loads((tmp_path / "m2c" / "config.json").read_text())
+    conf["pose_calibration"]["score_sd"] = [1.0] * 3
+    (tmp_path / "m2c" / "config.json").write_text(json.dumps(conf))
+    with pytest.raises(SplatError, match="score_sd"):
+        load_hfm(tmp_path / "m2c")
     # usage_landmarks "stable": the calibration and the usage poses use the 8 stable lower landmarks;
     # a calibration learned on the other set is not applied to them (the uncalibrated fit instead)
     from geoface.splat.head_pose import LOWER_STABLE_NAMES, solve_poses as solve
@@ -655,6 +695,46 @@ def test_expression_draws_teach_the_calibration_a_smile_registration_never_made(
     partial = {n: v for n, v in basis.items() if n != "m3"}
     assert (calibrate_lower_poses(cam, names, P, obs[:16], names, few, expressions=partial, draws=1, **kw)
             == calibrate_lower_poses(cam, names, P, obs[:16], names, few, **kw))
+
+
+def test_expression_reach_tells_a_smile_registration_never_made():
+    """Registration frames hold the jaw and a faint sneer; held-out frames like them stay within
+    the calibration's reach (their distance from the mean face at most that of the farthest
+    registration frame, which is exactly 1), while a broad smile lies beyond it on every frame."""
+    from geoface.splat.head_pose import calibrate_lower_poses, calibration_scores, expression_reach
+
+    rng = np.random.default_rng(8)
+    cam, fit_names, names, P, piv = _lower_rig(rng)
+    modes = np.zeros((3, 28, 3))
+    modes[0, :4] = [0, 0.004, 0.002]  # sneer
+    modes[0, 12:20] = [0, 0.003, 0]
+    modes[1, :4] = [0.0, 0.003, -0.003]  # smile
+    modes[1, 12:28] = rng.normal(0, 0.004, (16, 3))
+    modes[2, 20:28] = [0, -0.008, 0]  # jaw
+
+    def frames(T, lo, hi):
+        R = np.stack([rodrigues(rng.normal(0, 1, 3) * np.radians(4)) for _ in range(T)])
+        t = rng.normal(0, 0.004, (T, 3))
+        c = rng.uniform(lo, hi, (T, 3))
+        obs = np.stack([cam.project((P + np.tensordot(c[f], modes, 1) - piv) @ R[f].T + piv + t[f])[0] for f in range(T)])
+        return R, t, obs + rng.normal(0, 0.05, obs.shape)
+
+    R, t, obs = frames(80, [0, 0, 0], [0.2, 0, 1])
+    cal = calibrate_lower_poses(cam, names, P, obs, names, (R, t, piv), fit_names=fit_names, feature_names=names[12:],
+                                components=12, ridge=1e-4)
+    assert len(cal["score_sd"]) == 12 and min(cal["score_sd"]) > 0 and cal["score_reach"] > 1
+
+    def reach(obs2):
+        low = solve_poses(cam, P[:12], obs2[:, :12], piv)
+        return expression_reach(cal, calibration_scores(cal, cam, dict(zip(names, P)), obs2, names, low["R"], low["t"], piv))
+
+    assert abs(reach(obs).max() - 1) < 1e-6  # the farthest registration frame
+    alike = reach(frames(40, [0, 0, 0], [0.2, 0, 1])[2])
+    smile = reach(frames(20, [0, 0.8, 0], [0.2, 1.0, 1])[2])
+    assert (alike <= 1).mean() >= 0.9 and np.median(alike) < 0.8
+    assert (smile > 1).all() and np.median(smile) > 2
+    old = {k: v for k, v in cal.items() if k not in ("score_sd", "score_reach")}  # saved before the spreads were kept
+    assert expression_reach(old, np.zeros((3, 12))) is None and expression_reach(cal, None) is None
 
 
 def test_landmark_expressions_are_the_ict_blendshapes_in_the_heads_frame():
