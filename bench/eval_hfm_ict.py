@@ -289,7 +289,7 @@ def _calibration(a) -> None:
 
     from geoface.splat.hfm import evaluate_hmd, load_hfm
     from geoface.splat.hfm_data import load_video
-    from geoface.splat.hfm_usage import usage_poses
+    from geoface.splat.hfm_usage import expression_coverage, usage_poses
 
     torch.set_num_threads(a.threads)
     models = Path(a.models or Path(a.out) / "models")
@@ -313,7 +313,7 @@ def _calibration(a) -> None:
                                             pose_align=int(align[1:]), pose_align_translation=align[0] == "A")
                         pose, source = usage_poses(model, use, "landmarks")  # once: the alignment is slow
                         r = evaluate_hmd(model, replace(use, poses=pose), poses="file")
-                        r.update(poses=source, **_upper_error(model, use, pose))
+                        r.update(poses=source, **_upper_error(model, use, pose), **(expression_coverage(model, use) or {}))
                         row = {"stage": "calibration", "split": split, "data_seed": s, "seed": seed, "variant": v,
                                "components": int(k), "ridge": float(ridge), "weighted": "w" in flags, "expressions": draws,
                                "usage_landmarks": model.cfg.usage_landmarks,

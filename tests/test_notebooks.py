@@ -32,6 +32,8 @@ def this_python_kernel(tmp_path, monkeypatch):
     }))
     monkeypatch.setenv("JUPYTER_PATH", str(tmp_path / "jupyter"))
     monkeypatch.setenv("GEOFACE_QUIET", "1")
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))  # the notebooks' work folders go with the test's, not into /tmp
     return KERNEL
 
 
