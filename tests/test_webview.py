@@ -26,7 +26,8 @@ W, H = 1280, 720  # the objects sit in the middle; viser's control panel covers 
 
 
 @pytest.fixture
-def browser():
+def browser(tmp_path, monkeypatch):
+    monkeypatch.setenv("TMPDIR", str(tmp_path))  # Chromium's profile and lock folders go with the test's, not into /tmp
     opts = webdriver.ChromeOptions()
     for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", f"--window-size={W},{H}",
               "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"):
