@@ -649,15 +649,10 @@ def test_training_corrects_the_landmark_poses_saves_them_and_calibrates_to_them(
     assert load_registration_poses(tmp_path / "m") is None
 
 
-def test_expression_draws_teach_the_calibration_a_smile_registration_never_made():
-    """Registration frames hold only the jaw and a faint sneer; the held-out frames a broad smile
-    that lifts the 4 nose points and pulls the mouth. Calibrated on registration alone the smile's
-    tilt stays (the regression never saw it); with each registration frame also seen twice with
-    random expressions of a basis holding the smile (``expressions``, ``draws``), the tilt falls
-    to under a third, while on frames like registration's the draws cost nothing."""
-    from geoface.splat.head_pose import apply_lower_calibration, calibrate_lower_poses
-
-    rng = np.random.default_rng(8)
+def _smile_rig(rng):
+    """:func:`_lower_rig` with three expressions of its points (a faint sneer, a smile that lifts the
+    nose points and widens the mouth, the jaw) and ``frames(T, lo, hi)``: T frames of random poses
+    with expression weights uniform in [lo, hi] → (R, t, landmarks)."""
     cam, fit_names, names, P, piv = _lower_rig(rng)
     modes = np.zeros((3, 28, 3))
     modes[0, :4] = [0, 0.004, 0.002]  # sneer
@@ -672,6 +667,20 @@ def test_expression_draws_teach_the_calibration_a_smile_registration_never_made(
         c = rng.uniform(lo, hi, (T, 3))
         obs = np.stack([cam.project((P + np.tensordot(c[f], modes, 1) - piv) @ R[f].T + piv + t[f])[0] for f in range(T)])
         return R, t, obs + rng.normal(0, 0.05, obs.shape)
+
+    return cam, fit_names, names, P, piv, modes, frames
+
+
+def test_expression_draws_teach_the_calibration_a_smile_registration_never_made():
+    """Registration frames hold only the jaw and a faint sneer; the held-out frames a broad smile
+    that lifts the 4 nose points and pulls the mouth. Calibrated on registration alone the smile's
+    tilt stays (the regression never saw it); with each registration frame also seen twice with
+    random expressions of a basis holding the smile (``expressions``, ``draws``), the tilt falls
+    to under a third, while on frames like registration's the draws cost nothing."""
+    from geoface.splat.head_pose import apply_lower_calibration, calibrate_lower_poses
+
+    rng = np.random.default_rng(8)
+    cam, fit_names, names, P, piv, modes, frames = _smile_rig(rng)
 
     R, t, obs = frames(80, [0, 0, 0], [0.2, 0, 1])
     basis = {n: modes[:, k] for k, n in enumerate(names)}
@@ -704,20 +713,7 @@ def test_expression_reach_tells_a_smile_registration_never_made():
     from geoface.splat.head_pose import calibrate_lower_poses, calibration_scores, expression_reach
 
     rng = np.random.default_rng(8)
-    cam, fit_names, names, P, piv = _lower_rig(rng)
-    modes = np.zeros((3, 28, 3))
-    modes[0, :4] = [0, 0.004, 0.002]  # sneer
-    modes[0, 12:20] = [0, 0.003, 0]
-    modes[1, :4] = [0.0, 0.003, -0.003]  # smile
-    modes[1, 12:28] = rng.normal(0, 0.004, (16, 3))
-    modes[2, 20:28] = [0, -0.008, 0]  # jaw
-
-    def frames(T, lo, hi):
-        R = np.stack([rodrigues(rng.normal(0, 1, 3) * np.radians(4)) for _ in range(T)])
-        t = rng.normal(0, 0.004, (T, 3))
-        c = rng.uniform(lo, hi, (T, 3))
-        obs = np.stack([cam.project((P + np.tensordot(c[f], modes, 1) - piv) @ R[f].T + piv + t[f])[0] for f in range(T)])
-        return R, t, obs + rng.normal(0, 0.05, obs.shape)
+    cam, fit_names, names, P, piv, modes, frames = _smile_rig(rng)
 
     R, t, obs = frames(80, [0, 0, 0], [0.2, 0, 1])
     cal = calibrate_lower_poses(cam, names, P, obs, names, (R, t, piv), fit_names=fit_names, feature_names=names[12:],
