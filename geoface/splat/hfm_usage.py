@@ -154,10 +154,11 @@ def _warn_beyond(cov: dict | None) -> None:
 
         from geoface.errors import GeofaceWarning
 
-        warnings.warn(f"{cov['expression_beyond']:.0%} of the usage frames show lower-face expressions beyond any of the "
-                      f"registration video (up to {cov['expression_reach_max']:.1f}x its range): the usage poses' "
-                      "calibration extrapolates there and the restored upper face may sit off; register with a video "
-                      "that goes through the person's expressions", GeofaceWarning, stacklevel=4)  # the caller of usage_poses (under no_grad)
+        warnings.warn(f"{cov['expression_beyond']:.0%} of the usage frames show lower-face expressions beyond any the "
+                      f"registration video showed (up to {cov['expression_reach_max']:.1f} times as far from its mean "
+                      "face): the calibration of the usage poses extrapolates there and the restored upper face may sit "
+                      "off; register with a video that goes through the person's expressions",
+                      GeofaceWarning, stacklevel=4)  # the caller of usage_poses (under no_grad)
 
 
 def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: bool = True, poses: str = "auto"):

@@ -430,7 +430,7 @@ def test_hfm_without_a_pose_file_learns_the_pose_from_the_crop(ict_capture, tmp_
     stretched = replace(video, landmarks=wide)
     got = expression_coverage(m2, stretched)
     assert got["expression_beyond"] == 1.0 and got["expression_reach_median"] > 1
-    with pytest.warns(GeofaceWarning, match="beyond any of the registration video"):
+    with pytest.warns(GeofaceWarning, match="beyond any the registration video showed"):
         usage_poses(m2, stretched, "landmarks")
     with warnings.catch_warnings():
         warnings.simplefilter("error", GeofaceWarning)
