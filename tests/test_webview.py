@@ -26,8 +26,11 @@ W, H = 1280, 720  # the objects sit in the middle; viser's control panel covers 
 
 
 @pytest.fixture
-def browser(tmp_path, monkeypatch):
-    monkeypatch.setenv("TMPDIR", str(tmp_path))  # Chromium's profile and lock folders go with the test's, not into /tmp
+def browser(monkeypatch):
+    import tempfile
+
+    own = tempfile.mkdtemp(prefix="gf_chrome_")  # short: Chromium's lock socket lives there (a path of at most 107 bytes)
+    monkeypatch.setenv("TMPDIR", own)  # so that its profile and lock folders are removed with the test's, not left in /tmp
     opts = webdriver.ChromeOptions()
     for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", f"--window-size={W},{H}",
               "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"):
@@ -40,6 +43,7 @@ def browser(tmp_path, monkeypatch):
         d.quit()
     except Exception:  # noqa: BLE001 — already closed by the test
         pass
+    shutil.rmtree(own, ignore_errors=True)
 
 
 def _free_port() -> int:
