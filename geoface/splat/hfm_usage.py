@@ -59,7 +59,8 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     got = None  # in the registration poses' frame
     if cal is not None:
         got = apply_lower_calibration(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
-        _warn_beyond(expression_coverage(model, video, lower))
+        Z = calibration_scores(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
+        _warn_beyond(_coverage(cal, Z))
     pose, source = ((R, t, piv) if got is None else (*got, piv)), "landmarks"
     anchor = known.get("nose_bridge_0")  # where a headset sits
     if got is not None and model.cfg.headset_pose and video.hmd_masks is not None and anchor is not None:
@@ -67,7 +68,6 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
 
         cen = headset_centroids(video.hmd_masks)
         if headset_components(int(np.isfinite(cen).all(1).sum()), len(cal["basis"])) >= 1:  # enough whole silhouettes
-            Z = calibration_scores(cal, video.camera, known, video.landmarks, video.names, R, t, piv)
             Rh, th, _ = headset_poses(video.camera, *got, piv, P, cen, anchor, Z, weights=w,
                                       ridge=model.cfg.headset_pose_ridge)
             pose, source = (Rh, th, piv), "landmarks+headset"
@@ -124,7 +124,7 @@ def _lower_fit(model: HFMModel, video, need: bool = False):
     return fit["R"], fit["t"], piv, P, known, cal if calibrated else None, w
 
 
-def expression_coverage(model: HFMModel, video, lower=None) -> dict | None:
+def expression_coverage(model: HFMModel, video) -> dict | None:
     """How far the usage video's lower-face expressions lie beyond those of the registration video
     the model's pose calibration learned from (:func:`~geoface.splat.head_pose.expression_reach`):
     ``expression_beyond`` = the share of frames beyond the farthest registration frame,
@@ -133,14 +133,21 @@ def expression_coverage(model: HFMModel, video, lower=None) -> dict | None:
     face) may be off: a registration video that goes through the person's expressions (a range
     of motion) covers them.  None without a calibration that keeps its spreads (one learned from
     fewer than four registration frames per component does not), or without the
-    lower-face landmarks it reads.  ``lower``: the lower-landmark fit, when at hand (internal)."""
-    from geoface.splat.head_pose import calibration_scores, expression_reach
+    lower-face landmarks it reads."""
+    from geoface.splat.head_pose import calibration_scores
 
-    lower = _lower_fit(model, video) if lower is None else lower
+    lower = _lower_fit(model, video)
     if lower is None or lower[5] is None:
         return None
     R, t, piv, _, known, cal, _ = lower
-    r = expression_reach(cal, calibration_scores(cal, video.camera, known, video.landmarks, video.names, R, t, piv))
+    return _coverage(cal, calibration_scores(cal, video.camera, known, video.landmarks, video.names, R, t, piv))
+
+
+def _coverage(cal: dict, Z) -> dict | None:
+    """:func:`expression_coverage`'s figures from the calibration ``cal`` and the frames' scores ``Z``."""
+    from geoface.splat.head_pose import expression_reach
+
+    r = expression_reach(cal, Z)
     if r is None:
         return None
     return {"expression_beyond": float((r > 1).mean()), "expression_reach_median": float(np.median(r)),
