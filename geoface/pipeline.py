@@ -413,9 +413,14 @@ def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, op
         mp = measure_preserving_map(V, F, uv, roi=roi, lam=opts.lam, tol=opts.ot_tol, quiet=quiet)
         uv = mp.uv
         st["ot"] = {
-            "seconds": time.perf_counter() - t, "iterations": mp.ot.iterations, "halvings": mp.ot.halvings,
-            "stages": mp.ot.stages, "residual": mp.ot.residual, "power_diagrams": mp.ot.backend,
-            "path": mp.path, "flipped_before": mp.flipped_before, "flipped_after": mp.flipped_after,
+            "seconds": time.perf_counter() - t, "path": mp.path, "sites": mp.sites, "converged": mp.converged,
+            "residual": mp.residual, "iterations": mp.ot.iterations if mp.ot else 0, "halvings": mp.ot.halvings if mp.ot else 0,
+            "stages": mp.ot.stages if mp.ot else 0, "gradient_steps": mp.ot.gradient_steps if mp.ot else 0,
+            "power_diagrams": mp.ot.backend if mp.ot else None, "attempts": mp.attempts,
+            "balanced": None if mp.balanced is None else {
+                "rounds": mp.balanced.best_round, "start_max_log_ratio": mp.balanced.start_max_log_ratio,
+                "max_log_ratio": mp.balanced.max_log_ratio},
+            "flipped_before": mp.flipped_before, "flipped_after": mp.flipped_after,
             "area_error_before": mp.area_error_before, "area_error_after": mp.area_error_after,
             "fitted_vertices": mp.fold_free.fitted_vertices if mp.fold_free else 0,
             "boundary_adjusted": mp.fold_free.boundary_adjusted if mp.fold_free else 0,

@@ -19,20 +19,34 @@ Two details make the result usable as a parameterization:
   (:func:`geoface.param.foldfree.convex_combination_map`; Tutte/Floater: it cannot fold).
   How far it moved from the centroids is reported: the per-vertex area error against the
   target masses before and after, and the largest displacement.
+
+It cannot fail on a valid disk.  Where the conformal factor spans so many orders of magnitude
+that neighbouring sites crowd below what double precision separates (long protrusions, fins,
+slivers), Newton's method on the conformal sites stalls; it is then given up fast (a few
+steps of at most 1/64) and the sites are moved first: an area-balanced embedding
+(:func:`geoface.param.balance.area_balanced_map`, fold-free convex-combination maps
+reweighted until every vertex's share of the square is within a factor of about e^2.5 of its
+mass) places them, and OT from there converges.  Should that solve not reach ``tol`` either,
+the better of its fold-free map and the balanced embedding is returned, with the tolerance
+reached.  ``MeasureMapResult.path`` says which way each map was made.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import ParameterizationError
 from ..mesh.core import boundary_loops, check_mesh, signed_uv_areas, vertex_areas
+from .balance import BalancedMap, area_balanced_map, log_area_ratio
 from .foldfree import FoldFreeResult, convex_combination_map, square_sides
 from ..progress import log
 from .ot import OTResult, semi_discrete_ot
+
+#: the first OT attempt, from the conformal sites, gives up after this many short steps in a row
+DIRECT_STALL = 4
 
 __all__ = ["MeasureMapResult", "measure_preserving_map", "signed_uv_areas", "area_error"]
 
@@ -41,16 +55,21 @@ __all__ = ["MeasureMapResult", "measure_preserving_map", "signed_uv_areas", "are
 class MeasureMapResult:
     """Result of :func:`measure_preserving_map`.
 
-    uv : (n, 2) the map (fold-free unless ``fold_free=False``); ot : the OT solve;
-    flipped_before : folded triangles of the centroid map; flipped_after : of ``uv`` (0);
-    fold_free : the convex-combination step's report (None when the step was skipped);
-    area_error_before / area_error_after : mean |log(a_i / ν_i)| of the per-vertex areas
-    (⅓ of adjacent UV triangles) against the target masses, for the centroid map and ``uv``;
-    roi_share : share of the square covered by the region of interest's triangles.
+    uv : (n, 2) the map (fold-free unless ``fold_free=False``); ot : the OT solve that made it
+    (None on the ``"balanced"`` path); flipped_before : folded triangles of the centroid map;
+    flipped_after : of ``uv`` (0); fold_free : the convex-combination step's report (None when
+    the step was skipped); area_error_before / area_error_after : mean |log(a_i / ν_i)| of the
+    per-vertex areas (⅓ of adjacent UV triangles) against the target masses, for the centroid
+    map and ``uv``; roi_share : share of the square covered by the region of interest's
+    triangles; sites : where OT's sites were (``"conformal"``: the starting map, or
+    ``"balanced"``: an area-balanced embedding of it); balanced : that embedding's report;
+    attempts : every OT solve tried (sites, converged, residual, iterations, error);
+    residual : the tolerance reached, max |w_i - ν_i| / ν_i of the OT cells (of the vertex
+    areas on the ``"balanced"`` path); converged : ``residual <= tol``.
     """
 
     uv: np.ndarray
-    ot: OTResult
+    ot: OTResult | None
     flipped_before: int
     flipped_after: int
     seconds: float
@@ -58,14 +77,25 @@ class MeasureMapResult:
     area_error_before: float = 0.0
     area_error_after: float = 0.0
     roi_share: float | None = None
+    sites: str = "conformal"
+    balanced: BalancedMap | None = None
+    attempts: list = field(default_factory=list)
+    residual: float = 0.0
+    converged: bool = True
 
     @property
     def path(self) -> str:
-        """How the map was made, for reports: ``"ot"`` (the centroids as they are, no fold)
-        or ``"ot+convex-combination"`` (folds replaced by the fold-free step)."""
+        """How the map was made, for reports: ``"ot"`` (OT from the conformal sites, the
+        centroids as they are), ``"ot+convex-combination"`` (their folds replaced by the
+        fold-free step), ``"balanced+ot"`` / ``"balanced+ot+convex-combination"`` (the same from
+        the sites of an area-balanced embedding) or ``"balanced"`` (the embedding itself: OT did
+        not reach a better map)."""
+        if self.ot is None:
+            return "balanced"
+        base = "ot" if self.sites == "conformal" else "balanced+ot"
         if self.fold_free is None or self.flipped_before == 0:
-            return "ot"
-        return "ot+convex-combination"
+            return base
+        return base + "+convex-combination"
 
 
 def _snap(uv_new: np.ndarray, bnd: np.ndarray, sides: np.ndarray) -> np.ndarray:
@@ -142,27 +172,55 @@ def measure_preserving_map(
     if len(bnd) and not sides.any(1).all():
         raise ParameterizationError("the starting map does not put every boundary vertex on the square's sides")
     orient = 1.0 if signed_uv_areas(F, uv).sum() >= 0 else -1.0
-    ot = semi_discrete_ot(uv, nu, tol=tol, h0=h0, linear_solver=linear_solver, backend=backend, quiet=quiet)
-    if not ot.converged:
-        raise ParameterizationError(f"optimal transport did not converge (max relative cell-area error {ot.residual:.3g} "
-                                    f"after {ot.iterations} iterations)")
-    if ot.merged:
+    attempts: list = []
+
+    def attempt(sites_uv, label, **kw):
+        t = time.perf_counter()
+        try:
+            r = semi_discrete_ot(sites_uv, nu, tol=tol, h0=h0 if label == "conformal" else None,
+                                 linear_solver=linear_solver, backend=backend, quiet=quiet, **kw)
+        except ParameterizationError as e:
+            attempts.append({"sites": label, "converged": False, "error": str(e), "seconds": time.perf_counter() - t})
+            return None
+        attempts.append({"sites": label, "converged": bool(r.converged), "residual": float(r.residual),
+                         "iterations": int(r.iterations), "halvings": int(r.halvings), "stages": int(r.stages),
+                         "gradient_steps": int(r.gradient_steps), "seconds": time.perf_counter() - t})
+        return r
+
+    sites, sites_uv, bal = "conformal", uv, None
+    ot = attempt(uv, "conformal", stall=DIRECT_STALL)
+    if ot is None or not ot.converged:
+        # crowded sites: move them to an area-balanced embedding first (the normal path for
+        # conformal factors spanning many orders of magnitude, not an error)
+        bal = area_balanced_map(F, uv, nu)
+        log(f"  measure-preserving map: OT sites from an area-balanced embedding (worst log area ratio "
+            f"{bal.start_max_log_ratio:.1f} -> {bal.max_log_ratio:.1f} in {bal.best_round} rounds)", quiet=quiet)
+        ot2 = attempt(bal.uv, "balanced", max_iterations=600)
+        sites, sites_uv = "balanced", bal.uv
+        if ot2 is not None and (ot is None or ot2.residual <= ot.residual):
+            ot = ot2
+        elif ot is not None:
+            sites, sites_uv = "conformal", uv
+    if ot is not None and ot.merged:
         import warnings
 
         from ..errors import GeofaceWarning
 
         warnings.warn(f"{ot.merged} vertices lie on top of each other in the map; they share a cell (and a centroid; "
                       "the fold-free step separates them)", GeofaceWarning, stacklevel=2)
-    new = _snap(ot.centroid, bnd, sides)
-    flipped_before = int((orient * signed_uv_areas(F, new) <= 0).sum())
-    err_before = area_error(F, new, ot.nu)
-    ff = None
-    if fold_free and flipped_before:
-        ff = convex_combination_map(F, new, uv)
-        new = ff.uv
-        log(f"  measure-preserving map: {flipped_before} folded triangles of the centroid map replaced "
-            f"({ff.fitted_vertices} vertices re-fitted)", quiet=quiet)
-    flipped_after = int((orient * signed_uv_areas(F, new) <= 0).sum())
+    result = None
+    if ot is not None:
+        result = _from_centroids(F, ot, bnd, sides, orient, sites_uv, fold_free, quiet)
+    if bal is not None and (result is None or not ot.converged):
+        # OT did not reach tol from either set of sites: the balanced embedding if it is closer
+        bal_res = _max_rel_area_error(F, bal.uv, nu)
+        if result is None or bal_res < ot.residual:
+            result = (bal.uv, 0, 0, None, area_error(F, bal.uv, nu), area_error(F, bal.uv, nu))
+            ot, sites = None, "balanced"
+    new, flipped_before, flipped_after, ff, err_before, err_after = result
+    residual = float(ot.residual) if ot is not None else _max_rel_area_error(F, new, nu)
+    if residual > tol:
+        log(f"  measure-preserving map: reached max relative area error {residual:.3g} (tolerance {tol:g})", quiet=quiet)
     share = None
     if roi is not None:
         fa = np.abs(signed_uv_areas(F, new))
@@ -170,5 +228,32 @@ def measure_preserving_map(
         share = float(fa[in_roi].sum() / fa.sum())
     return MeasureMapResult(
         uv=new, ot=ot, flipped_before=flipped_before, flipped_after=flipped_after, seconds=time.perf_counter() - t0,
-        fold_free=ff, area_error_before=err_before, area_error_after=area_error(F, new, ot.nu), roi_share=share,
+        fold_free=ff, area_error_before=err_before, area_error_after=err_after, roi_share=share, sites=sites, balanced=bal,
+        attempts=attempts, residual=residual, converged=residual <= tol,
     )
+
+
+def _max_rel_area_error(F, uv, nu) -> float:
+    """max |a_i / ν_i - 1| of the per-vertex areas (both normalised)."""
+    return float(np.max(np.abs(np.expm1(log_area_ratio(F, uv, nu)))))
+
+
+def _from_centroids(F, ot, bnd, sides, orient, reference, fold_free, quiet):
+    """The centroid map snapped to the sides, its folds replaced by the fold-free step (whose
+    reference, around the folds, is the sites' own fold-free map)."""
+    new = _snap(ot.centroid, bnd, sides)
+    flipped_before = int((orient * signed_uv_areas(F, new) <= 0).sum())
+    err_before = area_error(F, new, ot.nu)
+    ff = None
+    if fold_free and flipped_before:
+        try:
+            ff = convex_combination_map(F, new, reference)
+        except ParameterizationError:  # rounding on near-degenerate triangles: the sites' map, which cannot fold
+            ff = None
+            new = reference.copy()
+        else:
+            new = ff.uv
+            log(f"  measure-preserving map: {flipped_before} folded triangles of the centroid map replaced "
+                f"({ff.fitted_vertices} vertices re-fitted)", quiet=quiet)
+    flipped_after = int((orient * signed_uv_areas(F, new) <= 0).sum())
+    return new, flipped_before, flipped_after, ff, err_before, area_error(F, new, ot.nu)

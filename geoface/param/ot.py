@@ -77,6 +77,7 @@ class OTResult:
     merged: int = 0
     history: list = field(default_factory=list)
     backend: str = "cgal"
+    gradient_steps: int = 0
 
 
 def _hessian_weights(points: np.ndarray, pd: PowerDiagram) -> np.ndarray:
@@ -138,6 +139,8 @@ def semi_discrete_ot(
     continuation: bool = True,
     linear_solver: str = "auto",
     backend: str = "auto",
+    stall: int = 0,
+    min_step: float = 1e-9,
     quiet: bool | None = None,
 ) -> OTResult:
     """Heights ``h`` whose power cells in the unit square have areas ``masses`` (normalised).
@@ -151,6 +154,15 @@ def semi_discrete_ot(
     continuation : reach the target through intermediate targets (see module docs)
     backend : how power diagrams are built anew: ``"cgal"`` (exact predicates), ``"qhull"``
         or ``"auto"`` (CGAL when built); see :func:`geoface.param.power.power_diagram`
+    stall : give up (:class:`ParameterizationError`) after this many steps in a row of at most
+        1/64 of the Newton step: a solve that will not converge fails fast, so that the caller
+        can try better sites (0: never)
+    min_step : the smallest damping tried before the diagonally scaled gradient is (a step
+        along ``-g / diag(H)``, judged by the same rule); when that fails too, the solve gives up
+
+    Raises :class:`ParameterizationError` when the step cannot be damped (sites so crowded that
+    their cells react to the heights below double precision; see
+    :func:`geoface.param.measure.measure_preserving_map`, which then moves the sites).
     """
     t_start = time.perf_counter()
     P = np.asarray(points, np.float64)
@@ -182,7 +194,7 @@ def semi_discrete_ot(
     free = np.ones(len(Pr), bool)
     free[int(np.argmax(pd.area))] = False
     history: list = []
-    iterations = halvings = 0
+    iterations = halvings = gradient_steps = short = 0
     # stages: targets between the starting areas and nu, geometric in log space
     w0 = pd.area
     spread = float(np.max(np.abs(np.log(nu_r / w0))))
@@ -190,6 +202,7 @@ def semi_discrete_ot(
     if continuation and spread > STAGE_LOG_STEP:
         n_stages = int(np.ceil(spread / STAGE_LOG_STEP))
     converged = False
+    res = _rel_residual(pd.area, nu_r)
     for stage in range(1, n_stages + 1):
         s = stage / n_stages
         target = np.exp((1 - s) * np.log(w0) + s * np.log(nu_r))
@@ -211,25 +224,28 @@ def semi_discrete_ot(
                 d[free] += solver.resolve(r[free])
             d -= d.mean()
             gn = float(np.linalg.norm(g / target))
-            tau = 1.0
-            while True:
-                hn = hr + tau * d
-                pdn = power_diagram(Pr, hn, previous=pd, backend=backend)
-                gnew = pdn.area - target
-                if pdn.area.min() >= eps0 and np.linalg.norm(gnew / target) <= (1 - tau / 2) * gn:
-                    break
-                tau *= 0.5
-                halvings += 1
-                if tau < 1e-9:
-                    empty = int((pdn.area <= 0).sum())
-                    why = (f"{empty} sites lose their cells even for tiny steps ({pdn.source} triangulation)"
+            step = _damped_step(Pr, hr, d, pd, target, eps0, gn, min_step, backend)
+            if step is None:  # no damping accepted: the diagonally scaled gradient, same rule
+                dg = -g / np.maximum(H.diagonal(), 1e-300)
+                dg -= dg.mean()
+                step = _damped_step(Pr, hr, dg, pd, target, eps0, gn, min_step, backend)
+                if step is None:
+                    empty = int((power_diagram(Pr, hr + min_step * d, previous=pd, backend=backend).area <= 0).sum())
+                    why = (f"{empty} sites lose their cells even for tiny steps ({pd.source} triangulation)"
                            if empty else "the Newton step could not be damped")
                     raise ParameterizationError(f"optimal transport failed: {why}")
+                gradient_steps += 1
+            hn, pdn, gnew, tau, k = step
+            halvings += k
             iterations += 1
             hr, pd, g = hn, pdn, gnew
             res = _rel_residual(pd.area, target)
             history.append({"stage": stage, "residual": res, "tau": tau})
             log(f"  OT stage {stage}/{n_stages} iteration {iterations}: max rel. error {res:.3g} (step {tau:g})", quiet=quiet)
+            short = short + 1 if tau <= 1 / 64 else 0
+            if stall and short >= stall:
+                raise ParameterizationError(f"optimal transport stalled: {short} steps in a row of at most 1/64 "
+                                            f"(max relative cell-area error {res:.3g} in stage {stage}/{n_stages})")
         if stage == n_stages:
             converged = res <= tol
     h_full = hr[red]
@@ -247,4 +263,22 @@ def semi_discrete_ot(
         merged=int(n - len(keep)),
         history=history,
         backend=built,
+        gradient_steps=gradient_steps,
     )
+
+
+def _damped_step(P, h, d, pd, target, eps0, gn, min_step, backend):
+    """The damping rule of Kitagawa, Mérigot & Thibert along ``d``: the largest ``τ = 2^-k``
+    (down to ``min_step``) whose cells are all at least ``eps0`` and whose residual falls by
+    ``1 - τ/2``; ``(h, diagram, gradient, τ, k)`` or None."""
+    tau = 1.0
+    k = 0
+    while tau >= min_step:
+        hn = h + tau * d
+        pdn = power_diagram(P, hn, previous=pd, backend=backend)
+        gnew = pdn.area - target
+        if pdn.area.min() >= eps0 and np.linalg.norm(gnew / target) <= (1 - tau / 2) * gn:
+            return hn, pdn, gnew, tau, k
+        tau *= 0.5
+        k += 1
+    return None

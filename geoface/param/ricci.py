@@ -56,6 +56,11 @@ from .linsolve import SPDSolver
 from .layout import _align_rectangle, layout, to_unit_square  # noqa: F401  (to_unit_square: public here too)
 
 
+#: a triangulation with an angle outside these (radians) starts on intrinsic Delaunay flips
+POOR_MIN_ANGLE = np.radians(1.0)
+POOR_MAX_ANGLE = np.radians(177.0)
+
+
 @dataclass(frozen=True)
 class RicciFlowResult:
     """Result of a Ricci-flow rectangle map.
@@ -156,8 +161,9 @@ class RicciFlowSolver:
     tolerance : float — stop when max |target - angle sum| <= tolerance (default 1e-9 rad)
     max_iterations : int — Newton iterations (default 100)
     linear_solver : "auto" | "cholmod" | "splu" — see :class:`geoface.param.linsolve.SPDSolver`
-    flips : "auto" | "never" | "always" — intrinsic Delaunay (Ptolemy) flips: only when the
-        fixed triangulation fails (default), never, or always
+    flips : "auto" | "never" | "always" — intrinsic Delaunay (Ptolemy) flips: from the start on
+        a mesh with needles or caps (an angle under 1° or over 177°), else only when the fixed
+        triangulation fails (default); never; or always
     max_refinements : int — with flips, rounds of boundary refinement (default 8, 0: none).
         Boundary edges are never flipped, so the flow can push an interior vertex onto a
         boundary edge (a triangle with an angle of pi there, or past the triangle
@@ -203,6 +209,10 @@ class RicciFlowSolver:
         self.is_boundary[self.boundary] = True
         self.l0 = edge_lengths(V, F)
         self.lam0 = 2.0 * np.log(self.l0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ang = corner_angles(self.l0)
+        #: needles or caps: an angle under 1 degree or over 177 (see ``solve``)
+        self.poor_triangulation = bool(len(ang) and (ang.min() < POOR_MIN_ANGLE or ang.max() > POOR_MAX_ANGLE))
 
     def _split_boundary_edges(self, edges: list[tuple[int, int]]) -> None:
         """Split boundary edges ``a -> b`` of the mesh at their 3D midpoints (the triangle
@@ -275,17 +285,21 @@ class RicciFlowSolver:
         if u.shape != (self.n,):
             u = np.concatenate([u, np.zeros(self.n - len(u))]) if len(u) < self.n else u[: self.n]
         tri = None
-        if self.flips == "always":
-            tri = IntrinsicTriangulation(self.F, self.l0)
-        # in "auto" mode a fixed triangulation that has not converged after 30 Newton
-        # iterations (they converge in ~5 when a solution exists), or whose line search has
-        # stalled (3 iterations in a row with steps <= 1/16: degenerate triangles block
-        # every full step), is given up for flips
+        # "auto": a mesh with needles or caps (an angle under 1 degree or over 177) starts on its
+        # intrinsic Delaunay triangulation, decided from the mesh (fins, slivers and hole patches
+        # of real scans); otherwise the fixed triangulation is tried first, and given up for
+        # flips when it has not converged after 30 Newton iterations (they converge in ~5 when a
+        # solution exists) or its line search has stalled (3 iterations in a row with steps
+        # <= 1/16: degenerate triangles block every full step)
         auto = self.flips == "auto"
-        cap = min(self.max_iterations, 30) if auto else self.max_iterations
-        u, ang, F, it, res, history, converged = self._newton(corners, theta, u, tri, quiet, cap, stall=3 if auto else 0)
-        if self.flips == "auto" and (not converged or _n_degenerate(ang) > 0):
-            log(f"ricci: fixed triangulation failed (residual {res:.2e}); retrying with intrinsic Delaunay flips", quiet=quiet)
+        if self.flips == "always" or (auto and self.poor_triangulation):
+            tri = IntrinsicTriangulation(self.F, self.l0)
+        cap = min(self.max_iterations, 30) if auto and tri is None else self.max_iterations
+        u, ang, F, it, res, history, converged = self._newton(corners, theta, u, tri, quiet, cap,
+                                                              stall=3 if auto and tri is None else 0)
+        if auto and tri is None and (not converged or _n_degenerate(ang) > 0):
+            log(f"ricci: no flat metric on the mesh's own triangulation (residual {res:.2e} after {it} iterations); "
+                "continuing on its intrinsic Delaunay triangulation", quiet=quiet)
             tri = IntrinsicTriangulation(self.F, self.l0)
             u, ang, F, it2, res, h2, converged = self._newton(corners, theta, np.zeros(self.n), tri, quiet, self.max_iterations)
             it += it2
@@ -300,7 +314,7 @@ class RicciFlowSolver:
             if not bad or rounds >= self.max_refinements:
                 break
             rounds += 1
-            log(f"ricci: {len(bad)} interior vertices pushed onto the boundary; splitting those boundary edges (round {rounds})", quiet=quiet)
+            log(f"ricci: {len(bad)} boundary triangles flattened by the flow; splitting their boundary edges (round {rounds})", quiet=quiet)
             n_old = self.n
             self._split_boundary_edges(bad)
             if self.n == n_old:
@@ -365,7 +379,8 @@ class RicciFlowSolver:
                 slope = g @ d
             # backtracking: Armijo on E, and while the step creates degenerate triangles
             # that the current metric does not have (the energy's extension would accept
-            # them, but the minimiser of a realisable problem has none)
+            # them, but the minimiser of a realisable problem has none; with intrinsic flips only
+            # the boundary can hold them, and the boundary refinement after the solve splits those)
             n_deg = _n_degenerate(ang)
             t = 1.0
             while True:
@@ -377,7 +392,7 @@ class RicciFlowSolver:
                 noise = abs(t * slope) < 1e-11 * max(abs(E), 1.0)
                 if noise and np.isfinite(En):
                     armijo = float(np.abs(gn).max()) < float(np.abs(g).max())
-                if armijo and (_n_degenerate(angn) <= n_deg or t < 1e-6):
+                if armijo and (tri is not None or _n_degenerate(angn) <= n_deg or t < 1e-6):
                     break
                 t *= 0.5
                 if t < 1e-12:
@@ -391,7 +406,6 @@ class RicciFlowSolver:
                 break
             short = short + 1 if t <= 1 / 16 else 0
             if stall and short >= stall and not converged:
-                log(f"ricci: line search stalled ({short} steps <= 1/16 in a row)", quiet=quiet)
                 break
         return u, ang, F, it, res, history, converged
 
