@@ -33,18 +33,20 @@ METHODS = ("ot", "conformal")
 class ConvertOptions:
     """Options of :func:`convert` (the CLI flags of ``geoface convert``).
 
-    res : image resolution N; roi : "face" (a frontal cone, see :func:`face_region`),
+    res : image resolution N; roi : "face" (on a human head, the face region of the head
+    template registered to it; otherwise a frontal cone, see :func:`face_region`),
     "none", or a per-input-vertex boolean mask; lam : mass factor on the ROI (2.5 in the
     paper; 1 = area-preserving); augment : number of corner sets (1..8); method : "ot" or
     "conformal"; ot_tol : OT tolerance; smooth : Laplacian smoothing iterations of the
     reconstruction; up / open : how :func:`geoface.repair.make_disk` cuts closed heads, and
-    which way is up in the image; ``up="auto"``: for a surface that is already open, the
-    normal of its opening pointing into the surface (the neck of a head open at the neck,
-    whatever its axes), else +Y;
+    which way is up in the image; ``up="auto"`` (default): found from the shape in any axis
+    convention (:func:`geoface.repair.upright.upright_frame`; ``metrics.json`` keeps it under
+    ``frame``, with whether it is certain), or an axis name / 3-vector;
     front : the face direction for the default corners and the face cone: ``"auto"``
     (default: from the centroid of the surface towards the centroid of an explicit ROI mask,
     e.g. the face mask of ``synth head --meta`` or of an ICT-FaceKit head; without a mask,
-    where the mesh faces, found by :func:`geoface.mesh.frame.mesh_frame`), an axis name
+    where the mesh faces: the frame of ``up="auto"``, or :func:`geoface.mesh.frame.mesh_frame`
+    about a given up), an axis name
     (``"z"``, ``"-x"``, ...) or a 3-vector;
     corner_set : convert only corner set ``k`` (0..7) of the 8, written directly in the
     output folder (used by the dataset builder: one item per mesh × corner set); ``augment``
@@ -59,7 +61,7 @@ class ConvertOptions:
     method: str = "ot"
     ot_tol: float = 1e-3
     smooth: int = 0
-    up: str = "y"
+    up: str = "auto"
     open: str = "auto"
     front: object = "auto"
     reconstruct: bool = True
@@ -239,29 +241,25 @@ def _axis(value, default) -> np.ndarray:
     return np.asarray(default, float) if isinstance(value, str) and value == "auto" else as_axis(value)
 
 
-def opening_normal(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """The unit normal of the disk's boundary loop (least-squares plane) pointing towards the
-    surface's area centroid: the up direction of a head open at the neck."""
-    from .mesh.core import vertex_areas
-
-    loop = boundary_loops(F)[0]
-    P = V[loop]
-    c = P.mean(0)
-    n = np.linalg.svd(P - c, full_matrices=False)[2][2]
-    a = vertex_areas(V, F)
-    g = (a[:, None] * V).sum(0) / a.sum()
-    return n if (g - c) @ n >= 0 else -n
+def _vec(v) -> str:
+    return "(" + ", ".join(f"{x:.2f}" for x in np.asarray(v, float)) + ")"
 
 
 def _front(opts: ConvertOptions, V: np.ndarray, F: np.ndarray, roi, up: np.ndarray, seen=None) -> np.ndarray:
     """The face direction: given, or (``"auto"``) from the surface's area centroid towards
     the centroid of an explicit ROI mask, made orthogonal to ``up``; without a mask, where the
-    input mesh faces (``seen``: :func:`geoface.mesh.frame.mesh_frame`), +Z failing that."""
+    surface faces (``seen``: the frame found with ``--up auto``, or
+    :func:`geoface.mesh.frame.mesh_frame` about the given up), +Z failing that."""
     if not (isinstance(opts.front, str) and opts.front == "auto"):
         return _axis(opts.front, (0.0, 0.0, 1.0))
     if roi is None or isinstance(opts.roi, str) or not roi.any() or roi.all():
         if seen is None:
-            return np.array([0.0, 0.0, 1.0])
+            from .mesh.frame import mesh_frame
+
+            try:
+                seen = mesh_frame(V, F, up=up).front
+            except GeofaceError:
+                return np.array([0.0, 0.0, 1.0])
         d = np.asarray(seen, np.float64) - (np.asarray(seen, np.float64) @ up) * up
         L = np.linalg.norm(d)
         return d / L if L > 1e-6 else np.array([0.0, 0.0, 1.0])
@@ -274,26 +272,10 @@ def _front(opts: ConvertOptions, V: np.ndarray, F: np.ndarray, roi, up: np.ndarr
     return d / L if L > 0 else np.array([0.0, 0.0, 1.0])
 
 
-def _auto_front(opts: ConvertOptions, mesh: Mesh):
-    """Where the input faces when ``front`` is "auto" and no ROI mask tells it (scans come facing
-    any horizontal direction): :func:`geoface.mesh.frame.mesh_frame` about the given up axis."""
-    if not (isinstance(opts.front, str) and opts.front == "auto") or not isinstance(opts.roi, str):
-        return None
-    from .mesh.frame import mesh_frame
-
-    up = "y" if isinstance(opts.up, str) and opts.up == "auto" else opts.up
-    try:
-        return mesh_frame(mesh.V, mesh.F, up=_axis(up, (0.0, 1.0, 0.0))).front
-    except GeofaceError:  # no area to look at: the repair will say what is wrong
-        return None
-
-
-def _roi_mask(opts: ConvertOptions, V0: np.ndarray, seen=None) -> np.ndarray | None:
+def _explicit_roi(opts: ConvertOptions, V0: np.ndarray) -> np.ndarray | None:
+    """A vertex mask given by the user (over the input's vertices), checked; None otherwise."""
     if isinstance(opts.roi, str):
-        if opts.roi == "none":
-            return None
-        front = seen if seen is not None else _axis(opts.front, (0.0, 0.0, 1.0))
-        return face_region(V0, front)
+        return None
     m = np.asarray(opts.roi)
     if m.shape != (len(V0),) or m.dtype != bool:
         raise GeofaceError(f"roi mask must be a ({len(V0)},) bool array over the input's vertices")
@@ -321,16 +303,15 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     out_dir = Path(out_dir)
     times: dict = {}
     t_all = time.perf_counter()
-    seen = _auto_front(opts, mesh)
-    roi0 = _roi_mask(opts, mesh.V, seen)
+    roi0 = _explicit_roi(opts, mesh.V)
 
     t = time.perf_counter()
     log(f"convert: repairing {len(mesh.V)} vertices to a disk", quiet=quiet)
-    auto_up = isinstance(opts.up, str) and opts.up == "auto"
-    disk = make_disk(mesh.V, mesh.F, up="y" if auto_up else opts.up, open=opts.open, quiet=quiet)
+    disk = make_disk(mesh.V, mesh.F, up=opts.up, open=opts.open, quiet=quiet)
     dm = mesh.with_geometry(disk.V, disk.F, disk.vertex_map, disk.face_map)
     V = dm.V
     colors = dm.colors
+    frame = disk.frame
     roi = None
     if roi0 is not None:
         roi = np.zeros(len(V), bool)
@@ -339,10 +320,19 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     times["repair"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    up_vec = _axis(opts.up, (0.0, 1.0, 0.0))
-    if auto_up and len(boundary_loops(mesh.F)):
-        up_vec = opening_normal(V, dm.F)
-    front = _front(opts, V, dm.F, roi, up_vec, seen)
+    up_vec = frame.up if frame is not None else _axis(opts.up, (0.0, 1.0, 0.0))
+    if frame is not None and not frame.certain:
+        log(f"convert: which way is up is uncertain ({frame.why}); taking up {_vec(frame.up)}, front {_vec(frame.front)}; "
+            "pass --up (and --front) to set them", quiet=quiet)
+    front = _front(opts, V, dm.F, roi, up_vec, frame.front if frame is not None else None)
+    if roi is None and isinstance(opts.roi, str) and opts.roi == "face":
+        roi = None
+        if frame is not None and frame.template is not None:  # a human head: the template's face
+            from .repair.upright import template_face_region
+
+            roi = template_face_region(V, frame)
+        if roi is None or not roi.any():
+            roi = face_region(V, front)
     indices = [opts.corner_set] if opts.corner_set is not None else list(range(opts.augment))
     all_sets = corner_sets(V, dm.F, n=8, front=front, up=up_vec, count=max(indices) + 1)
     sets = [all_sets[i] for i in indices]
@@ -355,6 +345,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         "options": {k: (v if not isinstance(v, np.ndarray) else "mask") for k, v in asdict(opts).items()},
         "roi_vertices": int(roi.sum()) if roi is not None else 0,
         "front": [float(x) for x in front],
+        "frame": None if frame is None else frame.to_dict(),
         "sets": [],
     }
     from ._io import atomic_dir

@@ -56,6 +56,8 @@ from .linsolve import SPDSolver
 from .layout import _align_rectangle, layout, to_unit_square  # noqa: F401  (to_unit_square: public here too)
 
 
+#: trial steps whose log conformal factors span more than this are refused (lengths overflow)
+MAX_LOG_SCALE_RANGE = 600.0
 #: a triangulation with an angle outside these (radians) starts on intrinsic Delaunay flips
 POOR_MIN_ANGLE = np.radians(1.0)
 POOR_MAX_ANGLE = np.radians(177.0)
@@ -355,7 +357,16 @@ class RicciFlowSolver:
 
         def evaluate(uu):
             if tri is not None:
-                tri.make_delaunay(uu)
+                # a trial step so long that the scaled lengths overflow is refused before any
+                # flip (a Delaunay test on infinite lengths would flip without end)
+                refused = not (np.isfinite(uu).all() and np.ptp(uu) < MAX_LOG_SCALE_RANGE)
+                if not refused:
+                    try:
+                        tri.make_delaunay(uu)
+                    except ParameterizationError:
+                        refused = True
+                if refused:
+                    return np.inf, np.full(self.n, np.nan), np.full(tri.F.shape, np.nan), tri.F
             F = self.F if tri is None else tri.F
             E, g, ang = self.energy(uu, theta, F, tri)
             return E, g, ang, F
@@ -379,8 +390,9 @@ class RicciFlowSolver:
                 slope = g @ d
             # backtracking: Armijo on E, and while the step creates degenerate triangles
             # that the current metric does not have (the energy's extension would accept
-            # them, but the minimiser of a realisable problem has none; with intrinsic flips only
-            # the boundary can hold them, and the boundary refinement after the solve splits those)
+            # them, but the minimiser of a realisable problem has none); with intrinsic flips the
+            # guard gives way sooner (below 1/1000: flips and the boundary refinement after the
+            # solve resolve what is left, and a slivered mesh would otherwise crawl)
             n_deg = _n_degenerate(ang)
             t = 1.0
             while True:
@@ -392,11 +404,14 @@ class RicciFlowSolver:
                 noise = abs(t * slope) < 1e-11 * max(abs(E), 1.0)
                 if noise and np.isfinite(En):
                     armijo = float(np.abs(gn).max()) < float(np.abs(g).max())
-                if armijo and (tri is not None or _n_degenerate(angn) <= n_deg or t < 1e-6):
+                if armijo and (_n_degenerate(angn) <= n_deg or t < (1e-3 if tri is not None else 1e-6)):
                     break
                 t *= 0.5
                 if t < 1e-12:
                     break
+            if not np.isfinite(En):  # no step at all: keep the iterate (and its triangulation)
+                E, g, ang, F = evaluate(u)
+                break
             u, E, g, ang, F = un, En, gn, angn, Fn
             res = float(np.abs(g).max())
             history.append(res)

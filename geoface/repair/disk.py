@@ -56,8 +56,10 @@ class RepairOptions:
     min_opening : float
         See ``open`` (default 0.1; the real heads and scans we test have 0.9 to 3.7, the
         hoof cut of the closed cow 0.23).
-    up : "x" | "y" | "z" | "-x" | ... | 3-vector
-        Up axis of the model (default "y", as in OBJ/glTF heads).
+    up : "auto" | "x" | "y" | "z" | "-x" | ... | 3-vector
+        Up axis of the model: ``"auto"`` (default) finds it from the shape
+        (:func:`geoface.repair.upright.upright_frame`: a human head by the head template in any
+        axis convention, else the opening, a flat cut, the plane it stands on), or an axis.
     open_height : float
         Plane position as a fraction of the extent along ``up`` from the bottom (0.02).
     plane_origin : 3-vector or None
@@ -82,7 +84,7 @@ class RepairOptions:
     """
 
     open: OpenMode = "auto"
-    up: object = "y"
+    up: object = "auto"
     open_height: float = 0.02
     plane_origin: object = None
     cap_area: float = 0.02
@@ -100,7 +102,8 @@ class RepairOptions:
     def validate(self) -> "RepairOptions":
         if self.open not in OPEN_MODES:
             raise InvalidMeshError(f"open must be one of {', '.join(OPEN_MODES)}; got {self.open!r}")
-        as_axis(self.up)
+        if not (isinstance(self.up, str) and self.up == "auto"):
+            as_axis(self.up)
         if self.target_vertices is not None and (int(self.target_vertices) != self.target_vertices or self.target_vertices < 16):
             raise InvalidMeshError(f"target_vertices must be an integer >= 16; got {self.target_vertices!r}")
         if not (0 < self.open_height < 1):
@@ -123,6 +126,8 @@ class DiskResult:
     changes : list of dict — every change made, in order
     area_before, area_after : float — surface areas of input and output
     seconds : float — wall time
+    frame : the up / front found with ``up="auto"`` (:class:`geoface.repair.upright.UprightFrame`),
+        None when ``up`` was given
     """
 
     V: np.ndarray
@@ -134,6 +139,7 @@ class DiskResult:
     area_before: float = 0.0
     area_after: float = 0.0
     seconds: float = 0.0
+    frame: object = None
 
     @property
     def area_added(self) -> float:
@@ -152,6 +158,7 @@ class DiskResult:
             "area_added": self.area_added,
             "area_removed": self.area_removed,
             "seconds": self.seconds,
+            "frame": None if self.frame is None else self.frame.to_dict(),
         }
 
     def summary(self) -> str:
@@ -235,6 +242,14 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
         res = res.then(remesh(res.V, res.F, int(opts.target_vertices), method=opts.remesh_method))
         res = res.then(clean(res.V, res.F))
         res = res.then(keep_components(res.V, res.F))
+    frame = None
+    if isinstance(opts.up, str) and opts.up == "auto":
+        from .upright import upright_frame
+
+        frame = upright_frame(res.V, res.F)
+        opts = replace(opts, up=frame.up)
+        log(f"make_disk: up {_axis_text(frame.up)}, front {_axis_text(frame.front)} ({frame.kind}; {frame.how})"
+            + ("" if frame.certain else f"; UNCERTAIN: {frame.why}"), quiet=quiet)
     loops = boundary_loops(res.F)
     closed = len(loops) == 0
     if loops and opts.open == "auto" and opts.keep_boundary == "longest" and _small_opening(res.V, res.F, opts.min_opening):
@@ -295,7 +310,17 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
         area_before=area_before,
         area_after=float(rep.surface_area),
         seconds=time.perf_counter() - t0,
+        frame=frame,
     )
+
+
+def _axis_text(v) -> str:
+    """A direction as the nearest axis name when within 5°, else three numbers."""
+    v = np.asarray(v, float)
+    k = int(np.argmax(np.abs(v)))
+    if abs(v[k]) > np.cos(np.radians(5.0)):
+        return ("-" if v[k] < 0 else "+") + "xyz"[k]
+    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
 
 
 #: an opening needs at least this many boundary vertices (four corners, eight corner sets)
