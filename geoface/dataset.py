@@ -69,7 +69,7 @@ class DatasetOptions:
     ot_tol: float = 1e-3
     reconstruct: bool = False
     preview: bool = True
-    up: str = "y"
+    up: str = "auto"
     open: str = "auto"
 
     def validate(self) -> "DatasetOptions":

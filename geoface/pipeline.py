@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import GeofaceError, InvalidMeshError
-from .mesh.core import bbox_diagonal, boundary_loops, check_mesh
+from .mesh.core import bbox_diagonal, check_mesh
 from .mesh.io import Mesh, first_corner_uv
 from .progress import log
 

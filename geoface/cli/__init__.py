@@ -54,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, help="output mesh (obj, ply, off, stl, glb)")
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto",
                    help="how to open a closed surface (default auto: plane cut near the bottom if closed)")
-    s.add_argument("--up", default="y", help="up axis: x, y, z, -x, -y, -z (default y)")
+    s.add_argument("--up", default="auto", help="up axis: auto (default: from the shape, any axis convention: a human head "
+                   "by the head template, else the opening, a flat cut, the plane it stands on) or x, y, z, -x, -y, -z")
     s.add_argument("--height", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.02, help="plane cut height as a fraction of the extent along up (0.02)")
     s.add_argument("--cap-area", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.02, help="area fraction removed by --open cap (0.02)")
     s.add_argument("--target-vertices", type=number(int, 16, 10_000_000), default=None, help="remesh to about this many vertices")
@@ -74,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "keeping its aspect (uniform), or stretch it to the square (no longer conformal)")
     s.add_argument("--tolerance", type=number(float, 0, 1, lo_open=True), default=1e-9, help="curvature tolerance of the flow (radians)")
     s.add_argument("--repair", action="store_true", help="run make_disk first")
-    s.add_argument("--up", default="y", help="up axis for --repair")
+    s.add_argument("--up", default="auto", help="up axis for --repair (default auto: from the shape)")
     add_json(s, "the metrics")
     s.set_defaults(func=cmd_param)
 
@@ -91,11 +92,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", choices=["ot", "conformal"], default="ot", help="measure-preserving (ot, default) or conformal")
     s.add_argument("--ot-tol", type=number(float, 0, 1, lo_open=True, hi_open=True), default=1e-3, help="OT tolerance: max relative cell-area error (1e-3)")
     s.add_argument("--smooth", type=number(int, 0, 1000), default=0, help="Laplacian smoothing iterations of the reconstruction")
-    s.add_argument("--up", default="y", help="up axis: x, y, z, -x, -y, -z (default y): where closed heads are cut open, "
-                   "and which way the face is upright in the image; auto: from the opening of a surface already open "
-                   "(the neck), else y")
+    s.add_argument("--up", default="auto", help="up axis: where closed heads are cut open, and which way the face is upright "
+                   "in the image; auto (default): from the shape, in any axis convention (a human head by the head template, "
+                   "else the opening, a flat cut, the plane it stands on; uncertain cases say so), or x, y, z, -x, -y, -z")
     s.add_argument("--front", default="auto", help="face direction: auto (default: towards the centroid of a --roi mask "
-                   "file; without one, where the mesh faces: symmetry and detail, as `view` finds it) or an axis (z, -x, ...)")
+                   "file; without one, the front found with --up auto, or where the mesh faces about a given --up: symmetry "
+                   "and detail, as `view` finds it) or an axis (z, -x, ...)")
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto", help="how to open a closed surface")
     s.set_defaults(func=cmd_convert)
 

@@ -165,6 +165,12 @@ def cmd_convert(args) -> int:
                           corner_set=args.corner_set)
     m = convert(mesh, out, opts, overwrite=args.force)
     print(f"{args.input} -> {out}/  ({len(m['sets'])} image set(s) at {args.res}x{args.res}, {m['seconds']['total']:.1f} s)")
+    fr = m.get("frame")
+    if fr is not None:
+        up = ", ".join(f"{x:.2f}" for x in fr["up"])
+        front = ", ".join(f"{x:.2f}" for x in fr["front"])
+        sure = "" if fr["certain"] else f"  UNCERTAIN ({fr['why']}): check the preview, or pass --up / --front"
+        print(f"  frame: up ({up}), front ({front}): {fr['kind']}, {fr['how']}{sure}")
     for st in m["sets"]:
         d = st["distortion"]
         line = f"  set {st['corner_set']}: |log area| mean {d['log_area_abs_mean']:.3f}, QC mean {d['qc_mean']:.2f}, flipped {d['flipped']}"
@@ -175,11 +181,17 @@ def cmd_convert(args) -> int:
         print(line)
         if "ot" in st:
             ot = st["ot"]
-            how = ("OT centroids as they are (no fold)" if ot["path"] == "ot" else
-                   f"OT centroids, {ot['flipped_before']} folded triangles replaced by the fold-free step "
-                   f"({ot['fitted_vertices']} vertices re-fitted, mean |log cell-area error| "
-                   f"{ot['area_error_before']:.3f} -> {ot['area_error_after']:.3f})")
-            print(f"    map: {how}; {ot['iterations']} Newton steps, {ot['power_diagrams']} power diagrams")
+            sites = "conformal sites" if ot["sites"] == "conformal" else "sites from an area-balanced embedding"
+            if ot["path"] == "balanced":
+                how = "the area-balanced embedding (OT from it did not come closer)"
+            elif ot["path"].endswith("convex-combination"):
+                how = (f"OT centroids ({sites}), {ot['flipped_before']} folded triangles replaced by the fold-free step "
+                       f"({ot['fitted_vertices']} vertices re-fitted, mean |log cell-area error| "
+                       f"{ot['area_error_before']:.3f} -> {ot['area_error_after']:.3f})")
+            else:
+                how = f"OT centroids as they are ({sites}, no fold)"
+            reached = "" if ot["converged"] else f"; tolerance reached {ot['residual']:.2g} (asked {args.ot_tol:g})"
+            print(f"    map: {how}; {ot['iterations']} Newton steps, {ot['power_diagrams']} power diagrams{reached}")
     for f in m.get("failed_sets", []):
         print(f"  set {f['corner_set']}: FAILED and skipped: {f['error']}")
     return 0

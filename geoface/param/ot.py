@@ -160,9 +160,11 @@ def semi_discrete_ot(
     min_step : the smallest damping tried before the diagonally scaled gradient is (a step
         along ``-g / diag(H)``, judged by the same rule); when that fails too, the solve gives up
 
-    Raises :class:`ParameterizationError` when the step cannot be damped (sites so crowded that
-    their cells react to the heights below double precision; see
-    :func:`geoface.param.measure.measure_preserving_map`, which then moves the sites).
+    Raises
+    ------
+    ParameterizationError
+        When the step cannot be damped: sites so crowded that their cells react to the heights
+        below double precision (``measure_preserving_map`` then moves the sites), or a stall.
     """
     t_start = time.perf_counter()
     P = np.asarray(points, np.float64)

@@ -26,17 +26,22 @@ command line and for ``metrics.json``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
 
 from ..errors import GeofaceError
-from ..mesh.core import boundary_loops, face_areas, face_normals, loop_length
+from ..mesh.core import boundary_loops, face_areas, loop_length
+from .template import TEMPLATE_FIT, _SCAN_POINTS, fit_head_template, surface_samples, template_face_region  # noqa: F401
 
-__all__ = ["UprightFrame", "upright_frame", "FACE_DEPTH_RATIO"]
+__all__ = ["UprightFrame", "upright_frame", "template_face_region", "FACE_DEPTH_RATIO"]
 
 #: a surface shallower than this over its opening (depth / the opening's width) is a face only
 FACE_DEPTH_RATIO = 0.55
+#: a standing figure's head end: the head template fits it closer than this (bodies 0.10-0.12,
+#: the ends of a car 0.3)
+FIGURE_FIT = 0.15
+#: an up (then a front) this close to an axis of the file is taken as that axis (degrees)
+SNAP_DEGREES = 15.0
 #: a flat region must cover this share of the surface to be taken as the cut at the bottom
 FLAT_SHARE = 0.01
 #: the nose: the profile's fall over this share of the face's height, below against above
@@ -71,16 +76,6 @@ def _unit(v) -> np.ndarray:
 
 def _orthogonal(v, to) -> np.ndarray:
     return _unit(v - (v @ to) * to)
-
-
-def _samples(V, F, n, seed):
-    A = face_areas(V, F)
-    rng = np.random.default_rng(seed)
-    f = rng.choice(len(F), size=n, p=A / A.sum())
-    r1, r2 = rng.random(n), rng.random(n)
-    s = np.sqrt(r1)
-    w = np.column_stack([1 - s, s * (1 - r2), s * r2])
-    return np.einsum("nk,nkd->nd", w, V[F[f]]), face_normals(V, F)[f]
 
 
 def _opening(V, F, min_opening: float = 0.1):
@@ -240,141 +235,6 @@ def _facet_areas(P, simplices):
     return 0.5 * np.linalg.norm(np.cross(B - A, C - A), axis=1)
 
 
-# ----------------------------------------------------------------------------- the head template
-#: a fit of the head template closer than this (trimmed mean distance over its RMS radius) is a
-#: human head (heads of real people and the ICT-FaceKit model 0.029-0.037; an animal's head, a
-#: cow, a car 0.05 and more)
-TEMPLATE_FIT = 0.045
-#: a standing figure's head end: the head template fits it closer than this (bodies 0.10-0.12,
-#: the ends of a car 0.3)
-FIGURE_FIT = 0.15
-_TEMPLATE_POINTS = 1500
-_SCAN_POINTS = 2500
-_KEEP = 0.6
-
-
-@lru_cache(maxsize=1)
-def _template():
-    """Surface samples of the ICT-FaceKit mean head (Y up, facing +Z): the whole head and the
-    face region alone, or None when the model is not installed."""
-    tpl = _template_mesh()
-    if tpl is None:
-        return None
-    V, F, mask = tpl
-    whole = _samples(V, F, _TEMPLATE_POINTS, 1)[0]
-    face = _samples(V, F[mask[F].all(1)], _TEMPLATE_POINTS, 2)[0]
-    return whole, face
-
-
-def _similarity(A, B):
-    """``(s, R, t)`` minimising ``|s R A + t - B|`` (Umeyama)."""
-    ma, mb = A.mean(0), B.mean(0)
-    A0, B0 = A - ma, B - mb
-    U, D, Vt = np.linalg.svd(B0.T @ A0 / len(A))
-    S = np.eye(3)
-    S[2, 2] = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    R = U @ S @ Vt
-    s = float(np.trace(np.diag(D) @ S) / max((A0 ** 2).sum(1).mean(), 1e-300))
-    return s, R, mb - s * R @ ma
-
-
-def _icp(T, P, tree, R, s, t, iterations, template_to_scan):
-    """Trimmed similarity ICP of template samples ``T`` onto scan samples ``P``: each template
-    point to its nearest scan point (a scan with more than a head: shoulders, a torso), or each
-    scan point to its nearest template point (a face only); the closest 60% of the pairs."""
-    from scipy.spatial import cKDTree
-
-    for _ in range(iterations):
-        X = s * T @ R.T + t
-        if template_to_scan:
-            d, j = tree.query(X)
-            k = np.argsort(d)[: int(_KEEP * len(d))]
-            s, R, t = _similarity(T[k], P[j[k]])
-        else:
-            d, j = cKDTree(X).query(P)
-            k = np.argsort(d)[: int(_KEEP * len(d))]
-            s, R, t = _similarity(T[j[k]], P[k])
-    X = s * T @ R.T + t
-    d = tree.query(X)[0] if template_to_scan else cKDTree(X).query(P)[0]
-    return R, s, t, float(np.sort(d)[: int(_KEEP * len(d))].mean())
-
-
-def _candidate_rotations(P):
-    """Starting rotations in the samples' own principal frame (so that the search does not
-    depend on the file's axes): the 24 rotations of the cube and 24 fixed others."""
-    from scipy.spatial.transform import Rotation
-
-    X = P - P.mean(0)
-    w, E = np.linalg.eigh(X.T @ X)
-    third = ((X @ E) ** 3).mean(0)
-    E = E * np.where(third < 0, -1.0, 1.0)
-    if np.linalg.det(E) < 0:
-        E[:, 0] = -E[:, 0]
-    group = np.concatenate([Rotation.create_group("O").as_matrix(), Rotation.random(24, random_state=0).as_matrix()])
-    return [E @ G for G in group]
-
-
-def fit_head_template(P, *, face_only: bool = False):
-    """Register the head template to the scan samples ``P`` (similarity, trimmed ICP from 48
-    starts): ``(R, s, t, error)`` with ``error`` the trimmed mean distance over the template's
-    RMS radius (below :data:`TEMPLATE_FIT`: a human head), or None without the model."""
-    from scipy.spatial import cKDTree
-
-    tpl = _template()
-    if tpl is None:
-        return None
-    T = tpl[1] if face_only else tpl[0]
-    tree = cKDTree(P)
-    cP, cT = P.mean(0), T.mean(0)
-    rP = float(np.sqrt(((P - cP) ** 2).sum(1).mean()))
-    rT = float(np.sqrt(((T - cT) ** 2).sum(1).mean()))
-    s0 = rP / rT
-    starts = []
-    for R0 in _candidate_rotations(P):
-        R, s, t, e = _icp(T, P, tree, R0, s0, cP - s0 * R0 @ cT, 10, not face_only)
-        starts.append((e / (s * rT), R, s, t))
-    starts.sort(key=lambda x: x[0])
-    best = None
-    for _, R, s, t in starts[:6]:
-        R, s, t, e = _icp(T, P, tree, R, s, t, 60, not face_only)
-        e = e / (s * rT)
-        if best is None or e < best[3]:
-            best = (R, s, t, e)
-    return best
-
-
-def template_face_region(V, frame: UprightFrame, *, reach: float = 0.08) -> np.ndarray | None:
-    """The face of a human head: the vertices of ``V`` whose nearest point of the registered head
-    template (``frame.template``) lies in the template's face region, within ``reach`` of the
-    template's RMS radius.  None without a registration."""
-    from scipy.spatial import cKDTree
-
-    if frame.template is None:
-        return None
-    R, s, t = frame.template[:3]
-    tpl = _template_mesh()
-    if tpl is None:
-        return None
-    Vt, _, face = tpl
-    X = s * Vt @ R.T + t
-    rT = s * float(np.sqrt(((Vt - Vt.mean(0)) ** 2).sum(1).mean()))
-    d, j = cKDTree(X).query(np.asarray(V, float))
-    return face[j] & (d < reach * rT)
-
-
-@lru_cache(maxsize=1)
-def _template_mesh():
-    """The ICT-FaceKit mean head: (V, F, face mask), or None when the model is not installed (the
-    other cues remain)."""
-    try:
-        from ..synth.ict import load_ict_model
-
-        h = load_ict_model().head(None)
-    except Exception:
-        return None
-    return h.V.copy(), h.F.copy(), h.face_mask.copy()
-
-
 def _front_about(V, F, up):
     from ..mesh.frame import mesh_frame
 
@@ -382,16 +242,44 @@ def _front_about(V, F, up):
     return fr.front, fr.how
 
 
-def upright_frame(V, F, *, samples: int = 12000, seed: int = 0, fallback_up=(0.0, 1.0, 0.0)) -> UprightFrame:
+def upright_frame(V, F, *, samples: int = 12000, seed: int = 0, fallback_up=(0.0, 1.0, 0.0),
+                  snap: float = SNAP_DEGREES) -> UprightFrame:
     """Up and front of the surface ``(V, F)`` — one clean component, as :func:`make_disk` has it
-    after cleaning — from its shape (see the module's description)."""
+    after cleaning — from its shape (see the module's description).  An up (and then a front)
+    within ``snap`` degrees of one of the file's axes is taken as that axis: scans are modelled
+    along their axes, and a head whose up is the file's +Z should be cut level with it."""
+    fr = _upright_frame(V, F, samples, seed, fallback_up)
+    if snap <= 0:
+        return fr
+    up = _snapped(fr.up, snap)
+    if up is fr.up:
+        return fr
+    front = _orthogonal(fr.front, up)
+    front = _snapped(front, snap)
+    if front @ up != 0.0:
+        front = _orthogonal(front, up)
+    return UprightFrame(up, front, fr.kind, fr.how + f"; snapped to the file's axes (within {snap:g}°)", fr.certain, fr.why,
+                        dict(fr.cues, up_found=[float(x) for x in fr.up]), fr.template)
+
+
+def _snapped(v, degrees):
+    """``v`` replaced by the nearest signed axis when within ``degrees`` of it (else ``v`` itself)."""
+    k = int(np.argmax(np.abs(v)))
+    if abs(v[k]) >= np.cos(np.radians(degrees)):
+        a = np.zeros(3)
+        a[k] = np.sign(v[k])
+        return a
+    return v
+
+
+def _upright_frame(V, F, samples, seed, fallback_up) -> UprightFrame:
     V = np.asarray(V, np.float64)
     F = np.asarray(F, np.int64)
     if len(F) == 0:
         raise GeofaceError("upright_frame: no faces")
     used = np.unique(F)
     diag = float(np.linalg.norm(np.ptp(V[used], 0)))
-    P, Pn = _samples(V, F, samples, seed)
+    P, Pn = surface_samples(V, F, samples, seed)
     Ps = P[:: max(1, samples // _SCAN_POINTS)]
     op = _opening(V, F)
     cues: dict = {}
@@ -406,8 +294,8 @@ def upright_frame(V, F, *, samples: int = 12000, seed: int = 0, fallback_up=(0.0
     if fit is not None and fit[3] <= TEMPLATE_FIT:
         R = fit[0]
         up, front = _unit(R @ np.array([0.0, 1.0, 0.0])), _unit(R @ np.array([0.0, 0.0, 1.0]))
-        if kind == "open at the neck" and up @ n < 0.5:  # the template upside down against the opening
-            return _generic_open(V, F, n, cues, certain=False, why="the head template and the opening disagree")
+        if kind == "open at the neck" and up @ n < 0.5:  # the longest boundary is a hole, not the neck
+            kind = "closed"
         return UprightFrame(up, front, kind, f"the head template (fit {fit[3]:.3f})", cues=cues,
                             template=(fit[0], fit[1], fit[2], fit[3], kind == "face only"))
     fig = _standing_figure(Ps)
@@ -447,10 +335,9 @@ def upright_frame(V, F, *, samples: int = 12000, seed: int = 0, fallback_up=(0.0
                         cues=cues)
 
 
-def _generic_open(V, F, n, cues, *, certain=True, why=""):
+def _generic_open(V, F, n, cues):
     front, how = _front_about(V, F, n)
-    return UprightFrame(_unit(n), front, "open at the neck", f"the opening's normal; front by {how}", certain=certain,
-                        why=why, cues=cues)
+    return UprightFrame(_unit(n), front, "open at the neck", f"the opening's normal; front by {how}", cues=cues)
 
 
 def _resting_plane(P, diag, lateral=None):
