@@ -404,7 +404,8 @@ def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, op
         mp = measure_preserving_map(V, F, uv, roi=roi, lam=opts.lam, tol=opts.ot_tol, quiet=quiet)
         uv = mp.uv
         st["ot"] = {
-            "seconds": time.perf_counter() - t, "path": mp.path, "sites": mp.sites, "converged": mp.converged,
+            "seconds": time.perf_counter() - t, "path": mp.path, "sites": mp.sites, "restarts": mp.restarts,
+            "converged": mp.converged,
             "residual": mp.residual, "iterations": mp.ot.iterations if mp.ot else 0, "halvings": mp.ot.halvings if mp.ot else 0,
             "stages": mp.ot.stages if mp.ot else 0, "gradient_steps": mp.ot.gradient_steps if mp.ot else 0,
             "power_diagrams": mp.ot.backend if mp.ot else None, "attempts": mp.attempts,

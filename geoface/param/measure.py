@@ -28,7 +28,10 @@ steps of at most 1/64) and the sites are moved first: an area-balanced embedding
 reweighted until every vertex's share of the square is within a factor of about e^2.5 of its
 mass) places them, and OT from there converges.  Should that solve not reach ``tol`` either,
 the better of its fold-free map and the balanced embedding is returned, with the tolerance
-reached.  ``MeasureMapResult.path`` says which way each map was made.
+reached.  A solve from the balanced sites that stops short (a cell below what double
+precision resolves, near the end) is started again from the centroids it reached, made
+fold-free: they are sites whose cells are closer to their masses (up to four times).
+``MeasureMapResult.path`` says which way each map was made.
 """
 
 from __future__ import annotations
@@ -47,6 +50,8 @@ from .ot import OTResult, semi_discrete_ot
 
 #: the first OT attempt, from the conformal sites, gives up after this many short steps in a row
 DIRECT_STALL = 4
+#: solves started again from the centroids the last one reached, when it stopped short
+MAX_RESTARTS = 4
 
 __all__ = ["MeasureMapResult", "measure_preserving_map", "signed_uv_areas", "area_error"]
 
@@ -65,7 +70,8 @@ class MeasureMapResult:
     ``"balanced"``: an area-balanced embedding of it); balanced : that embedding's report;
     attempts : every OT solve tried (sites, converged, residual, iterations, error);
     residual : the tolerance reached, max |w_i - ν_i| / ν_i of the OT cells (of the vertex
-    areas on the ``"balanced"`` path); converged : ``residual <= tol``.
+    areas on the ``"balanced"`` path); converged : ``residual <= tol``; restarts : how many times
+    the solve from the balanced sites was started again from the centroids it had reached.
     """
 
     uv: np.ndarray
@@ -82,6 +88,7 @@ class MeasureMapResult:
     attempts: list = field(default_factory=list)
     residual: float = 0.0
     converged: bool = True
+    restarts: int = 0
 
     @property
     def path(self) -> str:
@@ -177,30 +184,41 @@ def measure_preserving_map(
     def attempt(sites_uv, label, **kw):
         t = time.perf_counter()
         try:
-            r = semi_discrete_ot(sites_uv, nu, tol=tol, h0=h0 if label == "conformal" else None,
-                                 linear_solver=linear_solver, backend=backend, quiet=quiet, **kw)
-        except ParameterizationError as e:
+            r = semi_discrete_ot(sites_uv, nu, tol=tol, h0=h0 if label == "conformal" else None, linear_solver=linear_solver,
+                                 backend=backend, partial=True, quiet=quiet, **kw)
+        except ParameterizationError as e:  # no start at all (cells empty even after merging sites)
             attempts.append({"sites": label, "converged": False, "error": str(e), "seconds": time.perf_counter() - t})
             return None
         attempts.append({"sites": label, "converged": bool(r.converged), "residual": float(r.residual),
                          "iterations": int(r.iterations), "halvings": int(r.halvings), "stages": int(r.stages),
-                         "gradient_steps": int(r.gradient_steps), "seconds": time.perf_counter() - t})
+                         "gradient_steps": int(r.gradient_steps), "error": r.failure or None,
+                         "seconds": time.perf_counter() - t})
         return r
 
-    sites, sites_uv, bal = "conformal", uv, None
     ot = attempt(uv, "conformal", stall=DIRECT_STALL)
+    best = (ot, uv, "conformal") if ot is not None else None
+    bal = None
+    restarts = 0
     if ot is None or not ot.converged:
         # crowded sites: move them to an area-balanced embedding first (the normal path for
         # conformal factors spanning many orders of magnitude, not an error)
         bal = area_balanced_map(F, uv, nu)
         log(f"  measure-preserving map: OT sites from an area-balanced embedding (worst log area ratio "
             f"{bal.start_max_log_ratio:.1f} -> {bal.max_log_ratio:.1f} in {bal.best_round} rounds)", quiet=quiet)
-        ot2 = attempt(bal.uv, "balanced", max_iterations=600)
-        sites, sites_uv = "balanced", bal.uv
-        if ot2 is not None and (ot is None or ot2.residual <= ot.residual):
-            ot = ot2
-        elif ot is not None:
-            sites, sites_uv = "conformal", uv
+        cur = bal.uv
+        for k in range(MAX_RESTARTS + 1):
+            r = attempt(cur, "balanced" if k == 0 else f"balanced, moved {k}x", max_iterations=600)
+            if r is not None and (best is None or r.residual < best[0].residual):
+                best, restarts = (r, cur, "balanced"), k
+            if r is None or r.converged or k == MAX_RESTARTS:
+                break
+            # start again from the map the solve reached: its centroids, made fold-free, are
+            # sites whose cells are closer to their masses than the last ones'
+            try:
+                cur = convex_combination_map(F, _snap(r.centroid, bnd, sides), cur).uv
+            except ParameterizationError:
+                break
+    ot, sites_uv, sites = best if best is not None else (None, uv, "conformal")
     if ot is not None and ot.merged:
         import warnings
 
@@ -212,7 +230,7 @@ def measure_preserving_map(
     if ot is not None:
         result = _from_centroids(F, ot, bnd, sides, orient, sites_uv, fold_free, quiet)
     if bal is not None and (result is None or not ot.converged):
-        # OT did not reach tol from either set of sites: the balanced embedding if it is closer
+        # OT did not reach tol from any sites: the balanced embedding if it is closer
         bal_res = _max_rel_area_error(F, bal.uv, nu)
         if result is None or bal_res < ot.residual:
             result = (bal.uv, 0, 0, None, area_error(F, bal.uv, nu), area_error(F, bal.uv, nu))
@@ -229,7 +247,7 @@ def measure_preserving_map(
     return MeasureMapResult(
         uv=new, ot=ot, flipped_before=flipped_before, flipped_after=flipped_after, seconds=time.perf_counter() - t0,
         fold_free=ff, area_error_before=err_before, area_error_after=err_after, roi_share=share, sites=sites, balanced=bal,
-        attempts=attempts, residual=residual, converged=residual <= tol,
+        attempts=attempts, residual=residual, converged=residual <= tol, restarts=restarts,
     )
 
 

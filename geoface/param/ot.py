@@ -78,6 +78,8 @@ class OTResult:
     history: list = field(default_factory=list)
     backend: str = "cgal"
     gradient_steps: int = 0
+    failure: str = ""
+    stage_reached: int = 0
 
 
 def _hessian_weights(points: np.ndarray, pd: PowerDiagram) -> np.ndarray:
@@ -141,6 +143,7 @@ def semi_discrete_ot(
     backend: str = "auto",
     stall: int = 0,
     min_step: float = 1e-9,
+    partial: bool = False,
     quiet: bool | None = None,
 ) -> OTResult:
     """Heights ``h`` whose power cells in the unit square have areas ``masses`` (normalised).
@@ -159,6 +162,9 @@ def semi_discrete_ot(
         can try better sites (0: never)
     min_step : the smallest damping tried before the diagonally scaled gradient is (a step
         along ``-g / diag(H)``, judged by the same rule); when that fails too, the solve gives up
+    partial : on giving up, return the last accepted state (``converged`` False, ``failure``
+        saying why) instead of raising: its centroids are a map between the sites and the target,
+        from which a caller can start again
 
     Raises
     ------
@@ -197,6 +203,7 @@ def semi_discrete_ot(
     free[int(np.argmax(pd.area))] = False
     history: list = []
     iterations = halvings = gradient_steps = short = 0
+    failure, stage_reached = "", 0
     # stages: targets between the starting areas and nu, geometric in log space
     w0 = pd.area
     spread = float(np.max(np.abs(np.log(nu_r / w0))))
@@ -235,7 +242,10 @@ def semi_discrete_ot(
                     empty = int((power_diagram(Pr, hr + min_step * d, previous=pd, backend=backend).area <= 0).sum())
                     why = (f"{empty} sites lose their cells even for tiny steps ({pd.source} triangulation)"
                            if empty else "the Newton step could not be damped")
-                    raise ParameterizationError(f"optimal transport failed: {why}")
+                    failure = f"optimal transport failed: {why} (max relative cell-area error {res:.3g} in stage {stage}/{n_stages})"
+                    if not partial:
+                        raise ParameterizationError(failure)
+                    break
                 gradient_steps += 1
             hn, pdn, gnew, tau, k = step
             halvings += k
@@ -246,8 +256,14 @@ def semi_discrete_ot(
             log(f"  OT stage {stage}/{n_stages} iteration {iterations}: max rel. error {res:.3g} (step {tau:g})", quiet=quiet)
             short = short + 1 if tau <= 1 / 64 else 0
             if stall and short >= stall:
-                raise ParameterizationError(f"optimal transport stalled: {short} steps in a row of at most 1/64 "
-                                            f"(max relative cell-area error {res:.3g} in stage {stage}/{n_stages})")
+                failure = (f"optimal transport stalled: {short} steps in a row of at most 1/64 "
+                           f"(max relative cell-area error {res:.3g} in stage {stage}/{n_stages})")
+                if not partial:
+                    raise ParameterizationError(failure)
+                break
+        stage_reached = stage
+        if failure:
+            break
         if stage == n_stages:
             converged = res <= tol
     h_full = hr[red]
@@ -266,6 +282,8 @@ def semi_discrete_ot(
         history=history,
         backend=built,
         gradient_steps=gradient_steps,
+        failure=failure,
+        stage_reached=stage_reached,
     )
 
 

@@ -300,11 +300,11 @@ def _upright_frame(V, F, samples, seed, fallback_up) -> UprightFrame:
                             template=(fit[0], fit[1], fit[2], fit[3], kind == "face only"))
     fig = _standing_figure(Ps)
     if fig is not None and fig[1] <= FIGURE_FIT:
-        up, fit_top, fit_bottom = fig
+        up, fit_top, fit_bottom, sure, head_front = fig
         cues.update(figure_head_fit=fit_top, figure_foot_fit=fit_bottom)
-        front, how = _front_about(V, F, up)
-        return UprightFrame(up, front, "figure", f"the long axis, the head at the end the head template fits; front by {how}",
-                            certain=fit_top <= TEMPLATE_FIT, why="" if fit_top <= TEMPLATE_FIT else "no head found at either end",
+        front, how = _front_about(V, F, up)  # (the template's front at a body's head end is too rough)
+        return UprightFrame(up, front, "figure", f"the long axis, towards the head (one piece, where the template fits); "
+                            f"front by {how}", certain=sure, why="" if sure else "which end is the head is not clear",
                             cues=cues)
     if kind != "closed":
         # not a human head: up from the opening (a neck, or the open bottom of a shell)
@@ -392,8 +392,12 @@ def _resting_plane(P, diag, lateral=None):
 
 def _standing_figure(P):
     """A standing figure (the longest principal extent over 2.2 times the next: a body, a
-    statue): up along the long axis, towards the end where the head template fits better.
-    (up, fit at that end, fit at the other) or None."""
+    statue): up along the long axis, towards its head: the end whose last tenth is one piece
+    where the other is several (legs), else the end the head template fits better.
+    (up, fit at the head end, fit at the other, certain, the template's front there) or None."""
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
     c = P.mean(0)
     X = P - c
     w, E = np.linalg.eigh(X.T @ X)
@@ -403,10 +407,21 @@ def _standing_figure(P):
         return None
     axis = E[:, order[0]]
     t = X @ axis
-    fits = []
+    fits, pieces, fronts = [], [], []
     for sgn in (1.0, -1.0):
         end = P[(sgn * t) >= (sgn * t).max() - 0.15 * np.ptp(t)]
         f = fit_head_template(end) if len(end) >= 100 else None
         fits.append(np.inf if f is None else f[3])
-    up = axis if fits[0] <= fits[1] else -axis
-    return _unit(up), float(min(fits)), float(max(fits))
+        fronts.append(None if f is None else f[0] @ np.array([0.0, 0.0, 1.0]))
+        tip = P[(sgn * t) >= (sgn * t).max() - 0.10 * np.ptp(t)]
+        G = cKDTree(tip).sparse_distance_matrix(cKDTree(tip), 0.04 * ext[order[0]], output_type="coo_matrix")
+        pieces.append(int(connected_components(G, directed=False)[0]) if len(tip) else 0)
+    if pieces[0] == 1 and pieces[1] >= 2:
+        k, certain = 0, True
+    elif pieces[1] == 1 and pieces[0] >= 2:
+        k, certain = 1, True
+    else:
+        k = 0 if fits[0] <= fits[1] else 1
+        certain = fits[k] <= 0.8 * fits[1 - k]
+    up = axis if k == 0 else -axis
+    return _unit(up), float(fits[k]), float(fits[1 - k]), certain, fronts[k]
