@@ -65,7 +65,8 @@ def run_case(case, res: int, augment: int, tmp: Path) -> dict:
         logging.getLogger("geoface").removeHandler(h)
     out["seconds"] = time.perf_counter() - t
     sets = m["sets"]
-    out.update(ok=True, sets=len(sets), failed_sets=[f["corner_set"] for f in m["failed_sets"]], warnings=records,
+    out.update(ok=True, sets=len(sets), failed_sets=[f["corner_set"] for f in m["failed_sets"]],
+               failures=[f["error"] for f in m["failed_sets"]], warnings=records,
                up=m["up"], front=m["front"], up_error_deg=_angle(m["up"], case.up), front_error_deg=_angle(m["front"], case.front),
                frame=m.get("frame", {}))
     st0 = sets[0]

@@ -34,9 +34,30 @@ def _reference(V: np.ndarray, loop: np.ndarray, reference: int | None, front, up
     f = np.asarray((0.0, 0.0, 1.0) if front is None else front, np.float64)
     u = np.asarray((0.0, 1.0, 0.0) if up is None else up, np.float64)
     d = f / max(np.linalg.norm(f), 1e-300) - u / max(np.linalg.norm(u), 1e-300)
-    # the boundary vertex furthest forward and down: under the chin, on a head open at the
-    # neck (a level loop) and on a face scan open around the face alike
-    return int(loop[np.argmax(V[loop] @ d)])
+    # forward and down: under the chin, on a head open at the neck (a level loop) and on a face
+    # scan open around the face alike.  Not the vertex furthest that way, which jumps from end
+    # to end of a flat side (a neck cut square) when the direction turns a degree, but where a
+    # ray from the loop's centre that way, in the loop's plane, leaves the loop.
+    P = V[loop]
+    c = P.mean(0)
+    n = np.linalg.svd(P - c, full_matrices=False)[2][2]
+    e1 = d - (d @ n) * n
+    if np.linalg.norm(e1) < 1e-9 * max(np.linalg.norm(d), 1e-300):
+        return int(loop[np.argmax(P @ d)])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    x, y = (P - c) @ e1, (P - c) @ e2
+    x2, y2 = np.roll(x, -1), np.roll(y, -1)
+    # loop edges the ray (y = 0, x > 0) crosses; the crossing furthest out
+    cross = (np.sign(y) != np.sign(y2)) | (y == 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(y != y2, y / (y - y2), 0.0)
+    xc = x + t * (x2 - x)
+    ok = cross & (xc > 0)
+    if not ok.any():
+        return int(loop[np.argmax(P @ d)])
+    k = int(np.flatnonzero(ok)[np.argmax(xc[ok])])
+    return int(loop[k] if t[k] <= 0.5 else loop[(k + 1) % len(loop)])
 
 
 def _split(V: np.ndarray, loop: np.ndarray, start: int, fractions: np.ndarray) -> np.ndarray:
@@ -75,9 +96,10 @@ def default_corners(V, F, reference: int | None = None, front=None, up=None) -> 
     ``reference`` vertex in the middle of the first (corner 0 → corner 1, the bottom side of
     the rectangle).
 
-    ``reference`` defaults to the boundary vertex furthest along ``front − up`` (default
-    ``front`` +Z, ``up`` +Y: forward and down, the boundary under the chin of a head open at
-    the neck, or the chin of a face scan), so the face is upright and centred.  Returned in
+    ``reference`` defaults to the boundary vertex where a ray from the boundary's centre along
+    ``front − up`` (in the boundary's plane; default ``front`` +Z, ``up`` +Y: forward and down)
+    leaves it: under the chin of a head open at the neck, or the chin of a face scan, so the
+    face is upright and centred.  Returned in
     boundary order (counter-clockwise in the map).
     """
     return corner_sets(V, F, n=1, reference=reference, front=front, up=up)[0]

@@ -49,7 +49,8 @@ class RepairOptions:
         (existing holes are all filled first, the cut becomes the boundary); ``none``
         never cuts (a closed input is then an error).  With ``auto``, an open surface
         whose longest boundary is shorter than ``min_opening`` × √area or has fewer than 8
-        vertices (a closed scan with only small holes) is treated as closed: an opening
+        vertices (a closed scan with only small holes), or whose frame (``up="auto"``) is that of
+        a closed head whose longest boundary is not the neck, is treated as closed: an opening
         that small would squeeze the whole surface into a point of the map.  A plane cut
         that leaves such an opening is raised (height doubled, up to 0.32) while the kept
         part still holds 90% of the area.
@@ -252,7 +253,11 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
             + ("" if frame.certain else f"; UNCERTAIN: {frame.why}"), quiet=quiet)
     loops = boundary_loops(res.F)
     closed = len(loops) == 0
-    if loops and opts.open == "auto" and opts.keep_boundary == "longest" and _small_opening(res.V, res.F, opts.min_opening):
+    if loops and opts.open == "auto" and opts.keep_boundary == "longest" and frame is not None and frame.kind == "closed":
+        log("make_disk: a closed head with holes (its longest boundary is not the neck): filling every hole and "
+            "cutting it open at the neck", quiet=quiet)
+        closed = True
+    elif loops and opts.open == "auto" and opts.keep_boundary == "longest" and _small_opening(res.V, res.F, opts.min_opening):
         log("make_disk: the longest boundary is a small hole (shorter than "
             f"{opts.min_opening:g} sqrt(area), or under {MIN_OPENING_VERTICES} vertices): filling every hole and "
             "cutting the surface open like a closed one", quiet=quiet)

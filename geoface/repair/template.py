@@ -5,11 +5,11 @@ is — in any axis convention, unit or position.
 The template is sampled uniformly by area (1500 points; the whole head, or the face region
 alone for a scan of a face only), the scan likewise (2500).  ICP runs from 48 starting
 rotations taken in the scan's own principal frame (the 24 rotations of the cube and 24 fixed
-others), so the search does not depend on the file's axes; each start is refined ten
-iterations, the six best sixty more.  Each iteration pairs every template point with its nearest
+others), so the search does not depend on the file's axes; the six best starts are refined
+for up to sixty iterations.  Each iteration pairs every template point with its nearest
 scan point (the scan may hold more than a head: shoulders, a torso) — or, for a face only,
 every scan point with its nearest template point — keeps the closest 60% and solves the best
-similarity (Umeyama).  The fit is the trimmed mean distance over the template's RMS radius:
+similarity (Umeyama).  The starts use a third of the template's points, eight iterations each.  The fit is the trimmed mean distance over the template's RMS radius:
 heads of real people and of the model fit at 0.029-0.038, an animal's head, a cow or a car at
 0.05 and more.
 """
@@ -40,6 +40,8 @@ def surface_samples(V, F, n, seed):
 #: human head (heads of real people and the ICT-FaceKit model 0.029-0.037; an animal's head, a
 #: cow, a car 0.05 and more)
 TEMPLATE_FIT = 0.045
+#: after the coarse search a shape fitting worse than this is not a head
+COARSE_FIT = 0.08
 _TEMPLATE_POINTS = 1500
 _SCAN_POINTS = 2500
 _KEEP = 0.6
@@ -70,25 +72,38 @@ def _similarity(A, B):
     return s, R, mb - s * R @ ma
 
 
-def _icp(T, P, tree, R, s, t, iterations, template_to_scan):
+def _trimmed(d):
+    """Indices of the closest ``_KEEP`` share of the distances ``d``."""
+    m = int(_KEEP * len(d))
+    return np.argpartition(d, m - 1)[:m]
+
+
+def _icp(T, P, tree, R, s, t, iterations, template_to_scan, stop: float = 0.0):
     """Trimmed similarity ICP of template samples ``T`` onto scan samples ``P``: each template
     point to its nearest scan point (a scan with more than a head: shoulders, a torso), or each
-    scan point to its nearest template point (a face only); the closest 60% of the pairs."""
+    scan point to its nearest template point (a face only); the closest 60% of the pairs.
+    ``stop``: end early once an iteration moves the trimmed mean distance by less than this
+    share of it."""
     from scipy.spatial import cKDTree
 
+    last = np.inf
     for _ in range(iterations):
         X = s * T @ R.T + t
         if template_to_scan:
             d, j = tree.query(X)
-            k = np.argsort(d)[: int(_KEEP * len(d))]
+            k = _trimmed(d)
             s, R, t = _similarity(T[k], P[j[k]])
         else:
             d, j = cKDTree(X).query(P)
-            k = np.argsort(d)[: int(_KEEP * len(d))]
+            k = _trimmed(d)
             s, R, t = _similarity(T[j[k]], P[k])
+        e = float(d[k].mean())
+        if stop and abs(last - e) <= stop * e:
+            break
+        last = e
     X = s * T @ R.T + t
     d = tree.query(X)[0] if template_to_scan else cKDTree(X).query(P)[0]
-    return R, s, t, float(np.sort(d)[: int(_KEEP * len(d))].mean())
+    return R, s, t, float(d[_trimmed(d)].mean())
 
 
 def _candidate_rotations(P):
@@ -122,13 +137,16 @@ def fit_head_template(P, *, face_only: bool = False):
     rT = float(np.sqrt(((T - cT) ** 2).sum(1).mean()))
     s0 = rP / rT
     starts = []
+    Tc = T[::3]  # the coarse search on a third of the template's points
     for R0 in _candidate_rotations(P):
-        R, s, t, e = _icp(T, P, tree, R0, s0, cP - s0 * R0 @ cT, 10, not face_only)
+        R, s, t, e = _icp(Tc, P, tree, R0, s0, cP - s0 * R0 @ cT, 8, not face_only)
         starts.append((e / (s * rT), R, s, t))
     starts.sort(key=lambda x: x[0])
     best = None
-    for _, R, s, t in starts[:6]:
-        R, s, t, e = _icp(T, P, tree, R, s, t, 60, not face_only)
+    # a shape far from any head after the coarse search (a sphere, a car: 0.1 and more, heads
+    # below 0.06) is not refined further
+    for _, R, s, t in starts[: 6 if starts[0][0] < COARSE_FIT else 1]:
+        R, s, t, e = _icp(T, P, tree, R, s, t, 60, not face_only, stop=1e-4)
         e = e / (s * rT)
         if best is None or e < best[3]:
             best = (R, s, t, e)

@@ -116,7 +116,7 @@ def _mirror_plane(P, axis_of_rotation=None, *, steps: int = 60):
     X = P - c
     R = float(np.sqrt((X * X).sum(1).mean()))
     tree = cKDTree(X)
-    sub = X[:: max(1, len(X) // 2500)]
+    sub = X[:: max(1, len(X) // 1500)]
 
     def err(a):
         a = _unit(a)
@@ -138,7 +138,7 @@ def _mirror_plane(P, axis_of_rotation=None, *, steps: int = 60):
         a = np.cos(t0) * e1 + np.sin(t0) * e2
         return _unit(a), err(a), float(np.median(errs))
     # hemisphere: a Fibonacci grid of directions, then local refinement on the sphere
-    m = 400
+    m = 200
     i = np.arange(m) + 0.5
     z = i / m
     phi = np.pi * (1 + 5 ** 0.5) * i
