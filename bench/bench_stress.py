@@ -10,7 +10,7 @@ whole and face Hausdorff distances (of the bbox diagonal; the face: the ROI), th
 share, seconds, and where the nose, eyes and chin land in the default image (set 0) with what
 is wrong there (``upright_problems``: empty when the face is upright and centred).
 
-    python bench/bench_stress.py [--res 128 256] [--augment 8] [--ict 2] [--meshes face.obj]
+    python bench/bench_stress.py [--res 128 256] [--augment 8] [--ict 10 --ict-variants 1] [--meshes face.obj]
         [--kinds axes fins ...] [--conventions y-up z-up+x] [--out results.jsonl]
 """
 
@@ -99,6 +99,7 @@ def main() -> None:
     ap.add_argument("--res", type=int, nargs="+", default=[128])
     ap.add_argument("--augment", type=int, default=8)
     ap.add_argument("--ict", type=int, default=1, help="ICT heads (seeds 0..N-1)")
+    ap.add_argument("--ict-variants", type=int, default=None, help="only the first N ICT heads get the stress variants")
     ap.add_argument("--meshes", nargs="*", default=list(S.REAL))
     ap.add_argument("--kinds", nargs="*", default=list(S.CASE_KINDS), choices=S.CASE_KINDS)
     ap.add_argument("--conventions", nargs="*", default=list(S.CONVENTIONS) + [S.TILTED])
@@ -108,7 +109,8 @@ def main() -> None:
     import os
 
     os.environ.setdefault("GEOFACE_QUIET", "1")
-    for case in S.stress_cases(meshes=args.meshes, ict=range(args.ict), kinds=args.kinds, conventions=args.conventions):
+    for case in S.stress_cases(meshes=args.meshes, ict=range(args.ict), kinds=args.kinds, conventions=args.conventions,
+                               ict_variants=args.ict_variants):
         if args.only and case.name not in args.only:
             continue
         for res in args.res:

@@ -477,10 +477,15 @@ def upright_problems(pixels: dict, N: int) -> list[str]:
 
 # ----------------------------------------------------------------------------------- sets
 def stress_cases(*, meshes=tuple(REAL), ict=(0,), kinds=CASE_KINDS, conventions=tuple(CONVENTIONS) + (TILTED,),
-                 mesh_folder: Path | None = None):
-    """Yield the stress cases (lazily: each is built when it is reached)."""
+                 mesh_folder: Path | None = None, ict_variants: int | None = None):
+    """Yield the stress cases (lazily: each is built when it is reached).  ``ict_variants``: only
+    the first that many ICT heads get the variants; the others appear as they are (Y-up)."""
     bases = [real_base(n, mesh_folder) for n in meshes] + [ict_base(s) for s in ict]
-    for b in bases:
+    n_real = len(meshes)
+    for i, b in enumerate(bases):
+        if ict_variants is not None and i - n_real >= ict_variants:
+            yield b
+            continue
         ict_b = b.roi is not None
         variants = [b]
         if ict_b and "face_only" in kinds:

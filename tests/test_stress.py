@@ -70,6 +70,9 @@ def test_stress_case_converts_upright(tmp_path, name):
         pix = S.landmark_pixels(folder, case.landmarks)
         assert S.upright_problems(pix, 32) == [], (pix, fr)
         assert np.degrees(np.arccos(np.clip(np.dot(fr["up"], case.up), -1, 1))) < 20, (fr["up"], case.up)
+        # the face region is found on the head, wherever debris floats (it once sat in the empty
+        # bounding box of head and debris and got no pixel at all)
+        assert m["sets"][0]["roi_pixel_share"] > 0.3, m["sets"][0]["roi_pixel_share"]
     for st in m["sets"]:
         assert st["reconstruction"]["hausdorff"] < 0.1, st["reconstruction"]
 

@@ -147,3 +147,30 @@ def test_bad_input():
         s.solve([loop[0], loop[9], loop[6], loop[3]])
     with pytest.raises(ParameterizationError, match="distinct"):
         s.solve([loop[0], loop[0], loop[6], loop[9]])
+
+
+def test_a_mesh_with_needles_starts_on_intrinsic_flips_and_says_nothing_alarming(capsys):
+    """A grid with a strip of needle triangles (edges split a thousandth from their ends): the
+    solver sees the needles and starts on the intrinsic Delaunay triangulation, without a
+    failed attempt on the fixed one first, and its log has no word of failure."""
+    import sys
+
+    from tests.helpers import REPO
+
+    sys.path.insert(0, str(REPO / "data_tools"))
+    import make_stress_cases as S
+
+    from geoface.synth import square_grid
+
+    V, F = square_grid(24)
+    V = V + np.column_stack([np.zeros((len(V), 2)), 0.2 * np.sin(3 * V[:, 0]) * np.cos(2 * V[:, 1])])
+    base = S.StressCase("grid", "grid", "base", V, F)
+    c = S.with_slivers(base, strips=2, seed=1)
+    solver = RicciFlowSolver(c.V, c.F)
+    assert solver.poor_triangulation
+    r = solver.solve(quiet=False)
+    err = capsys.readouterr().err.lower()
+    assert r.converged and r.intrinsic_flips > 0
+    assert "no flat metric" not in err and "fail" not in err and "stall" not in err
+    plain = RicciFlowSolver(V, F)
+    assert not plain.poor_triangulation and plain.solve(quiet=True).intrinsic_flips == 0

@@ -1,0 +1,86 @@
+"""`--up auto`: up and front of a head from its shape, in any axis convention (the ICT-FaceKit
+template registered to it), and of other shapes from their opening, a cut or what they stand on."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from geoface.repair.upright import template_face_region, upright_frame
+from tests.helpers import REPO
+
+sys.path.insert(0, str(REPO / "data_tools"))
+import make_stress_cases as S  # noqa: E402
+
+
+def _deg(a, b):
+    return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+@pytest.fixture(scope="module")
+def head():
+    return S.ict_base(3)
+
+
+@pytest.mark.parametrize("convention", list(S.CONVENTIONS) + [S.TILTED])
+def test_head_frame_in_every_axis_convention(head, convention):
+    case = S.moved(head, convention)
+    fr = upright_frame(case.V, case.F)
+    assert fr.certain and "head template" in fr.how and fr.kind == "open at the neck"
+    assert fr.template[3] < 0.045
+    limit = 8.0 if convention == S.TILTED else 1e-9  # axis conventions: snapped to the axis exactly
+    assert _deg(fr.up, case.up) <= limit and _deg(fr.front, case.front) <= limit, (fr.up, case.up, fr.front, case.front)
+
+
+def test_closed_head_and_face_only(head):
+    closed = S.moved(S.closed_neck(head), "z-up+x")
+    fr = upright_frame(closed.V, closed.F)
+    assert fr.kind == "closed" and fr.certain and _deg(fr.up, closed.up) < 1e-9
+    face = S.moved(S.face_only(head), S.TILTED)
+    fr = upright_frame(face.V, face.F)
+    assert fr.kind == "face only" and fr.certain and _deg(fr.up, face.up) < 6 and _deg(fr.front, face.front) < 6
+
+
+def test_template_face_region_is_the_face(head):
+    case = S.moved(head, S.TILTED)
+    fr = upright_frame(case.V, case.F)
+    roi = template_face_region(case.V, fr)
+    truth = head.roi
+    iou = (roi & truth).sum() / (roi | truth).sum()
+    assert iou > 0.8, iou
+
+
+def test_real_heads_and_shapes_that_are_not_heads():
+    bust = S.moved(S.real_base("decimated-max.obj"), "-z-up")  # a closed scanned bust
+    fr = upright_frame(bust.V, bust.F)
+    assert "head template" in fr.how and _deg(fr.up, bust.up) < 1e-9 and _deg(fr.front, bust.front) < 1e-9
+    cow = S.moved(S.real_base("spot.obj"), "x-up")  # closed, not a head: on its four hooves
+    fr = upright_frame(cow.V, cow.F)
+    assert fr.certain and "stands on (4 separate contacts)" in fr.how and _deg(fr.up, cow.up) < 1e-9
+    camel = S.moved(S.real_base("camelhead.off"), S.TILTED)  # open at the neck, not human
+    fr = upright_frame(camel.V, camel.F)
+    assert "opening's normal" in fr.how and _deg(fr.up, camel.up) < 3
+
+
+def test_a_shape_with_no_cue_is_uncertain_and_says_why():
+    from geoface.synth import sphere
+
+    V, F = sphere(1.0, 3)
+    fr = upright_frame(V, F)
+    assert not fr.certain and fr.why and "+Y" in fr.how
+    d = fr.to_dict()
+    assert d["certain"] is False and d["why"] == fr.why
+
+
+def test_convert_reports_an_uncertain_frame_in_one_line(tmp_path, capsys):
+    from geoface.mesh.io import Mesh
+    from geoface.pipeline import ConvertOptions, convert
+    from geoface.synth import sphere
+
+    V, F = sphere(1.0, 3)
+    m = convert(Mesh(V, F), tmp_path / "out", ConvertOptions(res=16, reconstruct=False, preview=False), quiet=False)
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if "uncertain" in ln]
+    assert len(lines) == 1 and "pass --up" in lines[0]
+    assert m["frame"]["certain"] is False
