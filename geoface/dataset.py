@@ -33,7 +33,7 @@ import json
 import os
 import time
 import traceback
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from .errors import GeofaceError
@@ -423,6 +423,8 @@ def build_ict_dataset(
     from .synth.ict_data import ict_specs
 
     opts = (options or DatasetOptions()).validate()
+    if opts.up == "auto":  # the model's heads are Y-up by construction: no need to look
+        opts = replace(opts, up="y")
     path = find_model(model)
     specs = ict_specs(count, seed=seed, model_path=str(path), mix_share=mix_share, heldout_share=heldout_share)
     source = {"kind": "ict-facekit", "count": int(count), "seed": int(seed), "mix_share": float(mix_share),

@@ -33,7 +33,7 @@ import scipy.sparse.linalg as spla
 
 from ..errors import ParameterizationError
 from ..mesh.core import boundary_loops, signed_uv_areas, vertex_areas
-from .foldfree import _along, _on_side, _side_index, mean_value_weights, square_sides
+from .foldfree import _along, _loop_area, _on_side, boundary_sides, mean_value_weights
 
 __all__ = ["BalancedMap", "area_balanced_map", "log_area_ratio"]
 
@@ -109,13 +109,7 @@ def area_balanced_map(F, uv, nu, *, target_log: float = TARGET_LOG, max_rounds: 
     orient = 1.0 if a0.sum() >= 0 else -1.0
     if (orient * a0 < 0).any():
         raise ParameterizationError("the starting map must not fold")
-    side = _side_index(uv[loop])
-    if (side < 0).any():
-        raise ParameterizationError("the starting map must put every boundary vertex on the square's sides")
-    sides = square_sides(uv[loop])
-    corner = sides[:, :2].any(1) & sides[:, 2:].any(1)
-    if corner.sum() != 4:
-        raise ParameterizationError(f"the starting map must put 4 boundary vertices at the square's corners; got {int(corner.sum())}")
+    side, corner = boundary_sides(uv[loop], "the starting map")
     f0 = np.where(corner, 0.0, _along(uv[loop], side))
     if _loop_area(uv[loop]) < 0:  # walk the loop counter-clockwise in the square
         loop, side, f0 = loop[::-1], side[::-1], f0[::-1]
@@ -180,8 +174,3 @@ def area_balanced_map(F, uv, nu, *, target_log: float = TARGET_LOG, max_rounds: 
                 break
     return BalancedMap(uv=best[2], max_log_ratio=best[0], mean_log_ratio=float(np.abs(best[3]).mean()),
                        start_max_log_ratio=start, rounds=rounds, best_round=best[1], history=history)
-
-
-def _loop_area(p: np.ndarray) -> float:
-    q = np.roll(p, -1, axis=0)
-    return 0.5 * float((p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]).sum())

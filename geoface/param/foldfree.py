@@ -176,17 +176,25 @@ def _loop_area(p: np.ndarray) -> float:
     return 0.5 * float((p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]).sum())
 
 
+def boundary_sides(p: np.ndarray, what: str = "the map") -> tuple[np.ndarray, np.ndarray]:
+    """The side (0 bottom, 1 right, 2 top, 3 left) of each boundary point ``p`` of a map onto the
+    square and which four are its corners; :class:`ParameterizationError` unless every point is on
+    a side and exactly four are at the corners."""
+    side = _side_index(p)
+    if (side < 0).any():
+        raise ParameterizationError(f"{what} must put every boundary vertex on the square's sides")
+    s = square_sides(p)
+    corner = s[:, :2].any(1) & s[:, 2:].any(1)
+    if corner.sum() != 4:
+        raise ParameterizationError(f"{what} must put 4 boundary vertices at the square's corners; got {int(corner.sum())}")
+    return side, corner
+
+
 def _monotone_boundary(loop: np.ndarray, target: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, int]:
     """Boundary positions on the square: ``target``'s, with the corners and sides of ``ref``,
     made strictly increasing along each side (counter-clockwise) where they are not.
     Returns (positions (k, 2) in loop order, number of vertices moved)."""
-    side = _side_index(ref[loop])
-    if (side < 0).any():
-        raise ParameterizationError("the reference map must put every boundary vertex on the square's sides")
-    corner = square_sides(ref[loop])
-    corner = corner[:, :2].any(1) & corner[:, 2:].any(1)
-    if corner.sum() != 4:
-        raise ParameterizationError(f"the reference map must put 4 boundary vertices at the square's corners; got {int(corner.sum())}")
+    side, corner = boundary_sides(ref[loop], "the reference map")
     f = np.clip(_along(target[loop], side), 0.0, 1.0)
     f[corner] = 0.0
     order = np.arange(len(loop)) if _loop_area(ref[loop]) > 0 else np.arange(len(loop))[::-1]

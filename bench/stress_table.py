@@ -1,0 +1,96 @@
+"""Markdown tables from the JSON lines of ``bench/bench_stress.py``: one row per case and
+resolution (the frame found, the conformal factor's range, the OT path and iterations, whole and
+face Hausdorff, the face-pixel share, seconds, whether the face is upright), and a summary.
+
+    python bench/stress_table.py bench/results/stress/stress_256.jsonl [more.jsonl ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+PATHS = {"ot": "OT", "ot+convex-combination": "OT+cc", "balanced+ot": "bal+OT", "balanced+ot+convex-combination": "bal+OT+cc",
+         "balanced": "balanced only"}
+
+
+def load(files):
+    rows = []
+    for f in files:
+        for line in Path(f).read_text().splitlines():
+            if line.strip():
+                rows.append(json.loads(line))
+    return rows
+
+
+def _pct(x, digits=2):
+    return "–" if x is None else f"{100 * x:.{digits}f}%"
+
+
+def _frame(r):
+    fr = r.get("frame") or {}
+    how = fr.get("how", "")
+    cue = ("template" if "template" in how else "opening" if "opening" in how else "stands on" if "stands on" in how
+           else "flat cut" if "flat cut" in how else "long axis" if "long axis" in how else "file +Y" if "+Y" in how else how[:12])
+    return f"{cue}{'' if fr.get('certain', True) else ' (uncertain)'}"
+
+
+def _upright(r):
+    if "upright_problems" not in r:
+        return "–"
+    return "yes" if not r["upright_problems"] else "NO: " + "; ".join(r["upright_problems"])
+
+
+def table(rows) -> str:
+    out = ["| case | kind | convention | N | up found | up err ° | log conf. range | OT path (sets) | OT it. | flips | "
+           "Hausdorff (worst set) | face Hausdorff (worst) | face pixels | upright | s (8 sets) |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if not r["ok"]:
+            out.append(f"| {r['case']} | {r['kind']} | {r['convention']} | {r['res']} | FAILED: {r['error']} |" + " |" * 10)
+            continue
+        paths = ", ".join(PATHS.get(p, p) for p in r["ot_paths"])
+        lost = f", {len(r['failed_sets'])} sets lost" if r["failed_sets"] else ""
+        out.append(f"| {r['case']} | {r['kind']} | {r['convention']} | {r['res']} | {_frame(r)} | {r['up_error_deg']:.1f} | "
+                   f"{r['log_conformal_range']:.1f} | {paths}{lost} | {r['ot_iterations']} | {r['flipped']} | "
+                   f"{_pct(r['hausdorff'])} | {_pct(r['face_hausdorff'])} | {_pct(r['roi_pixel_share'], 1)} | {_upright(r)} | "
+                   f"{r['seconds']:.0f} |")
+    return "\n".join(out)
+
+
+def summary(rows) -> str:
+    out = ["| N | cases | converted | corner sets lost | OT paths (cases) | flipped triangles | face upright (heads) | "
+           "Hausdorff ≤ 0.5% | face ≤ 0.2% |", "|---|---|---|---|---|---|---|---|---|"]
+    for res in sorted({r["res"] for r in rows}):
+        rs = [r for r in rows if r["res"] == res]
+        ok = [r for r in rs if r["ok"]]
+        lost = sum(len(r["failed_sets"]) for r in ok)
+        paths: dict = {}
+        for r in ok:
+            for p in r["ot_paths"]:
+                paths[PATHS.get(p, p)] = paths.get(PATHS.get(p, p), 0) + 1
+        heads = [r for r in ok if "upright_problems" in r]
+        up = sum(1 for r in heads if not r["upright_problems"])
+        h = sum(1 for r in ok if r["hausdorff"] <= 0.005)
+        fh = [r for r in ok if r["face_hausdorff"] is not None]
+        f = sum(1 for r in fh if r["face_hausdorff"] <= 0.002)
+        out.append(f"| {res} | {len(rs)} | {len(ok)} | {lost} | {', '.join(f'{k} {v}' for k, v in sorted(paths.items()))} | "
+                   f"{sum(r['flipped'] for r in ok)} | {up} of {len(heads)} | {h} of {len(ok)} | {f} of {len(fh)} |")
+    return "\n".join(out)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("files", nargs="+")
+    ap.add_argument("--summary-only", action="store_true")
+    args = ap.parse_args()
+    rows = load(args.files)
+    print(summary(rows))
+    if not args.summary_only:
+        print()
+        print(table(rows))
+
+
+if __name__ == "__main__":
+    main()
