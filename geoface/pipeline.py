@@ -24,7 +24,7 @@ from .mesh.core import bbox_diagonal, check_mesh
 from .mesh.io import Mesh, first_corner_uv
 from .progress import log
 
-__all__ = ["ConvertOptions", "convert", "face_region", "load_roi", "reconstruction_error", "corner_uvs_for"]
+__all__ = ["ConvertOptions", "convert", "face_region", "load_roi", "reconstruction_error", "corner_uvs_for", "upright_rotation"]
 
 METHODS = ("ot", "conformal")
 
@@ -350,6 +350,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     }
     from ._io import atomic_dir
 
+    stored = upright_rotation(up_vec, front)
     with atomic_dir(out_dir, overwrite=overwrite) as tmp_root:
         solver = RicciFlowSolver(V, dm.F)
         failures: list = []
@@ -358,7 +359,8 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             folder = tmp_root if len(sets) == 1 else tmp_root / f"aug{k}"
             folder.mkdir(exist_ok=True)
             try:
-                V, roi, colors = _convert_set(st, folder, pos, len(sets), corners, solver, V, roi, colors, dm, opts, quiet)
+                V, roi, colors = _convert_set(st, folder, pos, len(sets), corners, solver, V, roi, colors, dm, opts, quiet,
+                                              stored)
             except GeofaceError as e:
                 if len(sets) == 1:
                     raise
@@ -377,7 +379,23 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     return metrics
 
 
-def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opts, quiet):
+def upright_rotation(up, front) -> np.ndarray:
+    """The rotation whose rows are (right, up, front) — ``right = up × front`` — of a head: it
+    takes the input's coordinates to upright ones (x right, y up, z front), so that the same head
+    in any axis convention is stored as the same pixels.  ``front`` is made orthogonal to ``up``
+    (+Z or +X when it is parallel)."""
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    f = np.asarray(front, np.float64) - (np.asarray(front, np.float64) @ u) * u
+    if np.linalg.norm(f) < 1e-9:
+        f = np.array([0.0, 0.0, 1.0]) - u[2] * u
+        if np.linalg.norm(f) < 1e-9:
+            f = np.array([1.0, 0.0, 0.0]) - u[0] * u
+    f = f / np.linalg.norm(f)
+    return np.stack([np.cross(u, f), u, f])
+
+
+def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opts, quiet, stored):
     """One corner set: Ricci flow → OT → images → reconstruction, into ``folder``; fills
     ``st`` and returns the (possibly extended) per-vertex data."""
     from .gimage import geometry_image, reconstruct, save_reconstruction
@@ -430,9 +448,11 @@ def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, op
     # statistics to 6 significant digits: floating-point noise (~1e-12, from memory
     # alignment in vectorised sums) must not change the file's bytes between runs
     meta = {"corners": st["corners"], "method": opts.method, "lam": opts.lam if opts.method == "ot" else None,
-            "param": {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in st["distortion"].items()}}
+            "param": {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in st["distortion"].items()},
+            # positions and normals are stored upright (x right, y up, z front); to_input turns them back
+            "frame": {"to_input": [[float(f"{x:.12g}") for x in row] for row in stored.T]}}
     fid, bary = rasterize_faces(F, uv, opts.res, align_corners=True)
-    gi = geometry_image(V, F, uv, opts.res, meta=meta, raster=(fid, bary), **kw)
+    gi = geometry_image(V @ stored.T, F, uv, opts.res, meta=meta, raster=(fid, bary), **kw)
     face_img = None
     if roi is not None:
         face_img = interpolate(fid, bary, F, roi.astype(float))[0] > 0.5

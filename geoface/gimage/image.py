@@ -67,12 +67,30 @@ class GeometryImage:
     def has(self, name: str) -> bool:
         return all(c in self.meta["channels"] for c in MODALITIES[name])
 
-    def positions(self) -> np.ndarray:
-        """``(N, N, 3)`` positions in the mesh's units."""
+    @property
+    def to_input(self) -> np.ndarray:
+        """``(3, 3)`` rotation from the stored frame to the input mesh's: ``geoface convert``
+        stores heads upright (x right, y up, z front: the same pixels whatever the file's axis
+        convention) and keeps the rotation back in ``meta["frame"]["to_input"]``; identity for
+        images without one."""
+        fr = self.meta.get("frame")
+        if not isinstance(fr, dict) or "to_input" not in fr:
+            return np.eye(3)
+        R = np.asarray(fr["to_input"], np.float64)
+        if R.shape != (3, 3) or not np.isfinite(R).all() or not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
+            raise InvalidGeometryImageError("meta.json frame.to_input must be a 3x3 rotation")
+        return R
+
+    def positions(self, frame: str = "input") -> np.ndarray:
+        """``(N, N, 3)`` positions in the mesh's units: where the input mesh had them
+        (``frame="input"``, default) or as stored, upright (``"stored"``)."""
+        if frame not in ("input", "stored"):
+            raise InvalidGeometryImageError(f"frame must be 'input' or 'stored'; got {frame!r}")
         lo = np.asarray(self.meta["bbox_min"], np.float64)
         hi = np.asarray(self.meta["bbox_max"], np.float64)
         p = self.modality("position").astype(np.float64).transpose(1, 2, 0)
-        return lo + p * (hi - lo)
+        P = lo + p * (hi - lo)
+        return P if frame == "stored" else P @ self.to_input.T
 
     @property
     def align_corners(self) -> bool:
@@ -86,11 +104,15 @@ class GeometryImage:
 
         return pixel_grid_uv(self.resolution, self.align_corners)
 
-    def normals(self) -> np.ndarray:
-        """``(N, N, 3)`` unit normals (zero where uncovered)."""
+    def normals(self, frame: str = "input") -> np.ndarray:
+        """``(N, N, 3)`` unit normals (zero where uncovered), in the input mesh's frame or as
+        stored (see :meth:`positions`)."""
+        if frame not in ("input", "stored"):
+            raise InvalidGeometryImageError(f"frame must be 'input' or 'stored'; got {frame!r}")
         n = self.modality("normal").astype(np.float64).transpose(1, 2, 0) * 2.0 - 1.0
         L = np.linalg.norm(n, axis=2, keepdims=True)
-        return np.where(L > 0, n / np.maximum(L, 1e-300), 0.0)
+        n = np.where(L > 0, n / np.maximum(L, 1e-300), 0.0)
+        return n if frame == "stored" else n @ self.to_input.T
 
 
 def _bbox(V, bbox):

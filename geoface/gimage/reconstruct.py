@@ -135,7 +135,9 @@ def save_reconstruction(path: str | os.PathLike, mesh: Mesh, gi: GeometryImage |
         from .image import _cv2
 
         cv2 = _cv2()
-        nmap = np.round(gi.modality("normal").transpose(1, 2, 0) * 255).astype(np.uint8)
+        # object-space normals of the reconstructed mesh, which is where the input was
+        n = gi.normals()
+        nmap = np.round(np.clip((n + 1.0) * 0.5, 0, 1) * 255).astype(np.uint8)
         name = f"{path.stem}_normal.png"
         with atomic_path(path.parent / name) as tmp:
             if not cv2.imwrite(str(tmp), nmap[:, :, ::-1]):
