@@ -113,7 +113,8 @@ def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=N
     With ``n = 8`` the sets are turned by 1/32 of the boundary each, so the eight sets are
     eight different vertex sets — eight different conformal maps, not rotations of one
     image.  On a boundary too coarse for that, a set that would repeat an earlier one is
-    moved along the boundary by whole vertices until it differs.  ``count``: only the first
+    moved along the boundary by whole vertices until it differs, and where no such turn is new
+    (a boundary of a dozen vertices) one or two of its corners move on their own.  ``count``: only the first
     ``count`` of the ``n`` sets (default all).
     """
     if int(n) != n or n < 1:
@@ -131,7 +132,32 @@ def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=N
             shift += 1
             c = np.array([loop[(pos[int(v)] + 1) % len(loop)] for v in c])
         if frozenset(c.tolist()) in seen:
+            # a short boundary (a few dozen vertices) has only a few evenly spaced sets: move
+            # single corners instead, the smallest moves first
+            c = _uneven_set(loop, pos, sets[0], seen)
+        if c is None:
             raise ParameterizationError(f"the boundary ({len(loop)} vertices) is too short for {n} different corner sets")
         seen.add(frozenset(c.tolist()))
         sets.append(c)
     return sets
+
+
+def _uneven_set(loop, pos, base, seen):
+    """A corner set not in ``seen``: ``base`` with one or two corners moved along the boundary
+    by a few vertices, keeping the four in boundary order and distinct; None if there is none."""
+    m = len(loop)
+    p0 = np.array([pos[int(v)] for v in base])
+    moves = sorted(((a, b) for a in range(-m // 8 - 1, m // 8 + 2) for b in range(-m // 8 - 1, m // 8 + 2)),
+                   key=lambda ab: (abs(ab[0]) + abs(ab[1]), ab))
+    for j in range(4):
+        for a, b in moves:
+            p = p0.copy()
+            p[j] = p[j] + a
+            p[(j + 2) % 4] = p[(j + 2) % 4] + b
+            rel = (p - p[0]) % m
+            if len(set((p % m).tolist())) < 4 or rel.tolist() != sorted(rel.tolist()):
+                continue
+            c = np.asarray(loop[p % m])
+            if frozenset(c.tolist()) not in seen:
+                return c
+    return None

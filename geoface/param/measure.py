@@ -169,9 +169,16 @@ def measure_preserving_map(
             raise ParameterizationError(f"roi must be a ({n},) vertex mask; got shape {roi.shape}")
         weight = np.where(roi.astype(bool), float(lam), 1.0)
     va = vertex_areas(V, F)
-    if (va <= 0).any():
-        unused = int((va <= 0).sum())
-        raise ParameterizationError(f"{unused} vertices have no area (unreferenced or only in degenerate faces)")
+    used = np.zeros(n, bool)
+    used[F.ravel()] = True
+    if not used.all():
+        raise ParameterizationError(f"{int((~used).sum())} vertices are not used by any face")
+    if (va <= 0).any() or not np.isfinite(va).all():
+        # a vertex only in flat triangles still needs a cell: a tiny mass, not a failure
+        floor = 1e-6 * float(np.median(va[va > 0])) if (va > 0).any() else 1.0
+        log(f"  measure-preserving map: {int((va <= 0).sum())} vertices lie only in flat triangles; "
+            f"they get a mass of {floor:.3g}", quiet=quiet)
+        va = np.where(np.isfinite(va) & (va > 0), va, floor)
     nu = weight * va
     loops = boundary_loops(F)
     bnd = np.concatenate(loops) if loops else np.zeros(0, np.int64)

@@ -90,6 +90,8 @@ def _opening(V, F, min_opening: float = 0.1):
     area = float(face_areas(V, F).sum())
     if len(loop) < 8 or lengths[k] < min_opening * np.sqrt(area):
         return None
+    if sorted(lengths)[-2:][0] > 0.5 * lengths[k] and len(loops) > 1:
+        return None  # one hole among holes of its size, not an opening (a closed scan with holes)
     P = V[loop]
     c = P.mean(0)
     _, _, vt = np.linalg.svd(P - c, full_matrices=False)
