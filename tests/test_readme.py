@@ -33,6 +33,8 @@ def geoface_commands(path: Path) -> list[tuple[int, list[str]]]:
     cmds = []
     for start, text in blocks(path, ("sh", "bash", "")):
         for k, line in enumerate(text.splitlines()):
+            if not line.lstrip().startswith(("geoface", "accelerate")):
+                continue  # prose in a plain block (a tree, a log) need not be shell
             words = shlex.split(line, comments=True)
             if words[:1] == ["accelerate"] and "geoface" in words:  # accelerate launch -m geoface ...
                 words = words[words.index("geoface"):]

@@ -80,7 +80,10 @@ def _orthogonal(v, to) -> np.ndarray:
 
 def _opening(V, F, min_opening: float = 0.1):
     """The longest boundary loop, if it is a real opening: (loop, its plane's normal pointing
-    into the surface, depth of the surface beyond it / its width) or None."""
+    into the surface, depth of the surface beyond it / its width, its length / sqrt(area),
+    ambiguous) or None.  ``ambiguous``: another loop is more than half as long, so the longest
+    may be one hole among holes of its size (a closed scan with holes) - a caller with a better
+    cue (the head template) decides."""
     loops = boundary_loops(F)
     if not loops:
         return None
@@ -90,8 +93,7 @@ def _opening(V, F, min_opening: float = 0.1):
     area = float(face_areas(V, F).sum())
     if len(loop) < 8 or lengths[k] < min_opening * np.sqrt(area):
         return None
-    if sorted(lengths)[-2:][0] > 0.5 * lengths[k] and len(loops) > 1:
-        return None  # one hole among holes of its size, not an opening (a closed scan with holes)
+    ambiguous = len(loops) > 1 and sorted(lengths)[-2] > 0.5 * lengths[k]
     P = V[loop]
     c = P.mean(0)
     _, _, vt = np.linalg.svd(P - c, full_matrices=False)
@@ -104,7 +106,7 @@ def _opening(V, F, min_opening: float = 0.1):
     inplane = Q - np.outer(Q @ n, n)
     width = 2.0 * float(np.sqrt((inplane ** 2).sum(1).mean())) * np.sqrt(2.0)  # ~ the diameter of a circle
     depth = float(((V[np.unique(F)] - c) @ n).max())
-    return loop, n, depth / max(width, 1e-300), lengths[k] / np.sqrt(area)
+    return loop, n, depth / max(width, 1e-300), lengths[k] / np.sqrt(area), ambiguous
 
 
 def _mirror_plane(P, axis_of_rotation=None, *, steps: int = 60):
@@ -286,9 +288,10 @@ def _upright_frame(V, F, samples, seed, fallback_up) -> UprightFrame:
     op = _opening(V, F)
     cues: dict = {}
     kind = "closed"
+    ambiguous = False
     if op is not None:
-        _, n, depth_ratio, open_len = op
-        cues.update(depth_ratio=depth_ratio, opening_length=open_len)
+        _, n, depth_ratio, open_len, ambiguous = op
+        cues.update(depth_ratio=depth_ratio, opening_length=open_len, opening_ambiguous=ambiguous)
         kind = "open at the neck" if depth_ratio >= FACE_DEPTH_RATIO else "face only"
     fit = fit_head_template(Ps, face_only=kind == "face only")
     if fit is not None:
@@ -308,6 +311,8 @@ def _upright_frame(V, F, samples, seed, fallback_up) -> UprightFrame:
         return UprightFrame(up, front, "figure", f"the long axis, towards the head (one piece, where the template fits); "
                             f"front by {how}", certain=sure, why="" if sure else "which end is the head is not clear",
                             cues=cues)
+    if kind != "closed" and ambiguous:
+        kind = "closed"  # not a head, and the longest loop is one hole among holes of its size
     if kind != "closed":
         # not a human head: up from the opening (a neck, or the open bottom of a shell)
         return _generic_open(V, F, n, cues)
