@@ -136,6 +136,28 @@ def test_web_view_of_a_coloured_head(browser, tmp_path):
     assert share > 0.08, f"the head is not drawn in its colour: {share:.3f} of the centre is orange"
 
 
+def test_a_file_name_with_html_is_shown_as_text(browser, tmp_path):
+    """A mesh named with HTML (an <img> whose onerror runs script, an iframe) shows its name as
+    characters: no element of the name exists in the page and its script never runs."""
+    name = '<img src=x id=gfimg onerror="window.__gf=1"><iframe id=gfif>[l](javascript:x).obj'
+    path = tmp_path / name
+    shutil.copy(Path(__file__).parent / "data" / "meshes" / "spot.obj", path)
+    proc, url, lines = _serve(path)
+    browser.get(url)
+    deadline, text = time.monotonic() + 90, ""
+    while time.monotonic() < deadline:
+        text = browser.execute_script("return document.body ? document.body.innerText : ''") or ""
+        if "onerror" in text:
+            break
+        time.sleep(1.0)
+    found = browser.execute_script(
+        "return [document.querySelectorAll('#gfimg, img[src=\"x\"], #gfif, iframe').length,"
+        " window.__gf === 1, document.querySelectorAll('a[href^=\"javascript\"]').length]")
+    _finish(proc, browser, lines)
+    assert "<img src=x" in text and "[l](javascript:x).obj" in text, f"the name is not shown as text: {text[:400]!r}"
+    assert found == [0, False, 0], f"elements or script from the file name in the page: {found}"
+
+
 def test_web_view_of_a_geometry_image_folder(browser, tmp_path):
     from tests.learn.conftest import make_gimage_dataset
 

@@ -8,10 +8,18 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import GeofaceError
+from .guard import check_host, guarded_serve, md_text
 from .items import (_BOUNDARY, _GREY, DEFAULT_PORT, _boundary_segments, _gimage_images, _Item, _load,
                     _trimesh, _viser, item_kind, uv_distortion_colors)
 
 __all__ = ["WebView"]
+
+
+def _label(name: str, limit: int = 60) -> str:
+    """A file name as a one-line GUI label (viser shows labels as text; control characters and
+    line breaks become spaces, and long names are shortened in the middle)."""
+    s = "".join(" " if ord(c) < 32 or c == "\x7f" else c for c in str(name))
+    return s if len(s) <= limit else s[: limit // 2 - 1] + "…" + s[-(limit // 2 - 1):]
 
 
 # ----------------------------------------------------------------------------- the server
@@ -35,8 +43,9 @@ class WebView:
         paths = [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
         if not paths:
             raise GeofaceError("nothing to show: give at least one path")
-        if not 0 <= int(port) <= 65535:
-            raise GeofaceError(f"--port must be in 0..65535; got {port}")
+        if isinstance(port, bool) or not isinstance(port, (int, np.integer)) or not 0 <= int(port) <= 65535:
+            raise GeofaceError(f"--port must be an integer in 0..65535; got {port!r}")
+        host = check_host(host)
         self.up = parse_up(up)
         kinds = [item_kind(p) for p in paths]
         if drive is not None and "avatar" not in kinds:
@@ -46,7 +55,8 @@ class WebView:
             it.extra["frame"] = self._frame_of(it)
         self.frame = self.items[0].extra["frame"]
         viser = _viser()
-        self.server = viser.ViserServer(host=host, port=int(port), verbose=not quiet)
+        with guarded_serve(host):  # same-origin WebSocket handshakes only, Host naming this machine
+            self.server = viser.ViserServer(host=host, port=int(port), verbose=not quiet)
         self._stop = threading.Event()
         self._players: list = []
         self._build()
@@ -114,7 +124,7 @@ class WebView:
         depth = max(it.extra["depth"] for it in self.items)
         with srv.gui.add_folder("geoface"):
             srv.gui.add_markdown("\n".join(
-                f"- **{it.name}** ({it.kind}" + ("" if it.extra["scale"] == 1 else f", shown ×{it.extra['scale']:.3g}") + ")"
+                f"- **{md_text(it.name)}** ({it.kind}" + ("" if it.extra["scale"] == 1 else f", shown ×{it.extra['scale']:.3g}") + ")"
                 for it in self.items))
         from scipy.spatial.transform import Rotation
 
@@ -143,7 +153,7 @@ class WebView:
         if m.UV is not None:
             modes += ["UV distortion (QC)", "UV distortion (log area)"]
         handles: dict = {}
-        with srv.gui.add_folder(f"{k + 1}. {it.name}"):
+        with srv.gui.add_folder(f"{k + 1}. {_label(it.name)}"):
             colour = srv.gui.add_dropdown("colour", modes, initial_value=modes[0])
             shading = srv.gui.add_dropdown("shading", ["smooth", "flat"], initial_value="smooth")
             wire = srv.gui.add_checkbox("wireframe", False)
@@ -232,7 +242,7 @@ class WebView:
     def _add_splat(self, it: _Item, node: str, place: dict, k: int):
         g = it.extra["gaussians"]
         self._splats(node, g.means, g.log_scales, g.quats, g.opacity_logits, g.colors, place)
-        with self.server.gui.add_folder(f"{k + 1}. {it.name}"):
+        with self.server.gui.add_folder(f"{k + 1}. {_label(it.name)}"):
             self.server.gui.add_markdown(f"{len(it.V):,} Gaussians")
 
     def _splats(self, node, means, log_scales, quats, opacity_logits, colors, place):
@@ -255,10 +265,10 @@ class WebView:
         T = drive.n_frames
         state = {"t": -1}
         handles: dict = {}
-        with srv.gui.add_folder(f"{k + 1}. {it.name}"):
+        with srv.gui.add_folder(f"{k + 1}. {_label(it.name)}"):
             slider = srv.gui.add_slider("frame", 0, max(T - 1, 1), 1, 0)
             play = srv.gui.add_checkbox("play", False)
-            srv.gui.add_markdown(f"{T} frames at {drive.fps:g} fps, driven by {drive.what}")
+            srv.gui.add_markdown(f"{T} frames at {drive.fps:g} fps, driven by {md_text(drive.what)}")
             video = None if drive.frames is None else srv.gui.add_image(drive.frames[0], label="the video's frame")
 
         def show(t: int):
@@ -291,7 +301,15 @@ class WebView:
     def serve(self, *, exit_after: float | None = None, idle_exit: float | None = None, poll: float = 0.2) -> None:
         """Serve until Ctrl-C, or ``exit_after`` seconds, or ``idle_exit`` seconds after the last
         browser has left (once one has come)."""
+        import signal
+
         t0, last_seen = time.monotonic(), None
+        previous = None
+        if threading.current_thread() is threading.main_thread():  # SIGTERM stops it as Ctrl-C does
+            def _term(signum, frame):
+                raise KeyboardInterrupt
+
+            previous = signal.signal(signal.SIGTERM, _term)
         try:
             while True:
                 now = time.monotonic()
@@ -306,6 +324,8 @@ class WebView:
             pass
         finally:
             self.stop()
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
 
     def stop(self) -> None:
         self._stop.set()
