@@ -187,7 +187,9 @@ def _chmod_tree(root: Path) -> None:
 def _replace_dir(tmp: Path, folder: Path) -> None:
     """Move the finished folder ``tmp`` onto ``folder``, replacing an old one."""
     old = None
-    if folder.exists():
+    if folder.is_symlink():  # (only with --force: check_outputs refuses a link otherwise) replace the link itself
+        folder.unlink()
+    elif folder.exists():
         old = folder.with_name(f".{folder.name}.{_TAG}-{os.getpid()}-old")
         if old.exists():
             shutil.rmtree(old, ignore_errors=True)
@@ -215,6 +217,27 @@ def _inside(child: Path, parent: Path) -> bool:
         return False
 
 
+def _check_kind(p: Path, force: bool) -> None:
+    """An output is a regular file or folder (or nothing yet): a device, FIFO or socket is
+    never replaced; a symbolic link is never written through, and is itself replaced only
+    with ``force``."""
+    import stat
+
+    try:
+        st = os.lstat(p)
+    except (FileNotFoundError, NotADirectoryError):
+        return
+    except OSError as e:
+        raise OutputError(f"{p}: cannot check the output ({e.strerror})") from None
+    if stat.S_ISLNK(st.st_mode):
+        if not force:
+            raise OutputError(f"{p} is a symbolic link; geoface never writes through one (pass --force to replace "
+                              "the link itself)")
+        return
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
+        raise OutputError(f"{p} is a device, FIFO or socket, not a file; choose a file name as the output")
+
+
 def check_outputs(inputs=(), outputs=(), *, force: bool = False, resumable=()) -> None:
     """The output-path policy (module docs), applied before any work.
 
@@ -227,6 +250,8 @@ def check_outputs(inputs=(), outputs=(), *, force: bool = False, resumable=()) -
     """
     ins = [(p, _resolved(p)) for p in inputs if p is not None]
     outs = [(p, _resolved(p)) for p in outputs if p is not None]
+    for p, _ in outs:
+        _check_kind(Path(os.path.expanduser(str(p))), force)
     seen: dict = {}
     for p, rp in outs:
         if rp in seen:

@@ -12,14 +12,15 @@ needs even sides).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import subprocess
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from ._io import default_mode
 from ._lazy import lazy_import
 from .errors import GeofaceError
 
@@ -45,52 +46,87 @@ def _to_uint8(img) -> np.ndarray:
 def write_video(frames, path, *, fps: float = 25.0, audio=None, quality: float = 7.0) -> Path:
     """Write ``frames`` (an iterable of (H, W, 3) uint8 or float-in-[0, 1] images, all one size)
     to an MP4 at ``fps``; ``audio`` (a WAV or any file ffmpeg reads) is muxed as AAC and cut to
-    the video's length. Returns the path."""
-    iio = lazy_import("imageio_ffmpeg", "writing videos (pip install 'geoface[video]')")
+    the video's length. Returns the path.
+
+    The file appears complete or not at all: ffmpeg writes a temporary beside it that is renamed
+    on success; a failure of ffmpeg (a full disk, a folder it may not write) is a one-line
+    :class:`GeofaceError` with ffmpeg's own last message, and the temporary is removed (also one
+    a killed run left behind, on the next run)."""
+    from fractions import Fraction
+
+    from ._io import atomic_path
+
     path = Path(path)
     if path.suffix.lower() != ".mp4":
         raise GeofaceError(f"{path}: videos are written as .mp4")
-    if not (0 < float(fps) <= 240):
-        raise GeofaceError(f"fps must be in (0, 240]; got {fps}")
+    if not (0.1 <= float(fps) <= 240):
+        raise GeofaceError(f"fps must be in [0.1, 240]; got {fps}")
+    if not (0 <= float(quality) <= 10):
+        raise GeofaceError(f"quality must be in [0, 10]; got {quality}")
     if audio is not None and not Path(audio).is_file():
         raise GeofaceError(f"{audio}: no such audio file")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.mp4")
-    writer = None
-    n = 0
+    exe = ffmpeg_exe()
     try:
-        for img in frames:
-            a = _to_uint8(img)
-            if writer is None:
-                h, w = a.shape[:2]
-                H, W = h + h % 2, w + w % 2
-                out = ["-movflags", "+faststart"] + (["-shortest"] if audio is not None else [])
-                writer = iio.write_frames(str(tmp), (W, H), fps=float(fps), codec="libx264", quality=quality,
-                                          macro_block_size=1, output_params=out,
-                                          audio_path=None if audio is None else str(audio),
-                                          audio_codec=None if audio is None else "aac", ffmpeg_log_level="error")
-                writer.send(None)
-            if a.shape[:2] != (h, w):
-                raise GeofaceError(f"video frames must all be {w}x{h}; frame {n} is {a.shape[1]}x{a.shape[0]}")
-            if (H, W) != (h, w):
-                a = np.pad(a, ((0, H - h), (0, W - w), (0, 0)), mode="edge")
-            writer.send(np.ascontiguousarray(a))
-            n += 1
-        if writer is None:
-            raise GeofaceError("no frames to write")
-        writer.close()
-        writer = None
-        os.chmod(tmp, default_mode())
-        os.replace(tmp, path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise GeofaceError(f"{path.parent}: cannot create the folder ({e.strerror})") from None
+    n = 0
+    proc = err = None
+    try:
+        with atomic_path(path, suffix=".mp4") as tmp:
+            err = tempfile.TemporaryFile()
+            for img in frames:
+                a = _to_uint8(img)
+                if proc is None:
+                    h, w = a.shape[:2]
+                    H, W = h + h % 2, w + w % 2
+                    rate = str(Fraction(float(fps)).limit_denominator(1001))
+                    cmd = [exe, "-y", "-v", "error", "-f", "rawvideo", "-vcodec", "rawvideo", "-s", f"{W}x{H}",
+                           "-pix_fmt", "rgb24", "-r", rate, "-i", "-"]
+                    cmd += ["-an"] if audio is None else ["-i", str(audio)]
+                    cmd += ["-vcodec", "libx264", "-pix_fmt", "yuv420p", "-crf", str(int((1 - quality / 10) * 51))]
+                    if audio is not None:
+                        cmd += ["-acodec", "aac", "-map", "0:v:0", "-map", "1:a:0", "-shortest"]
+                    cmd += ["-movflags", "+faststart", "-f", "mp4", str(tmp)]
+                    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=err)
+                if a.shape[:2] != (h, w):
+                    raise GeofaceError(f"video frames must all be {w}x{h}; frame {n} is {a.shape[1]}x{a.shape[0]}")
+                if (H, W) != (h, w):
+                    a = np.pad(a, ((0, H - h), (0, W - w), (0, 0)), mode="edge")
+                try:
+                    proc.stdin.write(np.ascontiguousarray(a).tobytes())
+                except (BrokenPipeError, OSError):
+                    break  # ffmpeg has stopped: its return code and message say why
+                n += 1
+            if proc is None:
+                raise GeofaceError("no frames to write")
+            with contextlib.suppress(OSError):
+                proc.stdin.close()
+            rc = proc.wait()
+            if rc != 0:
+                raise GeofaceError(f"{path}: ffmpeg failed ({_last_line(err) or f'exit code {rc}'})")
+            if not tmp.is_file() or tmp.stat().st_size == 0:
+                raise GeofaceError(f"{path}: ffmpeg wrote nothing")
+    except OSError as e:  # the rename, the temporary, a full disk seen by Python
+        raise GeofaceError(f"{path}: cannot write the video ({e.strerror or e})") from None
     finally:
-        if writer is not None:
-            try:
-                writer.close()
-            except Exception:  # noqa: BLE001 — the real error is already on its way
-                pass
-        if tmp.exists():
-            tmp.unlink()
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if err is not None:
+            err.close()
     return path
+
+
+def _last_line(fh) -> str:
+    """The last non-empty line ffmpeg wrote to ``fh`` (its error), shortened to one line."""
+    try:
+        fh.seek(0)
+        text = fh.read()[-4000:].decode("utf-8", "replace")
+    except OSError:
+        return ""
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return lines[-1][:300] if lines else ""
 
 
 def probe_video(path) -> dict:

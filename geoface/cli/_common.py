@@ -42,7 +42,7 @@ def _guard(args, inputs, outputs, resumable=()) -> None:
     """The output-path policy (geoface._io.check_outputs), before any work.  An input mesh
     counts with the files it references (its MTL, texture, normal map)."""
     from .._io import check_outputs
-    from ..mesh.io import companion_names
+    from ..mesh.io import companion_names, referenced_files
 
     ins = []
     for p in inputs:
@@ -51,6 +51,7 @@ def _guard(args, inputs, outputs, resumable=()) -> None:
         ins.append(p)
         if Path(p).is_file():
             ins += [c for c in companion_names(p) if c.exists()]
+            ins += [c for c in referenced_files(p) if c not in ins]
     outputs = [o for o in outputs if o is not None and o != "-"]  # "--json -": stdout
     check_outputs(ins, outputs, force=getattr(args, "force", False), resumable=resumable)
 

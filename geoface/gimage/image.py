@@ -251,6 +251,8 @@ def save_gimage(folder: str | os.PathLike, gi: GeometryImage, *, overwrite: bool
     an existing folder is refused when ``overwrite`` is False)."""
     from .._io import atomic_dir
 
+    if not isinstance(gi, GeometryImage):
+        raise InvalidGeometryImageError(f"save_gimage writes a GeometryImage; got {type(gi).__name__}")
     folder = Path(folder)
     if folder.exists() and not overwrite:
         raise InvalidGeometryImageError(f"{folder} exists")

@@ -250,6 +250,9 @@ class DataStats:
                    "bound": torch.tensor([float(self.bound)], dtype=torch.float32),
                    **({"support": torch.from_numpy(np.ascontiguousarray(self.support, np.uint8))}
                       if self.support is not None else {})}, str(path))
+        from .._io import default_mode
+
+        os.chmod(path, default_mode())  # the user's umask (safetensors writes 0600)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "DataStats":

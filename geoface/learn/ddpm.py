@@ -193,6 +193,9 @@ def save_checkpoint(ckpt: Path, cfg: DDPMConfig, model, ema: EMA, opt, step: int
     if stats is not None:
         stats.save(tmp / STATS_FILE)
     (tmp / "state.json").write_text(json.dumps({"step": step, "param_groups": groups, **extra}), encoding="utf-8")
+    from .._io import _chmod_tree
+
+    _chmod_tree(tmp)  # the user's umask (safetensors writes 0600)
     old = ckpt.with_name(f".{ckpt.name}.old")
     shutil.rmtree(old, ignore_errors=True)
     if ckpt.exists():

@@ -213,6 +213,9 @@ class CachedTextEncoder(_Base):
         tmp = self.cache_dir / f".{k}.{os.getpid()}.tmp"
         save_file({"tokens": v[0].contiguous(), "mask": v[1].to(torch.uint8).contiguous(),
                    "pooled": v[2].contiguous()}, str(tmp))
+        from .._io import default_mode
+
+        os.chmod(tmp, default_mode())  # the user's umask (safetensors writes 0600)
         os.replace(tmp, self.cache_dir / f"{k}.safetensors")
 
     def embed(self, prompts: list[str]) -> TextEmbedding:

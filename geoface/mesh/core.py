@@ -55,6 +55,11 @@ def check_mesh(V, F, *, allow_empty: bool = False) -> tuple[np.ndarray, np.ndarr
         Fa = Fa.reshape(0, 3)
     if Fa.ndim != 2 or Fa.shape[1] != 3:
         raise InvalidMeshError(f"F must have shape (m, 3); got {Fa.shape}")
+    if Fa.dtype == bool or Fa.dtype.kind not in "iufO":
+        raise InvalidMeshError(f"F must hold integer vertex indices; got an array of {Fa.dtype}")
+    if Fa.dtype.kind in "iu" and Fa.dtype.itemsize < 4 and len(V) - 1 > np.iinfo(Fa.dtype).max:
+        raise InvalidMeshError(f"F is {Fa.dtype}, which cannot index {len(V)} vertices (indices over "
+                               f"{np.iinfo(Fa.dtype).max} have wrapped); pass int32 or int64 indices")
     if Fa.size and not np.issubdtype(Fa.dtype, np.integer):
         if not np.all(np.isfinite(Fa)) or np.any(Fa != np.round(Fa)):
             raise InvalidMeshError("F must hold integer vertex indices")

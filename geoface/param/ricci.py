@@ -463,7 +463,13 @@ class RicciFlowSolver:
         return SPDSolver("splu").solve(H + eps * sp.identity(H.shape[0], format="csr"), rhs)
 
     def _check_corners(self, corners) -> np.ndarray:
-        c = np.asarray(corners, np.int64).ravel()
+        try:
+            raw = np.asarray(corners)
+        except (TypeError, ValueError):
+            raise ParameterizationError(f"corners must be 4 distinct vertex indices; got {corners!r}") from None
+        if raw.dtype.kind not in "iu" and not (raw.dtype.kind == "f" and np.isfinite(raw).all() and (raw == np.round(raw)).all()):
+            raise ParameterizationError(f"corners must be 4 integer vertex indices; got {corners!r}")
+        c = raw.astype(np.int64).ravel()
         if c.shape != (4,) or len(np.unique(c)) != 4:
             raise ParameterizationError(f"corners must be 4 distinct vertex indices; got {corners!r}")
         pos = {int(v): i for i, v in enumerate(self.boundary)}

@@ -18,7 +18,13 @@ def cmd_avatar_export(args) -> int:
     drive = avatar_drive(args.model_dir, args.drive, fps=getattr(args, "fps", 25.0))
     frames = parse_frames(args.frames if args.frames is not None else ("0" if out.suffix.lower() == ".ply" else "all"),
                           drive.n_frames)
-    paths = export_frames(drive, out, frames)
+    if out.suffix.lower() == ".ply":
+        paths = export_frames(drive, out, frames)
+    else:
+        from .hfm_cli import output_folder
+
+        with output_folder(out, args.force) as tmp:  # every PLY at once, or none
+            paths = [out / Path(p).relative_to(tmp) for p in export_frames(drive, tmp, frames)]
     n = len(drive.gaussians(frames[0]).means)
     where = str(paths[0]) if len(paths) == 1 else f"{out}/frame_*.ply ({len(paths)} files)"
     print(f"{args.model_dir} driven by {drive.what} -> {where}: {n:,} Gaussians per frame (3DGS PLY)")

@@ -19,6 +19,17 @@ def _quiet(args) -> bool:
     return bool(getattr(args, "quiet", False) or QUIET)
 
 
+def output_folder(out, force: bool):
+    """A context giving the temporary folder to write an ``-o OUT_DIR`` into (renamed onto
+    ``OUT_DIR`` when complete, so that a kill or a ``--force`` rerun never leaves a mix of runs;
+    an occupied ``OUT_DIR`` needs ``--force``), or None when there is no ``-o``."""
+    import contextlib
+
+    from geoface._io import atomic_dir
+
+    return contextlib.nullcontext(None) if out is None else atomic_dir(out, overwrite=force)
+
+
 def _train_device(args) -> str:
     """``--device`` of a training command: as given, else cuda when torch sees a GPU."""
     if args.device is not None:
@@ -90,12 +101,13 @@ def cmd_hmd_train(args) -> int:
 
     from .hfm import train_hfm
 
+    from geoface._io import atomic_dir
+
     out = Path(args.output)
-    if (out / "model.safetensors").exists() and not args.force:
-        raise GeofaceError(f"{out} already holds a model; use --force to replace it")
     cfg = _config(args)
-    info = train_hfm(args.reg_dir, out, cfg, progress=None if not _quiet(args) else False, log=log,
-                     poses=args.poses, device=_train_device(args))
+    with atomic_dir(out, overwrite=args.force) as tmp:  # complete or absent; never into a user's files
+        info = train_hfm(args.reg_dir, tmp, cfg, progress=None if not _quiet(args) else False, log=log,
+                         poses=args.poses, device=_train_device(args))
     h = info["history"]
     first = sum(r["loss"] for r in h[:20]) / len(h[:20])
     last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])
@@ -135,10 +147,9 @@ def cmd_hmd_remove(args) -> int:
 
     video = load_video(args.usage_dir)
     out = None if args.output is None else Path(args.output)
-    if out is not None and (out / "frames").is_dir() and any((out / "frames").iterdir()) and not args.force:
-        raise GeofaceError(f"{out}/frames is not empty; use --force to overwrite")
     composite = not args.no_composite
-    renders, times = remove_hmd(model, video, out_dir=out, composite=composite, poses=args.poses)
+    with output_folder(out, args.force) as tmp:  # the frames appear all at once, or not at all
+        renders, times = remove_hmd(model, video, out_dir=tmp, composite=composite, poses=args.poses)
     import numpy as np
 
     where = [] if out is None else [f"{out}/frames"]

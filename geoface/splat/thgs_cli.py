@@ -11,7 +11,7 @@ from geoface.errors import GeofaceError
 
 __all__ = ["register"]
 
-from geoface.splat.hfm_cli import _quiet, _train_device  # noqa: E402  (argparse only, no torch)
+from geoface.splat.hfm_cli import _quiet, _train_device, output_folder  # noqa: E402  (argparse only, no torch)
 from geoface._args import SEED, add_json, json_to_stdout, number, write_json
 
 #: THGSConfig.lambda_landmarks's default (kept here so that building the parser imports no torch)
@@ -59,14 +59,14 @@ def cmd_talk_train(args) -> int:
     from .thgs import THGSConfig, train_thgs
 
     out = Path(args.output)
-    if (out / "model.safetensors").exists() and not args.force:
-        raise GeofaceError(f"{out} already holds a model; use --force to replace it")
     cfg = THGSConfig(iters=args.iters, stage_scale=args.stage_scale, use_leb=not args.no_leb,
                      use_saam=not args.no_saam, use_audio_pose=not args.no_audio_pose,
                      lambda_landmarks=args.landmark_weight, heldout=args.heldout, seed=args.seed, threads=args.threads,
                      audio_window=args.audio_window, lr_pose=args.lr_pose, pose_decay=args.pose_decay,
                      artic_prefit=args.prefit)
-    info = train_thgs(args.data_dir, out, cfg, progress=None if not _quiet(args) else False, device=_train_device(args))
+    with output_folder(out, args.force) as tmp:  # complete or absent; never into a user's files
+        info = train_thgs(args.data_dir, tmp, cfg, progress=None if not _quiet(args) else False,
+                          device=_train_device(args))
     h = info["history"]
     first = sum(r["loss"] for r in h[:20]) / len(h[:20])
     last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])
@@ -84,9 +84,8 @@ def cmd_talk_animate(args) -> int:
         raise GeofaceError(f"--video: an .mp4 path; got {args.video}")
     model = load_thgs(args.model_dir)
     out = None if args.output is None else Path(args.output)
-    if out is not None and (out / "frames").is_dir() and any((out / "frames").iterdir()) and not args.force:
-        raise GeofaceError(f"{out}/frames is not empty; use --force to overwrite")
-    frames, times = animate(model, args.audio, out, poses=args.poses, fps=args.fps)
+    with output_folder(out, args.force) as tmp:  # the frames appear all at once, or not at all
+        frames, times = animate(model, args.audio, tmp, poses=args.poses, fps=args.fps)
     import numpy as np
 
     where = [] if out is None else [f"{out}/frames"]

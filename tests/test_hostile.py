@@ -1,0 +1,236 @@
+"""Hostile inputs and broken machines: links never written through, devices and FIFOs never
+replaced, files an input references never outputs, side files named after their mesh, folder
+outputs complete or absent, a full disk as one line, reads that are right (OBJ relative
+indices, OFF colours) and public entries that refuse wrong types in one line."""
+from __future__ import annotations
+
+import os
+import shutil
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geoface.errors import GeofaceError
+from geoface.mesh.io import load_mesh, save_mesh
+
+SPOT = Path(__file__).parent / "data" / "meshes" / "spot.obj"
+
+
+def run(*args, cwd=None):
+    p = subprocess.run([sys.executable, "-m", "geoface", "--quiet", *map(str, args)], capture_output=True, text=True,
+                       cwd=cwd)
+    return p.returncode, p.stdout, p.stderr
+
+
+def one_line_error(code, err):
+    return code == 2 and ": error: " in err and len(err.strip().splitlines()) == 1
+
+
+def _tet(tmp_path, name="t.obj"):
+    p = tmp_path / name
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n")
+    return p
+
+
+# ------------------------------------------------------------------ links, devices, references
+def test_a_link_is_never_written_through(tmp_path):
+    src = _tet(tmp_path)
+    user = tmp_path / "users_file.obj"
+    user.write_text("mine\n")
+    link = tmp_path / "out.obj"
+    link.symlink_to(user)
+    code, _, err = run("repair", src, "-o", link)
+    assert one_line_error(code, err) and "symbolic link" in err
+    code, _, err = run("repair", src, "-o", link, "--force")  # --force replaces the link itself
+    assert code == 0, err
+    assert user.read_text() == "mine\n" and not link.is_symlink() and len(load_mesh(link).F) >= 3
+
+
+def test_a_fifo_is_never_replaced(tmp_path):
+    src = _tet(tmp_path)
+    fifo = tmp_path / "pipe.obj"
+    os.mkfifo(fifo)
+    code, _, err = run("repair", src, "-o", fifo, "--force")
+    assert one_line_error(code, err) and "FIFO" in err
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+
+def test_files_an_input_references_are_never_outputs(tmp_path):
+    """An OBJ whose MTL and texture are not named after it: neither may become an output,
+    --force or not (the guard runs before any work)."""
+    (tmp_path / "shared.mtl").write_text("newmtl m\nmap_Kd skin.png\n")
+    (tmp_path / "skin.png").write_bytes(b"\x89PNG not really")
+    obj = tmp_path / "head.obj"
+    obj.write_text("mtllib shared.mtl\nusemtl m\n" + _tet(tmp_path, "x.obj").read_text())
+    before = {p: p.read_bytes() for p in (tmp_path / "shared.mtl", tmp_path / "skin.png")}
+    for out in ("skin.png", "shared.mtl"):
+        code, _, err = run("view", obj, "--screenshot", tmp_path / out, "--force")
+        assert one_line_error(code, err) and "input" in err, err
+    code, _, err = run("inspect", obj, "--json", tmp_path / "shared.mtl", "--force")
+    assert one_line_error(code, err), err
+    assert {p: p.read_bytes() for p in before} == before
+
+
+def test_gltf_side_files_are_named_after_their_mesh(tmp_path):
+    from geoface.synth import sphere
+
+    (tmp_path / "gltf_buffer_0.bin").write_bytes(b"a user's file")
+    V1, F1 = sphere(1.0, 2)
+    V2, F2 = sphere(3.0, 1)
+    save_mesh(tmp_path / "a.gltf", V=V1, F=F1)
+    save_mesh(tmp_path / "b.gltf", V=V2, F=F2)  # beside a.gltf: a keeps its own geometry
+    assert (tmp_path / "gltf_buffer_0.bin").read_bytes() == b"a user's file"
+    assert {p.name for p in tmp_path.iterdir()} == {"a.gltf", "a.bin", "b.gltf", "b.bin", "gltf_buffer_0.bin"}
+    a, b = load_mesh(tmp_path / "a.gltf"), load_mesh(tmp_path / "b.gltf")
+    assert len(a.V) == len(V1) and np.abs(a.V).max() == pytest.approx(1.0, rel=1e-6)
+    assert len(b.V) == len(V2) and np.abs(b.V).max() == pytest.approx(3.0, rel=1e-6)
+    # the buffer is covered by the existence check
+    (tmp_path / "c.bin").write_bytes(b"mine")
+    code, _, err = run("repair", _tet(tmp_path), "-o", tmp_path / "c.gltf")
+    assert one_line_error(code, err) and "c.bin" in err
+    assert (tmp_path / "c.bin").read_bytes() == b"mine"
+
+
+# ------------------------------------------------------------------ folders and videos
+def test_a_model_folder_of_a_users_files_needs_force(tmp_path):
+    m = tmp_path / "M"
+    m.mkdir()
+    (m / "config.json").write_text('{"mine": 1}')
+    for argv in (("talk", "train", tmp_path / "data", "-o", m), ("hmd", "train", tmp_path / "reg", "-o", m)):
+        (tmp_path / "data").mkdir(exist_ok=True)
+        (tmp_path / "reg").mkdir(exist_ok=True)
+        code, _, err = run(*argv)
+        assert one_line_error(code, err), err
+        assert (m / "config.json").read_text() == '{"mine": 1}' and sorted(p.name for p in m.iterdir()) == ["config.json"]
+
+
+def test_a_killed_video_leaves_nothing_the_next_run_does_not_clean(tmp_path):
+    from geoface.video import probe_video, write_video
+
+    stale = tmp_path / f".t.mp4.geoface-{2 ** 22 + 12345}-abc.tmp.mp4"  # a dead process's temporary
+    stale.write_bytes(b"half a video")
+    frames = [np.full((32, 48, 3), k * 20, np.uint8) for k in range(10)]
+    write_video(frames, tmp_path / "t.mp4", fps=10)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.mp4"]
+    assert probe_video(tmp_path / "t.mp4")["frames"] == 10
+    assert stat.S_IMODE(os.stat(tmp_path / "t.mp4").st_mode) == 0o666 & ~_umask()
+
+
+def _umask() -> int:
+    m = os.umask(0)
+    os.umask(m)
+    return m
+
+
+def test_ffmpeg_failure_is_one_line(tmp_path):
+    from geoface.video import write_video
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    os.chmod(ro, 0o555)
+    try:
+        if os.access(ro, os.W_OK):
+            pytest.skip("root writes into read-only folders")
+        with pytest.raises(GeofaceError) as e:
+            write_video([np.zeros((16, 16, 3), np.uint8)] * 3, ro / "v.mp4")
+        assert "\n" not in str(e.value)
+    finally:
+        os.chmod(ro, 0o755)
+    with pytest.raises(GeofaceError):
+        write_video([np.zeros((16, 16, 3), np.uint8)], tmp_path / "v.mp4", fps=0.001)
+
+
+@pytest.fixture
+def full_disk(tmp_path):
+    """A 1 MiB tmpfs (root only), filled to the last block."""
+    if os.geteuid() != 0 or not shutil.which("mount"):
+        pytest.skip("a small tmpfs needs root")
+    d = tmp_path / "full"
+    d.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(d)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here")
+    try:
+        yield d
+    finally:
+        subprocess.run(["umount", "-l", str(d)], capture_output=True)
+
+
+def test_a_full_disk_is_one_line_and_leaves_nothing(full_disk):
+    from geoface.video import write_video
+
+    rng = np.random.default_rng(0)
+    frames = [rng.integers(0, 256, (256, 256, 3), dtype=np.uint8) for _ in range(40)]  # noise: megabytes of H.264
+    with pytest.raises(GeofaceError) as e:
+        write_video(frames, full_disk / "v.mp4", fps=25)
+    assert "\n" not in str(e.value)
+    assert list(full_disk.iterdir()) == []
+    code, _, err = run("synth", "head", "-o", full_disk / "h.obj", "--vertices", "200000")
+    assert one_line_error(code, err), err
+    assert list(full_disk.iterdir()) == []
+
+
+# ------------------------------------------------------------------ reads and entries
+def test_obj_relative_indices_count_from_where_they_stand(tmp_path):
+    p = tmp_path / "rel.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 5 0 0\nv 6 0 0\nv 5 1 0\nf -3 -2 -1\n")
+    m = load_mesh(p)
+    from geoface.mesh import topology_report
+
+    assert len(m.V) == 6 and sorted(map(sorted, m.F.tolist())) == [[0, 1, 2], [3, 4, 5]]
+    assert topology_report(m.V, m.F).components == 2
+
+
+def test_off_vertex_colours_are_read(tmp_path):
+    p = tmp_path / "c.off"
+    p.write_text("COFF\n# colours\n4 2 0\n0 0 0 255 0 0 255\n1 0 0 0 255 0 255\n0 1 0 0 0 255 255\n"
+                 "1 1 0 255 255 255 128\n3 0 1 2\n4 1 3 2 0\n")
+    m = load_mesh(p)
+    assert len(m.F) == 3  # the quad as two triangles
+    assert m.colors is not None and np.allclose(m.colors[0], [1, 0, 0, 1]) and np.allclose(m.colors[3, 3], 128 / 255)
+    q = tmp_path / "plain.off"
+    q.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    assert load_mesh(q).colors is None
+    bad = tmp_path / "bad.off"
+    bad.write_text("OFF\n3 5 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    with pytest.raises(GeofaceError, match="promises"):
+        load_mesh(bad)
+
+
+def test_public_entries_refuse_wrong_types():
+    from geoface.gimage.image import save_gimage
+    from geoface.mesh import topology_report
+    from geoface.mesh.io import Mesh
+    from geoface.param.ricci import RicciFlowSolver
+    from geoface.param.corners import default_corners
+    from geoface.synth import square_grid
+
+    V, F = square_grid(20)  # 400 vertices
+    with pytest.raises(GeofaceError, match="uint8"):
+        topology_report(V, F.astype(np.uint8))
+    with pytest.raises(GeofaceError, match="integer"):
+        topology_report(V, F.astype(bool))
+    assert topology_report(V, F.astype(np.uint16)).is_disk
+    c = default_corners(V, F)
+    s = RicciFlowSolver(V, F)
+    with pytest.raises(GeofaceError, match="integer"):
+        s.solve(c + 0.5)
+    with pytest.raises(GeofaceError):
+        save_gimage("/tmp/never-written", {"positions": 1})
+    assert not Path("/tmp/never-written").exists()
+    m = Mesh(V, F)
+    with pytest.raises(GeofaceError, match="vertex_map"):
+        m.with_geometry(V, F, np.arange(5), np.arange(len(F)))
+    with pytest.raises(GeofaceError, match="face_map"):
+        m.with_geometry(V, F, np.arange(len(V)), np.full(len(F), 10 ** 6))
+
+
+def test_safetensors_get_the_users_umask(tmp_path):
+    from geoface.learn.data import DataStats
+
+    st = DataStats(mean=np.zeros((3, 4, 4), np.float32), std=np.ones(3, np.float32), bound=1.0)
+    st.save(tmp_path / "s.safetensors")
+    assert stat.S_IMODE(os.stat(tmp_path / "s.safetensors").st_mode) == 0o666 & ~_umask()
