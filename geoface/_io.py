@@ -199,6 +199,21 @@ def _replace_dir(tmp: Path, folder: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
+def write_image(path: str | os.PathLike, image) -> None:
+    """Encode ``image`` (OpenCV's BGR order, uint8 or uint16) by the file's extension and write
+    it: encoding problems are a :class:`GeofaceError`, a write the disk refuses (full, read-only)
+    an :class:`OSError` with its errno, which ``cv2.imwrite``'s bare False would hide."""
+    import cv2
+    import numpy as np
+
+    path = Path(path)
+    ok, buf = cv2.imencode(path.suffix or ".png", np.ascontiguousarray(image))
+    if not ok:
+        raise GeofaceError(f"could not encode {path.name} as {path.suffix or '.png'}")
+    with open(path, "wb") as fh:
+        fh.write(buf.tobytes())
+
+
 def atomic_write_text(target: str | os.PathLike, text: str) -> None:
     """Write ``text`` (UTF-8) to ``target`` through :func:`atomic_path`."""
     with atomic_path(target) as tmp:

@@ -216,6 +216,12 @@ def run_item(source, out_folder: str, corner_set: int, options: DatasetOptions) 
         row["bbox"] = {"min": meta["bbox_min"], "max": meta["bbox_max"]}
     except GeofaceError as e:
         row.update(status="failed", error=f"{type(e).__name__}: {e}")
+    except OSError as e:
+        import errno
+
+        row.update(status="failed", error=f"{type(e).__name__}: {e.strerror or e}")
+        if e.errno in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EIO):
+            row["machine"] = True  # the machine, not the item: the whole build stops
     except Exception as e:  # a bug or an unexpected library error: record it, keep going
         tb = traceback.format_exception_only(type(e), e)[-1].strip()
         row.update(status="failed", error=f"unexpected {tb}")
@@ -484,6 +490,9 @@ def _build(sources, out_dir, opts: DatasetOptions, lab: dict | None, source: dic
                             row["prompt"] = lab[stem]["prompt"]
                     manifest.write(json.dumps(row) + "\n")
                     manifest.flush()
+                    if row.pop("machine", False):
+                        raise GeofaceError(f"{out}: {item}: {row['error'].split(': ', 1)[-1]}; the build stopped "
+                                           f"({done} items built are kept; run it again when the disk can take more)")
                     if row["status"] == "ok":
                         done += 1
                     else:

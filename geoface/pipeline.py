@@ -231,8 +231,9 @@ def _preview(gi, path: Path) -> None:
     row = tiles[0]
     for t in tiles[1:]:
         row = np.concatenate([row, gap, t], 1)
-    if not cv2.imwrite(str(path), row):
-        raise GeofaceError(f"could not write {path}")
+    from ._io import write_image
+
+    write_image(path, row)
 
 
 def _axis(value, default) -> np.ndarray:
@@ -460,9 +461,9 @@ def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, op
     st["coverage"] = float(gi.mask.mean())
     write_gimage_files(folder, gi)
     if face_img is not None:  # where the ROI (the magnified face) lies in the images
-        import cv2
+        from ._io import write_image
 
-        cv2.imwrite(str(folder / "roi.png"), (face_img & gi.mask).astype(np.uint8) * 255)
+        write_image(folder / "roi.png", (face_img & gi.mask).astype(np.uint8) * 255)
     st["images_seconds"] = time.perf_counter() - t
     if opts.reconstruct:
         t = time.perf_counter()

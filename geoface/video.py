@@ -13,7 +13,6 @@ needs even sides).
 from __future__ import annotations
 
 import contextlib
-import os
 import re
 import subprocess
 import tempfile

@@ -67,7 +67,7 @@ def _off_screen(off_screen: bool | None, screenshot) -> bool:
 
 def save_png(path: str | os.PathLike, img: np.ndarray) -> Path:
     """Write an ``(H, W, 3|4) uint8`` RGB(A) image as PNG, atomically."""
-    cv2 = lazy_import("cv2", "PNG output")
+    lazy_import("cv2", "PNG output")
     img = np.asarray(img)
     if img.dtype != np.uint8:
         raise GeofaceError(f"save_png needs a uint8 image; got {img.dtype}")
@@ -76,8 +76,9 @@ def save_png(path: str | os.PathLike, img: np.ndarray) -> Path:
         bgr = img[..., [2, 1, 0, 3]]
     path = Path(path)
     with atomic_path(path, suffix=".png") as tmp:
-        if not cv2.imwrite(str(tmp), np.ascontiguousarray(bgr)):
-            raise GeofaceError(f"could not write {path}")
+        from ._io import write_image
+
+        write_image(tmp, bgr)
     return path
 
 

@@ -234,3 +234,13 @@ def test_safetensors_get_the_users_umask(tmp_path):
     st = DataStats(mean=np.zeros((3, 4, 4), np.float32), std=np.ones(3, np.float32), bound=1.0)
     st.save(tmp_path / "s.safetensors")
     assert stat.S_IMODE(os.stat(tmp_path / "s.safetensors").st_mode) == 0o666 & ~_umask()
+
+
+def test_a_dataset_build_on_a_full_disk_stops_with_one_line(full_disk, tmp_path):
+    src = tmp_path / "in"
+    src.mkdir()
+    shutil.copy(SPOT, src / "spot.obj")
+    code, _, err = run("dataset", "build", src, full_disk / "ds", "--res", "128", "--augment", "8", "--workers", "1")
+    assert one_line_error(code, err) and "space" in err.lower(), err
+    leftovers = [p.name for p in full_disk.rglob("*") if ".geoface-" in p.name or p.name.endswith(".tmp")]
+    assert leftovers == []

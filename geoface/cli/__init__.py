@@ -13,7 +13,7 @@ import warnings
 
 from .. import __version__
 from ..errors import GeofaceError, GeofaceWarning
-from .._args import SEED, add_json, number
+from .._args import SEED, add_json, axis, number
 
 from ._common import _Parser, _guard_by_table
 from .dataset import _dataset_options, cmd_dataset_build, cmd_dataset_ict
@@ -54,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, help="output mesh (obj, ply, off, stl, glb)")
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto",
                    help="how to open a closed surface (default auto: plane cut near the bottom if closed)")
-    s.add_argument("--up", default="auto", help="up axis: auto (default: from the shape, any axis convention: a human head "
+    s.add_argument("--up", default="auto", type=axis(), help="up axis: auto (default: from the shape, any axis convention: a human head "
                    "by the head template, else the opening, a flat cut, the plane it stands on) or x, y, z, -x, -y, -z")
     s.add_argument("--height", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.02, help="plane cut height as a fraction of the extent along up (0.02)")
     s.add_argument("--cap-area", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.02, help="area fraction removed by --open cap (0.02)")
@@ -75,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "keeping its aspect (uniform), or stretch it to the square (no longer conformal)")
     s.add_argument("--tolerance", type=number(float, 0, 1, lo_open=True), default=1e-9, help="curvature tolerance of the flow (radians)")
     s.add_argument("--repair", action="store_true", help="run make_disk first")
-    s.add_argument("--up", default="auto", help="up axis for --repair (default auto: from the shape)")
+    s.add_argument("--up", default="auto", type=axis(), help="up axis for --repair (default auto: from the shape)")
     add_json(s, "the metrics")
     s.set_defaults(func=cmd_param)
 
@@ -92,10 +92,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", choices=["ot", "conformal"], default="ot", help="measure-preserving (ot, default) or conformal")
     s.add_argument("--ot-tol", type=number(float, 0, 1, lo_open=True, hi_open=True), default=1e-3, help="OT tolerance: max relative cell-area error (1e-3)")
     s.add_argument("--smooth", type=number(int, 0, 1000), default=0, help="Laplacian smoothing iterations of the reconstruction")
-    s.add_argument("--up", default="auto", help="up axis: where closed heads are cut open, and which way the face is upright "
+    s.add_argument("--up", default="auto", type=axis(), help="up axis: where closed heads are cut open, and which way the face is upright "
                    "in the image; auto (default): from the shape, in any axis convention (a human head by the head template, "
                    "else the opening, a flat cut, the plane it stands on; uncertain cases say so), or x, y, z, -x, -y, -z")
-    s.add_argument("--front", default="auto", help="face direction: auto (default: towards the centroid of a --roi mask "
+    s.add_argument("--front", default="auto", type=axis(), help="face direction: auto (default: towards the centroid of a --roi mask "
                    "file; without one, the front found with --up auto, or where the mesh faces about a given --up: symmetry "
                    "and detail, as `view` finds it) or an axis (z, -x, ...)")
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto", help="how to open a closed surface")
@@ -119,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
                    choices=["front", "back", "left", "right", "top", "bottom", "iso", "xy", "xz", "yz"],
                    help="camera: front (default; found from the mesh, whichever axis it was scanned along), back, "
                         "left, right, top, bottom, iso; or a fixed axis view xy (looking down -z), xz, yz")
-    s.add_argument("--up", default=None, metavar="AXIS",
+    s.add_argument("--up", default=None, type=axis(auto=False), metavar="AXIS",
                    help="the data's up direction: +y (default), -y, +z, ... or three numbers")
     s.add_argument("--meta", default=None, metavar="JSON",
                    help="a `geoface synth --meta` file: its face mask tells the front (default: MESH.json if present)")

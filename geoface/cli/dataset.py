@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .._args import number
+from .._args import axis, number
 
 from ._common import _guard
 
@@ -19,7 +19,7 @@ def _dataset_options(b) -> None:
     b.add_argument("--reconstruct", action="store_true", help="also write reconstruction.obj and its error")
     b.add_argument("--retry-failed", action="store_true", help="try items that failed in an earlier run again")
     b.add_argument("--strict", action="store_true", help="exit code 1 when any item failed")
-    b.add_argument("--up", default="auto", help="up axis (default auto: from the shape, any axis convention)")
+    b.add_argument("--up", default="auto", type=axis(), help="up axis (default auto: from the shape, any axis convention)")
     b.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto")
 
 

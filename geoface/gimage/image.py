@@ -220,10 +220,11 @@ def _cv2():
 
 
 def _write_png16(path: Path, rgb: np.ndarray) -> None:
-    cv2 = _cv2()
+    _cv2()  # a clear message when OpenCV is missing
     q = np.round(np.clip(rgb, 0.0, 1.0) * Q).astype(np.uint16)
-    if not cv2.imwrite(str(path), np.ascontiguousarray(q[:, :, ::-1])):
-        raise InvalidGeometryImageError(f"could not write {path}")
+    from .._io import write_image
+
+    write_image(path, q[:, :, ::-1])
 
 
 def _read_png(path: Path, expect: int | None = None) -> np.ndarray:
@@ -266,8 +267,9 @@ def write_gimage_files(folder: Path, gi: GeometryImage) -> None:
     for name in MODALITIES:
         if gi.has(name):
             _write_png16(folder / f"{name}.png", gi.modality(name).transpose(1, 2, 0))
-    cv2 = _cv2()
-    cv2.imwrite(str(folder / "mask.png"), gi.mask.astype(np.uint8) * 255)
+    from .._io import write_image
+
+    write_image(folder / "mask.png", gi.mask.astype(np.uint8) * 255)
     (folder / "meta.json").write_text(json.dumps(gi.meta, indent=2))
 
 

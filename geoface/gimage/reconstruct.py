@@ -134,14 +134,15 @@ def save_reconstruction(path: str | os.PathLike, mesh: Mesh, gi: GeometryImage |
         from .._io import atomic_path
         from .image import _cv2
 
-        cv2 = _cv2()
+        _cv2()
         # object-space normals of the reconstructed mesh, which is where the input was
         n = gi.normals()
         nmap = np.round(np.clip((n + 1.0) * 0.5, 0, 1) * 255).astype(np.uint8)
         name = f"{path.stem}_normal.png"
         with atomic_path(path.parent / name) as tmp:
-            if not cv2.imwrite(str(tmp), nmap[:, :, ::-1]):
-                raise InvalidGeometryImageError(f"could not write {name}")
+            from .._io import write_image
+
+            write_image(tmp, nmap[:, :, ::-1])
         mtl = path.with_suffix(".mtl")
         if mtl.is_file():
             text = mtl.read_text()

@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -42,13 +41,12 @@ def _read_photo(path) -> np.ndarray:
 
 def _write_png16(path: Path, img: np.ndarray) -> None:
     """[H, W, 1 or 3] in [0, 1] → 16-bit PNG, written under a temporary name then renamed."""
-    import cv2
     q = np.round(np.clip(img, 0, 1) * 65535).astype(np.uint16)
     q = q[:, :, 0] if q.shape[2] == 1 else np.ascontiguousarray(q[:, :, ::-1])
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    if not cv2.imwrite(str(tmp), q):
-        raise GeofaceError(f"could not write {path}")
-    os.replace(tmp, path)
+    from .._io import atomic_path, write_image
+
+    with atomic_path(path, suffix=".png") as tmp:
+        write_image(tmp, q)
 
 
 def _read_camera(path):

@@ -128,15 +128,14 @@ def _read_png(path: Path, rgb=True) -> np.ndarray:
 
 
 def _write_png(path: Path, img) -> None:
-    import cv2
-
     a = np.asarray(img)
     if a.dtype != np.uint8:
         a = (np.clip(a, 0, 1) * 255 + 0.5).astype(np.uint8)
     if a.ndim == 3:
         a = a[..., ::-1]
-    if not cv2.imwrite(str(path), a):
-        raise SplatError(f"{path}: could not write")
+    from geoface._io import write_image
+
+    write_image(path, a)
 
 
 def write_frame(folder, t: int, img) -> Path:
