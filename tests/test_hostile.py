@@ -244,3 +244,67 @@ def test_a_dataset_build_on_a_full_disk_stops_with_one_line(full_disk, tmp_path)
     assert one_line_error(code, err) and "space" in err.lower(), err
     leftovers = [p.name for p in full_disk.rglob("*") if ".geoface-" in p.name or p.name.endswith(".tmp")]
     assert leftovers == []
+
+
+@pytest.mark.parametrize("field,value", [("res", -1), ("norm_num_groups", 0), ("num_train_timesteps", 0),
+                                         ("text_max_length", -1), ("lr", float("nan")), ("block_out_channels", (64, 0)),
+                                         ("ema_decay", 1.0), ("batch_size", True)])
+def test_ddpm_configs_are_bounded(field, value):
+    from geoface.learn.ddpm import DDPMConfig
+
+    with pytest.raises(GeofaceError, match=field):
+        DDPMConfig(**{field: value})
+
+
+@pytest.mark.parametrize("state", [[], {}, {"step": 1, "bbox_min": [0, 0, 0], "bbox_max": [1, float("nan"), 1]},
+                                   {"step": -1, "bbox_min": [0, 0, 0], "bbox_max": [1, 1, 1]},
+                                   {"step": 1, "bbox_min": [0, 0, 0], "bbox_max": [1, 0, 1]}])
+def test_ddpm_state_files_are_checked(state, tmp_path):
+    from geoface.learn.ddpm import _check_state
+
+    with pytest.raises(GeofaceError):
+        _check_state(state, tmp_path / "state.json")
+    _check_state({"step": 3, "bbox_min": [0, 0, 0], "bbox_max": [1, 1, 1]}, tmp_path / "state.json")
+
+
+@pytest.mark.parametrize("spec", ["hash:abc", "hash:-5", "hash:0", "hash:", "nonsense"])
+def test_text_encoder_specs(spec):
+    from geoface.learn.text import make_text_encoder
+
+    with pytest.raises(GeofaceError):
+        make_text_encoder(spec)
+    assert make_text_encoder("hash:16").encode(["a head"]).shape[-1] == 16
+
+
+def test_texture_and_camera_and_gimage_values_are_checked(tmp_path):
+    from geoface.learn.texture import TextureTrainConfig
+    from geoface.splat.hfm_data import _camera_from_json
+
+    for kw in ({"k": 0}, {"gde_res": 1e9}, {"epochs": (1, 2)}, {"lr": -1.0}):
+        with pytest.raises(GeofaceError):
+            TextureTrainConfig(**kw)
+    good = {"fx": 100.0, "fy": 100.0, "cx": 64, "cy": 64, "width": 128, "height": 128,
+            "R": np.eye(3).tolist(), "t": [0, 0, 1]}
+    assert _camera_from_json(good).width == 128
+    (tmp_path / "camera.json").write_text('{"fx": 1, ')
+    with pytest.raises(GeofaceError, match="JSON"):
+        _camera_from_json(tmp_path / "camera.json")
+    for bad in ({**good, "fx": -1}, {**good, "width": 0}, {**good, "R": [[1, 0], [0, 1]]},
+                {**good, "R": (2 * np.eye(3)).tolist()}, {k: v for k, v in good.items() if k != "t"}):
+        with pytest.raises(GeofaceError):
+            _camera_from_json(bad)
+    # a geometry image whose uv_orientation is not +-1
+    import json
+
+    from geoface.gimage.image import GeometryImage, load_gimage, save_gimage
+
+    N = 8
+    gi = GeometryImage(np.zeros((6, N, N), np.float32), np.ones((N, N), bool),
+                       {"bbox_min": [0, 0, 0], "bbox_max": [1, 1, 1], "channels": ["px", "py", "pz", "nx", "ny", "nz"],
+                        "resolution": N, "version": 1})
+    save_gimage(tmp_path / "g", gi)
+    meta = json.loads((tmp_path / "g" / "meta.json").read_text())
+    meta["uv_orientation"] = "x"
+    (tmp_path / "g" / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(GeofaceError, match="uv_orientation"):
+        load_gimage(tmp_path / "g")

@@ -299,6 +299,8 @@ def load_gimage(folder: str | os.PathLike) -> GeometryImage:
         b = meta[key]
         if not isinstance(b, list) or len(b) != 3 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in b):
             raise InvalidGeometryImageError(f"{mp}: {key} must be three numbers; got {b!r}")
+    if "uv_orientation" in meta and meta["uv_orientation"] not in (1, -1):
+        raise InvalidGeometryImageError(f"{mp}: uv_orientation must be 1 or -1; got {meta['uv_orientation']!r}"[:200])
     if "align_corners" in meta and not isinstance(meta["align_corners"], bool):
         raise InvalidGeometryImageError(f"{mp}: align_corners must be true or false; got {meta['align_corners']!r}")
     if meta["version"] > FORMAT_VERSION:

@@ -35,6 +35,7 @@ import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from .._io import atomic_write_text
@@ -97,6 +98,51 @@ class DDPMConfig:
     lr_schedule: str = "constant"
 
     def __post_init__(self):
+        import math
+
+        def need(ok, what, value):
+            if not ok:
+                raise CheckpointError(f"{what}; got {value!r}")
+
+        def integer(name, lo, hi):
+            v = getattr(self, name)
+            need(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and lo <= v <= hi,
+                 f"{name} must be an integer in {lo}..{hi}", v)
+
+        def real(name, lo, hi, lo_open=False, hi_open=False):
+            v = getattr(self, name)
+            ok = isinstance(v, (int, float, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+            ok = ok and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
+            need(ok, f"{name} must be a number in {'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}", v)
+
+        integer("res", 4, 8192)
+        integer("channels", 1, 4096)
+        integer("layers_per_block", 1, 64)
+        integer("attention_head_dim", 1, 4096)
+        integer("norm_num_groups", 1, 4096)
+        integer("text_max_length", 1, 4096)
+        integer("cross_attention_dim", 1, 65536)
+        integer("num_train_timesteps", 2, 1_000_000)
+        integer("batch_size", 1, 1 << 20)
+        integer("steps", 0, 1 << 40)
+        integer("checkpoint_every", 1, 1 << 40)
+        real("cfg_dropout", 0.0, 1.0)
+        real("lr", 0.0, 10.0, lo_open=True)
+        real("weight_decay", 0.0, 100.0)
+        real("ema_decay", 0.0, 1.0, hi_open=True)
+        boc = self.block_out_channels
+        need(isinstance(boc, (tuple, list)) and 1 <= len(boc) <= 12
+             and all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and 1 <= c <= 65536 for c in boc),
+             "block_out_channels must be 1 to 12 positive integers", boc)
+        need(all(c % self.norm_num_groups == 0 for c in boc),
+             f"every block_out_channels entry must be a multiple of norm_num_groups ({self.norm_num_groups})", boc)
+        if self.attention_levels is not None:
+            lv = self.attention_levels
+            need(isinstance(lv, (tuple, list)) and all(isinstance(k, (int, np.integer)) and 0 <= k < len(boc) for k in lv),
+                 f"attention_levels must be levels in 0..{len(boc) - 1}", lv)
+        need(isinstance(self.modalities, (tuple, list)) and 1 <= len(self.modalities) <= 8
+             and all(isinstance(m, str) for m in self.modalities) and len(set(self.modalities)) == len(self.modalities),
+             "modalities must be distinct modality names", self.modalities)
         if self.prediction not in PREDICTIONS:
             raise CheckpointError(f"prediction must be one of {', '.join(PREDICTIONS)}; got {self.prediction!r}")
         if int(self.patch) < 1 or int(self.res) % int(self.patch):
@@ -245,13 +291,32 @@ def load_run(run_dir: str | os.PathLike, use_ema: bool = True, text_encoder=None
     unet.eval()
     try:
         state = json.loads((ckpt / "state.json").read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as e:
-        raise CheckpointError(f"{ckpt / 'state.json'} is missing or corrupt ({e})") from None
+    except (OSError, json.JSONDecodeError, RecursionError) as e:
+        raise CheckpointError(f"{ckpt / 'state.json'} is missing or corrupt ({type(e).__name__})") from None
+    _check_state(state, ckpt / "state.json")
     stats = _load_stats(ckpt) if cfg.standardize else None
     if text_encoder is None:
         from .text import make_text_encoder
         text_encoder = make_text_encoder(cfg.text_encoder, max_length=cfg.text_max_length)
     return DiffusionRun(cfg, unet, text_encoder, state, stats)
+
+
+def _check_state(state, where: Path) -> None:
+    """A checkpoint's ``state.json``: a JSON object with a step and the data's box (finite,
+    ``bbox_max > bbox_min`` per axis), which sampling decodes positions with."""
+    import math
+
+    if not isinstance(state, dict):
+        raise CheckpointError(f"{where}: must be a JSON object; got {type(state).__name__}")
+    step = state.get("step")
+    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+        raise CheckpointError(f"{where}: needs a non-negative integer 'step'; got {step!r}"[:200])
+    lo, hi = state.get("bbox_min"), state.get("bbox_max")
+    ok = all(isinstance(b, list) and len(b) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                          and math.isfinite(x) for x in b) for b in (lo, hi))
+    if not ok or not all(b > a for a, b in zip(lo, hi)):
+        raise CheckpointError(f"{where}: 'bbox_min' and 'bbox_max' must be 3 finite numbers each, max above min; "
+                              f"got {lo!r} and {hi!r}"[:300])
 
 
 def _load_stats(ckpt: Path):
@@ -434,6 +499,9 @@ def sample(run: DiffusionRun, prompt: str, n: int = 4, steps: int = 50, schedule
     if clip is not None and clip > 0 and run.stats is not None:
         clip = float(clip) * float(run.stats.bound)
     sched = build_scheduler(cfg, scheduler, clip=clip)
+    if not 1 <= int(steps) <= run.config.num_train_timesteps:
+        raise CheckpointError(f"steps must be in 1..{run.config.num_train_timesteps} (the run was trained with "
+                              f"{run.config.num_train_timesteps} noise levels); got {steps}")
     sched.set_timesteps(int(steps))
     unet = run.unet.to(device).eval()
     g = torch.Generator().manual_seed(int(seed))

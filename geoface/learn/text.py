@@ -240,13 +240,17 @@ class CachedTextEncoder(_Base):
 
 def make_text_encoder(spec: str = "minilm", cache_dir: str | os.PathLike | None = None, **kw) -> CachedTextEncoder:
     """Build an encoder from a CLI spec: ``minilm`` | ``clip:PATH`` | ``hash`` (``hash:DIM``)."""
+    if not isinstance(spec, str):
+        raise TextEncoderError(f"text encoder must be 'minilm', 'clip:PATH' or 'hash[:DIM]'; got {spec!r}")
     if spec == "minilm":
         enc = MiniLMEncoder(**kw)
     elif spec.startswith("clip:"):
         enc = CLIPEncoder(spec[5:], **kw)
     elif spec == "hash" or spec.startswith("hash:"):
-        dim = int(spec[5:]) if spec.startswith("hash:") else 32
-        enc = HashTextEncoder(dim=dim, **kw)
+        dim = spec[5:] if spec.startswith("hash:") else "32"
+        if not dim.isdigit() or not 1 <= int(dim) <= 65536:
+            raise TextEncoderError(f"hash:DIM needs a dimension in 1..65536; got {spec!r}")
+        enc = HashTextEncoder(dim=int(dim), **kw)
     else:
         raise TextEncoderError(f"text encoder must be 'minilm', 'clip:PATH' or 'hash[:DIM]'; got {spec!r}")
     return CachedTextEncoder(enc, cache_dir)

@@ -96,6 +96,29 @@ class TextureTrainConfig:
     #: validation faces (docs/textures.md); None = ``map_weights``
     hfdr_map_weights: tuple | None = (1.0, 8.0, 1.0)
 
+    def __post_init__(self):
+        import math
+
+        def bad(name, want):
+            raise CheckpointError(f"{name} must be {want}; got {getattr(self, name)!r}")
+
+        for name, lo, hi in (("gde_res", 8, 16384), ("k", 1, 64), ("batch", 1, 1 << 16), ("hfdr_patches", 1, 1 << 16)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                bad(name, f"an integer in {lo}..{hi}")
+        if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and 0 < self.lr <= 10):
+            bad("lr", "a number in (0, 10]")
+        if not (isinstance(self.epochs, (tuple, list)) and len(self.epochs) == 3
+                and all(isinstance(e, int) and not isinstance(e, bool) and 0 <= e <= 1_000_000 for e in self.epochs)):
+            bad("epochs", "three non-negative integers")
+        for name in ("map_weights", "hfdr_map_weights"):
+            w = getattr(self, name)
+            if w is None and name == "hfdr_map_weights":
+                continue
+            if not (isinstance(w, (tuple, list)) and len(w) == 3
+                    and all(isinstance(x, (int, float)) and math.isfinite(x) and x >= 0 for x in w)):
+                bad(name, "three finite non-negative numbers")
+
     def to_dict(self) -> dict:
         d = asdict(self)
         d["nets"] = self.nets.to_dict()

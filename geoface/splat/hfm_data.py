@@ -148,12 +148,32 @@ def write_frame(folder, t: int, img) -> Path:
     return path
 
 
-def _camera_from_json(d: dict) -> Camera:
+def _camera_from_json(d) -> Camera:
+    """A :class:`Camera` from ``camera.json``'s object (or the file's path): focal lengths
+    positive, sizes in 1..16384, ``R`` a rotation, everything finite; else a one-line SplatError."""
+    where = "camera.json"
+    if isinstance(d, (str, Path)):
+        where = str(d)
+        try:
+            d = json.loads(Path(d).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as e:
+            raise SplatError(f"{where}: not readable JSON ({type(e).__name__})") from None
+    need = "needs fx, fy, cx, cy, width, height, R (3×3 rotation), t (3)"
     try:
-        return Camera(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), int(d["width"]),
-                      int(d["height"]), np.asarray(d["R"], float), np.asarray(d["t"], float))
-    except (KeyError, TypeError, ValueError) as e:
-        raise SplatError(f"camera.json: needs fx, fy, cx, cy, width, height, R (3×3), t (3); {e}") from None
+        fx, fy, cx, cy = (float(d[k]) for k in ("fx", "fy", "cx", "cy"))
+        w, h = d["width"], d["height"]
+        R, t = np.asarray(d["R"], float), np.asarray(d["t"], float)
+    except (KeyError, TypeError, ValueError, IndexError) as e:
+        raise SplatError(f"{where}: {need} ({type(e).__name__}: {str(e)[:80]})") from None
+    if not all(np.isfinite([fx, fy, cx, cy])) or fx <= 0 or fy <= 0:
+        raise SplatError(f"{where}: fx, fy must be positive and fx, fy, cx, cy finite")
+    if any(isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 16384 for v in (w, h)):
+        raise SplatError(f"{where}: width and height must be integers in 1..16384; got {w!r}, {h!r}"[:200])
+    if R.shape != (3, 3) or t.shape != (3,) or not (np.isfinite(R).all() and np.isfinite(t).all()):
+        raise SplatError(f"{where}: {need}")
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
+        raise SplatError(f"{where}: R is not a rotation (R Rᵀ ≠ I or det < 0)")
+    return Camera(fx, fy, cx, cy, int(w), int(h), R, t)
 
 
 def camera_to_json(cam: Camera) -> dict:
@@ -196,7 +216,7 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
         if not (folder / name).is_file():
             raise SplatError(f"{folder}: missing {name}")
     try:
-        cam = _camera_from_json(json.loads((folder / "camera.json").read_text()))
+        cam = _camera_from_json(folder / "camera.json")
         meta = json.loads((folder / "meta.json").read_text())
         y_split = float(meta["y_split"])
     except (ValueError, KeyError, TypeError) as e:

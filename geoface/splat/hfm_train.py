@@ -169,6 +169,10 @@ def build_model(video, cfg: HFMConfig, mesh=None) -> HFMModel:
         raise SplatError(f"{video.mesh_path}: the head mesh needs vertex colours")
     g = Gaussians.from_mesh(m.V, m.F, np.clip(np.asarray(C)[:, :3], 0, 1), opacity=cfg.init_opacity)
     y_t = cfg.y_split if cfg.y_split is not None else video.y_split
+    lo, hi = float(m.V[:, 1].min()), float(m.V[:, 1].max())
+    if not (isinstance(y_t, (int, float)) and lo < float(y_t) < hi):
+        raise SplatError(f"y_split {y_t!r} must lie within the head's height ({lo:.4g} .. {hi:.4g}, the mesh's y): "
+                         "it divides the upper face (under the headset) from the lower")
     return HFMModel(g, cfg, y_t)
 
 

@@ -537,7 +537,7 @@ def animate(model: THGSModel, audio_path, out_dir=None, *, poses=None, fps: floa
         cam_path = Path(getattr(model, "_dir", "")) / "camera.json"
         if not cam_path.is_file():
             raise SplatError("no camera: the model folder has no camera.json")
-        camera = _camera_from_json(json.loads(cam_path.read_text()))
+        camera = _camera_from_json(cam_path)
     frames, times = render_frames(model, camera, rot[:T], transl[:T], expr[:T], A)
     if out_dir is not None:
         for t, img in enumerate(frames):

@@ -107,7 +107,7 @@ def load_talking(folder) -> TalkingData:
         if not (folder / name).is_file():
             raise SplatError(f"{folder}: missing {name}")
     try:
-        cam = _camera_from_json(json.loads((folder / "camera.json").read_text()))
+        cam = _camera_from_json(folder / "camera.json")
         meta = json.loads((folder / "meta.json").read_text())
         fps = float(meta["fps"])
     except (ValueError, KeyError, TypeError) as e:

@@ -139,9 +139,11 @@ def test_init_trains_only_the_stages_asked_for(trained, tmp_path):
         if not k.startswith("hfdr."):
             assert torch.equal(a[k], b[k]), k
     assert any(not torch.equal(a[k], b[k]) for k in a if k.startswith("hfdr."))
-    with pytest.raises(LearnError, match="map_weights"):
+    from geoface.errors import GeofaceError
+
+    with pytest.raises(GeofaceError, match="map_weights"):  # refused when the config is made
         train_texture(root, tmp_path / "x", TextureTrainConfig(**{**cfg.__dict__, "map_weights": (1, -1, 1)}), quiet=True)
-    with pytest.raises(LearnError, match="hfdr_map_weights"):
+    with pytest.raises(GeofaceError, match="hfdr_map_weights"):
         train_texture(root, tmp_path / "x", TextureTrainConfig(**{**cfg.__dict__, "hfdr_map_weights": (1, 1)}), quiet=True)
 
 
