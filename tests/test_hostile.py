@@ -308,3 +308,37 @@ def test_texture_and_camera_and_gimage_values_are_checked(tmp_path):
     (tmp_path / "g" / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(GeofaceError, match="uv_orientation"):
         load_gimage(tmp_path / "g")
+
+
+@pytest.mark.parametrize("argv", [
+    ("inspect", "a\nb.obj"),
+    ("convert", str(SPOT), "o", "--corner-set", "3", "--augment", "4"),
+    ("synth", "ict", "-o", "h.obj", "--identity", "1e6"),
+    ("synth", "ict", "-o", "h.obj", "--identity", ""),
+    ("param", str(SPOT), "-o", "x.stl"),
+    ("dataset", "build", ".", "out", "--up", "w"),
+    ("view", "--web", str(SPOT), "--host", "not a host"),
+])
+def test_odd_values_are_one_line_before_any_work(argv, tmp_path):
+    code, _, err = run(*argv, cwd=tmp_path)
+    assert one_line_error(code, err), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_landmark_files_are_bounded(tmp_path):
+    import json
+
+    from geoface.synth.ict_fit import load_landmarks
+
+    good = (np.random.default_rng(0).random((68, 2)) * 200).tolist()
+    cases = {"size": {"landmarks": good, "image_size": [1e999, 10]}, "huge": {"landmarks": (np.array(good) * 1e300).tolist()},
+             "point": {"landmarks": [[5.0, 5.0]] * 68}}
+    for name, d in cases.items():
+        (tmp_path / f"{name}.json").write_text(json.dumps(d).replace("Infinity", "1e999"))
+        with pytest.raises(GeofaceError):
+            load_landmarks(tmp_path / f"{name}.json")
+    (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(GeofaceError):
+        load_landmarks(tmp_path / "deep.json")
+    (tmp_path / "ok.json").write_text(json.dumps({"landmarks": good, "image_size": [256, 256]}))
+    assert load_landmarks(tmp_path / "ok.json")[1] == (256, 256)

@@ -15,7 +15,7 @@ from .. import __version__
 from ..errors import GeofaceError, GeofaceWarning
 from .._args import SEED, add_json, axis, number
 
-from ._common import _Parser, _guard_by_table
+from ._common import one_line, _Parser, _guard_by_table
 from .dataset import _dataset_options, cmd_dataset_build, cmd_dataset_ict
 from .geometry import cmd_convert, cmd_inspect, cmd_param, cmd_reconstruct, cmd_repair, cmd_view
 from .synth import SURFACES, cmd_synth_head, cmd_synth_ict, cmd_synth_pack_ict, cmd_synth_surface
@@ -241,10 +241,10 @@ def main(argv: list[str] | None = None) -> int:
             _guard_by_table(args)
             return int(args.func(args) or 0)
     except GeofaceError as exc:
-        print(f"geoface: error: {exc}", file=sys.stderr)
+        print(f"geoface: error: {one_line(exc)}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"geoface: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
+        print(one_line(f"geoface: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": ")), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("geoface: terminated" if terminated else "geoface: interrupted", file=sys.stderr)
@@ -252,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
-    print(f"geoface: warning: {message}", file=sys.stderr)
+    print(f"geoface: warning: {one_line(message)}", file=sys.stderr)
 
 
 if __name__ == "__main__":  # pragma: no cover

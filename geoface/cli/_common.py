@@ -10,9 +10,27 @@ from pathlib import Path
 _AXIS_OPTIONS = ("--up", "--front")
 
 
+def one_line(message) -> str:
+    """A message as one line: line breaks and other control characters (a file name may hold
+    them) written as escapes, so that an error is always exactly one line."""
+    out = []
+    for ch in str(message):
+        if ch == "\n":
+            out.append("\\n")
+        elif ch == "\r":
+            out.append("\\r")
+        elif ch == "\t":
+            out.append(" ")
+        elif ord(ch) < 32 or ch == "\x7f":
+            out.append(f"\\x{ord(ch):02x}")
+        else:
+            out.append(ch)
+    return "".join(out).strip()
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, exit code 2 (argparse's own code for usage errors)
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        self.exit(2, f"{self.prog}: error: {one_line(message)}\n")
 
     def parse_known_args(self, args=None, namespace=None):
         import sys

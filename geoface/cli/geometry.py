@@ -79,6 +79,9 @@ def cmd_param(args) -> int:
     from ..param.ricci import RicciFlowSolver, to_unit_square
     from ..progress import log
 
+    if args.output is not None and Path(args.output).suffix.lower() in (".stl", ".off"):
+        raise GeofaceError(f"-o {args.output}: {Path(args.output).suffix} files cannot hold UVs, which are what param "
+                           "makes; write .obj, .ply, .glb or .gltf")
     _guard(args, [args.input], [*_mesh_outputs(args.output), args.json])
     mesh = load_mesh(args.input)
     V, F = mesh.V, mesh.F
@@ -154,6 +157,9 @@ def cmd_convert(args) -> int:
 
     out = Path(args.out_dir)
     inp = Path(args.input)
+    if args.corner_set is not None and args.augment != 1:
+        raise GeofaceError(f"--corner-set {args.corner_set} converts one corner set; --augment {args.augment} asks for "
+                           f"{args.augment}: give one of them")
     roi_file = None if args.roi in ("face", "none") else args.roi
     _guard(args, [inp, roi_file], [out])
     mesh = load_mesh(inp)

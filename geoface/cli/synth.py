@@ -77,10 +77,17 @@ def cmd_synth_ict(args) -> int:
 
 
 def _parse_weights(text: str) -> list:
+    import math
+
     try:
-        return [float(x) for x in text.split(",") if x.strip()]
+        w = [float(x) for x in text.split(",") if x.strip()]
     except ValueError:
         raise GeofaceError(f"--identity must be comma-separated numbers; got {text!r}") from None
+    if not w or len(w) > 100:
+        raise GeofaceError(f"--identity needs 1 to 100 weights (one per identity component); got {len(w)}")
+    if not all(math.isfinite(x) and abs(x) <= 10 for x in w):
+        raise GeofaceError("--identity weights are in standard deviations: each must be finite and within ±10")
+    return w
 
 
 def cmd_synth_pack_ict(args) -> int:

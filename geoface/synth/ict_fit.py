@@ -96,12 +96,17 @@ def load_landmarks(path) -> tuple[np.ndarray, tuple | None]:
             rows = [ln.split() for ln in p.read_text(encoding="utf-8").splitlines()]
             rows = [r for r in rows if len(r) == 2 and not r[0].startswith(("{", "}", "version", "n_points"))]
             L = np.asarray(rows, np.float64)
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise GeofaceError(f"{p}: not a landmarks file ({type(e).__name__}: {e}); see geoface.synth.ict_fit") from None
+    except (OSError, ValueError, KeyError, TypeError, OverflowError, RecursionError) as e:
+        raise GeofaceError(f"{p}: not a landmarks file ({type(e).__name__}: {str(e)[:100]}); see geoface.synth.ict_fit") from None
     if L.shape != (68, 2) or not np.isfinite(L).all():
         raise GeofaceError(f"{p}: need 68 finite (x, y) landmarks; got shape {L.shape}")
-    if size is not None and (len(size) != 2 or min(size) < 1):
-        raise GeofaceError(f"{p}: image_size must be [W, H]; got {size}")
+    if size is not None and (len(size) != 2 or not all(1 <= v <= 65536 for v in size)):
+        raise GeofaceError(f"{p}: image_size must be [W, H], each in 1..65536; got {size}"[:200])
+    if np.abs(L).max() > 1e6:
+        raise GeofaceError(f"{p}: landmarks must be pixel positions (|x|, |y| up to 1e6); the largest is {np.abs(L).max():.3g}")
+    spread = float(np.sqrt(((L - L.mean(0)) ** 2).sum(1).mean()))
+    if spread < 1.0:
+        raise GeofaceError(f"{p}: the 68 landmarks lie within {spread:.2g} px of one point; they are not a face")
     return L, size
 
 
