@@ -342,3 +342,28 @@ def test_landmark_files_are_bounded(tmp_path):
         load_landmarks(tmp_path / "deep.json")
     (tmp_path / "ok.json").write_text(json.dumps({"landmarks": good, "image_size": [256, 256]}))
     assert load_landmarks(tmp_path / "ok.json")[1] == (256, 256)
+
+
+def _fill(folder: Path) -> None:
+    """Fill the file system of ``folder`` to the last block (with a file kept there)."""
+    fd = os.open(folder / "ballast", os.O_WRONLY | os.O_CREAT, 0o644)
+    try:
+        for size in (65536, 512, 1):
+            try:
+                while True:
+                    os.write(fd, b"\0" * size)
+            except OSError:
+                pass
+    finally:
+        os.close(fd)
+
+
+def test_ddpm_train_on_a_full_disk_is_one_line_and_leaves_no_run(full_disk, tmp_path):
+    from tests.learn.conftest import make_gimage_dataset
+
+    data = make_gimage_dataset(tmp_path / "data", n_items=4, N=16)
+    _fill(full_disk)
+    code, _, err = run("ddpm", "train", data, "-o", full_disk / "run", "--res", "8", "--steps", "2", "--batch", "2",
+                       "--text-encoder", "hash:8", "--tiny", "--checkpoint-every", "1")
+    assert one_line_error(code, err), err
+    assert sorted(p.name for p in full_disk.iterdir()) == ["ballast"]

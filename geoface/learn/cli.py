@@ -35,10 +35,20 @@ def cmd_ddpm_train(args) -> int:
     if args.lr is not None:
         kw["lr"] = args.lr
     cfg = DDPMConfig.preset("tiny" if args.tiny else args.model, **kw)
-    last = train(args.data_dir, args.output, cfg, resume=args.resume, device=_device(args.device), quiet=_quiet(args),
-                 max_seconds=None if args.max_minutes is None else 60.0 * args.max_minutes,
-                 loader_workers=args.loader_workers, cache_mb=args.cache_mb,
-                 gradient_checkpointing=args.gradient_checkpointing)
+    out = Path(args.output)
+    new_run = not out.exists()
+    try:
+        last = train(args.data_dir, args.output, cfg, resume=args.resume, device=_device(args.device), quiet=_quiet(args),
+                     max_seconds=None if args.max_minutes is None else 60.0 * args.max_minutes,
+                     loader_workers=args.loader_workers, cache_mb=args.cache_mb,
+                     gradient_checkpointing=args.gradient_checkpointing)
+    except BaseException:
+        # a run that failed before its first checkpoint (a full disk, bad data, Ctrl-C) leaves no folder behind
+        if new_run and out.is_dir() and not out.is_symlink() and not (out / "checkpoint").exists():
+            import shutil
+
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     print(f"{args.output}/checkpoint: step {last['step']}, loss {last['loss']:.4f} "
           + " ".join(f"{k} {v:.4f}" for k, v in last["losses"].items())
           + f" ({last['steps_per_second']:.2f} steps/s)")

@@ -230,15 +230,20 @@ def save_checkpoint(ckpt: Path, cfg: DDPMConfig, model, ema: EMA, opt, step: int
     tmp = ckpt.with_name(f".{ckpt.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    cfg.save(tmp / "config.json")
-    cpu = lambda d: {k: v.detach().cpu().contiguous() for k, v in d.items()}  # noqa: E731
-    save_file(cpu(model.state_dict()), str(tmp / "model.safetensors"))
-    save_file(cpu(ema.shadow), str(tmp / "ema.safetensors"))
-    ot, groups = _optim_to_tensors(opt)
-    save_file(cpu(ot), str(tmp / "optimizer.safetensors"))
-    if stats is not None:
-        stats.save(tmp / STATS_FILE)
-    (tmp / "state.json").write_text(json.dumps({"step": step, "param_groups": groups, **extra}), encoding="utf-8")
+    try:
+        cfg.save(tmp / "config.json")
+        cpu = lambda d: {k: v.detach().cpu().contiguous() for k, v in d.items()}  # noqa: E731
+        save_file(cpu(model.state_dict()), str(tmp / "model.safetensors"))
+        save_file(cpu(ema.shadow), str(tmp / "ema.safetensors"))
+        ot, groups = _optim_to_tensors(opt)
+        save_file(cpu(ot), str(tmp / "optimizer.safetensors"))
+        if stats is not None:
+            stats.save(tmp / STATS_FILE)
+        (tmp / "state.json").write_text(json.dumps({"step": step, "param_groups": groups, **extra}), encoding="utf-8")
+    except Exception as e:  # a full disk: OSError, or safetensors' own error type
+        shutil.rmtree(tmp, ignore_errors=True)
+        msg = getattr(e, "strerror", None) or str(e).splitlines()[0][:160] if str(e) else type(e).__name__
+        raise CheckpointError(f"{ckpt}: could not write the checkpoint ({msg}); an earlier one is kept") from None
     from .._io import _chmod_tree
 
     _chmod_tree(tmp)  # the user's umask (safetensors writes 0600)

@@ -209,14 +209,22 @@ class CachedTextEncoder(_Base):
         if self.cache_dir is None:
             return
         from safetensors.torch import save_file
-        self.cache_dir.mkdir(parents=True, exist_ok=True)
         tmp = self.cache_dir / f".{k}.{os.getpid()}.tmp"
-        save_file({"tokens": v[0].contiguous(), "mask": v[1].to(torch.uint8).contiguous(),
-                   "pooled": v[2].contiguous()}, str(tmp))
-        from .._io import default_mode
+        try:
+            self.cache_dir.mkdir(parents=True, exist_ok=True)
+            save_file({"tokens": v[0].contiguous(), "mask": v[1].to(torch.uint8).contiguous(),
+                       "pooled": v[2].contiguous()}, str(tmp))
+            from .._io import default_mode
 
-        os.chmod(tmp, default_mode())  # the user's umask (safetensors writes 0600)
-        os.replace(tmp, self.cache_dir / f"{k}.safetensors")
+            os.chmod(tmp, default_mode())  # the user's umask (safetensors writes 0600)
+            os.replace(tmp, self.cache_dir / f"{k}.safetensors")
+        except Exception as e:  # a cache that cannot be written (a full disk) is only slower: not an error
+            import contextlib
+            import logging
+
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            logging.getLogger(__name__).info("text cache not written (%s)", str(e).splitlines()[0][:120])
 
     def embed(self, prompts: list[str]) -> TextEmbedding:
         prompts = _check_prompts(prompts)

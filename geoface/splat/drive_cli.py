@@ -37,6 +37,6 @@ def add_export_parser(hs, common, what: str, drive_help: str, required: bool) ->
     x.add_argument("--drive", required=required, default=None, help=drive_help)
     x.add_argument("--frames", default=None, metavar="T|A:B[:S]|all",
                    help="which frames (default: frame 0 into a .ply, every frame into a folder)")
-    x.add_argument("--fps", type=number(float, 0, 240, lo_open=True), default=25.0, help="frame rate of a WAV drive (25)")
+    x.add_argument("--fps", type=number(float, 0.1, 240), default=25.0, help="frame rate of a WAV drive (25)")
     x.add_argument("-o", "--output", required=True, metavar="OUT.ply|OUT_DIR")
     x.set_defaults(func=cmd_avatar_export)

@@ -277,7 +277,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     r.add_argument("usage_dir", metavar="USAGE_DIR")
     r.add_argument("-o", "--output", default=None, metavar="OUT_DIR", help="write the frames as OUT_DIR/frames/*.png")
     r.add_argument("--video", default=None, metavar="OUT.mp4", help="write an H.264 MP4 (with USAGE_DIR/audio.wav if any)")
-    r.add_argument("--fps", type=number(float, 0, 240, lo_open=True), default=None,
+    r.add_argument("--fps", type=number(float, 0.1, 240), default=None,
                    help="frame rate of the video (default: the usage folder's, else 25)")
     _add_usage_pose_options(r)
     r.add_argument("--no-composite", action="store_true", help="write the avatar renders, not frames with the HMD region replaced")

@@ -104,6 +104,17 @@ class HMDVideo:
         return self.landmarks[t][idx]
 
 
+def _stack_frames(paths, rgb=True) -> np.ndarray:
+    """The images of ``paths`` as one array; images of different sizes (or channel counts) are a
+    one-line SplatError naming the first that differs."""
+    imgs = [_read_png(p, rgb) for p in paths]
+    for p, a in zip(paths, imgs):
+        if a.shape != imgs[0].shape:
+            raise SplatError(f"{p}: {a.shape[1]}×{a.shape[0]}, but {Path(paths[0]).name} is "
+                             f"{imgs[0].shape[1]}×{imgs[0].shape[0]}; every frame must have one size")
+    return np.stack(imgs)
+
+
 def _read_png(path: Path, rgb=True) -> np.ndarray:
     import cv2
 
@@ -228,7 +239,7 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
         raise SplatError(f"{folder}/landmarks.json: missing landmarks {missing}")
     if frames is not None:
         pts = pts[frames]
-    imgs = np.stack([_read_png(p) for p in paths])
+    imgs = _stack_frames(paths)
     if imgs.shape[1:3] != (cam.height, cam.width):
         raise SplatError(f"{folder}: frames are {imgs.shape[2]}×{imgs.shape[1]} but camera.json says "
                          f"{cam.width}×{cam.height}")
@@ -237,7 +248,7 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
         ps = [folder / sub / p.name for p in paths]
         if not all(p.is_file() for p in ps):
             return None
-        a = np.stack([_read_png(p, rgb) for p in ps])
+        a = _stack_frames(ps, rgb)
         if a.shape[1:3] != imgs.shape[1:3]:
             raise SplatError(f"{folder}/{sub}: images differ in size from frames/")
         return a

@@ -126,7 +126,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     s = hs.add_parser("synth", parents=[common], help="write a synthetic talking-head data folder")
     s.add_argument("output", metavar="OUT_DIR")
     s.add_argument("--seconds", type=number(float, 0, 3600, lo_open=True), default=8.0)
-    s.add_argument("--fps", type=number(float, 0, 240, lo_open=True), default=25.0)
+    s.add_argument("--fps", type=number(float, 0.1, 240), default=25.0)
     s.add_argument("--res", type=number(int, 16, 4096), default=128)
     s.add_argument("--vertices", type=number(int, 1000, 200_000), default=6000, help="template vertices (Gaussians)")
     s.add_argument("--head", choices=("procedural", "ict"), default="procedural",
@@ -166,7 +166,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     a.add_argument("model_dir", metavar="MODEL_DIR")
     a.add_argument("--audio", required=True, help="WAV file, or .npy/.npz per-frame features")
     a.add_argument("--poses", default=None, help=".npz with rot [T, J, 3], transl [T, 3], expr [T, K]")
-    a.add_argument("--fps", type=number(float, 0, 240, lo_open=True), default=25.0)
+    a.add_argument("--fps", type=number(float, 0.1, 240), default=25.0)
     a.add_argument("-o", "--output", default=None, metavar="OUT_DIR", help="write the frames as OUT_DIR/frames/*.png")
     a.add_argument("--video", default=None, metavar="OUT.mp4",
                    help="write an H.264 MP4 at --fps, with the speech when --audio is a WAV")

@@ -40,7 +40,7 @@ import numpy as np
 
 from geoface.nn.camera import Camera, look_at
 from geoface.splat.errors import SplatError
-from geoface.splat.hfm_data import IBUG68_NAMES, _camera_from_json, _read_png, _write_png, camera_to_json, read_landmarks
+from geoface.splat.hfm_data import IBUG68_NAMES, _camera_from_json, _stack_frames, _write_png, camera_to_json, read_landmarks
 from geoface.splat.template import Template
 
 __all__ = ["TalkingData", "load_talking", "load_tracked", "make_synthetic_talking", "speech_like",
@@ -119,7 +119,7 @@ def load_talking(folder) -> TalkingData:
     if not src.is_file():
         raise SplatError(f"{folder}: needs audio.wav or features.npy")
     A = audio_features(src, len(paths), fps)
-    imgs = np.stack([_read_png(p) for p in paths])
+    imgs = _stack_frames(paths)
     if imgs.shape[1:3] != (cam.height, cam.width):
         raise SplatError(f"{folder}: frames are {imgs.shape[2]}×{imgs.shape[1]}, camera.json says {cam.width}×{cam.height}")
     meta["_folder"] = str(folder)
