@@ -117,6 +117,24 @@ def clean_stale_temporaries(target: str | os.PathLike) -> int:
     return removed
 
 
+def clean_tree_temporaries(root: str | os.PathLike, depth: int = 2) -> int:
+    """:func:`clean_stale_temporaries` for every temporary of a dead geoface run found in
+    ``root`` and its folders down to ``depth`` levels (a dataset's item folders); returns how
+    many were removed."""
+    root = Path(root)
+    removed = 0
+    if not root.is_dir() or root.is_symlink():
+        return 0
+    for p in list(root.iterdir()):
+        name = p.name
+        if name.startswith(".") and f".{_TAG}-" in name:
+            target = name[1: name.index(f".{_TAG}-")]
+            removed += clean_stale_temporaries(root / target)
+        elif depth > 1 and p.is_dir() and not p.is_symlink():
+            removed += clean_tree_temporaries(p, depth - 1)
+    return removed
+
+
 def _temp_prefix(target: Path) -> str:
     return f".{target.name}.{_TAG}-{os.getpid()}-"
 

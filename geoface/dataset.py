@@ -505,6 +505,9 @@ def _build(sources, out_dir, opts: DatasetOptions, lab: dict | None, source: dic
                         + (f" - {row['error']}" if row["error"] else ""), quiet=quiet)
         except BaseException:
             close(interrupted=True)  # SIGINT, SIGTERM, a driver error: the workers stop now
+            from ._io import clean_tree_temporaries
+
+            clean_tree_temporaries(out, depth=3)  # what the stopped workers were writing
             raise
         close()
     seconds = time.perf_counter() - t0
