@@ -80,13 +80,42 @@ def summary(rows) -> str:
     return "\n".join(out)
 
 
+def per_base(rows) -> str:
+    """One row per source mesh and resolution: its cases (conventions and stress kinds), the
+    worst and median whole-mesh Hausdorff (worst corner set of each case), the worst face
+    Hausdorff, and where the worst case came from."""
+    out = ["| mesh | N | cases | all 8 sets | flips | whole Hausdorff: median / worst (case) | face Hausdorff: worst (case) | upright |",
+           "|---|---|---|---|---|---|---|---|"]
+    import statistics
+
+    keys = sorted({(r["base"], r["res"]) for r in rows}, key=lambda k: (k[1], k[0].startswith("ict"), k[0]))
+    for base, res in keys:
+        rs = [r for r in rows if r["base"] == base and r["res"] == res]
+        ok = [r for r in rs if r["ok"]]
+        full = sum(1 for r in ok if not r["failed_sets"])
+        hw = max(ok, key=lambda r: r["hausdorff"]) if ok else None
+        fr = [r for r in ok if r["face_hausdorff"] is not None]
+        fw = max(fr, key=lambda r: r["face_hausdorff"]) if fr else None
+        heads = [r for r in ok if "upright_problems" in r]
+        up = f"{sum(1 for r in heads if not r['upright_problems'])} of {len(heads)}" if heads else "–"
+        med = statistics.median(r["hausdorff"] for r in ok) if ok else None
+        out.append(f"| {base} | {res} | {len(rs)} | {full} | {sum(r['flipped'] for r in ok)} | "
+                   f"{_pct(med)} / {_pct(hw['hausdorff']) if hw else '–'} ({hw['case'] if hw else ''}) | "
+                   f"{_pct(fw['face_hausdorff']) + ' (' + fw['case'] + ')' if fw else '–'} | {up} |")
+    return "\n".join(out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("files", nargs="+")
     ap.add_argument("--summary-only", action="store_true")
+    ap.add_argument("--per-mesh", action="store_true", help="also the table of one row per source mesh")
     args = ap.parse_args()
     rows = load(args.files)
     print(summary(rows))
+    if args.per_mesh:
+        print()
+        print(per_base(rows))
     if not args.summary_only:
         print()
         print(table(rows))
