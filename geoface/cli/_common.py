@@ -13,19 +13,8 @@ _AXIS_OPTIONS = ("--up", "--front")
 def one_line(message) -> str:
     """A message as one line: line breaks and other control characters (a file name may hold
     them) written as escapes, so that an error is always exactly one line."""
-    out = []
-    for ch in str(message):
-        if ch == "\n":
-            out.append("\\n")
-        elif ch == "\r":
-            out.append("\\r")
-        elif ch == "\t":
-            out.append(" ")
-        elif ord(ch) < 32 or ch == "\x7f":
-            out.append(f"\\x{ord(ch):02x}")
-        else:
-            out.append(ch)
-    return "".join(out).strip()
+    named = {"\n": "\\n", "\r": "\\r", "\t": " "}
+    return "".join(named.get(c, f"\\x{ord(c):02x}" if ord(c) < 32 or c == "\x7f" else c) for c in str(message)).strip()
 
 
 class _Parser(argparse.ArgumentParser):

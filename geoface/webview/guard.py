@@ -15,7 +15,8 @@ from ..errors import GeofaceError
 
 __all__ = ["md_text", "check_host", "origin_allowed", "guarded_serve"]
 
-_MD_SPECIAL = set("\\`*_{}[]()#+-.!|~<>&\"'")
+_MD_SPECIAL = set("\\`*_{}[]()#+-.!|~")
+_HTML = {"<": "&lt;", ">": "&gt;", "&": "&amp;", '"': "&quot;", "'": "&#39;"}
 
 
 def md_text(s) -> str:
@@ -23,25 +24,14 @@ def md_text(s) -> str:
     Markdown's are backslash-escaped, so a file named ``<img src=x onerror=...>.obj`` or
     ``[x](javascript:...)`` shows as those characters and nothing else; line breaks become
     spaces."""
-    out = []
-    for ch in str(s).replace("\r", " ").replace("\n", " "):
-        if ch == "<":
-            out.append("&lt;")
-        elif ch == ">":
-            out.append("&gt;")
-        elif ch == "&":
-            out.append("&amp;")
-        elif ch == '"':
-            out.append("&quot;")
-        elif ch == "'":
-            out.append("&#39;")
-        elif ch in _MD_SPECIAL:
-            out.append("\\" + ch)
-        elif ord(ch) < 32 or ch == "\x7f":
-            out.append(" ")
-        else:
-            out.append(ch)
-    return "".join(out)
+    def esc(ch: str) -> str:
+        if ch in _HTML:
+            return _HTML[ch]
+        if ch in _MD_SPECIAL:
+            return "\\" + ch
+        return " " if ord(ch) < 32 or ch == "\x7f" else ch
+
+    return "".join(map(esc, str(s)))
 
 
 def check_host(host: str) -> str:
