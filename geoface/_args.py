@@ -6,33 +6,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["number", "SEED", "add_json", "json_to_stdout", "write_json", "axis"]
-
-
-def axis(auto: bool = True):
-    """An argparse ``type`` for ``--up`` / ``--front``: ``auto`` (where ``auto`` allows it),
-    ``+x``, ``-y``, ``z``, ... or three numbers, checked when the command line is read (a
-    dataset build never starts with an axis no item can use).
-
-    >>> axis()("auto"), axis()("-z"), axis()("0,0,1")
-    ('auto', '-z', '0,0,1')
-    """
-    import argparse
-
-    def parse(text: str) -> str:
-        from .errors import GeofaceError
-        from .mesh.frame import parse_up
-
-        if auto and text.strip().lower() == "auto":
-            return "auto"
-        try:
-            parse_up(text)
-        except GeofaceError as e:
-            raise argparse.ArgumentTypeError(("auto, " if auto else "") + str(e).replace("up must be ", "")) from None
-        return text
-
-    parse.__name__ = "axis"
-    return parse
+__all__ = ["number", "SEED", "add_json", "json_to_stdout", "write_json"]
 
 
 def number(kind: type = float, lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,

@@ -190,6 +190,13 @@ def atomic_dir(target: str | os.PathLike, *, overwrite: bool = False):
         raise
 
 
+def output_folder(out, force: bool):
+    """A context giving the temporary folder to write an ``-o OUT_DIR`` into (renamed onto
+    ``OUT_DIR`` when complete, so that a kill or a ``--force`` rerun never leaves a mix of runs;
+    an occupied ``OUT_DIR`` needs ``force``), or None when ``out`` is None."""
+    return contextlib.nullcontext(None) if out is None else atomic_dir(out, overwrite=force)
+
+
 def _chmod_tree(root: Path) -> None:
     dmode, fmode = default_mode(True), default_mode(False)
     os.chmod(root, dmode)

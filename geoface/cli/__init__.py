@@ -13,9 +13,9 @@ import warnings
 
 from .. import __version__
 from ..errors import GeofaceError, GeofaceWarning
-from .._args import SEED, add_json, axis, number
+from .._args import SEED, add_json, number
 
-from ._common import one_line, _Parser, _guard_by_table
+from ._common import _Parser, _guard_by_table, axis, one_line
 from .dataset import _dataset_options, cmd_dataset_build, cmd_dataset_ict
 from .geometry import cmd_convert, cmd_inspect, cmd_param, cmd_reconstruct, cmd_repair, cmd_view
 from .synth import SURFACES, cmd_synth_head, cmd_synth_ict, cmd_synth_pack_ict, cmd_synth_surface

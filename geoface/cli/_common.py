@@ -17,6 +17,30 @@ def one_line(message) -> str:
     return "".join(named.get(c, f"\\x{ord(c):02x}" if ord(c) < 32 or c == "\x7f" else c) for c in str(message)).strip()
 
 
+def axis(auto: bool = True):
+    """An argparse ``type`` for ``--up`` / ``--front``: ``auto`` (where ``auto`` allows it),
+    ``+x``, ``-y``, ``z``, ... or three numbers, checked when the command line is read (a
+    dataset build never starts with an axis no item can use).
+
+    >>> axis()("auto"), axis()("-z"), axis()("0,0,1")
+    ('auto', '-z', '0,0,1')
+    """
+    def parse(text: str) -> str:
+        from ..errors import GeofaceError
+        from ..mesh.frame import parse_up
+
+        if auto and text.strip().lower() == "auto":
+            return "auto"
+        try:
+            parse_up(text)
+        except GeofaceError as e:
+            raise argparse.ArgumentTypeError(("auto, " if auto else "") + str(e).replace("up must be ", "")) from None
+        return text
+
+    parse.__name__ = "axis"
+    return parse
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, exit code 2 (argparse's own code for usage errors)
         self.exit(2, f"{self.prog}: error: {one_line(message)}\n")

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .._args import axis, number
+from .._args import number
+from ._common import axis
 
 from ._common import _guard
 

@@ -35,7 +35,6 @@ import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from .._io import atomic_write_text
@@ -98,47 +97,28 @@ class DDPMConfig:
     lr_schedule: str = "constant"
 
     def __post_init__(self):
-        import math
+        from geoface.nn.config import check_ranges
 
         def need(ok, what, value):
             if not ok:
                 raise CheckpointError(f"{what}; got {value!r}")
 
-        def integer(name, lo, hi):
-            v = getattr(self, name)
-            need(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and lo <= v <= hi,
-                 f"{name} must be an integer in {lo}..{hi}", v)
-
-        def real(name, lo, hi, lo_open=False, hi_open=False):
-            v = getattr(self, name)
-            ok = isinstance(v, (int, float, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
-            ok = ok and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
-            need(ok, f"{name} must be a number in {'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}", v)
-
-        integer("res", 4, 8192)
-        integer("channels", 1, 4096)
-        integer("layers_per_block", 1, 64)
-        integer("attention_head_dim", 1, 4096)
-        integer("norm_num_groups", 1, 4096)
-        integer("text_max_length", 1, 4096)
-        integer("cross_attention_dim", 1, 65536)
-        integer("num_train_timesteps", 2, 1_000_000)
-        integer("batch_size", 1, 1 << 20)
-        integer("steps", 0, 1 << 40)
-        integer("checkpoint_every", 1, 1 << 40)
-        real("cfg_dropout", 0.0, 1.0)
-        real("lr", 0.0, 10.0, lo_open=True)
-        real("weight_decay", 0.0, 100.0)
-        real("ema_decay", 0.0, 1.0, hi_open=True)
+        check_ranges(self, ints={"res": (4, 8192), "channels": (1, 4096), "layers_per_block": (1, 64),
+                                 "attention_head_dim": (1, 4096), "norm_num_groups": (1, 4096),
+                                 "text_max_length": (1, 4096), "cross_attention_dim": (1, 65536),
+                                 "num_train_timesteps": (2, 1_000_000), "batch_size": (1, 1 << 20),
+                                 "steps": (0, 1 << 40), "checkpoint_every": (1, 1 << 40)},
+                     reals={"cfg_dropout": (0.0, 1.0, False, False), "lr": (0.0, 10.0, True, False),
+                            "weight_decay": (0.0, 100.0, False, False), "ema_decay": (0.0, 1.0, False, True)})
         boc = self.block_out_channels
         need(isinstance(boc, (tuple, list)) and 1 <= len(boc) <= 12
-             and all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and 1 <= c <= 65536 for c in boc),
+             and all(isinstance(c, int) and not isinstance(c, bool) and 1 <= c <= 65536 for c in boc),
              "block_out_channels must be 1 to 12 positive integers", boc)
         need(all(c % self.norm_num_groups == 0 for c in boc),
              f"every block_out_channels entry must be a multiple of norm_num_groups ({self.norm_num_groups})", boc)
         if self.attention_levels is not None:
             lv = self.attention_levels
-            need(isinstance(lv, (tuple, list)) and all(isinstance(k, (int, np.integer)) and 0 <= k < len(boc) for k in lv),
+            need(isinstance(lv, (tuple, list)) and all(isinstance(k, int) and 0 <= k < len(boc) for k in lv),
                  f"attention_levels must be levels in 0..{len(boc) - 1}", lv)
         need(isinstance(self.modalities, (tuple, list)) and 1 <= len(self.modalities) <= 8
              and all(isinstance(m, str) for m in self.modalities) and len(set(self.modalities)) == len(self.modalities),

@@ -99,15 +99,13 @@ class TextureTrainConfig:
     def __post_init__(self):
         import math
 
+        from geoface.nn.config import check_ranges
+
         def bad(name, want):
             raise CheckpointError(f"{name} must be {want}; got {getattr(self, name)!r}")
 
-        for name, lo, hi in (("gde_res", 8, 16384), ("k", 1, 64), ("batch", 1, 1 << 16), ("hfdr_patches", 1, 1 << 16)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-                bad(name, f"an integer in {lo}..{hi}")
-        if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and 0 < self.lr <= 10):
-            bad("lr", "a number in (0, 10]")
+        check_ranges(self, ints={"gde_res": (8, 16384), "k": (1, 64), "batch": (1, 1 << 16), "hfdr_patches": (1, 1 << 16)},
+                     reals={"lr": (0.0, 10.0, True, False)})
         if not (isinstance(self.epochs, (tuple, list)) and len(self.epochs) == 3
                 and all(isinstance(e, int) and not isinstance(e, bool) and 0 <= e <= 1_000_000 for e in self.epochs)):
             bad("epochs", "three non-negative integers")

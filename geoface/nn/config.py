@@ -174,3 +174,20 @@ def resolve_device(name, error=None):
     if ":" in name and int(name[5:]) >= torch.cuda.device_count():
         raise error(f"--device {name}: there are {torch.cuda.device_count()} CUDA devices")
     return name
+
+
+def check_ranges(obj, *, ints: dict = (), reals: dict = (), error: type = CheckpointError) -> None:
+    """Every named field of ``obj`` within its range, else ``error`` naming it: ``ints``
+    ``{name: (lo, hi)}`` (integers, not bools), ``reals`` ``{name: (lo, hi, lo_open, hi_open)}``
+    (finite numbers)."""
+    for name, (lo, hi) in dict(ints).items():
+        v = getattr(obj, name)
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise error(f"{name} must be an integer in {lo}..{hi}; got {v!r}"[:200])
+    for name, (lo, hi, lo_open, hi_open) in dict(reals).items():
+        v = getattr(obj, name)
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        ok = ok and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
+        if not ok:
+            raise error(f"{name} must be a number in {'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}; "
+                        f"got {v!r}"[:200])

@@ -21,7 +21,7 @@ def cmd_avatar_export(args) -> int:
     if out.suffix.lower() == ".ply":
         paths = export_frames(drive, out, frames)
     else:
-        from .hfm_cli import output_folder
+        from geoface._io import output_folder
 
         with output_folder(out, args.force) as tmp:  # every PLY at once, or none
             paths = [out / Path(p).relative_to(tmp) for p in export_frames(drive, tmp, frames)]

@@ -19,17 +19,6 @@ def _quiet(args) -> bool:
     return bool(getattr(args, "quiet", False) or QUIET)
 
 
-def output_folder(out, force: bool):
-    """A context giving the temporary folder to write an ``-o OUT_DIR`` into (renamed onto
-    ``OUT_DIR`` when complete, so that a kill or a ``--force`` rerun never leaves a mix of runs;
-    an occupied ``OUT_DIR`` needs ``--force``), or None when there is no ``-o``."""
-    import contextlib
-
-    from geoface._io import atomic_dir
-
-    return contextlib.nullcontext(None) if out is None else atomic_dir(out, overwrite=force)
-
-
 def _train_device(args) -> str:
     """``--device`` of a training command: as given, else cuda when torch sees a GPU."""
     if args.device is not None:
@@ -148,6 +137,8 @@ def cmd_hmd_remove(args) -> int:
     video = load_video(args.usage_dir)
     out = None if args.output is None else Path(args.output)
     composite = not args.no_composite
+    from geoface._io import output_folder
+
     with output_folder(out, args.force) as tmp:  # the frames appear all at once, or not at all
         renders, times = remove_hmd(model, video, out_dir=tmp, composite=composite, poses=args.poses)
     import numpy as np
