@@ -309,6 +309,7 @@ def turntable(mesh_or_VF, path, *, seconds: float = 6.0, fps: float = 25.0, wind
                 d = np.cos(el) * (np.cos(a) * fr.front + np.sin(a) * fr.right) + np.sin(el) * fr.up
                 pl.camera_position = [tuple(fr.center + 2.6 * fr.radius * d), tuple(fr.center), tuple(fr.up)]
                 pl.reset_camera_clipping_range()
+                pl.render()  # pyvista renders only on the first screenshot unless asked after the camera moves
                 yield np.asarray(pl.screenshot(return_img=True))[..., :3]
         finally:
             pl.close()

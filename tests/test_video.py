@@ -67,3 +67,43 @@ def test_turntables_of_a_mesh_and_of_splats(tmp_path, capsys):
     assert green.mean() > 0.1  # the splats are drawn, in their colour, in the middle of the picture
     assert main(["view", str(ply), "--screenshot", str(tmp_path / "gs.png")]) == 2
     assert "Gaussian splats" in capsys.readouterr().err
+
+
+def _frames(path):
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(path))
+    w, h = next(reader)["size"]
+    return [np.frombuffer(f, np.uint8).reshape(h, w, 3).astype(int) for f in reader]
+
+
+def _width(img) -> int:
+    """Columns where the picture differs from its background (the top-left pixel)."""
+    cols = (np.abs(img - img[0, 0]).sum(-1) > 40).any(0)
+    return int(cols.sum())
+
+
+def test_a_turntable_turns(tmp_path):
+    """What the video shows: the frames change, a quarter turn shows the profile of a slab that
+    is four times wider than deep (its silhouette about a quarter, or four times, as wide), half a
+    turn the back (as wide as the front), and the last frame is nearly the first again."""
+    pytest.importorskip("pyvista")
+    import trimesh
+
+    from geoface.mesh.io import save_mesh
+
+    box = trimesh.creation.box(extents=(2.0, 1.0, 0.5))  # wide along x, shallow along z
+    path = tmp_path / "slab.obj"
+    save_mesh(path, V=np.asarray(box.vertices), F=np.asarray(box.faces))
+    out = tmp_path / "turn.mp4"
+    assert main(["view", str(path), "--turntable", str(out), "--seconds", "0.64", "--size", "160,120", "--up", "+y"]) == 0
+    fr = _frames(out)
+    n = len(fr)
+    assert n == 16
+    w = [_width(f) for f in fr]
+    assert np.abs(fr[n // 4] - fr[0]).mean() > 5, "the quarter-turn frame is the first one again"
+    # the front the viewer picks on a box may be its wide or its narrow side: either way a quarter
+    # turn changes the silhouette's width by about 4x (perspective and the 10° elevation aside)
+    assert not 0.5 < w[n // 4] / w[0] < 2.0, f"no profile at a quarter turn: widths {w}"
+    assert abs(w[n // 2] - w[0]) <= 0.15 * w[0], f"the back is not as wide as the front: widths {w}"
+    assert w[-1] > 0.8 * w[0]
