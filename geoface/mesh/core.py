@@ -396,6 +396,23 @@ def duplicate_faces(F: np.ndarray) -> np.ndarray:
     return dup
 
 
+def double_sided_faces(F: np.ndarray) -> np.ndarray:
+    """Boolean mask of faces whose vertex set also occurs with the opposite orientation (a
+    triangle and its reverse: a sheet of zero thickness, as fins and double-sided exports make)."""
+    if len(F) == 0:
+        return np.zeros(0, bool)
+    F = np.asarray(F, np.int64)
+    order = np.argsort(F, axis=1)
+    key = np.take_along_axis(F, order, 1)
+    # the orientation: whether sorting the corners is an even permutation (a rotation) or odd
+    even = ((order[:, 0] < order[:, 1]) ^ (order[:, 1] < order[:, 2]) ^ (order[:, 0] < order[:, 2])).astype(np.int8)
+    _, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    both = np.zeros(inv.max() + 1, np.int8)
+    np.bitwise_or.at(both, inv, np.where(even == 1, 1, 2).astype(np.int8))
+    return both[inv] == 3
+
+
 def signed_volume(V: np.ndarray, F: np.ndarray) -> float:
     """Signed volume enclosed by a closed, consistently oriented mesh (positive = outward)."""
     a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]

@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 from ..mesh.core import (
     bbox_diagonal,
     check_mesh,
+    double_sided_faces,
     duplicate_faces,
     edge_keys,
     edge_topology,
@@ -65,6 +66,10 @@ def _degenerate_mask(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return rep | (A <= np.maximum(tol.area_eps * diag * diag, tol.cap_eps * lmax2))
 
 
+#: double-sided faces (a triangle and its reverse) up to this share of all faces are fins, removed
+FIN_SHARE = 0.1
+
+
 def remove_degenerate_faces(V, F, max_rounds: int = 8) -> StepResult:
     """Remove faces with repeated indices and duplicate faces; repair zero-area "caps".
 
@@ -79,7 +84,20 @@ def remove_degenerate_faces(V, F, max_rounds: int = 8) -> StepResult:
     changes = []
     rep = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
     dup = duplicate_faces(F) & ~rep
-    keep = ~(rep | dup)
+    # a triangle together with its reverse is a sheet of no thickness: on a few faces a fin
+    # hanging off the surface (removed, both sides); on many, a double-sided export (one kept)
+    fin = double_sided_faces(F) & ~rep
+    if fin.any():
+        # a fin hangs off the surface: one of its corners belongs to no face outside the sheet;
+        # a reversed copy of a face inside the surface (all corners shared) is only a duplicate
+        others = np.bincount(F[~fin & ~rep].ravel(), minlength=len(V))
+        fin &= (others[F] == 0).any(1)
+    if fin.any() and fin.sum() <= FIN_SHARE * len(F):
+        dup &= ~fin
+        changes.append({"step": "remove_fins", "removed": int(fin.sum())})
+    else:
+        fin[:] = False
+    keep = ~(rep | dup | fin)
     if rep.any():
         changes.append({"step": "remove_degenerate_faces", "repeated_index": int(rep.sum())})
     if dup.any():

@@ -94,3 +94,17 @@ def test_clean_is_idempotent_and_a_noop_on_clean_input(fin):
     once = clean(*fin)
     twice = clean(once.V, once.F)
     assert twice.changes == []
+
+
+def test_fins_are_removed_but_a_double_sided_export_is_kept():
+    V, F = square_grid(4)
+    apex = len(V)
+    V2 = np.vstack([V, [[0.5, 0.5, 0.3]]])
+    a, b = int(F[5, 0]), int(F[5, 1])
+    F2 = np.vstack([F, [[a, b, apex], [b, a, apex]]])  # a sheet hanging off edge (a, b), both sides
+    res = remove_degenerate_faces(V2, F2)
+    assert len(res.F) == len(F) and apex not in res.F
+    assert any(c["step"] == "remove_fins" and c["removed"] == 2 for c in res.changes)
+    both = np.vstack([F, F[:, ::-1]])  # every face also reversed: a double-sided export, not fins
+    res = remove_degenerate_faces(V, both)
+    assert len(res.F) == len(F) and not any(c["step"] == "remove_fins" for c in res.changes)
