@@ -174,6 +174,38 @@ def test_web_view_of_a_geometry_image_folder(browser, tmp_path):
     assert sat > 0.03 and drawn > 0.1, (sat, drawn)
 
 
+def test_geometry_image_tiles_stand_upright(browser, tmp_path):
+    """The image tiles are shown as the PNGs are (row 0 at the top): a red marker in the
+    position image's top-left corner and a blue one in its bottom-right appear top-left and
+    bottom-right of each other in the page."""
+    import cv2
+
+    from tests.learn.conftest import make_gimage_dataset
+
+    root = make_gimage_dataset(tmp_path / "gi", n_items=1, N=16)
+    folder = root / "head_000" / "aug0"
+    pos = cv2.imread(str(folder / "position.png"), cv2.IMREAD_UNCHANGED)  # BGR, 16-bit
+    pos[:4, :4] = (0, 0, 65535)  # red
+    pos[-4:, -4:] = (65535, 0, 0)  # blue
+    cv2.imwrite(str(folder / "position.png"), pos)
+    mask = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_GRAYSCALE)
+    mask[:4, :4] = mask[-4:, -4:] = 255
+    cv2.imwrite(str(folder / "mask.png"), mask)
+    proc, url, lines = _serve(folder)
+
+    def markers(c):
+        red = (c[..., 0] > 180) & (c[..., 1] < 70) & (c[..., 2] < 70)
+        blue = (c[..., 2] > 180) & (c[..., 0] < 70) & (c[..., 1] < 70)
+        return red, blue
+
+    canvas = _look(browser, url, lambda c: all(m.sum() > 20 for m in markers(c)))
+    _finish(proc, browser, lines)
+    red, blue = markers(canvas)
+    assert red.sum() > 20 and blue.sum() > 20, (red.sum(), blue.sum())
+    (ry, rx), (by, bx) = (np.argwhere(m).mean(0) for m in (red, blue))
+    assert ry < by and rx < bx, f"the tile is not upright: red marker at {(ry, rx)}, blue at {(by, bx)}"
+
+
 def test_web_view_of_gaussian_splats(browser, tmp_path):
     from geoface.splat.gaussians import Gaussians
     from geoface.splat.ply import save_ply

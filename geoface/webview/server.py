@@ -233,7 +233,10 @@ class WebView:
         def draw(_=None):
             if "img" in handle:
                 handle.pop("img").remove()
-            handle["img"] = srv.scene.add_image(f"{node}/image", tiles[which.value], size, size, format="png",
+            # viser draws an image's first row at the bottom of this plane (its +y is up): give the
+            # rows bottom first, so that the PNG's row 0 is at the top, as in the file
+            img = np.ascontiguousarray(tiles[which.value][::-1])
+            handle["img"] = srv.scene.add_image(f"{node}/image", img, size, size, format="png",
                                                 wxyz=wxyz, position=tuple(float(v) for v in centre))
 
         which.on_update(draw)
