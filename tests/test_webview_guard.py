@@ -100,3 +100,12 @@ def test_live_server_refuses_other_origins_and_stops_on_sigterm():
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         s.bind(("127.0.0.1", port))
         s.listen()
+
+
+def test_the_server_says_one_line():
+    """No viser banner, no "Server stopped": the URL line and nothing else."""
+    pytest.importorskip("viser")
+    r = subprocess.run([sys.executable, "-m", "geoface", "view", "--web", str(SPOT), "--port", str(_free_port()),
+                        "--exit-after", "1"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stderr == ""
+    assert len(r.stdout.strip().splitlines()) == 1 and "http://127.0.0.1:" in r.stdout, r.stdout

@@ -55,7 +55,8 @@ class WebView:
             it.extra["frame"] = self._frame_of(it)
         self.frame = self.items[0].extra["frame"]
         viser = _viser()
-        with guarded_serve(host):  # same-origin WebSocket handshakes only, Host naming this machine
+        self._quiet = quiet
+        with guarded_serve(host), self._hush():  # same-origin WebSocket handshakes only, Host naming this machine
             self.server = viser.ViserServer(host=host, port=int(port), verbose=not quiet)
         self._stop = threading.Event()
         self._players: list = []
@@ -330,8 +331,18 @@ class WebView:
             if previous is not None:
                 signal.signal(signal.SIGTERM, previous)
 
+    def _hush(self):
+        """viser prints its banner and "Server stopped" on stdout whatever ``verbose`` says:
+        swallowed when quiet (the CLI prints the URL itself)."""
+        import contextlib
+        import io
+
+        return contextlib.redirect_stdout(io.StringIO()) if self._quiet else contextlib.nullcontext()
+
     def stop(self) -> None:
         self._stop.set()
-        self.server.stop()
+        with self._hush():
+            self.server.stop()
+            time.sleep(0.2)  # (the server thread says "stopped" as it ends)
 
 
