@@ -318,6 +318,9 @@ def test_texture_and_camera_and_gimage_values_are_checked(tmp_path):
     ("param", str(SPOT), "-o", "x.stl"),
     ("dataset", "build", ".", "out", "--up", "w"),
     ("view", "--web", str(SPOT), "--host", "not a host"),
+    ("repair", str(SPOT), "-o", "x.fbx"),
+    ("reconstruct", str(Path(__file__).parent), "-o", "rec.usd"),
+    ("inspect", str(Path(__file__).parent)),
 ])
 def test_odd_values_are_one_line_before_any_work(argv, tmp_path):
     code, _, err = run(*argv, cwd=tmp_path)

@@ -109,3 +109,13 @@ def test_the_server_says_one_line():
                         "--exit-after", "1"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stderr == ""
     assert len(r.stdout.strip().splitlines()) == 1 and "http://127.0.0.1:" in r.stdout, r.stdout
+
+
+def test_a_busy_port_is_refused_not_exchanged():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        r = subprocess.run([sys.executable, "-m", "geoface", "view", "--web", str(SPOT), "--port", str(port),
+                            "--exit-after", "1"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and f"--port {port} is in use" in r.stderr and r.stderr.count("\n") == 1

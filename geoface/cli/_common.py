@@ -64,7 +64,9 @@ def _mesh_outputs(path) -> list:
     """A mesh output with the companion files written with it (OBJ: .mtl, texture, normal map)."""
     if path is None:
         return []
-    from ..mesh.io import companion_names
+    from ..mesh.io import _ext, companion_names
+
+    _ext(path)  # an unsupported format is refused now, not after the work
 
     return [path, *companion_names(path)]
 

@@ -168,6 +168,8 @@ def load_mesh(path: str | os.PathLike, *, weld: bool = True) -> Mesh:
     import trimesh
 
     path = Path(path)
+    if path.is_dir():
+        raise MeshFormatError(f"{path} is a folder, not a mesh file (obj, ply, off, stl, glb, gltf)")
     ext = _ext(path)
     if not path.is_file():
         raise MeshFormatError(f"no such file: {path}")

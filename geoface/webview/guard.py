@@ -13,7 +13,7 @@ from urllib.parse import urlsplit
 
 from ..errors import GeofaceError
 
-__all__ = ["md_text", "check_host", "origin_allowed", "guarded_serve"]
+__all__ = ["md_text", "check_host", "check_port", "origin_allowed", "guarded_serve"]
 
 _MD_SPECIAL = set("\\`*_{}[]()#+-.!|~")
 _HTML = {"<": "&lt;", ">": "&gt;", "&": "&amp;", '"': "&quot;", "'": "&#39;"}
@@ -32,6 +32,22 @@ def md_text(s) -> str:
         return " " if ord(ch) < 32 or ch == "\x7f" else ch
 
     return "".join(map(esc, str(s)))
+
+
+def check_port(host: str, port: int) -> int:
+    """``port`` if it is free on ``host`` (0: any free port), else a one-line GeofaceError (a busy
+    port is not silently exchanged for another)."""
+    if int(port) == 0:
+        return 0
+    infos = socket.getaddrinfo(host, int(port), type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    for family, kind, proto, _, addr in infos[:1]:
+        with socket.socket(family, kind, proto) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                s.bind(addr[:2] if family == socket.AF_INET else addr)
+            except OSError:
+                raise GeofaceError(f"--port {port} is in use on {host}; choose another (--port 0: any free port)") from None
+    return int(port)
 
 
 def check_host(host: str) -> str:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import GeofaceError
-from .guard import check_host, guarded_serve, md_text
+from .guard import check_host, check_port, guarded_serve, md_text
 from .items import (_BOUNDARY, _GREY, DEFAULT_PORT, _boundary_segments, _gimage_images, _Item, _load,
                     _trimesh, _viser, item_kind, uv_distortion_colors)
 
@@ -46,6 +46,7 @@ class WebView:
         if isinstance(port, bool) or not isinstance(port, (int, np.integer)) or not 0 <= int(port) <= 65535:
             raise GeofaceError(f"--port must be an integer in 0..65535; got {port!r}")
         host = check_host(host)
+        port = check_port(host, int(port))
         self.up = parse_up(up)
         kinds = [item_kind(p) for p in paths]
         if drive is not None and "avatar" not in kinds:
