@@ -14,11 +14,14 @@ from typing import TypeVar
 
 T = TypeVar("T")
 
-#: global switch, set by ``geoface --quiet`` and by the tests (GEOFACE_QUIET=1)
-QUIET = os.environ.get("GEOFACE_QUIET", "") not in ("", "0")
+#: global switch.  The library is quiet by default (``GEOFACE_QUIET=0`` or ``set_quiet(False)``
+#: shows its status lines and progress on stderr); the ``geoface`` command turns it off for the
+#: command's run unless ``-q`` (or ``GEOFACE_QUIET=1``) is given.
+QUIET = os.environ.get("GEOFACE_QUIET", "1") not in ("", "0")
 
 
 def set_quiet(on: bool) -> None:
+    """Silence (True) or show (False) the library's status lines and progress bars."""
     global QUIET
     QUIET = bool(on)
 

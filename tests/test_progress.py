@@ -23,3 +23,29 @@ def test_progress_is_silent_when_quiet(monkeypatch):
     monkeypatch.setattr(P, "QUIET", True)
     assert list(P.progress(range(3), "x")) == [0, 1, 2]
     assert buf.getvalue() == ""
+
+
+def test_the_library_is_quiet_by_default():
+    """A fresh interpreter without GEOFACE_QUIET: a library call prints nothing; the command
+    shows its progress (and -q silences it)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "GEOFACE_QUIET"}
+    code = ("from geoface.synth import procedural_head\nfrom geoface.repair import make_disk\n"
+            "h = procedural_head(n_vertices=2000, seed=0)\nmake_disk(h.V, h.F)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0 and r.stdout == "" and r.stderr == "", r.stderr[-500:]
+    import tempfile
+
+    d = tempfile.mkdtemp()
+    mesh = os.path.join(d, "h.obj")
+    subprocess.run([sys.executable, "-m", "geoface", "synth", "head", "-o", mesh, "--vertices", "2000"], env=env,
+                   capture_output=True, check=True, timeout=300)
+    r = subprocess.run([sys.executable, "-m", "geoface", "repair", mesh, "-o", os.path.join(d, "d.obj")], env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and "make_disk:" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "geoface", "repair", mesh, "-o", os.path.join(d, "e.obj"), "-q"], env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stderr == ""

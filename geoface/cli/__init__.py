@@ -218,10 +218,21 @@ def main(argv: list[str] | None = None) -> int:
         return int(e.code or 0) if not isinstance(e.code, str) else 2
     if not hasattr(args, "force"):
         args.force = False
-    from ..progress import set_quiet
+    import os
 
-    if args.quiet:
-        set_quiet(True)
+    from .. import progress as _progress
+
+    # the library is quiet unless asked; the command line shows progress unless -q (or
+    # GEOFACE_QUIET=1, as the tests set)
+    was_quiet = _progress.QUIET
+    _progress.set_quiet(bool(args.quiet) or os.environ.get("GEOFACE_QUIET", "") not in ("", "0"))
+    try:
+        return _run(args)
+    finally:
+        _progress.set_quiet(was_quiet)
+
+
+def _run(args) -> int:
     import signal
 
     terminated = []
