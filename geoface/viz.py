@@ -415,17 +415,21 @@ def gimage_montage(gi, *, screenshot=None, surface: bool = False, gap: int = 4, 
 
 
 def _label(tile: np.ndarray, text: str) -> np.ndarray:
-    """Write a small label in the top-left corner (only on tiles large enough to read it)."""
+    """Write a small label in the top-left corner (only on tiles large enough to read it):
+    white text on a dark box, legible on any tile (a white mask, a saturated position image)."""
     N = tile.shape[0]
     if N < 96:
         return tile
     cv2 = lazy_import("cv2", "geometry-image montage")
     out = tile.copy()
     scale = N / 512.0
-    cv2.putText(out, text, (int(8 * scale) + 2, int(28 * scale) + 8), cv2.FONT_HERSHEY_SIMPLEX, 0.8 * scale + 0.2,
-                (255, 255, 255), max(1, int(3 * scale)), cv2.LINE_AA)
-    cv2.putText(out, text, (int(8 * scale) + 2, int(28 * scale) + 8), cv2.FONT_HERSHEY_SIMPLEX, 0.8 * scale + 0.2,
-                (0, 0, 0), max(1, int(scale)), cv2.LINE_AA)
+    font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.8 * scale + 0.2, max(1, int(round(2 * scale)))
+    (w, h), base = cv2.getTextSize(text, font, size, thick)
+    pad = max(2, int(4 * scale))
+    x0, y0 = pad, pad
+    box = out[y0: y0 + h + base + 2 * pad, x0: x0 + w + 2 * pad].astype(np.float32)
+    out[y0: y0 + h + base + 2 * pad, x0: x0 + w + 2 * pad] = (box * 0.25).astype(np.uint8)
+    cv2.putText(out, text, (x0 + pad, y0 + pad + h), font, size, (255, 255, 255), thick, cv2.LINE_AA)
     return out
 
 

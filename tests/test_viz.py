@@ -293,3 +293,34 @@ def test_interactive_window_gives_back_its_last_frame(tmp_path):
     img = viz._finish(Window(), tmp_path / "w.png", off_screen=False)
     assert img.shape == (10, 12, 3) and (img == 7).all()
     assert np.array_equal(viz_read(tmp_path / "w.png"), img)
+
+
+def test_montage_labels_are_legible_on_every_tile(tmp_path):
+    """Each tile's label is white text on a dark box: in the box most pixels are dark and some
+    are white, on the saturated position tile and on the white mask tile alike; the caption
+    of `view DIR --screenshot` names only the tiles that are there."""
+    from geoface.gimage import load_gimage
+    from geoface.viz import gimage_montage
+    from tests.learn.conftest import make_gimage_dataset
+
+    root = make_gimage_dataset(tmp_path / "gi", n_items=1, N=16)
+    folder = root / "head_000" / "aug0"
+    gi = load_gimage(folder)
+    img = gimage_montage(gi, tile=256, gap=4)
+    names = [m for m in ("position", "normal", "texture") if gi.has(m)] + ["mask"]
+    assert img.shape[1] == len(names) * 256 + (len(names) - 1) * 4
+    for k, name in enumerate(names):
+        box = img[6:30, 4 + k * 260: 4 + k * 260 + 8 * len(name)].astype(int)
+        dark = (box.max(-1) < 70).mean()
+        white = (box.min(-1) > 200).mean()
+        assert dark > 0.4 and white > 0.05, (name, dark, white)
+    from geoface.cli import main
+
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["view", str(folder), "--screenshot", str(tmp_path / "m.png")]) == 0
+    caption = buf.getvalue()
+    assert ("texture" in caption) == gi.has("texture") and "mask | surface" in caption

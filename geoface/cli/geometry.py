@@ -304,7 +304,8 @@ def cmd_view(args) -> int:
         if args.uv_distortion:
             raise GeofaceError("--uv-distortion needs a mesh with UVs; a geometry-image folder has none to measure")
         mesh, face = reconstruct(gi), None
-        what = f"geometry image {gi.resolution}x{gi.resolution}: position | normal | texture | mask | surface"
+        shown = [m for m in ("position", "normal", "texture") if gi.has(m)] + ["mask", "surface"]
+        what = f"geometry image {gi.resolution}x{gi.resolution}: {' | '.join(shown)}"
         if shot is not None:
             img = viz.gimage_montage(gi, surface=True, screenshot=shot, tile=size[1])
             size = (img.shape[1], img.shape[0])
