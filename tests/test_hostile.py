@@ -370,3 +370,14 @@ def test_ddpm_train_on_a_full_disk_is_one_line_and_leaves_no_run(full_disk, tmp_
                        "--text-encoder", "hash:8", "--tiny", "--checkpoint-every", "1")
     assert one_line_error(code, err), err
     assert sorted(p.name for p in full_disk.iterdir()) == ["ballast"]
+
+
+def test_one_vocabulary_for_up():
+    """Every --up takes the same values: y, +y, -z, three numbers."""
+    from geoface.mesh.frame import parse_up
+    from geoface.repair.opening import as_axis
+
+    for a, b in (("y", "+y"), ("-z", "0,0,-1"), ("x", "+X")):
+        assert np.allclose(as_axis(a), as_axis(b)) and np.allclose(as_axis(a), parse_up(b))
+    with pytest.raises(GeofaceError):
+        as_axis("w")

@@ -24,11 +24,16 @@ AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0), "-x": 
 
 
 def as_axis(up) -> np.ndarray:
-    """Unit vector from ``"x" | "y" | "z" | "-y" ...`` or a 3-vector."""
+    """Unit vector from ``"x" | "+y" | "-z" ...``, three numbers (``"0,0,1"``) or a 3-vector:
+    the same values every ``--up`` takes."""
     if isinstance(up, str):
-        if up.lower() not in AXES:
-            raise InvalidMeshError(f"up must be one of {', '.join(AXES)} or a 3-vector; got {up!r}")
-        return np.asarray(AXES[up.lower()])
+        from ..errors import GeofaceError
+        from ..mesh.frame import parse_up
+
+        try:
+            return parse_up(up)
+        except GeofaceError as e:
+            raise InvalidMeshError(str(e)) from None
     u = np.asarray(up, np.float64).reshape(-1)
     if u.shape != (3,) or not np.isfinite(u).all() or np.linalg.norm(u) == 0:
         raise InvalidMeshError(f"up must be a non-zero 3-vector; got {up!r}")
