@@ -501,7 +501,7 @@ def _build(sources, out_dir, opts: DatasetOptions, lab: dict | None, source: dic
                     el = time.perf_counter() - t0
                     eta = el / n * (len(todo) - n)
                     log(f"dataset [{n}/{len(todo)}] {item}: {row['status']} ({row['seconds']:.1f} s; "
-                        f"{60 * n / max(el, 1e-9):.1f} items/min, ETA {_clock(eta)})"
+                        f"{60 * n / max(el, 1e-9):.1f} items/min, {_clock(eta)} left)"
                         + (f" - {row['error']}" if row["error"] else ""), quiet=quiet)
         except BaseException:
             close(interrupted=True)  # SIGINT, SIGTERM, a driver error: the workers stop now

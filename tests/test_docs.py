@@ -28,8 +28,20 @@ def test_site_builds_with_no_warnings(tmp_path):
     r = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(tmp_path / "mkdocs.yml"),
                         "-d", str(tmp_path / "site")], env=env, capture_output=True, text=True)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    assert (tmp_path / "site" / "api" / "geoface.param.ricci" / "index.html").is_file()
-    page = (tmp_path / "site" / "cli_reference" / "index.html").read_text(encoding="utf-8")
+    assert (tmp_path / "site" / "api" / "geoface.param.ricci.html").is_file()
+    page = (tmp_path / "site" / "cli_reference.html").read_text(encoding="utf-8")
     assert "geoface convert" in page and "geoface ddpm train" in page
-    ricci = (tmp_path / "site" / "api" / "geoface.param.ricci" / "index.html").read_text(encoding="utf-8")
+    ricci = (tmp_path / "site" / "api" / "geoface.param.ricci.html").read_text(encoding="utf-8")
     assert "RicciFlowSolver" in ricci
+    # the site opens from disk: every page's relative links name files that exist (no folder
+    # links, which a file:// browser shows as a directory listing)
+    import re
+    from urllib.parse import unquote
+
+    site = tmp_path / "site"
+    for html in [site / "index.html", site / "benchmarks.html", site / "api" / "geoface.param.ricci.html"]:
+        for href in set(re.findall(r'href="([^"#?]+)', html.read_text(encoding="utf-8"))):
+            if "://" in href or href.startswith(("mailto:", "data:", "javascript:")):
+                continue
+            target = (html.parent / unquote(href)).resolve()
+            assert target.is_file(), f"{html.name}: link {href} is not a file on disk"
