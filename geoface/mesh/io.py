@@ -382,6 +382,8 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
         result = export_obj(tm, include_texture=True, include_normals=False, mtl_name=mtl, return_texture=True,
                             digits=_obj_digits(mesh.V))
         text, files = result if isinstance(result, tuple) else (result, {})
+        if mesh.texture is None:  # UVs without an image: no placeholder picture (trimesh writes a 2x2 grey one)
+            files = {k: _without_maps(v) for k, v in files.items() if k.endswith(".mtl")}
         files = _name_companions(path, files)
         _refuse_existing([path, *(path.parent / n for n in files)], overwrite, OutputError)
         with _atomic_group(path, files) as (tmp_main, tmp_files):
@@ -402,6 +404,12 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
         return
     with atomic_path(path) as tmp:
         Path(tmp).write_bytes(data if isinstance(data, bytes) else data.encode())
+
+
+def _without_maps(mtl) -> bytes:
+    """An MTL without its image references (``map_*`` lines)."""
+    text = mtl.decode("utf-8") if isinstance(mtl, bytes) else mtl
+    return "".join(ln for ln in text.splitlines(True) if not ln.lstrip().lower().startswith("map_")).encode("utf-8")
 
 
 def _refuse_existing(paths, overwrite: bool, error) -> None:

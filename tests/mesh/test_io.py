@@ -163,3 +163,17 @@ def test_vertex_order_is_preserved(tmp_path, ext):
     save_mesh(tmp_path / f"o.{ext}", mesh)
     m = load_mesh(tmp_path / f"o.{ext}")
     assert np.allclose(m.V, V, atol=1e-6) and np.array_equal(m.F, F)
+
+
+def test_uvs_without_an_image_write_no_placeholder_texture(tmp_path):
+    """An OBJ with UVs and no texture gets no invented image (trimesh's 2x2 grey) and an MTL
+    without map_Kd; the UVs read back."""
+    from geoface.synth import square_grid
+
+    V, F = square_grid(5)
+    UV = V[:, :2].copy()
+    save_mesh(tmp_path / "g.obj", V=V, F=F, UV=UV)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["g.mtl", "g.obj"]
+    assert "map_" not in (tmp_path / "g.mtl").read_text()
+    m = load_mesh(tmp_path / "g.obj")
+    assert m.texture is None and m.UV is not None and len(m.UV) == len(UV)
