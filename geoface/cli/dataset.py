@@ -4,9 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .._args import number
-from ._common import axis
-
-from ._common import _guard
+from ._common import _guard, axis
 
 def _dataset_options(b) -> None:
     """The conversion and scheduling flags that ``dataset build`` and ``dataset ict`` share."""

@@ -222,7 +222,7 @@ def save_checkpoint(ckpt: Path, cfg: DDPMConfig, model, ema: EMA, opt, step: int
         (tmp / "state.json").write_text(json.dumps({"step": step, "param_groups": groups, **extra}), encoding="utf-8")
     except Exception as e:  # a full disk: OSError, or safetensors' own error type
         shutil.rmtree(tmp, ignore_errors=True)
-        msg = getattr(e, "strerror", None) or str(e).splitlines()[0][:160] if str(e) else type(e).__name__
+        msg = getattr(e, "strerror", None) or (str(e).splitlines()[0][:160] if str(e) else type(e).__name__)
         raise CheckpointError(f"{ckpt}: could not write the checkpoint ({msg}); an earlier one is kept") from None
     from .._io import _chmod_tree
 

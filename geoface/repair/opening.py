@@ -20,24 +20,18 @@ from ..mesh.core import check_mesh, edge_topology, face_areas
 from .clean import merge_vertices
 from .step import StepResult, match_provenance, select_faces
 
-AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0), "-x": (-1.0, 0.0, 0.0), "-y": (0.0, -1.0, 0.0), "-z": (0.0, 0.0, -1.0)}
-
-
 def as_axis(up) -> np.ndarray:
     """Unit vector from ``"x" | "+y" | "-z" ...``, three numbers (``"0,0,1"``) or a 3-vector:
-    the same values every ``--up`` takes."""
-    if isinstance(up, str):
-        from ..errors import GeofaceError
-        from ..mesh.frame import parse_up
+    the same values every ``--up`` takes (:func:`geoface.mesh.frame.parse_up`)."""
+    from ..errors import GeofaceError
+    from ..mesh.frame import parse_up
 
-        try:
-            return parse_up(up)
-        except GeofaceError as e:
-            raise InvalidMeshError(str(e)) from None
-    u = np.asarray(up, np.float64).reshape(-1)
-    if u.shape != (3,) or not np.isfinite(u).all() or np.linalg.norm(u) == 0:
-        raise InvalidMeshError(f"up must be a non-zero 3-vector; got {up!r}")
-    return u / np.linalg.norm(u)
+    if up is None:
+        raise InvalidMeshError("up must be an axis or a 3-vector; got None")
+    try:
+        return parse_up(up)
+    except (GeofaceError, TypeError, ValueError) as e:
+        raise InvalidMeshError(str(e) if isinstance(e, GeofaceError) else f"up must be a non-zero 3-vector; got {up!r}") from None
 
 
 def open_at_plane(V, F, *, up="y", height: float = 0.02, origin=None) -> StepResult:

@@ -90,11 +90,11 @@ def cmd_hmd_train(args) -> int:
 
     from .hfm import train_hfm
 
-    from geoface._io import atomic_dir
+    from geoface._io import output_folder
 
     out = Path(args.output)
     cfg = _config(args)
-    with atomic_dir(out, overwrite=args.force) as tmp:  # complete or absent; never into a user's files
+    with output_folder(out, args.force) as tmp:  # complete or absent; never into a user's files
         info = train_hfm(args.reg_dir, tmp, cfg, progress=None if not _quiet(args) else False, log=log,
                          poses=args.poses, device=_train_device(args))
     h = info["history"]

@@ -11,8 +11,8 @@ from geoface.errors import GeofaceError
 
 __all__ = ["register"]
 
-from geoface.splat.hfm_cli import _quiet, _train_device  # noqa: E402
-from geoface._io import output_folder  # noqa: E402  (argparse only, no torch)
+from geoface.splat.hfm_cli import _quiet, _train_device  # noqa: E402  (argparse only, no torch)
+from geoface._io import output_folder  # noqa: E402
 from geoface._args import SEED, add_json, json_to_stdout, number, write_json
 
 #: THGSConfig.lambda_landmarks's default (kept here so that building the parser imports no torch)

@@ -13,10 +13,15 @@ from urllib.parse import urlsplit
 
 from ..errors import GeofaceError
 
-__all__ = ["md_text", "check_host", "check_port", "origin_allowed", "guarded_serve"]
+__all__ = ["plain_text", "md_text", "check_host", "check_port", "origin_allowed", "guarded_serve"]
 
 _MD_SPECIAL = set("\\`*_{}[]()#+-.!|~")
 _HTML = {"<": "&lt;", ">": "&gt;", "&": "&amp;", '"': "&quot;", "'": "&#39;"}
+
+
+def plain_text(s) -> str:
+    """``s`` with line breaks and other control characters as spaces (one line of text)."""
+    return "".join(" " if ord(ch) < 32 or ch == "\x7f" else ch for ch in str(s))
 
 
 def md_text(s) -> str:
@@ -24,14 +29,7 @@ def md_text(s) -> str:
     Markdown's are backslash-escaped, so a file named ``<img src=x onerror=...>.obj`` or
     ``[x](javascript:...)`` shows as those characters and nothing else; line breaks become
     spaces."""
-    def esc(ch: str) -> str:
-        if ch in _HTML:
-            return _HTML[ch]
-        if ch in _MD_SPECIAL:
-            return "\\" + ch
-        return " " if ord(ch) < 32 or ch == "\x7f" else ch
-
-    return "".join(map(esc, str(s)))
+    return "".join(_HTML.get(ch, "\\" + ch if ch in _MD_SPECIAL else ch) for ch in plain_text(s))
 
 
 def check_port(host: str, port: int) -> int:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import GeofaceError
-from .guard import check_host, check_port, guarded_serve, md_text
+from .guard import check_host, check_port, guarded_serve, md_text, plain_text
 from .items import (_BOUNDARY, _GREY, DEFAULT_PORT, _boundary_segments, _gimage_images, _Item, _load,
                     _trimesh, _viser, item_kind, uv_distortion_colors)
 
@@ -18,7 +18,7 @@ __all__ = ["WebView"]
 def _label(name: str, limit: int = 60) -> str:
     """A file name as a one-line GUI label (viser shows labels as text; control characters and
     line breaks become spaces, and long names are shortened in the middle)."""
-    s = "".join(" " if ord(c) < 32 or c == "\x7f" else c for c in str(name))
+    s = plain_text(name)
     return s if len(s) <= limit else s[: limit // 2 - 1] + "…" + s[-(limit // 2 - 1):]
 
 
