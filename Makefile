@@ -86,7 +86,7 @@ demo: $(STAMP)
 	$(VENV)/bin/geoface synth surface genus2 -o $(OUT)/genus2.obj --force
 	$(VENV)/bin/geoface repair $(OUT)/genus2.obj -o $(OUT)/genus2_disk.obj --up z --open cap --force
 	@echo "== the head to geometry images (Ricci flow, OT with the face magnified 2.5x) and back"
-	$(VENV)/bin/geoface convert $(OUT)/head.obj $(OUT)/head_gim --res 256 --roi $(OUT)/head.json --lam 2.5 --force
+	$(VENV)/bin/geoface convert $(OUT)/head.obj -o $(OUT)/head_gim --res 256 --roi $(OUT)/head.json --lam 2.5 --force
 	$(VENV)/bin/geoface reconstruct $(OUT)/head_gim -o $(OUT)/head_reconstructed.obj --force
 	@echo "== look at it (off-screen pyvista): the head, its UV distortion, the geometry images"
 	$(VENV)/bin/geoface view $(OUT)/head.obj --screenshot $(OUT)/head.png --force
@@ -94,13 +94,13 @@ demo: $(STAMP)
 	$(VENV)/bin/geoface view $(OUT)/head_gim --screenshot $(OUT)/head_gim_montage.png --force
 	@echo "== a small labelled dataset: 6 synthetic heads x 2 corner sets, 2 worker processes"
 	$(PY) data_tools/make_synthetic_heads.py $(OUT)/heads --count 6 --vertices 3000 --seed 0
-	$(VENV)/bin/geoface dataset build $(OUT)/heads $(OUT)/dataset --res 128 --augment 2 --workers 2
+	$(VENV)/bin/geoface dataset build $(OUT)/heads -o $(OUT)/dataset --res 128 --augment 2 --workers 2
 	@echo "== three real heads (the ICT-FaceKit model, shipped with geoface) to geometry images, beside the procedural one"
 	$(VENV)/bin/geoface synth ict -o $(OUT)/ict_smile.obj --seed 1 --expression mouthSmile_L=0.9,mouthSmile_R=0.9 --meta $(OUT)/ict_smile.json --force
 	$(VENV)/bin/geoface synth ict -o $(OUT)/ict_jaw.obj --seed 2 --expression jawOpen=0.6,browInnerUp_L=0.7,browInnerUp_R=0.7 --meta $(OUT)/ict_jaw.json --force
 	$(VENV)/bin/geoface synth ict -o $(OUT)/ict_wink.obj --seed 3 --expression eyeBlink_L=1,mouthSmile_L=0.5 --meta $(OUT)/ict_wink.json --force
 	for h in ict_smile ict_jaw ict_wink; do \
-		$(VENV)/bin/geoface convert $(OUT)/$$h.obj $(OUT)/$${h}_gim --res 256 --roi $(OUT)/$$h.json --lam 2.5 --force || exit 1; \
+		$(VENV)/bin/geoface convert $(OUT)/$$h.obj -o $(OUT)/$${h}_gim --res 256 --roi $(OUT)/$$h.json --lam 2.5 --force || exit 1; \
 		$(VENV)/bin/geoface view $(OUT)/$${h}_gim --screenshot $(OUT)/$${h}_gim_montage.png --force || exit 1; \
 	done
 	@echo "outputs in $(OUT)/ (see $(OUT)/head_gim/preview.png, $(OUT)/ict_*_gim/preview.png, $(OUT)/*.png, $(OUT)/dataset/manifest.jsonl)"

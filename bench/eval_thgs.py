@@ -5,7 +5,7 @@
                               [--head procedural|ict] [--perturb 3,5] [--saam-from 0.4] [--seed 0] [--out DIR] [--quick]
                               [--lr-pose R] [--pose-decay F] [--device cpu|cuda]
 
-1. writes the synthetic talking data (``geoface talk synth [--head ict]``): a speech-like WAV
+1. writes the synthetic talking data (``geoface talk synth -o DIR [--head ict]``): a speech-like WAV
    drives the jaw and lips; the tracker poses hold only the head pose and the non-mouth
    expressions; with ``--perturb DEG,MM`` (ICT heads) also the same capture with each frame's
    tracked head pose off by that much, on which the full model is trained too, and the head

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["number", "SEED", "add_json", "json_to_stdout", "write_json"]
+__all__ = ["number", "SEED", "add_json", "json_to_stdout", "write_json", "output_option", "resolve_output", "renamed"]
 
 
 def number(kind: type = float, lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
@@ -73,3 +73,43 @@ def write_json(args, obj) -> None:
         from ._io import atomic_write_text
 
         atomic_write_text(path, text + "\n")
+
+
+#: hidden positional outputs kept for one release, from before every verb wrote to -o
+_LEGACY = "legacy_output"
+
+
+def output_option(parser, metavar: str, help: str) -> None:
+    """``-o/--output`` as every verb names its output; the old positional OUT_DIR still works
+    (hidden) with a one-line deprecation warning."""
+    parser.add_argument("-o", "--output", default=None, metavar=metavar, help=help + " (required)")
+    parser.add_argument(_LEGACY, nargs="?", default=None, help=argparse.SUPPRESS)
+
+
+def resolve_output(parser, args) -> None:
+    """After parsing: -o or the legacy positional, exactly one of them."""
+    if not hasattr(args, _LEGACY):
+        return
+    legacy = getattr(args, _LEGACY)
+    delattr(args, _LEGACY)
+    if legacy is not None and args.output is not None:
+        parser.error(f"unrecognized arguments: {legacy}")
+    if legacy is not None:
+        import warnings
+
+        from .errors import GeofaceWarning
+
+        warnings.warn(f"the output is now given with -o: write `-o {legacy}` (a bare output path stops working in "
+                      "the next release)", GeofaceWarning, stacklevel=2)
+        args.output = legacy
+    if args.output is None:
+        parser.error("the following arguments are required: -o/--output")
+
+
+def renamed(parser, old: str, new: str) -> None:
+    """An option that was renamed: the old spelling is refused with the new one named (hidden in --help)."""
+    class _Renamed(argparse.Action):
+        def __call__(self, p, namespace, values, option_string=None):
+            p.error(f"{old} is now {new}")
+
+    parser.add_argument(old, nargs="?", action=_Renamed, help=argparse.SUPPRESS)

@@ -406,7 +406,7 @@ def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, op
     from .param.metrics import distortion
 
     t = time.perf_counter()
-    log(f"convert [{pos + 1}/{count}]: Ricci flow", quiet=quiet)
+    log(f"convert [{pos + 1}/{count}]: corner set {st['corner_set']}: Ricci flow, optimal transport, images", quiet=quiet)
     r = solver.solve(corners, quiet=quiet)
     if not r.converged:
         raise GeofaceError(f"Ricci flow did not converge (max |K - target| {r.residual:.3g})")
@@ -419,7 +419,7 @@ def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, op
     st["conformal_distortion"] = distortion(V, F, uv).summary()
     if opts.method == "ot":
         t = time.perf_counter()
-        log(f"convert [{pos + 1}/{count}]: optimal transport (lam {opts.lam:g})", quiet=quiet)
+        log(f"convert [{pos + 1}/{count}]: optimal transport (lam {opts.lam:g})", quiet=quiet, detail=True)
         mp = measure_preserving_map(V, F, uv, roi=roi, lam=opts.lam, tol=opts.ot_tol, quiet=quiet)
         uv = mp.uv
         st["ot"] = {
@@ -439,7 +439,7 @@ def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, op
         }
     st["distortion"] = distortion(V, F, uv).summary()
     t = time.perf_counter()
-    log(f"convert [{pos + 1}/{count}]: geometry images {opts.res}x{opts.res}", quiet=quiet)
+    log(f"convert [{pos + 1}/{count}]: geometry images {opts.res}x{opts.res}", quiet=quiet, detail=True)
     kw: dict = {}
     if dm.texture is not None and dm.UV is not None:
         UVx, FUVx = corner_uvs_for(F, dm.F, dm.UV, dm.FUV, split_edges=r.split_edges)
@@ -467,7 +467,7 @@ def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, op
     st["images_seconds"] = time.perf_counter() - t
     if opts.reconstruct:
         t = time.perf_counter()
-        log(f"convert [{pos + 1}/{count}]: reconstruction", quiet=quiet)
+        log(f"convert [{pos + 1}/{count}]: reconstruction", quiet=quiet, detail=True)
         rec = reconstruct(gi, smooth=opts.smooth)
         save_reconstruction(folder / "reconstruction.obj", rec, gi)
         rec_mask = None

@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 from collections.abc import Iterable, Iterator
@@ -20,10 +21,25 @@ T = TypeVar("T")
 QUIET = os.environ.get("GEOFACE_QUIET", "1") not in ("", "0")
 
 
+#: show the solvers' iteration lines too (``-v``, ``GEOFACE_VERBOSE=1``, ``set_verbose(True)``)
+VERBOSE = os.environ.get("GEOFACE_VERBOSE", "0") not in ("", "0")
+
+#: every status line also goes to this logger (INFO; iteration detail at DEBUG), for
+#: applications that configure :mod:`logging`; it has only a NullHandler of its own
+LOGGER = logging.getLogger("geoface")
+LOGGER.addHandler(logging.NullHandler())
+
+
 def set_quiet(on: bool) -> None:
     """Silence (True) or show (False) the library's status lines and progress bars."""
     global QUIET
     QUIET = bool(on)
+
+
+def set_verbose(on: bool) -> None:
+    """Show (True) or hide (False) the solvers' per-iteration lines when not quiet."""
+    global VERBOSE
+    VERBOSE = bool(on)
 
 
 def progress(it: Iterable[T], description: str = "", total: int | None = None, quiet: bool | None = None,
@@ -54,10 +70,17 @@ def progress(it: Iterable[T], description: str = "", total: int | None = None, q
         bar.close()
 
 
-def log(message: str, quiet: bool | None = None) -> None:
-    """Print one status line on stderr unless quiet."""
+def log(message: str, quiet: bool | None = None, *, detail: bool = False) -> None:
+    """One status line: to the ``geoface`` logger, and on stderr unless quiet.  ``detail``
+    marks a solver's per-iteration line or a routine fallback: logged at DEBUG and shown
+    only when verbose (``-v``)."""
+    if quiet is True:
+        return
+    level = logging.DEBUG if detail else logging.INFO
+    if LOGGER.isEnabledFor(level):
+        LOGGER.log(level, message)
     q = QUIET if quiet is None else quiet
-    if not q:
+    if not q and (VERBOSE or not detail):
         print(message, file=sys.stderr, flush=True)
 
 

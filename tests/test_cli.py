@@ -207,7 +207,59 @@ def test_mesh_needing_intrinsic_flips_and_boundary_splits(tmp_path):
     assert d["intrinsic_flips"] > 0 and d["conformal_map_distortion"]["flipped"] == 0
     m = load_mesh(tmp_path / "b.obj")
     assert len(m.V) == d["vertices"] + d["split_boundary_edges"]
-    code, stdout, err = run("convert", src, tmp_path / "gim", "--res", "64")
+    code, stdout, err = run("convert", src, "-o", tmp_path / "gim", "--res", "64")
     assert code == 0, err
     st = json.loads((tmp_path / "gim" / "metrics.json").read_text())["sets"][0]
     assert st["distortion"]["flipped"] == 0 and st["reconstruction"]["hausdorff"] < 0.03
+
+
+def _all_parsers(p, name="geoface"):
+    import argparse
+
+    yield name, p
+    for a in p._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            for n, sp in a.choices.items():
+                yield from _all_parsers(sp, f"{name} {n}")
+
+
+def test_help_shows_every_default_and_names_outputs_one_way():
+    """Every option with a default says it in --help; every verb that writes takes -o (no
+    positional output); a name means one thing (--dask is the cluster, --sampler the noise schedule)."""
+    import argparse
+
+    from geoface.cli import build_parser
+
+    writers = 0
+    for name, p in _all_parsers(build_parser()):
+        text = p.format_help()
+        for a in p._actions:
+            if a.help is argparse.SUPPRESS or not a.option_strings:
+                continue
+            if a.default not in (None, False, argparse.SUPPRESS):
+                h = p._get_formatter()._get_help_string(a) % {"default": a.default}
+                assert "default" in h, (name, a.option_strings, h)
+        positionals = [a.dest for a in p._actions if not a.option_strings and a.help is not argparse.SUPPRESS]
+        assert not any(d in ("out_dir", "output", "out") for d in positionals), (name, positionals)
+        if "-o OUT_DIR, --output OUT_DIR" in text or "-o OUTPUT, --output OUTPUT" in text:
+            writers += 1
+        assert "--scheduler" not in text, name
+    assert writers >= 10
+
+
+def test_renamed_options_and_the_old_positional_output(tmp_path, capsys):
+    from geoface.cli import main
+
+    assert main(["dataset", "ict", "-o", str(tmp_path / "d"), "--count", "1", "--scheduler", "tcp://x:1"]) == 2
+    assert "--scheduler is now --dask" in capsys.readouterr().err
+    assert main(["ddpm", "sample", str(tmp_path), "p", "--scheduler", "ddim", "-o", str(tmp_path / "s")]) == 2
+    assert "--scheduler is now --sampler" in capsys.readouterr().err
+    assert main(["convert", "a.obj"]) == 2
+    assert "required: -o/--output" in capsys.readouterr().err
+    # the positional output of earlier releases still works, with a one-line warning
+    src = tmp_path / "t.obj"
+    assert main(["synth", "surface", "disk", "-o", str(src), "-q"]) == 0
+    capsys.readouterr()
+    assert main(["convert", str(src), str(tmp_path / "g"), "--res", "16", "--method", "conformal"]) == 0
+    err = capsys.readouterr().err
+    assert "write `-o " in err and (tmp_path / "g" / "position.png").exists()

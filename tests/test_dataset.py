@@ -102,19 +102,19 @@ def test_dask_local_cluster_gives_identical_bytes(heads, serial, tmp_path):
 
 def test_cli_build_and_errors(heads, tmp_path, capsys):
     out = tmp_path / "cli"
-    assert main(["dataset", "build", str(heads), str(out), "--res", "16", "--augment", "1", "--workers", "1", "-q"]) == 0
+    assert main(["dataset", "build", str(heads), "-o", str(out), "--res", "16", "--augment", "1", "--workers", "1", "-q"]) == 0
     text = capsys.readouterr().out
     assert "3 items built, 1 failed" in text and "zz_corrupt/aug0" in text
-    assert main(["dataset", "build", str(heads), str(out), "--res", "16", "--augment", "1", "--workers", "1", "-q", "--strict"]) == 0
-    assert main(["dataset", "build", str(heads), str(out), "--res", "16", "--augment", "1", "--workers", "1", "-q",
+    assert main(["dataset", "build", str(heads), "-o", str(out), "--res", "16", "--augment", "1", "--workers", "1", "-q", "--strict"]) == 0
+    assert main(["dataset", "build", str(heads), "-o", str(out), "--res", "16", "--augment", "1", "--workers", "1", "-q",
                  "--strict", "--retry-failed"]) == 1
     capsys.readouterr()
-    assert main(["dataset", "build", str(tmp_path / "missing"), str(tmp_path / "o"), "-q"]) == 2
+    assert main(["dataset", "build", str(tmp_path / "missing"), "-o", str(tmp_path / "o"), "-q"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("geoface: error: input folder not found") and err.count("\n") == 1
     (tmp_path / "empty").mkdir()
-    assert main(["dataset", "build", str(tmp_path / "empty"), str(tmp_path / "o"), "-q"]) == 2
-    assert main(["dataset", "build", str(heads), str(tmp_path / "o"), "--augment", "9", "-q"]) == 2
+    assert main(["dataset", "build", str(tmp_path / "empty"), "-o", str(tmp_path / "o"), "-q"]) == 2
+    assert main(["dataset", "build", str(heads), "-o", str(tmp_path / "o"), "--augment", "9", "-q"]) == 2
     assert not (tmp_path / "o").exists()
 
 

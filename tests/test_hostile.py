@@ -240,7 +240,7 @@ def test_a_dataset_build_on_a_full_disk_stops_with_one_line(full_disk, tmp_path)
     src = tmp_path / "in"
     src.mkdir()
     shutil.copy(SPOT, src / "spot.obj")
-    code, _, err = run("dataset", "build", src, full_disk / "ds", "--res", "128", "--augment", "8", "--workers", "1")
+    code, _, err = run("dataset", "build", src, "-o", full_disk / "ds", "--res", "128", "--augment", "8", "--workers", "1")
     assert one_line_error(code, err) and "space" in err.lower(), err
     leftovers = [p.name for p in full_disk.rglob("*") if ".geoface-" in p.name or p.name.endswith(".tmp")]
     assert leftovers == []
@@ -312,11 +312,11 @@ def test_texture_and_camera_and_gimage_values_are_checked(tmp_path):
 
 @pytest.mark.parametrize("argv", [
     ("inspect", "a\nb.obj"),
-    ("convert", str(SPOT), "o", "--corner-set", "3", "--augment", "4"),
+    ("convert", str(SPOT), "-o", "o", "--corner-set", "3", "--augment", "4"),
     ("synth", "ict", "-o", "h.obj", "--identity", "1e6"),
     ("synth", "ict", "-o", "h.obj", "--identity", ""),
     ("param", str(SPOT), "-o", "x.stl"),
-    ("dataset", "build", ".", "out", "--up", "w"),
+    ("dataset", "build", ".", "-o", "out", "--up", "w"),
     ("view", "--web", str(SPOT), "--host", "not a host"),
     ("repair", str(SPOT), "-o", "x.fbx"),
     ("reconstruct", str(Path(__file__).parent), "-o", "rec.usd"),

@@ -41,7 +41,7 @@ def demo(tmp_path_factory):
     d = tmp_path_factory.mktemp("demo")
     assert run("synth", "head", "-o", d / "head.obj", "--vertices", "3000", "--seed", "0", "--meta", d / "head.json")[0] == 0
     before = digest(d)
-    assert run("convert", d / "head.obj", d / "head_gim", "--res", "64", "--roi", d / "head.json")[0] == 0
+    assert run("convert", d / "head.obj", "-o", d / "head_gim", "--res", "64", "--roi", d / "head.json")[0] == 0
     code, _, err = run("reconstruct", d / "head_gim", "-o", d / "head_reconstructed.obj")
     assert code == 0, err
     return d, before
@@ -74,15 +74,15 @@ def test_existing_outputs_need_force(demo, tmp_path):
     out = tmp_path / "mydata"
     out.mkdir()
     (out / "precious.txt").write_text("mine")
-    code, _, err = run("convert", d / "head.obj", out, "--res", "16")
+    code, _, err = run("convert", d / "head.obj", "-o", out, "--res", "16")
     assert one_line_error(code, err) and "--force" in err
     assert (out / "precious.txt").read_text() == "mine"
     # an empty folder is not "existing data"
     empty = tmp_path / "empty"
     empty.mkdir()
-    assert run("convert", d / "head.obj", empty, "--res", "16")[0] == 0
+    assert run("convert", d / "head.obj", "-o", empty, "--res", "16")[0] == 0
     # --force replaces, atomically
-    code, _, err = run("convert", d / "head.obj", out, "--res", "16", "--force")
+    code, _, err = run("convert", d / "head.obj", "-o", out, "--res", "16", "--force")
     assert code == 0, err
     assert not (out / "precious.txt").exists() and (out / "meta.json").is_file()
     # a mesh output and its companions
@@ -120,7 +120,7 @@ def test_an_output_may_not_be_an_input(demo, tmp_path, case):
 
 def test_outputs_get_the_users_umask(demo, tmp_path):
     d, _ = demo
-    code, _, err = run("convert", d / "head.obj", tmp_path / "out", "--res", "16", "--augment", "2", umask=0o022)
+    code, _, err = run("convert", d / "head.obj", "-o", tmp_path / "out", "--res", "16", "--augment", "2", umask=0o022)
     assert code == 0, err
     assert run("reconstruct", tmp_path / "out" / "aug0", "-o", tmp_path / "rec.obj", umask=0o022)[0] == 0
     assert run("synth", "head", "-o", tmp_path / "h.obj", "--vertices", "1000", "--meta", tmp_path / "h.json", umask=0o022)[0] == 0
@@ -147,7 +147,7 @@ def test_tiny_and_huge_coordinates(tmp_path):
     assert code == 0, err
     big = tmp_path / "big.obj"
     big.write_text("v 1e300 0 0\nv 0 1e300 0\nv 0 0 1e300\nf 1 2 3\n")
-    for verb in (("inspect", big), ("repair", big, "-o", tmp_path / "r.obj"), ("convert", big, tmp_path / "c")):
+    for verb in (("inspect", big), ("repair", big, "-o", tmp_path / "r.obj"), ("convert", big, "-o", tmp_path / "c")):
         code, _, err = run(*verb)
         assert one_line_error(code, err) and "rescale" in err, err
     zero = tmp_path / "zero.obj"
@@ -160,7 +160,7 @@ def test_bounds_on_work(tmp_path):
     code, _, err = run("synth", "surface", "sphere", "-o", tmp_path / "s.obj", "--resolution", "1000000000")
     assert one_line_error(code, err) and "resolution" in err
     code, _, err = run("synth", "head", "-o", tmp_path / "h.obj", "--vertices", "1000")
-    code, _, err = run("convert", tmp_path / "h.obj", tmp_path / "c", "--res", "16", "--smooth", "1000000000")
+    code, _, err = run("convert", tmp_path / "h.obj", "-o", tmp_path / "c", "--res", "16", "--smooth", "1000000000")
     assert one_line_error(code, err) and "smooth" in err and not (tmp_path / "c").exists()
 
 
@@ -170,16 +170,16 @@ def test_dataset_rerun_with_other_options_is_refused(tmp_path):
     for s in range(2):
         assert run("synth", "head", "-o", heads / f"h{s}.obj", "--vertices", "1000", "--seed", s)[0] == 0
     out = tmp_path / "ds"
-    code, _, err = run("dataset", "build", heads, out, "--res", "16", "--augment", "1", "--workers", "1")
+    code, _, err = run("dataset", "build", heads, "-o", out, "--res", "16", "--augment", "1", "--workers", "1")
     assert code == 0, err
     h = digest(out)
-    code, _, err = run("dataset", "build", heads, out, "--res", "32", "--augment", "1", "--workers", "1")
+    code, _, err = run("dataset", "build", heads, "-o", out, "--res", "32", "--augment", "1", "--workers", "1")
     assert one_line_error(code, err) and "res 16 -> 32" in err
     assert digest(out) == h
     # more corner sets with the same options resume (the first items are kept)
-    code, out_text, err = run("dataset", "build", heads, out, "--res", "16", "--augment", "2", "--workers", "1")
+    code, out_text, err = run("dataset", "build", heads, "-o", out, "--res", "16", "--augment", "2", "--workers", "1")
     assert code == 0 and "2 items built" in out_text, (out_text, err)
-    code, out_text, err = run("dataset", "build", heads, out, "--res", "32", "--augment", "1", "--workers", "1", "--force")
+    code, out_text, err = run("dataset", "build", heads, "-o", out, "--res", "32", "--augment", "1", "--workers", "1", "--force")
     assert code == 0 and "2 items built" in out_text, (out_text, err)
     from geoface.gimage import load_gimage
 
@@ -202,7 +202,7 @@ def _our_processes(marker: str) -> list[int]:
 def test_killed_convert_leaves_nothing_behind(tmp_path, sig):
     src = _big_head(tmp_path)
     out = tmp_path / "killed_out"
-    p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", "convert", str(src), str(out), "--res", "512"])
+    p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", "convert", str(src), "-o", str(out), "--res", "512"])
     time.sleep(4.0)  # inside the pipeline by now
     p.send_signal(sig)
     p.wait(timeout=5)
@@ -213,7 +213,7 @@ def test_killed_convert_leaves_nothing_behind(tmp_path, sig):
     # after SIGKILL a temporary may remain; the next run of the same output removes it (a small head: quick)
     small = tmp_path / "small.obj"
     assert run("synth", "head", "-o", small, "--vertices", "2000")[0] == 0
-    code, _, err = run("convert", small, out, "--res", "16")
+    code, _, err = run("convert", small, "-o", out, "--res", "16")
     assert code == 0, err
     assert [x for x in tmp_path.iterdir() if x.name.startswith(".killed_out")] == []
 
@@ -261,20 +261,20 @@ def test_neural_commands_keep_what_exists(tmp_path, case):
     ("ddpm", "sample", "r", "p", "-o", "o", "--guidance", "-1"),
     ("ddpm", "train", "d", "-o", "r", "--batch", "0"),
     ("ddpm", "train", "d", "-o", "r", "--lr", "nan"),
-    ("talk", "synth", "o", "--fps", "nan"),
-    ("talk", "synth", "o", "--fps", "0"),
+    ("talk", "synth", "-o", "o", "--fps", "nan"),
+    ("talk", "synth", "-o", "o", "--fps", "0"),
     ("talk", "animate", "m", "--audio", "a.wav", "-o", "o", "--fps", "-5"),
     ("talk", "train", "d", "-o", "m", "--stage-scale", "0"),
-    ("hmd", "synth", "o", "--motion", "nan"),
+    ("hmd", "synth", "-o", "o", "--motion", "nan"),
     ("hmd", "train", "r", "-o", "m", "--ema", "1.2"),
     ("splat", "fit", "m.ply", "-o", "o.ply", "--threads", "-1"),
     ("texture", "train", "d", "-o", "m", "--k", "0"),
-    ("convert", "a.obj", "o", "--smooth", "1000000000"),
-    ("convert", "a.obj", "o", "--res", "3"),
-    ("convert", "a.obj", "o", "--lam", "inf"),
+    ("convert", "a.obj", "-o", "o", "--smooth", "1000000000"),
+    ("convert", "a.obj", "-o", "o", "--res", "3"),
+    ("convert", "a.obj", "-o", "o", "--lam", "inf"),
     ("synth", "surface", "torus", "-o", "t.obj", "--resolution", "1000000000"),
     ("synth", "head", "-o", "h.obj", "--seed", "-3"),
-    ("dataset", "build", "i", "o", "--workers", "0"),
+    ("dataset", "build", "i", "-o", "o", "--workers", "0"),
 ])
 def test_numeric_options_have_ranges(tmp_path, argv):
     code, _, err = run(*argv, cwd=tmp_path)
@@ -395,7 +395,7 @@ def test_failed_synth_leaves_no_folder(tmp_path, monkeypatch):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(td, "make_synthetic_talking", boom)
-    assert main(["talk", "synth", str(tmp_path / "talk"), "-q"]) == 130
+    assert main(["talk", "synth", "-o", str(tmp_path / "talk"), "-q"]) == 130
     assert list(tmp_path.iterdir()) == []
 
 
@@ -408,7 +408,7 @@ def test_killed_dataset_build_stops_its_workers(tmp_path, sig):
     for s in range(2):
         assert run("synth", "head", "-o", heads / f"t{s}.obj", "--vertices", "8000", "--seed", s)[0] == 0
     out = tmp_path / "ds"
-    argv = ("dataset", "build", heads, out, "--res", "128", "--augment", "2", "--workers", "2")
+    argv = ("dataset", "build", heads, "-o", out, "--res", "128", "--augment", "2", "--workers", "2")
     p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", *map(str, argv)])
     # kill it while its workers convert (not after a fixed delay: a fast machine finishes first)
     deadline = time.time() + 60

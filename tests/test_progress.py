@@ -45,7 +45,42 @@ def test_the_library_is_quiet_by_default():
                    capture_output=True, check=True, timeout=300)
     r = subprocess.run([sys.executable, "-m", "geoface", "repair", mesh, "-o", os.path.join(d, "d.obj")], env=env,
                        capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0 and "make_disk:" in r.stderr
+    assert r.returncode == 0 and "repairing" in r.stderr
     r = subprocess.run([sys.executable, "-m", "geoface", "repair", mesh, "-o", os.path.join(d, "e.obj"), "-q"], env=env,
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and r.stderr == ""
+
+
+def test_convert_says_little_by_default_and_the_iterations_with_v(tmp_path, capsys, caplog):
+    """The command's default output is the stage lines and a one-line summary; -v adds every
+    Ricci and OT iteration; the same lines reach the ``geoface`` logger (DEBUG for detail)."""
+    import logging
+
+    from geoface.cli import main
+
+    src = tmp_path / "h.obj"
+    assert main(["synth", "head", "-o", str(src), "--vertices", "3000", "-q"]) == 0
+    capsys.readouterr()
+    env_quiet = P.QUIET
+    import os
+
+    os.environ.pop("GEOFACE_QUIET", None)
+    try:
+        assert main(["convert", str(src), "-o", str(tmp_path / "a"), "--res", "32"]) == 0
+        cap = capsys.readouterr()
+        err = cap.err.splitlines()
+        assert 1 <= len(err) <= 3 and not any("iteration" in e or "OT stage" in e for e in err), err
+        assert len(cap.out.splitlines()) == 1 and "1 image set at 32x32" in cap.out and "0 flipped" in cap.out
+        with caplog.at_level(logging.DEBUG, logger="geoface"):
+            assert main(["convert", str(src), "-o", str(tmp_path / "b"), "--res", "32", "-v"]) == 0
+        cap = capsys.readouterr()
+        assert "ricci: iteration 1" in cap.err and "OT stage" in cap.err
+        assert "set 0:" in cap.out  # the per-set details
+        assert any(r.levelno == logging.DEBUG and "ricci: iteration" in r.getMessage() for r in caplog.records)
+        assert any(r.levelno == logging.INFO and "corner set 0" in r.getMessage() for r in caplog.records)
+        assert main(["convert", str(src), "-o", str(tmp_path / "c"), "--res", "32", "-q", "-v"]) == 0
+        cap = capsys.readouterr()
+        assert cap.err == ""
+    finally:
+        os.environ["GEOFACE_QUIET"] = "1"
+        P.set_quiet(env_quiet)

@@ -78,12 +78,12 @@ def test_a_wrong_flag_is_caught():
     from geoface.cli import build_parser
 
     with pytest.raises(SystemExit):
-        build_parser().parse_args(["convert", "a.obj", "out/", "--resolution", "64"])
+        build_parser().parse_args(["convert", "a.obj", "-o", "out/", "--resolution", "64"])
 
 
 def test_negative_axes_parse_without_an_equals_sign():
     from geoface.cli import build_parser
 
-    a = build_parser().parse_args(["convert", "a.obj", "out/", "--up", "-z", "--front", "-y"])
+    a = build_parser().parse_args(["convert", "a.obj", "-o", "out/", "--up", "-z", "--front", "-y"])
     assert (a.up, a.front) == ("-z", "-y")
     assert build_parser().parse_args(["repair", "a.obj", "-o", "b.obj", "--up", "-x"]).up == "-x"

@@ -136,6 +136,35 @@ def test_web_view_of_a_coloured_head(browser, tmp_path):
     assert share > 0.08, f"the head is not drawn in its colour: {share:.3f} of the centre is orange"
 
 
+@pytest.mark.parametrize("how", ["texture", "vertex colours"])
+def test_a_surface_shows_its_colour_at_its_brightness(browser, tmp_path, how):
+    """A head textured (or vertex-coloured) in one skin tone shows that tone where it faces the
+    camera: each channel within 12% of the colour, the hue kept (it was drawn at half brightness,
+    as a metal, and vertex colours lighter and greyer than they are)."""
+    from geoface.mesh.io import Mesh, save_mesh
+    from geoface.synth.ict import ict_head, load_ict_model
+
+    head = ict_head(load_ict_model(), seed=1)
+    rgb = np.array([170, 120, 90])
+    if how == "texture":
+        tex = np.zeros((64, 64, 3), np.uint8)
+        tex[:] = rgb
+        path = tmp_path / "head.obj"
+        save_mesh(path, Mesh(head.V, head.F, UV=head.UV, FUV=head.FUV, texture=tex))
+    else:
+        path = tmp_path / "head.ply"
+        save_mesh(path, Mesh(head.V, head.F, colors=np.tile([*(rgb / 255.0), 1.0], (len(head.V), 1))))
+    proc, url, lines = _serve(path)
+
+    def level(c):
+        return np.median(_centre(c, 0.15).reshape(-1, 3), axis=0)
+
+    canvas = _look(browser, url, lambda c: _drawn(_centre(c, 0.3)).mean() > 0.2 and np.all(np.abs(level(c) - rgb) < 0.12 * rgb))
+    got = level(canvas)
+    _finish(proc, browser, lines)
+    assert np.all(np.abs(got - rgb) < 0.12 * rgb), f"the face shows {got}, its colour is {rgb}"
+
+
 def test_a_file_name_with_html_is_shown_as_text(browser, tmp_path):
     """A mesh named with HTML (an <img> whose onerror runs script, an iframe) shows its name as
     characters: no element of the name exists in the page and its script never runs."""

@@ -13,7 +13,7 @@ import warnings
 
 from .. import __version__
 from ..errors import GeofaceError, GeofaceWarning
-from .._args import SEED, add_json, number
+from .._args import SEED, add_json, number, output_option, resolve_output
 
 from ._common import _Parser, _guard_by_table, axis, one_line
 from .dataset import _dataset_options, cmd_dataset_build, cmd_dataset_ict
@@ -35,8 +35,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="geoface", description="Geometry processing of head and face meshes.")
     p.add_argument("--version", action="version", version=f"geoface {__version__}")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.add_argument("-v", "--verbose", action="store_true", help="also the solvers' iterations")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress output")
+    common.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                        help="also the solvers' iterations (Ricci flow, optimal transport, training)")
     common.add_argument("--force", action="store_true", default=argparse.SUPPRESS,
                         help="replace outputs that exist (never an input)")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
@@ -81,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("convert", help="mesh -> geometry images (+ reconstruction, preview, metrics)")
     s.add_argument("input")
-    s.add_argument("out_dir")
+    output_option(s, "OUT_DIR", "folder for the geometry images, preview and metrics")
     s.add_argument("--res", type=number(int, 4, 8192), default=512, help="image resolution N (default 512)")
     s.add_argument("--roi", default="face", help="region magnified by --lam: face (a frontal cone), none, or a mask file (.npy, .txt, .json)")
     s.add_argument("--lam", type=number(float, 0, 1000, lo_open=True), default=2.5, help="mass factor on the ROI (paper: 2.5; 1 = area-preserving)")
@@ -144,13 +147,13 @@ def build_parser() -> argparse.ArgumentParser:
     dv = _verbs(s, common)
     b = dv.add_parser("build", help="every mesh x corner set -> a geometry-image folder (resumable, parallel)")
     b.add_argument("in_dir", help="folder of meshes (optional <stem>.json face masks, labels.jsonl)")
-    b.add_argument("out_dir")
+    output_option(b, "OUT_DIR", "the dataset folder (resumed when it exists)")
     b.add_argument("--labels", default=None, help="labels/prompts per mesh stem (.jsonl or .json; default IN_DIR/labels.jsonl)")
     b.add_argument("--roi", choices=["auto", "face", "none"], default="auto", help="auto: <stem>.json face mask when present, else the face cone")
     _dataset_options(b)
     b.set_defaults(func=cmd_dataset_build)
     b = dv.add_parser("ict", help="labelled real heads of the ICT-FaceKit model -> geometry images (resumable, parallel)")
-    b.add_argument("out_dir")
+    output_option(b, "OUT_DIR", "the dataset folder (resumed when it exists)")
     b.add_argument("--count", type=number(int, 1, 10_000_000), required=True, help="number of heads (one identity each)")
     b.add_argument("--seed", type=SEED, default=0, help="draws identities, expressions, prompts and the split")
     b.add_argument("--model", default=None, help="the ICT-FaceKit model (.npz or a clone; default: the copy shipped with geoface)")
@@ -179,11 +182,11 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("synth", help="write procedural test geometry")
     ss = _verbs(s, common)
     h = ss.add_parser("head", help="the procedural expressive head")
-    h.add_argument("-o", "--output", required=True)
-    h.add_argument("--vertices", type=number(int, 1000, 200_000), default=20000)
-    h.add_argument("--seed", type=SEED, default=0)
+    h.add_argument("-o", "--output", required=True, help="output mesh (obj with texture, ply with colours, ...)")
+    h.add_argument("--vertices", type=number(int, 1000, 200_000), default=20000, help="about this many vertices")
+    h.add_argument("--seed", type=SEED, default=0, help="draws the identity")
     h.add_argument("--expression", default=None, help="e.g. smile=0.8,jaw_open=0.3")
-    h.add_argument("--texture-size", type=number(int, 16, 8192), default=512)
+    h.add_argument("--texture-size", type=number(int, 16, 8192), default=512, help="texture image size in pixels")
     h.add_argument("--meta", default=None, help="also write identity, expression, landmarks and face mask as JSON")
     h.set_defaults(func=cmd_synth_head)
     i = ss.add_parser("ict", help="a real head of the ICT-FaceKit morphable model (identity, expression, parts)")
@@ -204,8 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
     a = ss.add_parser("surface", help="an analytic surface")
     a.add_argument("name", choices=SURFACES)
     a.add_argument("-o", "--output", required=True)
-    a.add_argument("--resolution", type=number(int, 2, 2048), default=24)
-    a.add_argument("--seed", type=SEED, default=0)
+    a.add_argument("--resolution", type=number(int, 2, 2048), default=24, help="grid resolution of the surface")
+    a.add_argument("--seed", type=SEED, default=0, help="for the random surfaces")
     a.set_defaults(func=cmd_synth_surface)
     return p
 
@@ -214,6 +217,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", GeofaceWarning)
+            warnings.showwarning = _show_warning
+            resolve_output(parser, args)
     except SystemExit as e:  # a usage error (one line already printed), --help or --version
         return int(e.code or 0) if not isinstance(e.code, str) else 2
     if not hasattr(args, "force"):
@@ -224,12 +231,14 @@ def main(argv: list[str] | None = None) -> int:
 
     # the library is quiet unless asked; the command line shows progress unless -q (or
     # GEOFACE_QUIET=1, as the tests set)
-    was_quiet = _progress.QUIET
+    was_quiet, was_verbose = _progress.QUIET, _progress.VERBOSE
     _progress.set_quiet(bool(args.quiet) or os.environ.get("GEOFACE_QUIET", "") not in ("", "0"))
+    _progress.set_verbose(bool(getattr(args, "verbose", False)) or was_verbose)
     try:
         return _run(args)
     finally:
         _progress.set_quiet(was_quiet)
+        _progress.set_verbose(was_verbose)
 
 
 def _run(args) -> int:

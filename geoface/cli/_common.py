@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 
 
@@ -41,7 +42,37 @@ def axis(auto: bool = True):
     return parse
 
 
+class _Formatter(argparse.HelpFormatter):
+    """Every option's default in ``--help``: a help text that does not say it gets
+    ``(default: X)``; one that ends in the bare value, ``(0.02)``, says ``(default: 0.02)``."""
+
+    def _get_help_string(self, action):
+        h = action.help or ""
+        d = action.default
+        if (not action.option_strings or d is None or d is False or d is argparse.SUPPRESS
+                or "default" in h or "%(default)" in h):
+            return h
+        m = re.search(r"\(([^()]*)\)\s*$", h)
+        if m and m.group(1).split(";")[0].split(",")[0].split(" ")[0].strip() in _spellings(d):
+            return h[:m.start()] + f"(default: {m.group(1)})"
+        return (h + " " if h else "") + "(default: %(default)s)"
+
+
+def _spellings(value) -> set:
+    """How a help text may write a default: 0.001 as 0.001 or 1e-3, 6.0 as 6."""
+    out = {str(value)}
+    if isinstance(value, float):
+        out |= {f"{value:g}", f"{value:.0e}".replace("e-0", "e-"), repr(value)}
+        if value == int(value):
+            out.add(str(int(value)))
+    return out
+
+
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *a, **k):
+        k.setdefault("formatter_class", _Formatter)
+        super().__init__(*a, **k)
+
     def error(self, message):  # one line, exit code 2 (argparse's own code for usage errors)
         self.exit(2, f"{self.prog}: error: {one_line(message)}\n")
 

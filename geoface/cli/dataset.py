@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .._args import number
+from .._args import number, renamed
 from ._common import _guard, axis
 
 def _dataset_options(b) -> None:
@@ -11,15 +11,18 @@ def _dataset_options(b) -> None:
     b.add_argument("--res", type=number(int, 4, 8192), default=512, help="image resolution N (default 512)")
     b.add_argument("--augment", type=number(int, 1, 8), default=8, help="corner sets per mesh, 1..8 (default 8)")
     b.add_argument("--workers", type=number(int, 1, 1024), default=None, help="local worker processes (default: the number of cores; 1 = serial)")
-    b.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a Dask scheduler (tcp://host:port) instead of the local pool")
+    b.add_argument("--dask", default=None, metavar="ADDRESS", help="a Dask scheduler's address (tcp://host:port): "
+                   "run on that cluster instead of the local pool")
+    renamed(b, "--scheduler", "--dask")
     b.add_argument("--lam", type=number(float, 0, 1000, lo_open=True), default=2.5, help="mass factor on the ROI (2.5)")
-    b.add_argument("--method", choices=["ot", "conformal"], default="ot")
-    b.add_argument("--ot-tol", type=number(float, 0, 1, lo_open=True, hi_open=True), default=1e-3)
+    b.add_argument("--method", choices=["ot", "conformal"], default="ot", help="measure-preserving (ot) or conformal")
+    b.add_argument("--ot-tol", type=number(float, 0, 1, lo_open=True, hi_open=True), default=1e-3,
+                   help="OT tolerance: max relative cell-area error (1e-3)")
     b.add_argument("--reconstruct", action="store_true", help="also write reconstruction.obj and its error")
     b.add_argument("--retry-failed", action="store_true", help="try items that failed in an earlier run again")
     b.add_argument("--strict", action="store_true", help="exit code 1 when any item failed")
     b.add_argument("--up", default="auto", type=axis(), help="up axis (default auto: from the shape, any axis convention)")
-    b.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto")
+    b.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto", help="how to open a closed surface")
 
 
 def _dataset_report(args, out: Path, s: dict) -> int:
@@ -40,10 +43,10 @@ def _dataset_opts(args):
 def cmd_dataset_build(args) -> int:
     from ..dataset import build_dataset
 
-    out, inp = Path(args.out_dir), Path(args.in_dir)
+    out, inp = Path(args.output), Path(args.in_dir)
     # an existing dataset folder is resumed (its manifest records the options it was built with)
     _guard(args, [inp, args.labels], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
-    s = build_dataset(inp, out, _dataset_opts(args), workers=args.workers, scheduler=args.scheduler, labels=args.labels,
+    s = build_dataset(inp, out, _dataset_opts(args), workers=args.workers, scheduler=args.dask, labels=args.labels,
                       retry_failed=args.retry_failed, rebuild=args.force)
     return _dataset_report(args, out, s)
 
@@ -51,9 +54,9 @@ def cmd_dataset_build(args) -> int:
 def cmd_dataset_ict(args) -> int:
     from ..dataset import build_ict_dataset
 
-    out = Path(args.out_dir)
+    out = Path(args.output)
     _guard(args, [args.model], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
     s = build_ict_dataset(out, args.count, _dataset_opts(args), seed=args.seed, model=args.model, mix_share=args.mix_share,
-                          heldout_share=args.heldout_share, workers=args.workers, scheduler=args.scheduler,
+                          heldout_share=args.heldout_share, workers=args.workers, scheduler=args.dask,
                           retry_failed=args.retry_failed, rebuild=args.force)
     return _dataset_report(args, out, s)

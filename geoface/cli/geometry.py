@@ -151,32 +151,48 @@ def cmd_param(args) -> int:
 
 
 # --------------------------------------------------------------------------- convert / reconstruct
-def cmd_convert(args) -> int:
-    from ..mesh.io import load_mesh
-    from ..pipeline import ConvertOptions, convert, load_roi
+def _vec_text(v) -> str:
+    """(0, 1, 0) as +y; an oblique direction as its three numbers."""
+    import numpy as np
 
-    out = Path(args.out_dir)
-    inp = Path(args.input)
-    if args.corner_set is not None and args.augment != 1:
-        raise GeofaceError(f"--corner-set {args.corner_set} converts one corner set; --augment {args.augment} asks for "
-                           f"{args.augment}: give one of them")
-    roi_file = None if args.roi in ("face", "none") else args.roi
-    _guard(args, [inp, roi_file], [out])
-    mesh = load_mesh(inp)
-    roi = args.roi
-    if roi not in ("face", "none"):
-        roi = load_roi(roi, len(mesh.V))
-    opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, augment=args.augment, method=args.method,
-                          ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
-                          corner_set=args.corner_set)
-    m = convert(mesh, out, opts, overwrite=args.force)
-    print(f"{args.input} -> {out}/  ({len(m['sets'])} image set(s) at {args.res}x{args.res}, {m['seconds']['total']:.1f} s)")
+    v = np.asarray(v, float)
+    k = int(np.argmax(np.abs(v)))
+    if abs(abs(v[k]) - 1.0) < 1e-6:
+        return ("+" if v[k] > 0 else "-") + "xyz"[k]
+    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
+
+
+def _convert_summary(args, out, m) -> str:
+    """The one line `convert` ends with: what was written, how long, the frame, the quality."""
+    sets = m["sets"]
+    n = len(sets)
+    line = f"{args.input} -> {out}/: {n} image set{'s' if n != 1 else ''} at {args.res}x{args.res} in {m['seconds']['total']:.1f} s"
+    fr = m.get("frame")
+    if fr is not None:
+        import re
+
+        how = re.sub(r"\s*\([^()]*\)", "", fr["how"].split(";")[0])
+        line += f"; up {_vec_text(fr['up'])}, front {_vec_text(fr['front'])} ({how})"
+    line += f"; {sum(st['distortion']['flipped'] for st in sets)} flipped"
+    shares = [st["roi_pixel_share"] for st in sets if "roi_pixel_share" in st]
+    if shares:
+        lo, hi = 100 * min(shares), 100 * max(shares)
+        line += f"; face {lo:.0f}% of the pixels" if round(lo) == round(hi) else f"; face {lo:.0f}-{hi:.0f}% of the pixels"
+    hd = [st["reconstruction"]["hausdorff"] for st in sets if "reconstruction" in st]
+    if hd:
+        line += f"; Hausdorff {100 * max(hd):.2f}% of the diagonal" + (" (worst set)" if n > 1 else "")
+    if any(not st.get("ot", {}).get("converged", True) for st in sets):
+        line += "; OT stopped short of --ot-tol (metrics.json: ot.residual)"
+    return line
+
+
+def _convert_details(args, m) -> None:
+    """Per corner set (``-v``): distortion, pixels, error and the path the map took."""
     fr = m.get("frame")
     if fr is not None:
         up = ", ".join(f"{x:.2f}" for x in fr["up"])
         front = ", ".join(f"{x:.2f}" for x in fr["front"])
-        sure = "" if fr["certain"] else f"  UNCERTAIN ({fr['why']}): check the preview, or pass --up / --front"
-        print(f"  frame: up ({up}), front ({front}): {fr['kind']}, {fr['how']}{sure}")
+        print(f"  frame: up ({up}), front ({front}): {fr['kind']}, {fr['how']}")
     for st in m["sets"]:
         d = st["distortion"]
         line = f"  set {st['corner_set']}: |log area| mean {d['log_area_abs_mean']:.3f}, QC mean {d['qc_mean']:.2f}, flipped {d['flipped']}"
@@ -198,6 +214,35 @@ def cmd_convert(args) -> int:
                 how = f"OT centroids as they are ({sites}, no fold)"
             reached = "" if ot["converged"] else f"; tolerance reached {ot['residual']:.2g} (asked {args.ot_tol:g})"
             print(f"    map: {how}; {ot['iterations']} Newton steps, {ot['power_diagrams']} power diagrams{reached}")
+
+
+def cmd_convert(args) -> int:
+    from ..mesh.io import load_mesh
+    from ..pipeline import ConvertOptions, convert, load_roi
+
+    out = Path(args.output)
+    inp = Path(args.input)
+    if args.corner_set is not None and args.augment != 1:
+        raise GeofaceError(f"--corner-set {args.corner_set} converts one corner set; --augment {args.augment} asks for "
+                           f"{args.augment}: give one of them")
+    roi_file = None if args.roi in ("face", "none") else args.roi
+    _guard(args, [inp, roi_file], [out])
+    mesh = load_mesh(inp)
+    roi = args.roi
+    if roi not in ("face", "none"):
+        roi = load_roi(roi, len(mesh.V))
+    opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, augment=args.augment, method=args.method,
+                          ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
+                          corner_set=args.corner_set)
+    m = convert(mesh, out, opts, overwrite=args.force)
+    print(_convert_summary(args, out, m))
+    from .. import progress as _progress
+
+    fr = m.get("frame")
+    if fr is not None and not fr["certain"]:
+        print(f"  which way is up is uncertain ({fr['why']}): check preview.png, or pass --up / --front")
+    if _progress.VERBOSE:
+        _convert_details(args, m)
     for f in m.get("failed_sets", []):
         print(f"  set {f['corner_set']}: FAILED and skipped: {f['error']}")
     return 0

@@ -119,7 +119,9 @@ def reconstruct(gi: GeometryImage, *, smooth: int = 0) -> Mesh:
 def save_reconstruction(path: str | os.PathLike, mesh: Mesh, gi: GeometryImage | None = None, *,
                         overwrite: bool = True) -> None:
     """Write a reconstruction; for OBJ also the texture (via the MTL) and, when the image has
-    normals, an 8-bit object-space normal map ``<stem>_normal.png`` named in the MTL.  With
+    normals, an 8-bit object-space normal map ``<stem>_normal.png`` (named in an MTL comment only:
+    MTL has no key for object-space normals, and importers would read ``map_Bump`` or ``norm`` as a
+    bump or tangent-space map).  With
     ``overwrite=False`` nothing is written if the mesh or any of its files exists."""
     from .._io import OutputError
     from ..mesh.io import _refuse_existing, companion_names, save_mesh
@@ -147,6 +149,9 @@ def save_reconstruction(path: str | os.PathLike, mesh: Mesh, gi: GeometryImage |
         if mtl.is_file():
             text = mtl.read_text()
             if name not in text:
-                text = text.rstrip("\n") + f"\n# object-space normal map\nnorm {name}\nmap_Bump {name}\n"
+                # a comment, not a key: importers read map_Bump / bump / norm as a height or
+                # tangent-space map, and MTL has no key for an object-space one
+                text = text.rstrip("\n") + (f"\n# {name}: object-space normal map (RGB = (n + 1) / 2 in the mesh's "
+                                            "frame), not a tangent-space or bump map; left out of the material\n")
                 with atomic_path(mtl) as tmp:
                     Path(tmp).write_text(text)

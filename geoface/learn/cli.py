@@ -8,7 +8,7 @@ import argparse
 from pathlib import Path
 
 from geoface.errors import GeofaceError
-from geoface._args import SEED, number
+from geoface._args import SEED, number, renamed
 
 __all__ = ["register", "cmd_ddpm_train", "cmd_ddpm_sample"]
 
@@ -63,7 +63,7 @@ def cmd_ddpm_sample(args) -> int:
     if args.n < 1 or args.steps < 1:
         raise GeofaceError("-n and --steps must be >= 1")
     run = load_run(args.run_dir)
-    x = sample(run, args.prompt, n=args.n, steps=args.steps, scheduler=args.scheduler,
+    x = sample(run, args.prompt, n=args.n, steps=args.steps, scheduler=args.sampler,
                guidance=args.guidance, seed=args.seed, device=_device(args.device), quiet=_quiet(args))
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
@@ -96,7 +96,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("-o", "--output", required=True, metavar="RUN_DIR")
     t.add_argument("--res", type=number(int, 8, 1024), default=64, help="training resolution (divides the image resolution)")
     t.add_argument("--steps", type=number(int, 1, 100_000_000), default=10000, help="total optimisation steps")
-    t.add_argument("--batch", type=number(int, 1, 4096), default=8)
+    t.add_argument("--batch", type=number(int, 1, 4096), default=8, help="images per step")
     t.add_argument("--model", choices=["small", "base", "tiny"], default="small",
                    help="model size: small (default; 5.9 M parameters, what the README's results use), base "
                         "(paper-sized, for a GPU), tiny (smoke tests)")
@@ -108,8 +108,8 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--cache-mb", type=number(float, 0, 1e7), default=256.0,
                    help="decoded items kept in memory, megabytes (the dataset is read lazily)")
     t.add_argument("--text-encoder", default="minilm", help="minilm | clip:PATH | hash[:DIM]")
-    t.add_argument("--checkpoint-every", type=number(int, 1, 100_000_000), default=500)
-    t.add_argument("--seed", type=SEED, default=0)
+    t.add_argument("--checkpoint-every", type=number(int, 1, 100_000_000), default=500, help="steps between checkpoints")
+    t.add_argument("--seed", type=SEED, default=0, help="seeds the initial weights, batches and noise")
     t.add_argument("--device", default=None, help="cpu | cuda (default: cuda when available)")
     t.add_argument("--no-augment", action="store_true", help="no random rigid motions of the training heads")
     t.add_argument("--no-standardize", action="store_true",
@@ -123,12 +123,14 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     p = sd.add_parser("sample", parents=[common], help="sample geometry images + meshes for a prompt")
     p.add_argument("run_dir")
     p.add_argument("prompt")
-    p.add_argument("-n", type=number(int, 1, 10_000), default=4)
-    p.add_argument("--steps", type=number(int, 1, 100_000_000), default=50)
-    p.add_argument("--scheduler", choices=["ddpm", "ddim"], default="ddpm",
-                   help="ddpm: stochastic (measured to give valid heads where ddim does not, docs/ddpm.md); ddim: deterministic")
-    p.add_argument("--guidance", type=number(float, 0, 100), default=3.0)
-    p.add_argument("--seed", type=SEED, default=0)
-    p.add_argument("--device", default="cpu")
+    p.add_argument("-n", type=number(int, 1, 10_000), default=4, help="number of samples")
+    p.add_argument("--steps", type=number(int, 1, 100_000_000), default=50, help="denoising steps")
+    p.add_argument("--sampler", choices=["ddpm", "ddim"], default="ddpm",
+                   help="ddpm: stochastic (default; measured to give valid heads where ddim does not, docs/ddpm.md); "
+                        "ddim: deterministic")
+    renamed(p, "--scheduler", "--sampler")
+    p.add_argument("--guidance", type=number(float, 0, 100), default=3.0, help="classifier-free guidance scale")
+    p.add_argument("--seed", type=SEED, default=0, help="seeds the noise")
+    p.add_argument("--device", default="cpu", help="cpu | cuda")
     p.add_argument("-o", "--output", required=True, metavar="OUT_DIR")
     p.set_defaults(func=cmd_ddpm_sample)

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from geoface.errors import GeofaceError
-from geoface._args import SEED, number
+from geoface._args import SEED, number, output_option
 
 __all__ = ["register"]
 
@@ -175,7 +175,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     sd = s.add_subparsers(dest="what", metavar="WHAT")
     sd.required = True
     p = sd.add_parser("synth", parents=[common], help="write synthetic (photo, maps, UV, normal) samples")
-    p.add_argument("output", metavar="OUT_DIR")
+    output_option(p, "OUT_DIR", "folder for the samples")
     p.add_argument("--count", type=number(int, 1, 100_000), default=8)
     p.add_argument("--res", type=number(int, 16, 8192), default=512, help="photo resolution")
     p.add_argument("--map-res", type=number(int, 16, 16384), default=None, help="UV-map resolution (default max(res, 1024))")

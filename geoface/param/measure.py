@@ -177,7 +177,7 @@ def measure_preserving_map(
         # a vertex only in flat triangles still needs a cell: a tiny mass, not a failure
         floor = 1e-6 * float(np.median(va[va > 0])) if (va > 0).any() else 1.0
         log(f"  measure-preserving map: {int((va <= 0).sum())} vertices lie only in flat triangles; "
-            f"they get a mass of {floor:.3g}", quiet=quiet)
+            f"they get a mass of {floor:.3g}", quiet=quiet, detail=True)
         va = np.where(np.isfinite(va) & (va > 0), va, floor)
     nu = weight * va
     loops = boundary_loops(F)
@@ -211,7 +211,7 @@ def measure_preserving_map(
         # conformal factors spanning many orders of magnitude, not an error)
         bal = area_balanced_map(F, uv, nu)
         log(f"  measure-preserving map: OT sites from an area-balanced embedding (worst log area ratio "
-            f"{bal.start_max_log_ratio:.1f} -> {bal.max_log_ratio:.1f} in {bal.best_round} rounds)", quiet=quiet)
+            f"{bal.start_max_log_ratio:.1f} -> {bal.max_log_ratio:.1f} in {bal.best_round} rounds)", quiet=quiet, detail=True)
         cur = bal.uv
         for k in range(MAX_RESTARTS + 1):
             r = attempt(cur, "balanced" if k == 0 else f"balanced, moved {k}x", max_iterations=600)
@@ -245,7 +245,7 @@ def measure_preserving_map(
     new, flipped_before, flipped_after, ff, err_before, err_after = result
     residual = float(ot.residual) if ot is not None else _max_rel_area_error(F, new, nu)
     if residual > tol:
-        log(f"  measure-preserving map: reached max relative area error {residual:.3g} (tolerance {tol:g})", quiet=quiet)
+        log(f"  measure-preserving map: reached max relative area error {residual:.3g} (tolerance {tol:g})", quiet=quiet, detail=True)
     share = None
     if roi is not None:
         fa = np.abs(signed_uv_areas(F, new))
@@ -279,6 +279,6 @@ def _from_centroids(F, ot, bnd, sides, orient, reference, fold_free, quiet):
         else:
             new = ff.uv
             log(f"  measure-preserving map: {flipped_before} folded triangles of the centroid map replaced "
-                f"({ff.fitted_vertices} vertices re-fitted)", quiet=quiet)
+                f"({ff.fitted_vertices} vertices re-fitted)", quiet=quiet, detail=True)
     flipped_after = int((orient * signed_uv_areas(F, new) <= 0).sum())
     return new, flipped_before, flipped_after, ff, err_before, area_error(F, new, ot.nu)

@@ -253,7 +253,7 @@ def semi_discrete_ot(
             hr, pd, g = hn, pdn, gnew
             res = _rel_residual(pd.area, target)
             history.append({"stage": stage, "residual": res, "tau": tau})
-            log(f"  OT stage {stage}/{n_stages} iteration {iterations}: max rel. error {res:.3g} (step {tau:g})", quiet=quiet)
+            log(f"  OT stage {stage}/{n_stages} iteration {iterations}: max rel. error {res:.3g} (step {tau:g})", quiet=quiet, detail=True)
             short = short + 1 if tau <= 1 / 64 else 0
             if stall and short >= stall:
                 failure = (f"optimal transport stalled: {short} steps in a row of at most 1/64 "

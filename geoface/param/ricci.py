@@ -301,7 +301,7 @@ class RicciFlowSolver:
                                                               stall=3 if auto and tri is None else 0)
         if auto and tri is None and (not converged or _n_degenerate(ang) > 0):
             log(f"ricci: no flat metric on the mesh's own triangulation (residual {res:.2e} after {it} iterations); "
-                "continuing on its intrinsic Delaunay triangulation", quiet=quiet)
+                "continuing on its intrinsic Delaunay triangulation", quiet=quiet, detail=True)
             tri = IntrinsicTriangulation(self.F, self.l0)
             u, ang, F, it2, res, h2, converged = self._newton(corners, theta, np.zeros(self.n), tri, quiet, self.max_iterations)
             it += it2
@@ -316,7 +316,7 @@ class RicciFlowSolver:
             if not bad or rounds >= self.max_refinements:
                 break
             rounds += 1
-            log(f"ricci: {len(bad)} boundary triangles flattened by the flow; splitting their boundary edges (round {rounds})", quiet=quiet)
+            log(f"ricci: {len(bad)} boundary triangles flattened by the flow; splitting their boundary edges (round {rounds})", quiet=quiet, detail=True)
             n_old = self.n
             self._split_boundary_edges(bad)
             if self.n == n_old:
@@ -415,7 +415,7 @@ class RicciFlowSolver:
             u, E, g, ang, F = un, En, gn, angn, Fn
             res = float(np.abs(g).max())
             history.append(res)
-            log(f"ricci: iteration {it}: max |K - target| = {res:.3e}, step {t:g}", quiet=quiet)
+            log(f"ricci: iteration {it}: max |K - target| = {res:.3e}, step {t:g}", quiet=quiet, detail=True)
             converged = res <= self.tolerance
             if t < 1e-12:
                 break

@@ -234,12 +234,12 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
     V, F = check_mesh(V, F)
     area_before = float(face_areas(V, F).sum())
 
-    log(f"make_disk: {len(V)} vertices, {len(F)} faces; cleaning", quiet=quiet)
+    log(f"make_disk: {len(V)} vertices, {len(F)} faces; cleaning", quiet=quiet, detail=True)
     res = clean(V, F, merge_tolerance=opts.merge_tolerance)
     res = res.then(keep_components(res.V, res.F, min_area_fraction=opts.min_component_area))
     _strict(res, "clean")
     if opts.target_vertices is not None:
-        log(f"remeshing to ~{opts.target_vertices} vertices", quiet=quiet)
+        log(f"remeshing to ~{opts.target_vertices} vertices", quiet=quiet, detail=True)
         res = res.then(remesh(res.V, res.F, int(opts.target_vertices), method=opts.remesh_method))
         res = res.then(clean(res.V, res.F))
         res = res.then(keep_components(res.V, res.F))
@@ -250,17 +250,17 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
         frame = upright_frame(res.V, res.F)
         opts = replace(opts, up=frame.up)
         log(f"make_disk: up {_axis_text(frame.up)}, front {_axis_text(frame.front)} ({frame.kind}; {frame.how})"
-            + ("" if frame.certain else f"; UNCERTAIN: {frame.why}"), quiet=quiet)
+            + ("" if frame.certain else f"; UNCERTAIN: {frame.why}"), quiet=quiet, detail=True)
     loops = boundary_loops(res.F)
     closed = len(loops) == 0
     if loops and opts.open == "auto" and opts.keep_boundary == "longest" and frame is not None and frame.kind == "closed":
         log("make_disk: a closed head with holes (its longest boundary is not the neck): filling every hole and "
-            "cutting it open at the neck", quiet=quiet)
+            "cutting it open at the neck", quiet=quiet, detail=True)
         closed = True
     elif loops and opts.open == "auto" and opts.keep_boundary == "longest" and _small_opening(res.V, res.F, opts.min_opening):
         log("make_disk: the longest boundary is a small hole (shorter than "
             f"{opts.min_opening:g} sqrt(area), or under {MIN_OPENING_VERTICES} vertices): filling every hole and "
-            "cutting the surface open like a closed one", quiet=quiet)
+            "cutting the surface open like a closed one", quiet=quiet, detail=True)
         closed = True
     if closed and opts.open == "none":
         raise MeshTopologyError("the mesh is closed (no boundary) and open='none'; use open='auto', 'plane' or 'cap'")
@@ -268,13 +268,13 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
     if loops:
         # an explicit cut makes the new boundary: then every existing hole is closed
         keep = "none" if cut else opts.keep_boundary
-        log(f"make_disk: {len(loops)} boundary loops; filling {'all' if cut else 'all but the kept one'}", quiet=quiet)
+        log(f"make_disk: {len(loops)} boundary loops; filling {'all' if cut else 'all but the kept one'}", quiet=quiet, detail=True)
         res = res.then(fill_holes(res.V, res.F, keep=keep, refine=opts.refine_holes, fairing=opts.fair_holes))
-    log("make_disk: removing handles", quiet=quiet)
+    log("make_disk: removing handles", quiet=quiet, detail=True)
     res = res.then(remove_handles(res.V, res.F, max_handles=opts.max_handles, seed=opts.seed))
     _strict(res, "handles")
     if cut:
-        log(f"make_disk: opening the surface ({'cap' if opts.open == 'cap' else 'plane'})", quiet=quiet)
+        log(f"make_disk: opening the surface ({'cap' if opts.open == 'cap' else 'plane'})", quiet=quiet, detail=True)
         closed_res = res
         area_closed = float(face_areas(res.V, res.F).sum())
         # with open="auto" a plane cut that leaves too small an opening is raised (doubled)
@@ -299,7 +299,7 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
             if not _small_opening(res.V, res.F, opts.min_opening):
                 break
             if i + 1 < len(heights):
-                log(f"make_disk: the opening at height {height:g} is small; cutting higher", quiet=quiet)
+                log(f"make_disk: the opening at height {height:g} is small; cutting higher", quiet=quiet, detail=True)
     res = res.then(clean(res.V, res.F))
     rep = topology_report(res.V, res.F)
     problems = _disk_problems(rep)

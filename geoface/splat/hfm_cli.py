@@ -8,7 +8,7 @@ import argparse
 from pathlib import Path
 
 from geoface.errors import GeofaceError
-from geoface._args import SEED, add_json, json_to_stdout, number, write_json
+from geoface._args import SEED, add_json, json_to_stdout, number, write_json, output_option
 
 __all__ = ["register"]
 
@@ -197,7 +197,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     hs = h.add_subparsers(dest="what", metavar="WHAT")
     hs.required = True
     s = hs.add_parser("synth", parents=[common], help="write synthetic registration and usage videos")
-    s.add_argument("output", metavar="OUT_DIR")
+    output_option(s, "OUT_DIR", "folder for the registration and usage captures")
     s.add_argument("--frames", type=number(int, 2, 100_000), default=200, help="frames in the whole sequence (200)")
     s.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.2, help="last fraction that becomes the usage video (0.2)")
     s.add_argument("--res", type=number(int, 16, 4096), default=128, help="image side in pixels (128)")

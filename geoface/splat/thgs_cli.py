@@ -13,7 +13,7 @@ __all__ = ["register"]
 
 from geoface.splat.hfm_cli import _quiet, _train_device  # noqa: E402  (argparse only, no torch)
 from geoface._io import output_folder  # noqa: E402
-from geoface._args import SEED, add_json, json_to_stdout, number, write_json
+from geoface._args import SEED, add_json, json_to_stdout, number, write_json, output_option
 
 #: THGSConfig.lambda_landmarks's default (kept here so that building the parser imports no torch)
 THGS_LANDMARK_WEIGHT = 3.0
@@ -125,7 +125,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     hs = h.add_subparsers(dest="what", metavar="WHAT")
     hs.required = True
     s = hs.add_parser("synth", parents=[common], help="write a synthetic talking-head data folder")
-    s.add_argument("output", metavar="OUT_DIR")
+    output_option(s, "OUT_DIR", "folder for the talking-head capture")
     s.add_argument("--seconds", type=number(float, 0, 3600, lo_open=True), default=8.0)
     s.add_argument("--fps", type=number(float, 0.1, 240), default=25.0)
     s.add_argument("--res", type=number(int, 16, 4096), default=128)

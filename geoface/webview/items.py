@@ -140,12 +140,21 @@ def _trimesh(V, F, *, vertex_colors=None, face_colors=None, uv=None, texture=Non
     if texture is not None and uv is not None:
         from PIL import Image
 
-        tm.visual = trimesh.visual.TextureVisuals(uv=np.asarray(uv, np.float64), image=Image.fromarray(texture))
+        # a PBR material of its own: trimesh's default one multiplies the texture by 0.4 and
+        # leaves glTF's metallicFactor at 1 (a metal), which drew textured heads at half brightness
+        mat = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(texture),
+                                                  baseColorFactor=[255, 255, 255, 255], metallicFactor=0.0,
+                                                  roughnessFactor=1.0)
+        tm.visual = trimesh.visual.TextureVisuals(uv=np.asarray(uv, np.float64), material=mat)
     elif vertex_colors is not None:
         c = np.asarray(vertex_colors)
-        if c.dtype != np.uint8:
-            c = np.round(np.clip(c, 0, 1) * 255).astype(np.uint8)
-        tm.visual = trimesh.visual.ColorVisuals(tm, vertex_colors=c)
+        c = c / 255.0 if c.dtype == np.uint8 else np.clip(c, 0, 1)
+        # glTF's COLOR_0 is linear, and the page turns it back to sRGB: without this a colour
+        # would show lighter and greyer than it is
+        rgb = c[:, :3]
+        lin = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+        c = np.concatenate([lin, c[:, 3:]], axis=1)
+        tm.visual = trimesh.visual.ColorVisuals(tm, vertex_colors=np.round(c * 255).astype(np.uint8))
     return tm
 
 
@@ -174,3 +183,32 @@ def _gimage_images(gi, folder: Path) -> dict:
             over = base * 0.45 + np.array([255.0, 150.0, 40.0]) * 0.55 * (r[..., None] > 127)
             tiles["ROI"] = np.clip(np.where(r[..., None] > 127, over, base * 0.6), 0, 255).astype(np.uint8)
     return tiles
+
+
+def glb_bytes(tm) -> bytes:
+    """``tm`` as a GLB whose every primitive has a dielectric material: glTF's default (and a
+    primitive with no material, as vertex colours are exported) is a full metal, which the page
+    draws dark and tinted."""
+    import json
+    import struct
+
+    blob = tm.export(file_type="glb")
+    n_json = struct.unpack_from("<I", blob, 12)[0]
+    doc = json.loads(blob[20:20 + n_json])
+    rest = blob[20 + n_json:]
+    mats = doc.setdefault("materials", [])
+    for m in mats:
+        m.setdefault("pbrMetallicRoughness", {})["metallicFactor"] = 0.0
+    plain = None
+    for mesh in doc.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            if "material" not in prim:
+                if plain is None:
+                    plain = len(mats)
+                    mats.append({"pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0,
+                                                          "roughnessFactor": 1.0}})
+                prim["material"] = plain
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)  # chunks are 4-byte aligned; JSON pads with spaces
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + rest
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body

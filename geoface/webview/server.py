@@ -10,7 +10,7 @@ import numpy as np
 from ..errors import GeofaceError
 from .guard import check_host, check_port, guarded_serve, md_text, plain_text
 from .items import (_BOUNDARY, _GREY, DEFAULT_PORT, _boundary_segments, _gimage_images, _Item, _load,
-                    _trimesh, _viser, item_kind, uv_distortion_colors)
+                    _trimesh, _viser, glb_bytes, item_kind, uv_distortion_colors)
 
 __all__ = ["WebView"]
 
@@ -23,6 +23,10 @@ def _label(name: str, limit: int = 60) -> str:
 
 
 # ----------------------------------------------------------------------------- the server
+#: strength of the image-based light (viser's default, 1.0, drew textures 1.25x too bright)
+ENV_INTENSITY = 0.5
+
+
 class WebView:
     """A viser server showing ``paths`` side by side (see the module's description).
 
@@ -96,6 +100,9 @@ class WebView:
         srv = self.server
         fr = self.frame
         srv.scene.set_up_direction(tuple(float(x) for x in fr.up))
+        # light that shows a surface's colour as it is where it faces the camera (a texture's
+        # colour within about 15% in brightness; tests/test_webview.py measures it)
+        srv.scene.configure_environment_map(hdri="warehouse", environment_intensity=ENV_INTENSITY)
         size0 = float(np.linalg.norm(self.items[0].hi - self.items[0].lo))
         B0 = np.column_stack([fr.right, fr.up, fr.front])
         for it in self.items:
@@ -173,15 +180,15 @@ class WebView:
 
                 V2, F2, uv2, _ = split_corner_uvs(m.V, m.F, m.UV, m.FUV)
                 tm = _trimesh(V2, F2, uv=uv2, texture=_texture_uint8(m.texture), flat=flat)
-                handles["surface"] = srv.scene.add_mesh_trimesh(f"{node}/surface", tm, **place)
+                handles["surface"] = srv.scene.add_glb(f"{node}/surface", glb_bytes(tm), **place)
             elif mode == "colours":
                 tm = _trimesh(m.V, m.F, vertex_colors=m.colors[:, :3], flat=flat)
-                handles["surface"] = srv.scene.add_mesh_trimesh(f"{node}/surface", tm, **place)
+                handles["surface"] = srv.scene.add_glb(f"{node}/surface", glb_bytes(tm), **place)
             elif mode.startswith("UV distortion"):
                 metric = "qc" if "QC" in mode else "area"
                 V2, F2, fc, (lo, hi) = uv_distortion_colors(m, metric)
                 tm = _trimesh(V2, F2, face_colors=fc)
-                handles["surface"] = srv.scene.add_mesh_trimesh(f"{node}/surface", tm, **place)
+                handles["surface"] = srv.scene.add_glb(f"{node}/surface", glb_bytes(tm), **place)
                 legend.content = (f"{'QC ratio' if metric == 'qc' else 'log area ratio'}: "
                                   f"{lo:.2f} (dark) … {hi:.2f} (bright); flipped triangles magenta")
             else:

@@ -171,7 +171,7 @@ def test_convert_cli_end_to_end(tmp_path, capsys):
     head = tmp_path / "head.obj"
     assert main(["synth", "head", "-o", str(head), "--vertices", "3000", "--meta", str(tmp_path / "head.json"), "-q"]) == 0
     out = tmp_path / "out"
-    assert main(["convert", str(head), str(out), "--res", "64", "--roi", str(tmp_path / "head.json"), "--augment", "2", "-q"]) == 0
+    assert main(["convert", str(head), "-o", str(out), "--res", "64", "--roi", str(tmp_path / "head.json"), "--augment", "2", "-q"]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert len(m["sets"]) == 2
     for k, st in enumerate(m["sets"]):
@@ -192,7 +192,10 @@ def test_convert_cli_end_to_end(tmp_path, capsys):
     rec = tmp_path / "rec.obj"
     assert main(["reconstruct", str(out / "aug0"), "-o", str(rec), "-q"]) == 0
     assert rec.is_file() and (tmp_path / "rec_normal.png").is_file()
-    assert "norm rec_normal.png" in (tmp_path / "rec.mtl").read_text()
+    mtl = (tmp_path / "rec.mtl").read_text()
+    keys = {line.split()[0].lower() for line in mtl.splitlines() if line.strip() and not line.startswith("#")}
+    assert not keys & {"map_bump", "bump", "norm", "map_kn"}, mtl  # not a tangent-space / bump map
+    assert "# rec_normal.png: object-space normal map" in mtl
 
 
 def test_convert_bad_input_leaves_no_output(tmp_path, capsys):
@@ -201,11 +204,11 @@ def test_convert_bad_input_leaves_no_output(tmp_path, capsys):
     bad = tmp_path / "bad.obj"
     bad.write_text("v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n")
     out = tmp_path / "out"
-    assert main(["convert", str(bad), str(out)]) == 2
+    assert main(["convert", str(bad), "-o", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("geoface: error:")
     assert not out.exists()
     assert [p.name for p in tmp_path.iterdir()] == ["bad.obj"]
-    assert main(["convert", str(bad), str(out), "--roi", str(tmp_path / "nope.npy")]) == 2
+    assert main(["convert", str(bad), "-o", str(out), "--roi", str(tmp_path / "nope.npy")]) == 2
     assert main(["reconstruct", str(tmp_path), "-o", str(tmp_path / "r.obj")]) == 2
     assert not (tmp_path / "r.obj").exists()

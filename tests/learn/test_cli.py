@@ -24,7 +24,7 @@ def test_cli_train_sample_end_to_end(gimage_dataset, tmp_path, capsys):
     assert a.func(a) == 0
     assert (run / "checkpoint" / "model.safetensors").is_file()
     a = p.parse_args(["ddpm", "sample", str(run), "a smiling female", "-n", "2", "--steps", "2",
-                      "--scheduler", "ddim", "--seed", "1", "-o", str(out), "-q"])
+                      "--sampler", "ddim", "--seed", "1", "-o", str(out), "-q"])
     assert a.func(a) == 0
     for k in range(2):
         assert (out / f"sample_{k:03d}" / "meta.json").is_file()

@@ -10,7 +10,7 @@ from geoface.cli import main  # noqa: E402
 
 def test_synth_train_reconstruct_end_to_end(tmp_path, capsys):
     data, model, out = tmp_path / "data", tmp_path / "model", tmp_path / "out"
-    assert main(["texture", "synth", str(data), "--count", "2", "--res", "64", "--map-res", "128",
+    assert main(["texture", "synth", "-o", str(data), "--count", "2", "--res", "64", "--map-res", "128",
                  "--vertices", "3000", "-q"]) == 0
     assert main(["texture", "train", str(data), "-o", str(model), "--gde-res", "32", "--k", "2",
                  "--epochs", "2,2,2", "--batch", "2", "-q"]) == 0

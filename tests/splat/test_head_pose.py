@@ -524,9 +524,9 @@ def test_cli_ict_capture_and_pose_sources(ict_capture, tmp_path, capsys):
     from geoface.cli import main
 
     reg, use = ict_capture
-    assert main(["hmd", "synth", str(reg.parent), "--head", "ict", "-q"]) == 2  # never into a non-empty folder
+    assert main(["hmd", "synth", "-o", str(reg.parent), "--head", "ict", "-q"]) == 2  # never into a non-empty folder
     capsys.readouterr()
-    assert main(["hmd", "synth", str(tmp_path / "r"), "--head", "ict", "--frames", "20", "--rom", "1", "-q"]) == 2
+    assert main(["hmd", "synth", "-o", str(tmp_path / "r"), "--head", "ict", "--frames", "20", "--rom", "1", "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "range of motion" in err[0] and not (tmp_path / "r").exists()
     md = tmp_path / "m"

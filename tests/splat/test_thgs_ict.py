@@ -155,7 +155,7 @@ def test_cli_talk_synth_ict_with_perturbed_tracking_trains_and_reports_pose_erro
     from geoface.cli import main
 
     d = tmp_path / "t"
-    assert main(["talk", "synth", str(d), "--head", "ict", "--seconds", "0.4", "--res", "32", "--vertices", "1000",
+    assert main(["talk", "synth", "-o", str(d), "--head", "ict", "--seconds", "0.4", "--res", "32", "--vertices", "1000",
                  "--perturb", "3,5", "-q"]) == 0
     assert "off by 3° / 5 mm" in capsys.readouterr().out
     assert main(["talk", "train", str(d), "-o", str(tmp_path / "m"), "--iters", "3", "--heldout", "0.2", "-q"]) == 0
@@ -181,8 +181,8 @@ def test_cli_talk_synth_ict_with_perturbed_tracking_trains_and_reports_pose_erro
     e = json.loads((tmp_path / "e.json").read_text())
     assert abs(e["pose_before"]["rot_deg_mean"] - 3.0) < 1e-6 and "mouth_open_std_real" in e
     for bad in (["--perturb", "3"], ["--perturb", "a,b"], ["--perturb", "-1,2"]):
-        assert main(["talk", "synth", str(tmp_path / "x"), "--head", "ict", *bad]) == 2
-    assert main(["talk", "synth", str(tmp_path / "x"), "--perturb", "3,5"]) == 2  # the procedural head has no truth file
+        assert main(["talk", "synth", "-o", str(tmp_path / "x"), "--head", "ict", *bad]) == 2
+    assert main(["talk", "synth", "-o", str(tmp_path / "x"), "--perturb", "3,5"]) == 2  # the procedural head has no truth file
     assert "needs --head ict" in capsys.readouterr().err
 
 

@@ -89,7 +89,7 @@ def test_dataset_ict_builds_resumes_and_records_labels(tmp_path):
     from geoface.cli import main
 
     out = tmp_path / "ict"
-    args = ["dataset", "ict", str(out), "--count", "2", "--res", "16", "--augment", "1", "--workers", "1", "-q"]
+    args = ["dataset", "ict", "-o", str(out), "--count", "2", "--res", "16", "--augment", "1", "--workers", "1", "-q"]
     assert main(args) == 0
     rows = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
     assert len(rows) == 2 and all(r["status"] == "ok" for r in rows)
@@ -104,7 +104,7 @@ def test_dataset_ict_builds_resumes_and_records_labels(tmp_path):
         assert r["metrics"]["roi_vertices"] == 9409  # the model's face area is the ROI
     before = (out / "manifest.jsonl").read_text()
     assert main(args) == 0 and (out / "manifest.jsonl").read_text() == before  # resumed: nothing to do
-    assert main([*args[:4], "1", *args[5:]]) == 2  # another source (count) is refused ...
-    assert main([*args[:4], "1", *args[5:], "--force"]) == 0  # ... unless rebuilt
+    assert main([*args[:5], "1", *args[6:]]) == 2  # another source (count) is refused ...
+    assert main([*args[:5], "1", *args[6:], "--force"]) == 0  # ... unless rebuilt
     rows = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
     assert [r["item"] for r in rows] == [rows[0]["item"]]  # a fresh manifest: no row of the old build
