@@ -8,7 +8,6 @@ build``; the generated files are not committed.
 from __future__ import annotations
 
 import argparse
-import pkgutil
 import re
 import sys
 from pathlib import Path
@@ -17,18 +16,74 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 DOCS = ROOT / "docs"
 
-#: the public modules, one API page each (private ones, ``_*``, and command-line glue are left out)
-SKIP = re.compile(r"(^|\.)_|\.cli(\.|$)|_cli$|^geoface\.__main__$")
+#: the API reference, by layer (docs/architecture.md): one page per package or module, showing
+#: what its ``__all__`` exports
+LAYERS = [
+    ("Foundations", ["geoface", "geoface.errors", "geoface.tol", "geoface.progress", "geoface.video"]),
+    ("Geometry", ["geoface.mesh", "geoface.synth", "geoface.repair", "geoface.param", "geoface.gimage", "geoface.uvmap"]),
+    ("Pipelines", ["geoface.pipeline", "geoface.dataset"]),
+    ("Pictures", ["geoface.viz", "geoface.webview"]),
+    ("Neural consumers", ["geoface.nn", "geoface.learn", "geoface.splat", "geoface.skin"]),
+]
 
 
 def public_modules() -> list[str]:
-    import geoface
+    return [m for _, mods in LAYERS for m in mods]
 
-    names = ["geoface"]
-    for m in pkgutil.walk_packages(geoface.__path__, "geoface."):
-        if not SKIP.search(m.name):
-            names.append(m.name)
-    return sorted(names)
+
+def _summary(mod) -> str:
+    doc = (mod.__doc__ or "").strip().split("\n\n")[0]
+    return " ".join(doc.split())
+
+
+def api_page(name: str) -> str:
+    """A package's page: its docstring, then each exported name from the module that defines it
+    (lazily exported names too, which a static reader cannot follow)."""
+    import importlib
+    import inspect
+
+    mod = importlib.import_module(name)
+    exported = getattr(mod, "__all__", None)
+    out = [f"# `{name}`", ""]
+    if exported is None:
+        out += [f"::: {name}", ""]
+        return "\n".join(out)
+    out += [f"::: {name}", "    options:", "      members: false", ""]
+    pages = public_modules()
+    elsewhere = []
+    for n in exported:
+        obj = getattr(mod, n)
+        if inspect.ismodule(obj) or n.startswith("_"):
+            continue
+        home = getattr(obj, "__module__", None) if (inspect.isclass(obj) or inspect.isfunction(obj)) else None
+        if home is None or not home.startswith("geoface"):
+            home = name  # a constant: documented where it is exported
+            out += [f"::: {home}.{n}", "    options:", "      show_root_heading: true", "      heading_level: 2", ""]
+            continue
+        owner = max((p for p in pages if home == p or home.startswith(p + ".")), key=len, default=name)
+        if owner != name:  # documented on the page of the package that defines it
+            elsewhere.append(f"[`{n}`]({owner}.md#{home}.{obj.__qualname__})")
+            continue
+        out += [f"::: {home}.{obj.__qualname__}", "    options:", "      show_root_heading: true",
+                "      show_root_full_path: false", "      heading_level: 2", ""]
+    if elsewhere:
+        out[2:2] = ["Also exported here: " + ", ".join(elsewhere) + ".", ""]
+    return "\n".join(out)
+
+
+def api_index() -> str:
+    import importlib
+
+    out = ["# API reference", "",
+           "The public API, package by package, in the order the layers depend on each other "
+           "([architecture](../architecture.md)): each page shows what the package exports "
+           "(`__all__`); everything else is internal and may change.", ""]
+    for layer, mods in LAYERS:
+        out += [f"## {layer}", ""]
+        for m in mods:
+            out.append(f"* [`{m}`]({m}.md) — {_summary(importlib.import_module(m))}")
+        out.append("")
+    return "\n".join(out)
 
 
 def write(path: Path, text: str) -> None:
@@ -81,8 +136,8 @@ def main(argv=None) -> int:
         if old.stem not in mods and old.stem != "index":
             old.unlink()
     for m in mods:
-        write(api / f"{m}.md", f"# `{m}`\n\n::: {m}\n")
-    write(api / "index.md", "# API reference\n\n" + "\n".join(f"* [`{m}`]({m}.md)" for m in mods) + "\n")
+        write(api / f"{m}.md", api_page(m))
+    write(api / "index.md", api_index())
     print(f"docs: index, cli_reference, {len(mods)} API pages")
     return 0
 

@@ -33,3 +33,20 @@ def lazy_import(name: str, feature: str = "") -> ModuleType:
         hint = f"pip install 'geoface[{extra}]'" if extra else f"pip install {_PIP_NAME.get(top, top)}"
         what = f" (needed for {feature})" if feature else ""
         raise MissingDependencyError(f"optional dependency '{top}' is not installed{what}; try: {hint}") from exc
+
+
+def lazy_exports(package: str, names: dict[str, str]):
+    """A package's public names, imported on first use: ``names`` maps each name to the module
+    that defines it (relative to ``package`` unless it holds a dot).  Returns ``__getattr__``,
+    ``__dir__`` and ``__all__`` for the package's ``__init__``, so that ``from geoface.learn
+    import sample`` works while ``import geoface.learn`` stays free of torch."""
+    def __getattr__(name):
+        mod = names.get(name)
+        if mod is None:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        return getattr(importlib.import_module(mod if "." in mod else f"{package}.{mod}"), name)
+
+    def __dir__():
+        return sorted(names)
+
+    return __getattr__, __dir__, sorted(names)

@@ -94,7 +94,7 @@ class StepProgress:
 
     On a terminal: a live bar (rich).  Elsewhere — a notebook, a log file, a job scheduler —
     one line on stderr after the first step and then every ``every`` seconds, e.g.
-    ``ddpm train: step 120/3600 (3%), 1.92 steps/s, ETA 30:12, loss 0.1234``; a final line
+    ``ddpm train: step 120/3600 (3%), 1.92 steps/s, 30:12 left, loss 0.1234``; a final line
     when closed.  Silent when quiet.
 
     >>> bar = StepProgress(3, "demo", quiet=True)
@@ -104,10 +104,13 @@ class StepProgress:
     """
 
     def __init__(self, total: int, description: str = "", *, start: int = 0, unit: str = "steps", every: float = 10.0,
-                 quiet: bool | None = None, stream=None):
+                 quiet: bool | None = None, stream=None, budget: float | None = None):
         import time
 
         self.total, self.description, self.unit, self.every = int(total), description, unit, float(every)
+        #: a wall-clock budget (seconds) that stops the loop before ``total``: the time left is then
+        #: the budget's, and the line says so
+        self.budget = None if budget is None else float(budget)
         self.start = self.n = int(start)
         self.quiet = QUIET if quiet is None else quiet
         self.stream = stream if stream is not None else sys.stderr
@@ -141,8 +144,20 @@ class StepProgress:
             return f"{self.description}: {self.n} {self.unit}, {r:.3g} {self.unit}/s{post}"
         eta = (self.total - self.n) / r if r > 0 else float("nan")
         pct = 100.0 * self.n / self.total
+        left = self._budget_left()
+        if left is not None and not eta <= left:  # the budget ends the loop first
+            return (f"{self.description}: {self.unit[:-1] if self.unit.endswith('s') else self.unit} {self.n} "
+                    f"(time budget), {r:.3g} {self.unit}/s, {_clock(left)} left, about {self.n + int(r * left)} "
+                    f"of {self.total} by then{post}")
         eta_s = _clock(eta) if eta == eta else "?"
-        return f"{self.description}: {self.unit[:-1] if self.unit.endswith('s') else self.unit} {self.n}/{self.total} ({pct:.0f}%), {r:.3g} {self.unit}/s, ETA {eta_s}{post}"
+        return f"{self.description}: {self.unit[:-1] if self.unit.endswith('s') else self.unit} {self.n}/{self.total} ({pct:.0f}%), {r:.3g} {self.unit}/s, {eta_s} left{post}"
+
+    def _budget_left(self) -> float | None:
+        import time
+
+        if self.budget is None:
+            return None
+        return max(0.0, self.budget - (time.perf_counter() - self.t0))
 
     def update(self, n: int = 1, **postfix) -> None:
         import time
@@ -153,6 +168,9 @@ class StepProgress:
             return
         if self._rich is not None:
             post = " ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in self.postfix.items())
+            left = self._budget_left()
+            if left is not None and self.rate > 0 and (self.total - self.n) / self.rate > left:
+                post = f"time budget: {_clock(left)} left " + post
             self._rich.update(self._task, completed=self.n, rate=f"{self.rate:.3g} {self.unit}/s", post=post)
             return
         now = time.perf_counter()

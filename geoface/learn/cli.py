@@ -69,20 +69,30 @@ def cmd_ddpm_sample(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     # the pixels every training item covers are covered in every sample (runs that stored them)
     support = run.stats.support if run.stats is not None else None
-    for k, gi in enumerate(to_geometry_images(x, run.state, support)):
+    from .evaluate import mesh_validity
+
+    valid = 0
+    gis = to_geometry_images(x, run.state, support)
+    for k, gi in enumerate(gis):
         gi.meta["prompt"] = args.prompt
+        v = mesh_validity(gi)  # a clean disk: manifold, one component, not folded, not self-intersecting
+        gi.meta["validity"] = {"valid": v.valid, "reason": v.reason, "folded_faces": v.folded_faces,
+                               "self_intersecting_faces": v.self_intersecting_faces, "faces": v.faces}
+        valid += int(v.valid)
         folder = save_gimage(out / f"sample_{k:03d}", gi)
         msg = f"{folder}"
-        if gi.mask.sum() >= 4:
-            try:
-                mesh = reconstruct(gi)
-                save_reconstruction(folder / "reconstruction.obj", mesh, gi)
-                msg += f": {len(mesh.V)} vertices, {len(mesh.F)} faces"
-            except GeofaceError as e:  # an invalid sample is reported, the others still written
-                msg += f": no mesh ({e})"
-        else:
-            msg += ": empty coverage, no mesh"
+        if v.reconstructs:
+            mesh = reconstruct(gi)
+            save_reconstruction(folder / "reconstruction.obj", mesh, gi)
+            msg += f": {len(mesh.V)} vertices, {len(mesh.F)} faces"
+        msg += ", a valid surface" if v.valid else f", NOT a valid surface ({v.reason})"
         print(msg)
+    line = f"{valid} of {len(gis)} samples are valid surfaces (meta.json: validity)"
+    if valid < len(gis):
+        step = int(run.state.get("step", 0) or 0)
+        line += (f"; the run has trained {step} steps: invalid samples mean too little training for this "
+                 "resolution (docs/ddpm.md)" if step else "")
+    print(line)
     return 0
 
 

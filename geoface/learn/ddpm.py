@@ -421,7 +421,8 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
     log(f"ddpm train: {len(ds)} items ({', '.join(ds.modalities)}) at {cfg.res}x{cfg.res}, {params / 1e6:.1f} M parameters, "
         f"batch {cfg.batch_size}, steps {start}..{cfg.steps} on {dev}" + (f", {world} processes" if world > 1 else ""),
         quiet=quiet if accel.is_main_process else True)
-    bar = StepProgress(cfg.steps, "ddpm train", start=start, quiet=quiet if accel.is_main_process else True)
+    bar = StepProgress(cfg.steps, "ddpm train", start=start, quiet=quiet if accel.is_main_process else True,
+                       budget=max_seconds)
     try:
         for step in range(start, cfg.steps):
             batch = next(batches)

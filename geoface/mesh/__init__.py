@@ -1,4 +1,10 @@
-"""Mesh core: plain arrays, file IO through trimesh, and the topology report."""
+"""Mesh core: plain arrays, file IO through trimesh, the topology report, and which way a mesh
+faces.  ``load_mesh``, ``save_mesh`` and ``Mesh`` (file IO) and ``mesh_frame`` are imported on
+first use, so ``import geoface.mesh`` does not load trimesh.
+
+>>> from geoface.mesh import load_mesh, topology_report   # doctest: +SKIP
+>>> m = load_mesh("scan.obj"); print(topology_report(m.V, m.F).format())   # doctest: +SKIP
+"""
 
 from .core import (
     EdgeTopology,
@@ -20,7 +26,20 @@ from .core import (
 from .orient import solve_orientation
 from .topology import TopologyReport, topology_report
 
+_LAZY = {"Mesh": "io", "load_mesh": "io", "save_mesh": "io", "mesh_frame": "frame", "MeshFrame": "frame",
+         "parse_up": "frame"}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f"geoface.mesh.{_LAZY[name]}"), name)
+    raise AttributeError(f"module 'geoface.mesh' has no attribute {name!r}")
+
+
 __all__ = [
+    *_LAZY,
     "EdgeTopology",
     "TopologyReport",
     "bbox_diagonal",

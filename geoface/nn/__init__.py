@@ -8,5 +8,16 @@ neither imports the other:
 * :mod:`geoface.nn.config` — saved configurations read through one validated path;
 * :mod:`geoface.nn.errors` — ``NNError``, ``RenderError``, ``CameraError``.
 
-Only ``hashenc`` and ``losses`` need torch; it is imported by those modules alone.
+Only ``hashenc`` and ``losses`` need torch; it is imported by those modules alone, when one
+of their names is first used.
 """
+from .._lazy import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports("geoface.nn", {
+    "Camera": "camera", "look_at": "camera", "orbit": "camera",
+    "HashEncoding": "hashenc", "TriPlaneHashEncoding": "hashenc", "hash_encode": "hashenc",
+    "ssim": "losses", "dssim": "losses", "laplacian_loss": "losses",
+    "render_mesh": "render_mesh", "rasterize_mesh": "render_mesh", "MeshRender": "render_mesh",
+    "WeightAverage": "average", "config_from_dict": "config",
+    "NNError": "errors", "RenderError": "errors", "CameraError": "errors",
+})

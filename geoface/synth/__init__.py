@@ -1,4 +1,5 @@
-"""Analytic surfaces with known answers and a procedural, expressive, textured head."""
+"""Analytic surfaces with known answers, a procedural, expressive, textured head, and real heads
+of the ICT-FaceKit morphable model (``load_ict_model``, ``ict_head``)."""
 
 from .surfaces import (
     cylinder,
@@ -15,15 +16,23 @@ from .surfaces import (
 )
 
 
-def __getattr__(name):  # the head module is large; import it on first use
+def __getattr__(name):  # the head modules are large; import them on first use
     if name in {"procedural_head", "HeadModel", "HeadIdentity", "HeadExpression", "SynthHead"}:
         from . import head
 
         return getattr(head, name)
+    if name in {"load_ict_model", "ict_head", "ICTFaceModel", "ICTHead"}:
+        from . import ict
+
+        return getattr(ict, name)
     raise AttributeError(f"module 'geoface.synth' has no attribute {name!r}")
 
 
 __all__ = [
+    "ICTFaceModel",
+    "ICTHead",
+    "load_ict_model",
+    "ict_head",
     "HeadExpression",
     "HeadIdentity",
     "HeadModel",

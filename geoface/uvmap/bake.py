@@ -208,10 +208,11 @@ def bake_texture(target: Mesh, source: Mesh, size: int = 1024, *, attribute: Att
 
     Returns
     -------
-    BakeResult ``(image, mask)``: ``image (size, size, 3)`` float64 (colours in [0, 1], or unit
-    normals in [-1, 1]; zero where empty) and ``mask (size, size)`` bool of baked texels.  Fill
-    the rest with :func:`geoface.uvmap.inpaint`.  ``result.seconds`` times the closest-point
-    queries and the whole bake.
+    result : BakeResult
+        ``(image, mask)``: ``image (size, size, 3)`` float64 (colours in [0, 1], or unit
+        normals in [-1, 1]; zero where empty) and ``mask (size, size)`` bool of baked texels.
+        Fill the rest with :func:`geoface.uvmap.inpaint`.  ``result.seconds`` times the
+        closest-point queries and the whole bake.
 
     Examples
     --------

@@ -25,7 +25,14 @@ def test_cli_train_sample_end_to_end(gimage_dataset, tmp_path, capsys):
     assert (run / "checkpoint" / "model.safetensors").is_file()
     a = p.parse_args(["ddpm", "sample", str(run), "a smiling female", "-n", "2", "--steps", "2",
                       "--sampler", "ddim", "--seed", "1", "-o", str(out), "-q"])
+    capsys.readouterr()
     assert a.func(a) == 0
+    # two training steps: noise, and each sample says so (and the last line counts them)
+    lines = capsys.readouterr().out.splitlines()
+    assert all("NOT a valid surface (" in ln for ln in lines[:2]), lines
+    assert lines[-1].startswith("0 of 2 samples are valid surfaces") and "trained 2 steps" in lines[-1]
+    import json
+    assert json.loads((out / "sample_000" / "meta.json").read_text())["validity"]["valid"] is False
     for k in range(2):
         assert (out / f"sample_{k:03d}" / "meta.json").is_file()
     from geoface.gimage import load_gimage

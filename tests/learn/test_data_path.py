@@ -122,8 +122,21 @@ def test_progress_speaks_outside_a_terminal(monkeypatch):
     bar.close()
     lines = buf.getvalue().splitlines()
     assert len(lines) == 3 and lines[0].startswith("ddpm train: step 1/100 (1%), 1 steps/s")
-    assert "ETA" in lines[1] and "loss 0.3" in lines[1] and "3/100" in lines[1]
-    assert "ETA 1:34" in lines[0] or "ETA" in lines[0]
+    assert " left" in lines[1] and "loss 0.3" in lines[1] and "3/100" in lines[1]
+    assert "1:39 left" in lines[0]  # 99 steps at 1 step/s
+
+
+def test_progress_with_a_time_budget_says_when_the_budget_ends(monkeypatch):
+    """--max-minutes 5 against 10,000 steps: the time left is the budget's, not 9 hours."""
+    from geoface import progress as P
+
+    buf = io.StringIO()
+    clock = iter([0.0, 0.0, 2.0, 2.0, 2.0])
+    monkeypatch.setattr("time.perf_counter", lambda: next(clock))
+    bar = P.StepProgress(10000, "ddpm train", quiet=False, stream=buf, budget=300.0)
+    bar.update(loss=0.5)  # t=2: 1 step at 0.5 steps/s: 5.5 hours for the steps, 298 s of budget
+    line = buf.getvalue().splitlines()[0]
+    assert "4:58 left" in line and "(time budget)" in line and "about 150 of 10000" in line, line
 
 
 def test_small_preset_is_the_documented_model():
