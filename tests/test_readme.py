@@ -63,6 +63,7 @@ def test_every_command_parses(page, line, args):
     except SystemExit as e:  # argparse exits on unknown verbs or flags and on values out of range
         pytest.fail(f"{page.name}:{line}: `geoface {' '.join(args)}` does not parse ({e})")
     assert callable(getattr(ns, "func", None)), f"{page.name}:{line}: no command"
+    assert getattr(ns, "legacy_output", None) is None, f"{page.name}:{line}: a bare output path; the pages write -o OUT"
 
 
 @pytest.mark.parametrize("page", PAGES, ids=[p.name for p in PAGES])

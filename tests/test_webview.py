@@ -165,6 +165,32 @@ def test_a_surface_shows_its_colour_at_its_brightness(browser, tmp_path, how):
     assert np.all(np.abs(got - rgb) < 0.12 * rgb), f"the face shows {got}, its colour is {rgb}"
 
 
+def test_the_page_as_one_file_opens_from_disk(browser, tmp_path):
+    """`view --html` writes the scene as one page that a browser opens from disk, no server:
+    the head in its colour where it faces the camera (what a notebook's inline view shows)."""
+    from geoface.cli import main
+    from geoface.mesh.io import Mesh, save_mesh
+    from geoface.synth.ict import ict_head, load_ict_model
+
+    head = ict_head(load_ict_model(), seed=1)
+    path = tmp_path / "head.ply"
+    save_mesh(path, Mesh(head.V, head.F, colors=np.tile([0.95, 0.45, 0.05, 1.0], (len(head.V), 1))))
+    page = tmp_path / "page.html"
+    assert main(["view", str(path), "--html", str(page), "-q"]) == 0
+    import re
+
+    text = page.read_text(encoding="utf-8")
+    assert page.stat().st_size > 100_000 and not re.search(r"<script[^>]+src=\"(https?:)?//", text)  # nothing fetched
+
+    def orange(c):
+        m = _centre(c)
+        return (m[..., 0] > m[..., 2] + 60) & (m[..., 0] > 80)
+
+    canvas = _look(browser, page.as_uri(), lambda c: orange(c).mean() > 0.08)
+    browser.quit()
+    assert orange(canvas).mean() > 0.08, orange(canvas).mean()
+
+
 def test_a_file_name_with_html_is_shown_as_text(browser, tmp_path):
     """A mesh named with HTML (an <img> whose onerror runs script, an iframe) shows its name as
     characters: no element of the name exists in the page and its script never runs."""

@@ -132,6 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="window / picture size in pixels (1024,768); for a geometry-image montage H is the tile size")
     w = s.add_argument_group("web viewer (--web)")
     w.add_argument("--web", action="store_true", help="serve an interactive 3D page (viser) and print its URL")
+    w.add_argument("--html", default=None, metavar="OUT.html",
+                   help="write the 3D page as one self-contained file that opens from disk (no server) and exit")
     w.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1: this machine only; 0.0.0.0: all)")
     w.add_argument("--port", type=number(int, 0, 65535), default=8080, help="port (8080)")
     w.add_argument("--drive", default=None, metavar="WAV|DIR",

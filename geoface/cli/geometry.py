@@ -301,6 +301,19 @@ def _view_web(args) -> int:
     if args.screenshot or args.turntable or args.uv_distortion:
         raise GeofaceError("--web shows an interactive page; --screenshot, --turntable and --uv-distortion are for "
                            "off-screen pictures (the page has a UV-distortion colouring of its own)")
+    if args.html:
+        from .._io import atomic_path
+
+        _guard(args, [p for p in args.file if Path(p).is_file()], [args.html])
+        view = WebView(args.file, host="127.0.0.1", port=0, up=args.up, drive=args.drive, fps=args.fps, quiet=True)
+        try:
+            page = view.html()
+        finally:
+            view.stop()
+        with atomic_path(args.html) as tmp:
+            Path(tmp).write_text(page, encoding="utf-8")
+        print(f"{', '.join(map(str, args.file))} -> {args.html}  (one self-contained page: open it from disk)")
+        return 0
     view = WebView(args.file, host=args.host, port=args.port, up=args.up, drive=args.drive, fps=args.fps,
                    quiet=True)
     print(f"geoface view: {view.url}  (open it in a browser; Ctrl-C stops the server)", flush=True)
@@ -311,7 +324,9 @@ def _view_web(args) -> int:
 def cmd_view(args) -> int:
     from .. import viz
 
-    if args.web:
+    if args.html and not str(args.html).lower().endswith((".html", ".htm")):
+        raise GeofaceError(f"--html: an .html path; got {args.html}")
+    if args.web or args.html:
         return _view_web(args)
     if len(args.file) != 1:
         raise GeofaceError("several paths are shown side by side with --web; off-screen, give one path")

@@ -310,6 +310,23 @@ class WebView:
         self._players.append(th)
 
     # ---- running
+    def html(self, dark_mode: bool = False) -> str:
+        """The scene as one self-contained HTML page (viser's client and the scene's data inline):
+        it opens from disk with no server, to turn the objects with the mouse; the avatar
+        players and the GUI's switches stay with the live server."""
+        with self._hush():
+            return self.server.scene.as_html(dark_mode)
+
+    def notebook(self, height: int = 480):
+        """An inline, turnable 3D view for a Jupyter notebook: :meth:`html` in an ``<iframe>``
+        (stored with the notebook, so it still turns where the notebook is read offline)."""
+        import html as _html
+
+        from IPython.display import HTML
+
+        page = _html.escape(self.html(), quote=True)
+        return HTML(f'<iframe srcdoc="{page}" style="width: 100%; height: {int(height)}px; border: 0"></iframe>')
+
     def serve(self, *, exit_after: float | None = None, idle_exit: float | None = None, poll: float = 0.2) -> None:
         """Serve until Ctrl-C, or ``exit_after`` seconds, or ``idle_exit`` seconds after the last
         browser has left (once one has come)."""
