@@ -16,6 +16,11 @@ class MeshFormatError(GeofaceError):
     """A file could not be read or written as a mesh (missing, empty, corrupt, not a mesh)."""
 
 
+class PointCloudError(MeshFormatError):
+    """The file holds points and no triangles: ``geoface.repair.surface_from_points`` (or
+    ``convert`` / ``repair``, which call it) makes a surface of them."""
+
+
 class InvalidMeshError(GeofaceError):
     """Mesh arrays are malformed: wrong shapes, NaN/inf coordinates, indices out of range."""
 

@@ -263,3 +263,15 @@ def test_renamed_options_and_the_old_positional_output(tmp_path, capsys):
     assert main(["convert", str(src), str(tmp_path / "g"), "--res", "16", "--method", "conformal"]) == 0
     err = capsys.readouterr().err
     assert "write `-o " in err and (tmp_path / "g" / "position.png").exists()
+
+
+def test_convert_without_the_report(tmp_path, capsys):
+    """--no-reconstruct: the images only, no reconstruction.obj and no error report."""
+    from geoface.cli import main
+
+    src = tmp_path / "d.obj"
+    assert main(["synth", "surface", "disk", "-o", str(src), "-q"]) == 0
+    assert main(["convert", str(src), "-o", str(tmp_path / "g"), "--res", "16", "--no-reconstruct"]) == 0
+    out = capsys.readouterr().out
+    assert (tmp_path / "g" / "position.png").is_file() and not (tmp_path / "g" / "reconstruction.obj").exists()
+    assert "Hausdorff" not in out and "1 image set at 16x16" in out

@@ -64,7 +64,12 @@ def test_notebook_stored_with_its_pictures(name):
     outputs = [o for c in code for o in c.outputs]
     assert not [o for o in outputs if o.output_type == "error"]
     assert any("image/png" in o.get("data", {}) for o in outputs)
-    assert (NOTEBOOKS / name).stat().st_size < 1_500_000
+    views = [o["data"]["text/html"] for o in outputs if "<iframe srcdoc=" in "".join(o.get("data", {}).get("text/html", ""))]
+    if name in ("01_mesh_to_geometry_image.ipynb", "02_real_head.ipynb"):
+        assert len(views) == 1, "an inline, turnable 3D view (the web viewer, self-contained)"
+    view_bytes = sum(len("".join(v)) for v in views)
+    assert all(len("".join(v)) < 3_500_000 for v in views)
+    assert (NOTEBOOKS / name).stat().st_size - view_bytes < 1_500_000  # the pictures and the rest
 
 
 def _run(name, kernel, tmp_path, params):
@@ -117,6 +122,7 @@ def test_mesh_to_geometry_image_notebook_runs(this_python_kernel, tmp_path):
     text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
     assert f"KERNEL-PYTHON {sys.executable}" in text  # ran in this interpreter, not some other "python3"
     assert "is disk: True" in text and "Hausdorff" in text
+    assert any("<iframe srcdoc=" in "".join(o.get("data", {}).get("text/html", "")) for o in outputs)  # the 3D view
 
 
 def test_real_head_notebook_runs(this_python_kernel, tmp_path):
@@ -134,3 +140,4 @@ def test_real_head_notebook_runs(this_python_kernel, tmp_path):
     assert len(images) >= 4  # the head, position and normal, the rebuilt mesh, three expressions
     text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
     assert "100 identity modes, 53 expressions" in text and "flipped triangles 0" in text and "rebuilt from the images" in text
+    assert any("<iframe srcdoc=" in "".join(o.get("data", {}).get("text/html", "")) for o in outputs)  # the 3D view

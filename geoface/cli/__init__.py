@@ -95,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", choices=["ot", "conformal"], default="ot", help="measure-preserving (ot, default) or conformal")
     s.add_argument("--ot-tol", type=number(float, 0, 1, lo_open=True, hi_open=True), default=1e-3, help="OT tolerance: max relative cell-area error (1e-3)")
     s.add_argument("--smooth", type=number(int, 0, 1000), default=0, help="Laplacian smoothing iterations of the reconstruction")
+    s.add_argument("--no-reconstruct", dest="reconstruct", action="store_false",
+                   help="skip reconstruction.obj and its error report (the images come first either way; "
+                        "dataset builds skip them unless --reconstruct)")
     s.add_argument("--up", default="auto", type=axis(), help="up axis: where closed heads are cut open, and which way the face is upright "
                    "in the image; auto (default): from the shape, in any axis convention (a human head by the head template, "
                    "else the opening, a flat cut, the plane it stands on; uncertain cases say so), or x, y, z, -x, -y, -z")

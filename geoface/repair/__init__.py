@@ -13,6 +13,8 @@ from .opening import open_at_plane, open_with_cap
 from .remesh import remesh
 from .step import StepResult
 
+from .points import PointSurface, load_points, surface_from_points
+
 __all__ = [
     "DiskResult",
     "OPEN_MODES",
@@ -31,4 +33,7 @@ __all__ = [
     "remove_degenerate_faces",
     "remove_handles",
     "remove_unreferenced_vertices",
+    "PointSurface",
+    "load_points",
+    "surface_from_points",
 ]

@@ -73,7 +73,7 @@ def shortest_nontrivial_loop(V: np.ndarray, F: np.ndarray, roots: list[int], avo
         in_tree = np.isin(ekey, tkey)
         loop_len = dist[E[:, 0]] + dist[E[:, 1]] + w
         # dual graph over faces, edges not in the primal tree, maximum spanning tree
-        nt = ~in_tree[pair_edge]
+        nt = ~in_tree[pair_edge] & np.isfinite(loop_len[pair_edge])  # the root's component only
         if not nt.any():
             continue
         dw = loop_len[pair_edge[nt]]

