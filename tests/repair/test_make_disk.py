@@ -190,11 +190,15 @@ def test_quiet_argument_overrides_the_global_switch(capsys, monkeypatch):
     from geoface import progress
 
     monkeypatch.setattr(progress, "QUIET", False)
+    monkeypatch.setattr(progress, "VERBOSE", True)  # make_disk's steps are detail lines (-v)
     V, F = sphere(500)
     make_disk(V, F, quiet=True)
     assert capsys.readouterr().err == ""
     make_disk(V, F)
     assert "make_disk:" in capsys.readouterr().err
+    monkeypatch.setattr(progress, "VERBOSE", False)
+    make_disk(V, F)
+    assert "make_disk:" not in capsys.readouterr().err
 
 
 def test_a_small_hole_is_not_the_opening():
