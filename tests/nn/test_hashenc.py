@@ -32,7 +32,7 @@ def test_matches_reference_dense_and_hashed(dim, log2):
 def test_interpolates_grid_values_exactly_at_vertices_and_linearly_between():
     enc = HashEncoding(2, levels=1, features=1, log2_table=8, base_res=4, max_res=4, seed=0)
     with torch.no_grad():
-        enc.tables.normal_()
+        enc.tables.normal_(generator=torch.Generator().manual_seed(0))  # not the global RNG: order-independent
     T = enc.tables.detach()[0, :, 0]
     # grid vertex (i, j) of the dense 5x5 grid has row j*5 + i
     v = torch.tensor([[1 / 4, 2 / 4]])
@@ -44,11 +44,13 @@ def test_interpolates_grid_values_exactly_at_vertices_and_linearly_between():
 def test_continuity_across_cells():
     enc = HashEncoding(2, levels=4, features=2, log2_table=10, base_res=8, max_res=128, seed=0)
     with torch.no_grad():
-        enc.tables.normal_()
+        enc.tables.normal_(generator=torch.Generator().manual_seed(0))  # not the global RNG: order-independent
     x = torch.tensor([[0.5, 0.3]])
     eps = 1e-6
     d = (enc(x + eps) - enc(x - eps)).abs().max()
-    assert float(d.detach()) < 1e-3  # d-linear interpolation is continuous (Lipschitz ~ res)
+    # d-linear interpolation is continuous: |Δ| <= 2 eps · res · |Δ table| ~ 1e-3 here; a jump between
+    # cells would be of the order of the table values (~1)
+    assert float(d.detach()) < 2e-3
 
 
 def test_gradcheck_float64():
