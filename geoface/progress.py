@@ -76,9 +76,7 @@ def log(message: str, quiet: bool | None = None, *, detail: bool = False) -> Non
     only when verbose (``-v``)."""
     if quiet is True:
         return
-    level = logging.DEBUG if detail else logging.INFO
-    if LOGGER.isEnabledFor(level):
-        LOGGER.log(level, message)
+    LOGGER.log(logging.DEBUG if detail else logging.INFO, message)
     q = QUIET if quiet is None else quiet
     if not q and (VERBOSE or not detail):
         print(message, file=sys.stderr, flush=True)

@@ -174,17 +174,6 @@ def cmd_param(args) -> int:
 
 
 # --------------------------------------------------------------------------- convert / reconstruct
-def _vec_text(v) -> str:
-    """(0, 1, 0) as +y; an oblique direction as its three numbers."""
-    import numpy as np
-
-    v = np.asarray(v, float)
-    k = int(np.argmax(np.abs(v)))
-    if abs(abs(v[k]) - 1.0) < 1e-6:
-        return ("+" if v[k] > 0 else "-") + "xyz"[k]
-    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
-
-
 def _convert_summary(args, out, m) -> str:
     """The one line `convert` ends with: what was written, how long, the frame, the quality."""
     sets = m["sets"]
@@ -195,7 +184,10 @@ def _convert_summary(args, out, m) -> str:
         import re
 
         how = re.sub(r"\s*\([^()]*\)", "", fr["how"].split(";")[0])
-        line += f"; up {_vec_text(fr['up'])}, front {_vec_text(fr['front'])} ({how})"
+        from ..mesh.frame import axis_text
+
+        # an axis name only for an exact axis (the frame snapped to the file's axes)
+        line += f"; up {axis_text(fr['up'], 0.08)}, front {axis_text(fr['front'], 0.08)} ({how})"
     line += f"; {sum(st['distortion']['flipped'] for st in sets)} flipped"
     shares = [st["roi_pixel_share"] for st in sets if "roi_pixel_share" in st]
     if shares:
@@ -324,7 +316,7 @@ def _view_web(args) -> int:
         raise GeofaceError("--web shows an interactive page; --screenshot, --turntable and --uv-distortion are for "
                            "off-screen pictures (the page has a UV-distortion colouring of its own)")
     if args.html:
-        from .._io import atomic_path
+        from .._io import atomic_write_text
 
         _guard(args, [p for p in args.file if Path(p).is_file()], [args.html])
         view = WebView(args.file, host="127.0.0.1", port=0, up=args.up, drive=args.drive, fps=args.fps, quiet=True)
@@ -332,8 +324,7 @@ def _view_web(args) -> int:
             page = view.html()
         finally:
             view.stop()
-        with atomic_path(args.html) as tmp:
-            Path(tmp).write_text(page, encoding="utf-8")
+        atomic_write_text(args.html, page)
         print(f"{', '.join(map(str, args.file))} -> {args.html}  (one self-contained page: open it from disk)")
         return 0
     view = WebView(args.file, host=args.host, port=args.port, up=args.up, drive=args.drive, fps=args.fps,

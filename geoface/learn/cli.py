@@ -75,14 +75,18 @@ def cmd_ddpm_sample(args) -> int:
     gis = to_geometry_images(x, run.state, support)
     for k, gi in enumerate(gis):
         gi.meta["prompt"] = args.prompt
-        v = mesh_validity(gi)  # a clean disk: manifold, one component, not folded, not self-intersecting
+        try:
+            mesh = reconstruct(gi)
+        except GeofaceError:
+            mesh = None  # mesh_validity says why
+        # a clean disk: manifold, one component, not folded, not self-intersecting
+        v = mesh_validity(gi, mesh=mesh)
         gi.meta["validity"] = {"valid": v.valid, "reason": v.reason, "folded_faces": v.folded_faces,
                                "self_intersecting_faces": v.self_intersecting_faces, "faces": v.faces}
         valid += int(v.valid)
         folder = save_gimage(out / f"sample_{k:03d}", gi)
         msg = f"{folder}"
-        if v.reconstructs:
-            mesh = reconstruct(gi)
+        if mesh is not None and v.reconstructs:
             save_reconstruction(folder / "reconstruction.obj", mesh, gi)
             msg += f": {len(mesh.V)} vertices, {len(mesh.F)} faces"
         msg += ", a valid surface" if v.valid else f", NOT a valid surface ({v.reason})"

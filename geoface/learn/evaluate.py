@@ -60,7 +60,7 @@ def _components(F: np.ndarray, n: int) -> int:
 
 
 def mesh_validity(gi, *, expect_euler: int = 1, expect_loops: int = 1, area_rel: float = 1e-12,
-                  max_folded: float = 0.02, max_self_intersecting: float = 0.02) -> Validity:
+                  max_folded: float = 0.02, max_self_intersecting: float = 0.02, mesh=None) -> Validity:
     """Reconstruct ``gi`` (a :class:`geoface.gimage.GeometryImage`) and check it is a clean disk.
 
     Parameters
@@ -72,6 +72,7 @@ def mesh_validity(gi, *, expect_euler: int = 1, expect_loops: int = 1, area_rel:
         channel (the mean of its corners' normals); ignored when the image has no normals
     max_self_intersecting : largest share of faces that intersect a face they do not share a
         vertex with (pymeshlab's exact test); None skips the check
+    mesh : ``reconstruct(gi)`` when the caller has it already (it is not rebuilt)
 
     Examples
     --------
@@ -87,10 +88,11 @@ def mesh_validity(gi, *, expect_euler: int = 1, expect_loops: int = 1, area_rel:
     img = np.asarray(gi.image)
     if not np.isfinite(img).all():
         return Validity(**{**bad, "finite": False}, reason="non-finite values")
-    try:
-        mesh = reconstruct(gi)
-    except InvalidGeometryImageError as e:
-        return Validity(**bad, reason=str(e))
+    if mesh is None:
+        try:
+            mesh = reconstruct(gi)
+        except InvalidGeometryImageError as e:
+            return Validity(**bad, reason=str(e))
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
     et = edge_topology(F)
     manifold = len(et.nonmanifold_edges) == 0

@@ -39,7 +39,7 @@ import numpy as np
 from ..errors import GeofaceError
 from .core import check_mesh, face_areas, face_normals_unnormalized
 
-__all__ = ["MeshFrame", "mesh_frame", "points_frame", "parse_up", "view_direction", "VIEWS"]
+__all__ = ["MeshFrame", "mesh_frame", "points_frame", "parse_up", "axis_text", "view_direction", "VIEWS"]
 
 #: named views: the camera sits on this side of the mesh (in the frame's right/up/front axes)
 VIEWS = {
@@ -77,6 +77,20 @@ def view_direction(frame: MeshFrame, view: str) -> np.ndarray:
     r, u, f = VIEWS[view]
     d = r * frame.right + u * frame.up + f * frame.front
     return d / np.linalg.norm(d)
+
+
+def axis_text(v, within_degrees: float = 5.0) -> str:
+    """A direction as its axis name (``+y``, ``-z``) when within ``within_degrees`` of it, else
+    its three numbers: the inverse of :func:`parse_up` for messages.
+
+    >>> axis_text([0, -1, 0]), axis_text([0.05, 0.9987, 0]), axis_text([0.05, 0.9987, 0], 0.08)
+    ('-y', '+y', '(0.05, 1.00, 0.00)')
+    """
+    v = np.asarray(v, float)
+    k = int(np.argmax(np.abs(v)))
+    if abs(v[k]) > np.cos(np.radians(within_degrees)):
+        return ("-" if v[k] < 0 else "+") + "xyz"[k]
+    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
 
 
 def parse_up(text) -> np.ndarray:

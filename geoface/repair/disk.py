@@ -21,6 +21,7 @@ import numpy as np
 
 from ..errors import InvalidMeshError, MeshTopologyError
 from ..mesh.core import boundary_loops, check_mesh, face_areas
+from ..mesh.frame import axis_text
 from ..mesh.topology import TopologyReport, topology_report
 from ..progress import log
 from ..tol import tol
@@ -249,8 +250,9 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
 
         frame = upright_frame(res.V, res.F)
         opts = replace(opts, up=frame.up)
-        log(f"make_disk: up {_axis_text(frame.up)}, front {_axis_text(frame.front)} ({frame.kind}; {frame.how})"
-            + ("" if frame.certain else f"; UNCERTAIN: {frame.why}"), quiet=quiet, detail=True)
+        # an uncertain frame is said whatever the verbosity (the user should check it)
+        log(f"make_disk: up {axis_text(frame.up)}, front {axis_text(frame.front)} ({frame.kind}; {frame.how})"
+            + ("" if frame.certain else f"; UNCERTAIN: {frame.why}"), quiet=quiet, detail=frame.certain)
     loops = boundary_loops(res.F)
     closed = len(loops) == 0
     if loops and opts.open == "auto" and opts.keep_boundary == "longest" and frame is not None and frame.kind == "closed":
@@ -319,13 +321,6 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
     )
 
 
-def _axis_text(v) -> str:
-    """A direction as the nearest axis name when within 5°, else three numbers."""
-    v = np.asarray(v, float)
-    k = int(np.argmax(np.abs(v)))
-    if abs(v[k]) > np.cos(np.radians(5.0)):
-        return ("-" if v[k] < 0 else "+") + "xyz"[k]
-    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
 
 
 #: an opening needs at least this many boundary vertices (four corners, eight corner sets)
