@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(argv=None) -> int:
     import torch
 
-    from geoface.splat.thgs import THGSConfig, THGSModel, _split
+    from geoface.splat.thgs import THGSConfig, THGSModel, train_heldout_split
     from geoface.splat.thgs_data import load_talking, mouth_landmark_targets
     from geoface.splat.thgs_eval import true_lip_gaps_px
     from geoface.splat.thgs_prefit import posed_points
@@ -80,7 +80,7 @@ def main(argv=None) -> int:
     true_mm, true_px = np.asarray(d.meta["lip_gap_m"]) * 1000, true_lip_gaps_px(d)
     print(json.dumps({"bench": "thgs_landmark_fit", "capture": str(a.talk_dir), "frames": T, "ridge": a.ridge,
                       "landmark_rms_px": round(rms, 3), "seconds": round(time.perf_counter() - t0, 1)}))
-    tr, te = _split(T, a.heldout)
+    tr, te = train_heldout_split(T, a.heldout)
     corr = lambda x, y: round(float(np.corrcoef(x, y)[0, 1]), 4)  # noqa: E731
     for name, f in (("train", tr), ("heldout", te)):
         print(json.dumps({"frames": name, "gap_px_std": round(float(gap_px[f].std()), 3),

@@ -72,13 +72,13 @@ def hmd(a) -> "np.ndarray":
 def talk(a) -> "np.ndarray":
     import numpy as np
 
-    from geoface.splat.thgs import _split, load_thgs, render_frames
+    from geoface.splat.thgs import train_heldout_split, load_thgs, render_frames
     from geoface.splat.thgs_eval import _mouth_rect, mouth_openness
     from geoface.splat.thgs_data import load_talking
 
     model = load_thgs(a.model_dir)
     data = load_talking(a.data_dir)
-    _, te = _split(len(data), model.cfg.heldout)
+    _, te = train_heldout_split(len(data), model.cfg.heldout)
     opening = [mouth_openness(data.frames[t], _mouth_rect(model, data.camera, data.rot[t], data.transl[t])) for t in te]
     order = np.argsort(opening)
     pick = sorted(te[order[np.linspace(0, len(te) - 1, a.count).round().astype(int)]])

@@ -31,12 +31,31 @@ from .tol import tol
 __version__ = "0.2.0"
 
 
-def __getattr__(name):  # lazy subpackages: geoface.mesh, geoface.repair, geoface.synth, ...
+#: the main verbs, imported on first use: name -> the module that defines it
+_VERBS = {
+    "Mesh": "geoface.mesh", "load_mesh": "geoface.mesh", "save_mesh": "geoface.mesh",
+    "make_disk": "geoface.repair", "surface_from_points": "geoface.repair",
+    "ricci_flow_rectangle": "geoface.param.ricci", "RicciFlowSolver": "geoface.param.ricci",
+    "measure_preserving_map": "geoface.param.measure",
+    "geometry_image": "geoface.gimage", "load_gimage": "geoface.gimage", "save_gimage": "geoface.gimage",
+    "reconstruct": "geoface.gimage",
+    "convert": "geoface.pipeline", "ConvertOptions": "geoface.pipeline",
+}
+_SUBPACKAGES = {"mesh", "repair", "synth", "param", "gimage", "uvmap", "learn", "splat", "cli", "pipeline"}
+
+
+def __getattr__(name):  # lazy subpackages (geoface.mesh, ...) and verbs (geoface.convert, ...)
     import importlib
 
-    if name in {"mesh", "repair", "synth", "param", "gimage", "uvmap", "learn", "splat", "cli", "pipeline"}:
+    if name in _VERBS:
+        return getattr(importlib.import_module(_VERBS[name]), name)
+    if name in _SUBPACKAGES:
         return importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'geoface' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_VERBS) | _SUBPACKAGES)
 
 
 __all__ = [
@@ -51,4 +70,5 @@ __all__ = [
     "errors",
     "tol",
     "__version__",
+    *_VERBS,
 ]

@@ -135,7 +135,7 @@ def clean_tree_temporaries(root: str | os.PathLike, depth: int = 2) -> int:
     return removed
 
 
-def _temp_prefix(target: Path) -> str:
+def temp_prefix(target: Path) -> str:
     return f".{target.name}.{_TAG}-{os.getpid()}-"
 
 
@@ -153,7 +153,7 @@ def atomic_path(target: str | os.PathLike, suffix: str | None = None):
         folder.mkdir(parents=True, exist_ok=True)
     clean_stale_temporaries(target)
     sfx = suffix if suffix is not None else "".join(target.suffixes[-1:])
-    fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(target), suffix=f".tmp{sfx}", dir=folder)
+    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(target), suffix=f".tmp{sfx}", dir=folder)
     os.close(fd)
     tmp_path = Path(tmp)
     try:
@@ -180,10 +180,10 @@ def atomic_dir(target: str | os.PathLike, *, overwrite: bool = False):
         raise OutputError(f"{target} exists; pass --force to replace it")
     parent.mkdir(parents=True, exist_ok=True)
     clean_stale_temporaries(target)
-    tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(target), dir=parent))
+    tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(target), dir=parent))
     try:
         yield tmp
-        _chmod_tree(tmp)
+        chmod_tree(tmp)
         _replace_dir(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -197,7 +197,7 @@ def output_folder(out, force: bool):
     return contextlib.nullcontext(None) if out is None else atomic_dir(out, overwrite=force)
 
 
-def _chmod_tree(root: Path) -> None:
+def chmod_tree(root: Path) -> None:
     dmode, fmode = default_mode(True), default_mode(False)
     os.chmod(root, dmode)
     for dirpath, dirnames, filenames in os.walk(root):

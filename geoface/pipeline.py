@@ -140,7 +140,7 @@ def load_roi(path: str | os.PathLike, n_vertices: int) -> np.ndarray:
     return m
 
 
-def _extend_split(V_new, split_edges, n_old, roi, colors):
+def extend_split(V_new, split_edges, n_old, roi, colors):
     """Per-vertex data for vertices appended as edge midpoints (``split_edges``, in order)."""
     k = len(V_new) - n_old
     edges = np.asarray(split_edges)[-k:]
@@ -215,9 +215,9 @@ def reconstruction_error(V_ref, F_ref, V_rec, F_rec, *, ref_mask=None, rec_mask=
 
 
 def _preview(gi, path: Path) -> None:
-    from .gimage.image import MODALITIES, _cv2
+    from .gimage.image import MODALITIES, import_cv2
 
-    cv2 = _cv2()
+    cv2 = import_cv2()
     N = gi.resolution
     size = min(N, 384)
     tiles = []
@@ -412,7 +412,7 @@ def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, op
         raise GeofaceError(f"Ricci flow did not converge (max |K - target| {r.residual:.3g})")
     F = r.F
     if len(r.V) > len(V):  # boundary edges split by the flow: extend per-vertex data
-        V, roi, colors = _extend_split(r.V, r.split_edges, len(V), roi, colors)
+        V, roi, colors = extend_split(r.V, r.split_edges, len(V), roi, colors)
     uv = r.unit_square()
     st["ricci"] = {"seconds": time.perf_counter() - t, "iterations": r.iterations, "residual": r.residual, "aspect": r.aspect,
                    "log_conformal_factor_range": float(r.u.max() - r.u.min()), "intrinsic_flips": r.intrinsic_flips}

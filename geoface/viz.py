@@ -191,7 +191,7 @@ def _finish(pl, screenshot, off_screen: bool) -> np.ndarray:
     return img
 
 
-def _texture_uint8(texture) -> np.ndarray:
+def texture_uint8(texture) -> np.ndarray:
     T = np.asarray(texture)
     if T.ndim == 2:
         T = np.repeat(T[..., None], 3, axis=2)
@@ -216,7 +216,7 @@ def _add_mesh(pl, mesh_or_VF, texture=None, colors=None, color=None, scalars=Non
         V2, F2, uv2, _ = split_corner_uvs(V, F, UV, FUV)
         poly = to_pyvista(V2, F2, uv=uv2)
         # pyvista's Texture(array) takes row 0 as the top (v = 1), our convention too.
-        pl.add_mesh(poly, texture=pv.Texture(_texture_uint8(tex)), **kw)
+        pl.add_mesh(poly, texture=pv.Texture(texture_uint8(tex)), **kw)
         return poly
     if tex is not None and UV is None and texture is not None:
         raise InvalidMeshError("a texture needs UVs: the mesh has none")
@@ -358,7 +358,7 @@ def plot_uv_distortion(V, F, uv, metric: str = "qc", *, screenshot=None, window_
     return _finish(pl, screenshot, off)
 
 
-def _gimage_tiles(gi) -> list[tuple[str, np.ndarray]]:
+def gimage_tiles(gi) -> list[tuple[str, np.ndarray]]:
     """(name, (N, N, 3) uint8) tiles of a GeometryImage's modalities and mask."""
     tiles = []
     for name in ("position", "normal", "texture"):
@@ -384,7 +384,7 @@ def gimage_montage(gi, *, screenshot=None, surface: bool = False, gap: int = 4, 
     """
     if not hasattr(gi, "image") or not hasattr(gi, "mask"):
         raise InvalidGeometryImageError(f"expected a GeometryImage; got {type(gi).__name__}")
-    tiles = _gimage_tiles(gi)
+    tiles = gimage_tiles(gi)
     N = gi.resolution
     if tile is not None and int(tile) != N:
         if int(tile) < 8:

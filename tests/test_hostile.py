@@ -278,21 +278,21 @@ def test_text_encoder_specs(spec):
 
 def test_texture_and_camera_and_gimage_values_are_checked(tmp_path):
     from geoface.learn.texture import TextureTrainConfig
-    from geoface.splat.hfm_data import _camera_from_json
+    from geoface.splat.hfm_data import camera_from_json
 
     for kw in ({"k": 0}, {"gde_res": 1e9}, {"epochs": (1, 2)}, {"lr": -1.0}):
         with pytest.raises(GeofaceError):
             TextureTrainConfig(**kw)
     good = {"fx": 100.0, "fy": 100.0, "cx": 64, "cy": 64, "width": 128, "height": 128,
             "R": np.eye(3).tolist(), "t": [0, 0, 1]}
-    assert _camera_from_json(good).width == 128
+    assert camera_from_json(good).width == 128
     (tmp_path / "camera.json").write_text('{"fx": 1, ')
     with pytest.raises(GeofaceError, match="JSON"):
-        _camera_from_json(tmp_path / "camera.json")
+        camera_from_json(tmp_path / "camera.json")
     for bad in ({**good, "fx": -1}, {**good, "width": 0}, {**good, "R": [[1, 0], [0, 1]]},
                 {**good, "R": (2 * np.eye(3)).tolist()}, {k: v for k, v in good.items() if k != "t"}):
         with pytest.raises(GeofaceError):
-            _camera_from_json(bad)
+            camera_from_json(bad)
     # a geometry image whose uv_orientation is not +-1
     import json
 

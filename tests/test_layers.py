@@ -158,3 +158,42 @@ def test_modules_stay_small():
     big = {str(p.relative_to(PKG)): n for p in PKG.rglob("*.py")
            if (n := len(p.read_text(encoding="utf-8").splitlines())) > 550}
     assert not big, f"modules over 550 lines (split them by concern): {big}"
+
+
+def private_imports(root: Path = PKG) -> list[str]:
+    """``from X import _name`` anywhere in the package, where ``_name`` is not a submodule: a name
+    another module needs is public (no leading underscore) in the module that defines it."""
+    bad = []
+    for path in sorted(root.rglob("*.py")):
+        mod, is_pkg = _module_name(path, root)
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            if node.level:
+                base = mod.split(".") if is_pkg else mod.split(".")[:-1]
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            for a in node.names:
+                if not a.name.startswith("_") or a.name.startswith("__"):
+                    continue
+                sub = root.parent.joinpath(*target.split("."), a.name)
+                if sub.with_suffix(".py").is_file() or (sub / "__init__.py").is_file():
+                    continue  # a private submodule of the package, e.g. ``from . import _native``
+                bad.append(f"{path.relative_to(root.parent)}:{node.lineno} imports {target}.{a.name}")
+    return bad
+
+
+def test_no_module_imports_another_modules_private_name():
+    bad = private_imports()
+    assert not bad, "private names imported across modules (make them public where defined):\n" + "\n".join(bad)
+
+
+def test_the_private_name_check_sees_one(tmp_path):
+    root = tmp_path / "geoface"
+    (root / "a").mkdir(parents=True)
+    (root / "a" / "x.py").write_text("def _h():\n    pass\n")
+    (root / "a" / "_sub.py").write_text("")
+    (root / "a" / "y.py").write_text("def f():\n    from .x import _h\n    from . import _sub\n    from geoface.a.x import __doc__\n")
+    assert private_imports(root) == ["geoface/a/y.py:2 imports geoface.a.x._h"]

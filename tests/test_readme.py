@@ -88,3 +88,38 @@ def test_negative_axes_parse_without_an_equals_sign():
     a = build_parser().parse_args(["convert", "a.obj", "-o", "out/", "--up", "-z", "--front", "-y"])
     assert (a.up, a.front) == ("-z", "-y")
     assert build_parser().parse_args(["repair", "a.obj", "-o", "b.obj", "--up", "-x"]).up == "-x"
+
+
+def _python_names(page: Path) -> list[tuple[int, str, str]]:
+    """(line, module, name) of every ``from geoface... import name`` and ``geoface.name`` in the
+    page's Python blocks."""
+    import ast
+
+    out = []
+    for start, text in blocks(page, ("python",)):
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("geoface"):
+                out += [(start + node.lineno - 1, node.module, a.name) for a in node.names]
+            elif isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "geoface":
+                out.append((start + node.lineno - 1, "geoface", node.attr))
+    return out
+
+
+NAMES = [(p, n, m, a) for p in PAGES for n, m, a in _python_names(p)]
+
+
+@pytest.mark.parametrize("page,line,module,name", NAMES, ids=[f"{p.name}:{n}:{a}" for p, n, _, a in NAMES])
+def test_python_blocks_name_what_exists(page, line, module, name):
+    """Every name a page's Python imports from geoface (or reads off ``geoface.``) exists."""
+    import importlib
+
+    mod = importlib.import_module(module)
+    if not hasattr(mod, name):
+        try:
+            importlib.import_module(f"{module}.{name}")  # a submodule
+        except ImportError:
+            pytest.fail(f"{page.name}:{line}: {module} has no {name!r}")
+
+
+def test_the_name_check_has_names():
+    assert len(NAMES) > 25 and any(a == "convert" and m == "geoface" for _, _, m, a in NAMES)

@@ -15,8 +15,8 @@ from .. import __version__
 from ..errors import GeofaceError, GeofaceWarning
 from .._args import SEED, add_json, number, output_option, resolve_output
 
-from ._common import _Parser, _guard_by_table, axis, one_line
-from .dataset import _dataset_options, cmd_dataset_build, cmd_dataset_ict
+from ._common import Parser, guard_by_table, axis, one_line
+from .dataset import dataset_options, cmd_dataset_build, cmd_dataset_ict
 from .geometry import cmd_convert, cmd_inspect, cmd_param, cmd_reconstruct, cmd_repair, cmd_view
 from .synth import SURFACES, cmd_synth_head, cmd_synth_ict, cmd_synth_pack_ict, cmd_synth_surface
 
@@ -24,7 +24,7 @@ __all__ = ["main", "build_parser"]
 
 def _verbs(parser, common):
     """Second-level subcommands (``geoface synth head``); each accepts the common flags (-q)."""
-    sp = parser.add_subparsers(dest="what", metavar="WHAT", parser_class=_Parser)
+    sp = parser.add_subparsers(dest="what", metavar="WHAT", parser_class=Parser)
     sp.required = True
     add = sp.add_parser
     sp.add_parser = lambda *a, **k: add(*a, parents=[common], **k)
@@ -32,7 +32,7 @@ def _verbs(parser, common):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="geoface", description="Geometry processing of head and face meshes.")
+    p = Parser(prog="geoface", description="Geometry processing of head and face meshes.")
     p.add_argument("--version", action="version", version=f"geoface {__version__}")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.add_argument("-v", "--verbose", action="store_true", help="also the solvers' iterations")
@@ -42,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="also the solvers' iterations (Ricci flow, optimal transport, training)")
     common.add_argument("--force", action="store_true", default=argparse.SUPPRESS,
                         help="replace outputs that exist (never an input)")
-    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.required = True
     _add = sub.add_parser
     sub.add_parser = lambda *a, **k: _add(*a, parents=[common], **k)  # every verb accepts -q
@@ -155,7 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
     output_option(b, "OUT_DIR", "the dataset folder (resumed when it exists)")
     b.add_argument("--labels", default=None, help="labels/prompts per mesh stem (.jsonl or .json; default IN_DIR/labels.jsonl)")
     b.add_argument("--roi", choices=["auto", "face", "none"], default="auto", help="auto: <stem>.json face mask when present, else the face cone")
-    _dataset_options(b)
+    dataset_options(b)
     b.set_defaults(func=cmd_dataset_build)
     b = dv.add_parser("ict", help="labelled real heads of the ICT-FaceKit model -> geometry images (resumable, parallel)")
     output_option(b, "OUT_DIR", "the dataset folder (resumed when it exists)")
@@ -165,7 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--mix-share", type=number(float, 0, 1), default=0.3, help="share of random ARKit mixes (the rest: named presets)")
     b.add_argument("--heldout-share", type=number(float, 0, 1), default=0.2, help="share of identities labelled split=heldout")
     b.add_argument("--roi", choices=["auto", "face", "none"], default="auto", help="auto: the model's face area")
-    _dataset_options(b)
+    dataset_options(b)
     b.set_defaults(func=cmd_dataset_ict)
 
     from ..learn.cli import register as register_ddpm  # argparse only: torch loads inside the commands
@@ -263,7 +263,7 @@ def _run(args) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("always", GeofaceWarning)
             warnings.showwarning = _show_warning
-            _guard_by_table(args)
+            guard_by_table(args)
             return int(args.func(args) or 0)
     except GeofaceError as exc:
         print(f"geoface: error: {one_line(exc)}", file=sys.stderr)

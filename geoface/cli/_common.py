@@ -68,7 +68,7 @@ def _spellings(value) -> set:
     return out
 
 
-class _Parser(argparse.ArgumentParser):
+class Parser(argparse.ArgumentParser):
     def __init__(self, *a, **k):
         k.setdefault("formatter_class", _Formatter)
         super().__init__(*a, **k)
@@ -91,18 +91,18 @@ class _Parser(argparse.ArgumentParser):
         return super().parse_known_args(out, namespace)
 
 
-def _mesh_outputs(path) -> list:
+def mesh_outputs(path) -> list:
     """A mesh output with the companion files written with it (OBJ: .mtl, texture, normal map)."""
     if path is None:
         return []
-    from ..mesh.io import _ext, companion_names
+    from ..mesh.io import format_of, companion_names
 
-    _ext(path)  # an unsupported format is refused now, not after the work
+    format_of(path)  # an unsupported format is refused now, not after the work
 
     return [path, *companion_names(path)]
 
 
-def _guard(args, inputs, outputs, resumable=()) -> None:
+def guard_outputs(args, inputs, outputs, resumable=()) -> None:
     """The output-path policy (geoface._io.check_outputs), before any work.  An input mesh
     counts with the files it references (its MTL, texture, normal map)."""
     from .._io import check_outputs
@@ -142,7 +142,7 @@ _PATHS = {
 }
 
 
-def _guard_by_table(args) -> None:
+def guard_by_table(args) -> None:
     """The output-path policy for the commands in :data:`_PATHS`.  A DDPM run folder with a
     checkpoint is resumed with ``--resume``; model folders the command refuses to replace on
     its own terms (hmd, talk) are left to it."""
@@ -157,4 +157,4 @@ def _guard_by_table(args) -> None:
         resumable = outputs
     if key[0] in ("hmd", "talk") and key[1] in ("train", "remove", "animate"):
         resumable = [getattr(args, "output", None)]  # they check their model/frames folders themselves (--force)
-    _guard(args, inputs, outputs, resumable=resumable)
+    guard_outputs(args, inputs, outputs, resumable=resumable)

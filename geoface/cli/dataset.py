@@ -4,9 +4,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from .._args import number, renamed
-from ._common import _guard, axis
+from ._common import guard_outputs, axis
 
-def _dataset_options(b) -> None:
+def dataset_options(b) -> None:
     """The conversion and scheduling flags that ``dataset build`` and ``dataset ict`` share."""
     b.add_argument("--res", type=number(int, 4, 8192), default=512, help="image resolution N (default 512)")
     b.add_argument("--augment", type=number(int, 1, 8), default=8, help="corner sets per mesh, 1..8 (default 8)")
@@ -45,7 +45,7 @@ def cmd_dataset_build(args) -> int:
 
     out, inp = Path(args.output), Path(args.in_dir)
     # an existing dataset folder is resumed (its manifest records the options it was built with)
-    _guard(args, [inp, args.labels], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
+    guard_outputs(args, [inp, args.labels], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
     s = build_dataset(inp, out, _dataset_opts(args), workers=args.workers, scheduler=args.dask, labels=args.labels,
                       retry_failed=args.retry_failed, rebuild=args.force)
     return _dataset_report(args, out, s)
@@ -55,7 +55,7 @@ def cmd_dataset_ict(args) -> int:
     from ..dataset import build_ict_dataset
 
     out = Path(args.output)
-    _guard(args, [args.model], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
+    guard_outputs(args, [args.model], [out], resumable=[out] if (out / "manifest.jsonl").is_file() else [])
     s = build_ict_dataset(out, args.count, _dataset_opts(args), seed=args.seed, model=args.model, mix_share=args.mix_share,
                           heldout_share=args.heldout_share, workers=args.workers, scheduler=args.dask,
                           retry_failed=args.retry_failed, rebuild=args.force)

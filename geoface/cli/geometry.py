@@ -6,7 +6,7 @@ from pathlib import Path
 from ..errors import GeofaceError
 from .._args import json_to_stdout, write_json
 
-from ._common import _guard, _mesh_outputs
+from ._common import guard_outputs, mesh_outputs
 
 _POINT_FILES = (".xyz", ".pts", ".txt")
 
@@ -36,7 +36,7 @@ def cmd_inspect(args) -> int:
     from ..mesh.io import load_mesh
     from ..mesh.topology import topology_report
 
-    _guard(args, [args.file], [args.json])
+    guard_outputs(args, [args.file], [args.json])
     mesh = load_mesh(args.file)
     rep = topology_report(mesh.V, mesh.F)
     attrs = {
@@ -59,7 +59,7 @@ def cmd_repair(args) -> int:
     from ..progress import log
     from ..repair import RepairOptions, make_disk
 
-    _guard(args, [args.input], [*_mesh_outputs(args.output), args.json])
+    guard_outputs(args, [args.input], [*mesh_outputs(args.output), args.json])
     mesh = _load_surface(args.input)
     opts = RepairOptions(
         open=args.open,
@@ -105,7 +105,7 @@ def cmd_param(args) -> int:
     if args.output is not None and Path(args.output).suffix.lower() in (".stl", ".off"):
         raise GeofaceError(f"-o {args.output}: {Path(args.output).suffix} files cannot hold UVs, which are what param "
                            "makes; write .obj, .ply, .glb or .gltf")
-    _guard(args, [args.input], [*_mesh_outputs(args.output), args.json])
+    guard_outputs(args, [args.input], [*mesh_outputs(args.output), args.json])
     mesh = load_mesh(args.input)
     V, F = mesh.V, mesh.F
     if args.repair:
@@ -134,9 +134,9 @@ def cmd_param(args) -> int:
             raise GeofaceError(f"Ricci flow did not converge (max |K - target| = {r.residual:.3g} after {r.iterations} iterations)")
         colors = mesh.colors
         if len(r.V) > len(V):  # boundary edges split by the flow
-            from ..pipeline import _extend_split
+            from ..pipeline import extend_split
 
-            V, _, colors = _extend_split(r.V, r.split_edges, len(V), None, colors)
+            V, _, colors = extend_split(r.V, r.split_edges, len(V), None, colors)
             mesh = Mesh(V, r.mesh_F, colors=colors)
         F = r.F
         uv = to_unit_square(r.uv, r.width, r.height, args.fit)
@@ -240,7 +240,7 @@ def cmd_convert(args) -> int:
         raise GeofaceError(f"--corner-set {args.corner_set} converts one corner set; --augment {args.augment} asks for "
                            f"{args.augment}: give one of them")
     roi_file = None if args.roi in ("face", "none") else args.roi
-    _guard(args, [inp, roi_file], [out])
+    guard_outputs(args, [inp, roi_file], [out])
     mesh = _load_surface(inp)
     roi = args.roi
     if roi not in ("face", "none"):
@@ -265,7 +265,7 @@ def cmd_convert(args) -> int:
 def cmd_reconstruct(args) -> int:
     from ..gimage import load_gimage, reconstruct, save_reconstruction
 
-    _guard(args, [args.dir], _mesh_outputs(args.output))
+    guard_outputs(args, [args.dir], mesh_outputs(args.output))
     gi = load_gimage(args.dir)
     mesh = reconstruct(gi, smooth=args.smooth)
     save_reconstruction(args.output, mesh, gi, overwrite=args.force)
@@ -318,7 +318,7 @@ def _view_web(args) -> int:
     if args.html:
         from .._io import atomic_write_text
 
-        _guard(args, [p for p in args.file if Path(p).is_file()], [args.html])
+        guard_outputs(args, [p for p in args.file if Path(p).is_file()], [args.html])
         view = WebView(args.file, host="127.0.0.1", port=0, up=args.up, drive=args.drive, fps=args.fps, quiet=True)
         try:
             page = view.html()
@@ -356,7 +356,7 @@ def cmd_view(args) -> int:
         raise GeofaceError(f"--turntable: an .mp4 path; got {movie}")
     path = Path(args.file[0])
     if shot is not None or movie is not None:
-        _guard(args, [path], [shot or movie])
+        guard_outputs(args, [path], [shot or movie])
     from ..webview.items import item_kind
 
     if path.is_file() and item_kind(path) == "splat":  # Gaussian splats: our rasterizer, off-screen

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from ..errors import GeofaceError, InvalidMeshError
 
-from ._common import _guard, _mesh_outputs
+from ._common import guard_outputs, mesh_outputs
 
 # --------------------------------------------------------------------------- synth
 def _parse_expression(text: str | None) -> dict:
@@ -30,7 +30,7 @@ def cmd_synth_head(args) -> int:
     from ..mesh.io import Mesh, save_mesh
     from ..synth.head import procedural_head
 
-    _guard(args, [], [*_mesh_outputs(args.output), args.meta])
+    guard_outputs(args, [], [*mesh_outputs(args.output), args.meta])
     head = procedural_head(
         n_vertices=args.vertices, seed=args.seed, expression=_parse_expression(args.expression) or None, texture_size=args.texture_size
     )
@@ -60,7 +60,7 @@ def cmd_synth_ict(args) -> int:
     from ..mesh.io import Mesh, save_mesh
     from ..synth.ict import load_ict_model
 
-    _guard(args, [args.model], [*_mesh_outputs(args.output), args.meta])
+    guard_outputs(args, [args.model], [*mesh_outputs(args.output), args.meta])
     model = load_ict_model(args.model)
     parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
     identity = args.seed if args.identity is None else _parse_weights(args.identity)
@@ -93,7 +93,7 @@ def _parse_weights(text: str) -> list:
 def cmd_synth_pack_ict(args) -> int:
     from ..synth.ict import load_ict_model, pack_ict
 
-    _guard(args, [args.clone], [args.output])
+    guard_outputs(args, [args.clone], [args.output])
     out = pack_ict(args.clone, args.output, overwrite=args.force, quiet=bool(args.quiet))
     m = load_ict_model(out)
     print(f"wrote {out}: {len(m.vertices)} vertices, {m.n_identities} identity modes, {len(m.expression_names)} "
@@ -111,7 +111,7 @@ def cmd_synth_surface(args) -> int:
     from ..mesh.io import save_mesh
     from ..synth import surfaces as S
 
-    _guard(args, [], _mesh_outputs(args.output))
+    guard_outputs(args, [], mesh_outputs(args.output))
     n = args.resolution
     if not 2 <= n <= MAX_SURFACE_RESOLUTION:
         raise GeofaceError(f"--resolution must be in 2..{MAX_SURFACE_RESOLUTION}; got {n}")

@@ -213,14 +213,14 @@ def geometry_image(
 
 
 # --------------------------------------------------------------------------- disk format
-def _cv2():
+def import_cv2():
     from .._lazy import lazy_import
 
     return lazy_import("cv2", "16-bit PNG geometry images")
 
 
 def _write_png16(path: Path, rgb: np.ndarray) -> None:
-    _cv2()  # a clear message when OpenCV is missing
+    import_cv2()  # a clear message when OpenCV is missing
     q = np.round(np.clip(rgb, 0.0, 1.0) * Q).astype(np.uint16)
     from .._io import write_image
 
@@ -230,7 +230,7 @@ def _write_png16(path: Path, rgb: np.ndarray) -> None:
 def _read_png(path: Path, expect: int | None = None) -> np.ndarray:
     from .._io import image_size
 
-    cv2 = _cv2()
+    cv2 = import_cv2()
     if not path.is_file():
         raise InvalidGeometryImageError(f"missing {path.name} in {path.parent}")
     try:

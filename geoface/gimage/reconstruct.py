@@ -124,19 +124,19 @@ def save_reconstruction(path: str | os.PathLike, mesh: Mesh, gi: GeometryImage |
     bump or tangent-space map).  With
     ``overwrite=False`` nothing is written if the mesh or any of its files exists."""
     from .._io import OutputError
-    from ..mesh.io import _refuse_existing, companion_names, save_mesh
+    from ..mesh.io import refuse_existing, companion_names, save_mesh
 
     path = Path(path)
-    _refuse_existing([path, *companion_names(path)], overwrite, OutputError)
+    refuse_existing([path, *companion_names(path)], overwrite, OutputError)
     if path.suffix.lower() == ".obj" and mesh.texture is not None:
         # with a texture OBJ keeps UVs + image; keep vertex colours out of the OBJ
         mesh = Mesh(mesh.V, mesh.F, UV=mesh.UV, FUV=mesh.FUV, texture=mesh.texture)
     save_mesh(path, mesh, overwrite=overwrite)
     if path.suffix.lower() == ".obj" and gi is not None and gi.has("normal"):
         from .._io import atomic_path
-        from .image import _cv2
+        from .image import import_cv2
 
-        _cv2()
+        import_cv2()
         # object-space normals of the reconstructed mesh, which is where the input was
         n = gi.normals()
         nmap = np.round(np.clip((n + 1.0) * 0.5, 0, 1) * 255).astype(np.uint8)

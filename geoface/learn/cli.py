@@ -49,7 +49,7 @@ def cmd_ddpm_train(args) -> int:
 
             shutil.rmtree(out, ignore_errors=True)
         raise
-    print(f"{args.output}/checkpoint: step {last['step']}, loss {last['loss']:.4f} "
+    print(f"{Path(args.output) / 'checkpoint'}: step {last['step']}, loss {last['loss']:.4f} "
           + " ".join(f"{k} {v:.4f}" for k, v in last["losses"].items())
           + f" ({last['steps_per_second']:.2f} steps/s)")
     return 0

@@ -224,9 +224,9 @@ def save_checkpoint(ckpt: Path, cfg: DDPMConfig, model, ema: EMA, opt, step: int
         shutil.rmtree(tmp, ignore_errors=True)
         msg = getattr(e, "strerror", None) or (str(e).splitlines()[0][:160] if str(e) else type(e).__name__)
         raise CheckpointError(f"{ckpt}: could not write the checkpoint ({msg}); an earlier one is kept") from None
-    from .._io import _chmod_tree
+    from .._io import chmod_tree
 
-    _chmod_tree(tmp)  # the user's umask (safetensors writes 0600)
+    chmod_tree(tmp)  # the user's umask (safetensors writes 0600)
     old = ckpt.with_name(f".{ckpt.name}.old")
     shutil.rmtree(old, ignore_errors=True)
     if ckpt.exists():

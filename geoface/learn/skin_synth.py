@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from geoface.skin.render import *  # noqa: F401,F403  (the renderer, kept importable from here)
-from geoface.skin.render import (IRIS, _ict_eyes, _ict_source, pixel_average, random_lights,  # noqa: F401
-                                 render_skin_sample, skin_maps, unweld_uv, _sample_uv_map, _grid_v, _noise)
+from geoface.skin.render import (IRIS, ict_eyes, ict_source, pixel_average, random_lights,  # noqa: F401
+                                 render_skin_sample, skin_maps, unweld_uv, sample_uv_map, uv_grid_v, periodic_noise)
 
 from .errors import LearnError
 
@@ -27,14 +27,14 @@ def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, verti
     eyes = None
     if head_source == "ict":  # a random person with a random expression, skin by region, eyes
         from geoface.synth.ict import random_expression
-        model, regions = _ict_source(map_res)
+        model, regions = ict_source(map_res)
         ident = rng.standard_normal(model.n_identities)
         expr = random_expression(rng, model.expression_names, count=2, strength=0.6)
         parts = ("skin", "eyes")
         head = model.head(identity=ident, expression=expr, parts=parts)
         V, F, UV, src = unweld_uv(head.V, head.F, head.UV, head.FUV, with_source=True)
         skin = head.labels[src][F].max(1) <= 2  # a triangle's region (as the model's polygons): skin
-        eyes = _ict_eyes(model.shape(ident, parts=parts), src, head, rng)
+        eyes = ict_eyes(model.shape(ident, parts=parts), src, head, rng)
         P = head.V[head.labels == 0]  # the narrow face (brows to chin)
         scale = float(np.ptp(P[:, 1])) * 0.8  # a portrait: the face fills most of the frame
         centre = P.mean(0)

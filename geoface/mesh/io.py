@@ -143,7 +143,7 @@ def _index_map(a, n: int, n_old: int, name: str, what: str) -> np.ndarray:
     return m
 
 
-def _ext(path) -> str:
+def format_of(path) -> str:
     ext = Path(path).suffix.lower().lstrip(".")
     if ext not in FORMATS:
         raise MeshFormatError(f"unsupported mesh format '.{ext}' for {path}; use one of: {', '.join(FORMATS)}")
@@ -170,7 +170,7 @@ def load_mesh(path: str | os.PathLike, *, weld: bool = True) -> Mesh:
     path = Path(path)
     if path.is_dir():
         raise MeshFormatError(f"{path} is a folder, not a mesh file (obj, ply, off, stl, glb, gltf)")
-    ext = _ext(path)
+    ext = format_of(path)
     if not path.is_file():
         raise MeshFormatError(f"no such file: {path}")
     if path.stat().st_size == 0:
@@ -367,7 +367,7 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
     from .._io import OutputError
 
     path = Path(path)
-    ext = _ext(path)
+    ext = format_of(path)
     if mesh is None:
         if V is None or F is None:
             raise InvalidMeshError("save_mesh needs a Mesh or V and F")
@@ -387,13 +387,13 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
         if mesh.texture is None:  # UVs without an image: no placeholder picture (trimesh writes a 2x2 grey one)
             files = {k: _without_maps(v) for k, v in files.items() if k.endswith(".mtl")}
         files = _name_companions(path, files)
-        _refuse_existing([path, *(path.parent / n for n in files)], overwrite, OutputError)
+        refuse_existing([path, *(path.parent / n for n in files)], overwrite, OutputError)
         with _atomic_group(path, files) as (tmp_main, tmp_files):
             Path(tmp_main).write_text(text)
             for name, data in files.items():
                 Path(tmp_files[name]).write_bytes(data)
         return
-    _refuse_existing([path, *companion_names(path)], overwrite, OutputError)
+    refuse_existing([path, *companion_names(path)], overwrite, OutputError)
     data = trimesh.exchange.export.export_mesh(tm, file_obj=None, file_type=ext)
     if isinstance(data, dict):  # gltf returns several files: one JSON and one buffer, named after the mesh
         from .formats import gltf_one_buffer
@@ -414,7 +414,7 @@ def _without_maps(mtl) -> bytes:
     return "".join(ln for ln in text.splitlines(True) if not ln.lstrip().lower().startswith("map_")).encode("utf-8")
 
 
-def _refuse_existing(paths, overwrite: bool, error) -> None:
+def refuse_existing(paths, overwrite: bool, error) -> None:
     if overwrite:
         return
     for p in paths:
@@ -453,13 +453,13 @@ class _atomic_group:
     def __enter__(self):
         import tempfile
 
-        from .._io import _temp_prefix, clean_stale_temporaries
+        from .._io import temp_prefix, clean_stale_temporaries
 
         self.main.parent.mkdir(parents=True, exist_ok=True)
         self.tmps = {}
         for key, target in [("__main__", self.main), *self.side.items()]:
             clean_stale_temporaries(target)
-            fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(target), suffix=".tmp", dir=target.parent)
+            fd, tmp = tempfile.mkstemp(prefix=temp_prefix(target), suffix=".tmp", dir=target.parent)
             os.close(fd)
             self.tmps[key] = Path(tmp)
         return self.tmps["__main__"], {k: v for k, v in self.tmps.items() if k != "__main__"}

@@ -33,7 +33,7 @@ import scipy.sparse.linalg as spla
 
 from ..errors import ParameterizationError
 from ..mesh.core import boundary_loops, signed_uv_areas, vertex_areas
-from .foldfree import _along, _loop_area, _on_side, boundary_sides, mean_value_weights
+from .foldfree import along_side, loop_area, on_side, boundary_sides, mean_value_weights
 
 __all__ = ["BalancedMap", "area_balanced_map", "log_area_ratio"]
 
@@ -85,7 +85,7 @@ def _boundary_layout(loop, start, ratio, spacing, eta):
         gaps = spacing[order]  # gap i: from order[i] to the next loop vertex
         cum = np.concatenate([[0.0], np.cumsum(gaps)])
         pos = cum[:-1] / cum[-1]
-        out[order] = _on_side(pos, np.full(len(order), s))
+        out[order] = on_side(pos, np.full(len(order), s))
     return out
 
 
@@ -110,8 +110,8 @@ def area_balanced_map(F, uv, nu, *, target_log: float = TARGET_LOG, max_rounds: 
     if (orient * a0 < 0).any():
         raise ParameterizationError("the starting map must not fold")
     side, corner = boundary_sides(uv[loop], "the starting map")
-    f0 = np.where(corner, 0.0, _along(uv[loop], side))
-    if _loop_area(uv[loop]) < 0:  # walk the loop counter-clockwise in the square
+    f0 = np.where(corner, 0.0, along_side(uv[loop], side))
+    if loop_area(uv[loop]) < 0:  # walk the loop counter-clockwise in the square
         loop, side, f0 = loop[::-1], side[::-1], f0[::-1]
         corner = corner[::-1]
     nxt = np.r_[1 : len(loop), 0]

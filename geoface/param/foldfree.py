@@ -160,18 +160,18 @@ def _side_index(p: np.ndarray) -> np.ndarray:
     return idx
 
 
-def _along(p: np.ndarray, side: np.ndarray) -> np.ndarray:
+def along_side(p: np.ndarray, side: np.ndarray) -> np.ndarray:
     """Fraction along each point's side, counter-clockwise (0 at the side's first corner)."""
     return np.select([side == 0, side == 1, side == 2], [p[:, 0], p[:, 1], 1.0 - p[:, 0]], 1.0 - p[:, 1])
 
 
-def _on_side(f: np.ndarray, side: np.ndarray) -> np.ndarray:
+def on_side(f: np.ndarray, side: np.ndarray) -> np.ndarray:
     return np.select([side[:, None] == 0, side[:, None] == 1, side[:, None] == 2],
                      [np.column_stack([f, 0 * f]), np.column_stack([1 + 0 * f, f]), np.column_stack([1.0 - f, 1 + 0 * f])],
                      np.column_stack([0 * f, 1.0 - f]))
 
 
-def _loop_area(p: np.ndarray) -> float:
+def loop_area(p: np.ndarray) -> float:
     q = np.roll(p, -1, axis=0)
     return 0.5 * float((p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]).sum())
 
@@ -195,9 +195,9 @@ def _monotone_boundary(loop: np.ndarray, target: np.ndarray, ref: np.ndarray) ->
     made strictly increasing along each side (counter-clockwise) where they are not.
     Returns (positions (k, 2) in loop order, number of vertices moved)."""
     side, corner = boundary_sides(ref[loop], "the reference map")
-    f = np.clip(_along(target[loop], side), 0.0, 1.0)
+    f = np.clip(along_side(target[loop], side), 0.0, 1.0)
     f[corner] = 0.0
-    order = np.arange(len(loop)) if _loop_area(ref[loop]) > 0 else np.arange(len(loop))[::-1]
+    order = np.arange(len(loop)) if loop_area(ref[loop]) > 0 else np.arange(len(loop))[::-1]
     start = np.flatnonzero(corner[order] & (side[order] == 0))[0]
     order = np.roll(order, -start)  # counter-clockwise from the corner at (0, 0)
     moved = 0
@@ -212,7 +212,7 @@ def _monotone_boundary(loop: np.ndarray, target: np.ndarray, ref: np.ndarray) ->
             new = (1.0 - 1e-3) * fit + 1e-3 * uniform  # strictly increasing, inside (0, 1)
             moved += int((new != seg).sum())
             f[run] = new
-    return _on_side(f, side), moved
+    return on_side(f, side), moved
 
 
 def _project_simplex(v: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -105,7 +105,7 @@ def layout(l: np.ndarray, F: np.ndarray, ang: np.ndarray | None = None, twin: np
     return uv
 
 
-def _align_rectangle(uv: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, float, float]:
+def align_rectangle(uv: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, float, float]:
     """Translate corner 0 to the origin and rotate corner 1 onto +x."""
     p0, p1, p3 = uv[corners[0]], uv[corners[1]], uv[corners[3]]
     e = p1 - p0

@@ -53,7 +53,7 @@ from .delaunay import IntrinsicTriangulation, flip_flat_degenerate
 from .tracking import FlipTracker, scale_bary
 from .intrinsic import corner_angles, cotan_laplacian, cotan_weights, edge_lengths, lobachevsky
 from .linsolve import SPDSolver
-from .layout import _align_rectangle, layout, to_unit_square  # noqa: F401  (to_unit_square: public here too)
+from .layout import align_rectangle, layout, to_unit_square  # noqa: F401  (to_unit_square: public here too)
 
 
 #: trial steps whose log conformal factors span more than this are refused (lengths overflow)
@@ -331,7 +331,7 @@ class RicciFlowSolver:
         lengths = np.exp(0.5 * self._lam(u, F, tri))
         degenerate = _n_degenerate(ang)
         uv = layout(lengths, F, ang, None if tri is None else tri.twin)
-        uv, w, h = _align_rectangle(uv, corners)
+        uv, w, h = align_rectangle(uv, corners)
         if tol.strict and converged:
             k = np.where(self.is_boundary, np.pi, 2 * np.pi) - np.bincount(F.ravel(), weights=ang.ravel(), minlength=self.n)
             if abs(k.sum() - 2 * np.pi) > 1e-8:

@@ -43,7 +43,7 @@ TEMPLATE_FIT = 0.045
 #: after the coarse search a shape fitting worse than this is not a head
 COARSE_FIT = 0.08
 _TEMPLATE_POINTS = 1500
-_SCAN_POINTS = 2500
+SCAN_POINTS = 2500
 _KEEP = 0.6
 
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import GeofaceError
 from ..mesh.core import boundary_loops, face_areas, loop_length
-from .template import TEMPLATE_FIT, _SCAN_POINTS, fit_head_template, surface_samples, template_face_region  # noqa: F401
+from .template import TEMPLATE_FIT, SCAN_POINTS, fit_head_template, surface_samples, template_face_region  # noqa: F401
 
 __all__ = ["UprightFrame", "upright_frame", "template_face_region", "FACE_DEPTH_RATIO"]
 
@@ -284,7 +284,7 @@ def _upright_frame(V, F, samples, seed, fallback_up) -> UprightFrame:
     used = np.unique(F)
     diag = float(np.linalg.norm(np.ptp(V[used], 0)))
     P, Pn = surface_samples(V, F, samples, seed)
-    Ps = P[:: max(1, samples // _SCAN_POINTS)]
+    Ps = P[:: max(1, samples // SCAN_POINTS)]
     op = _opening(V, F)
     cues: dict = {}
     kind = "closed"

@@ -29,7 +29,7 @@ TONES = np.array([[0.85, 0.66, 0.55], [0.78, 0.57, 0.45], [0.68, 0.47, 0.36],
                   [0.55, 0.37, 0.27], [0.40, 0.26, 0.19], [0.28, 0.18, 0.13]])
 
 
-def _noise(rng, R: int, scale_uv: float) -> np.ndarray:
+def periodic_noise(rng, R: int, scale_uv: float) -> np.ndarray:
     """Smooth periodic noise with features of about ``scale_uv`` (UV units), zero mean, unit std.
 
     Drawn on a grid of fixed size (4 cells per feature, whatever ``R``) and resampled, so the
@@ -105,7 +105,7 @@ def _regional(p: dict, rng_for, res: int, regions: dict, albedo, height, spec, h
     height += g["eyelids"] * _aniso_noise(rng_for(12), res, 0.03, 0.0015) * 1.5e-4
     albedo *= (1 - g["eyelids"][..., None] * np.array([0.04, 0.10, 0.08]))
     # forehead: horizontal lines, their depth the person's
-    lines = np.sin(2 * np.pi * (_grid_v(res) / 0.011 + 0.8 * _noise(rng_for(13), res, 0.05)))
+    lines = np.sin(2 * np.pi * (uv_grid_v(res) / 0.011 + 0.8 * periodic_noise(rng_for(13), res, 0.05)))
     height += g["forehead"] * p["lines"] * np.clip(lines, -1, 1) * 1.2e-4
     # T-zone shine; redness on cheeks and nose
     spec += 0.18 * g["nose"] + 0.08 * g["forehead"] - 0.05 * g["cheeks"]
@@ -117,7 +117,7 @@ def _regional(p: dict, rng_for, res: int, regions: dict, albedo, height, spec, h
         height += st * 5e-5
 
 
-def _grid_v(res: int) -> np.ndarray:
+def uv_grid_v(res: int) -> np.ndarray:
     return np.broadcast_to((1.0 - (np.arange(res) + 0.5) / res)[:, None], (res, res))
 
 
@@ -148,12 +148,12 @@ def skin_maps(res: int = 1024, seed: int = 0, *, pore_density: float = 3e5, frec
     sub = [np.random.default_rng([seed, k]) for k in range(8)]
     base = TONES[p["tone"]] * (1 + 0.04 * rng.standard_normal(3))
     albedo = np.broadcast_to(base, (res, res, 3)).copy()
-    mott = _noise(sub[0], res, 0.01)
-    fine = _noise(sub[7], res, 0.0012)  # fine skin texture, about a pixel at 1K: what HFDR must restore
+    mott = periodic_noise(sub[0], res, 0.01)
+    fine = periodic_noise(sub[7], res, 0.0012)  # fine skin texture, about a pixel at 1K: what HFDR must restore
     albedo *= (1 + 0.025 * mott + 0.06 * fine)[..., None]
-    red = np.clip(_noise(sub[1], res, 0.08), 0, None) * p["redness"]
+    red = np.clip(periodic_noise(sub[1], res, 0.08), 0, None) * p["redness"]
     albedo += red[..., None] * np.array([0.10, -0.05, -0.04])
-    region = np.clip(_noise(sub[2], res, 0.15) - 0.3, 0, None)  # where freckles gather
+    region = np.clip(periodic_noise(sub[2], res, 0.15) - 0.3, 0, None)  # where freckles gather
     if regions is not None:  # on the cheeks and the nose
         region = 1.5 * (np.asarray(regions.get("cheeks", 0.0)) + np.asarray(regions.get("nose", 0.0)))
     n_freck = int(2000 * p["freckles"])
@@ -166,10 +166,10 @@ def skin_maps(res: int = 1024, seed: int = 0, *, pore_density: float = 3e5, frec
         pores += _spots(sub[4], res, int(pore_density / 3), 4.5e-4, (0.6, 1.0)) * 1.6 * g["nose"]
     pores = np.clip(pores, 0, 1.5)
     albedo *= 1 - 0.12 * pores[..., None]
-    wrinkles = _noise(sub[5], res, 0.002) * 0.3
+    wrinkles = periodic_noise(sub[5], res, 0.002) * 0.3
     height = (-pores + wrinkles) * 2e-4  # UV units (1 = the UV square's side)
     micronormal = height_to_normal(height, strength=1.0)
-    spec = 0.35 + 0.15 * _noise(sub[6], res, 0.1) - 0.15 * pores + 0.06 * fine
+    spec = 0.35 + 0.15 * periodic_noise(sub[6], res, 0.1) - 0.15 * pores + 0.06 * fine
     if regions is not None:
         _regional(p, lambda k: np.random.default_rng([seed, k]), res, regions, albedo, height, spec, hair)
         micronormal = height_to_normal(height, strength=1.0)
@@ -228,7 +228,7 @@ def shade(albedo, micronormal, specular, normal, view, lights, *, roughness: flo
     return np.clip(out, 0, 1) ** (1 / gamma)
 
 
-def _sample_uv_map(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+def sample_uv_map(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear lookup of a UV-space map [R, R, C] (row 0 is v = 1, as geoface textures) at
     ``uv`` [k, 2] in [0, 1]."""
     R = img.shape[0]
@@ -290,7 +290,7 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
     view /= np.linalg.norm(view, axis=1, keepdims=True)
     N = np.where((N * view).sum(1, keepdims=True) < 0, -N, N)  # back-facing interpolation at silhouettes
     stack = maps.stack()
-    px = _sample_uv_map(stack, uv)
+    px = sample_uv_map(stack, uv)
     if eyes is not None:
         flat = np.array([0.5, 0.5, 1.0])
         sock = np.asarray(eyes.get("socket", np.zeros(len(V), bool)))[tri].any(1)
@@ -329,7 +329,7 @@ def unweld_uv(V, F, UV, FUV, *, with_source: bool = False):
 _ICT_CACHE: dict = {}
 
 
-def _ict_source(map_res: int):
+def ict_source(map_res: int):
     """The ICT model and its face-tile regions at ``map_res`` (once per process)."""
     if map_res not in _ICT_CACHE:
         from geoface.synth.ict import load_ict_model
@@ -344,7 +344,7 @@ def _ict_source(map_res: int):
 IRIS = np.array([[0.30, 0.16, 0.06], [0.18, 0.09, 0.04], [0.25, 0.35, 0.45], [0.28, 0.33, 0.18], [0.10, 0.06, 0.03]])
 
 
-def _ict_eyes(neutral_V, src, head, rng) -> dict:
+def ict_eyes(neutral_V, src, head, rng) -> dict:
     """The ``eyes`` argument of :func:`render_skin_sample` for an unwelded ICT head: per vertex,
     eyeball / socket flags and the cosine to the gaze axis (+z, measured on the person's neutral
     head, so a look blendshape turns the pattern with the eyeball)."""

@@ -118,7 +118,7 @@ def _thgs_drive(model, source: Path, fps: float) -> AvatarDrive:
 
 def _hfm_drive(model, source: Path) -> AvatarDrive:
     from geoface.splat.hfm_data import frame_input, load_video
-    from geoface.splat.hfm_train import _pose
+    from geoface.splat.hfm_train import frame_pose
 
     if not source.is_dir():
         raise SplatError(f"{source}: an HMD avatar is driven by a usage folder (`hmd synth` writes one)")
@@ -127,7 +127,7 @@ def _hfm_drive(model, source: Path) -> AvatarDrive:
     meta = json.loads((source / "meta.json").read_text(encoding="utf-8"))
 
     def g(t):
-        return model(*frame_input(video, t, model.cfg.crop, boxes), _pose(video, t))
+        return model(*frame_input(video, t, model.cfg.crop, boxes), frame_pose(video, t))
 
     return AvatarDrive(len(video), float(meta.get("fps", 25.0)), f"the headset video in {source.name}", "hfm", g,
                        _uint8(video.frames))

@@ -180,6 +180,18 @@ class GaussianTensors(_GaussianOps):
         self.opacity_logits, self.colors, self.parent = opacity_logits, colors, parent
 
 
+
+def _unit_rgb(colors, n: int) -> np.ndarray:
+    """Per-vertex colours as (n, 3) floats in [0, 1]: RGB or RGBA (alpha dropped), floats in [0, 1]
+    or integers in [0, 255] (a mesh's ``colors`` as loaded)."""
+    c = np.asarray(colors)
+    if c.ndim != 2 or c.shape[0] != n or c.shape[1] not in (3, 4):
+        raise SplatError(f"colors must have shape ({n}, 3) or ({n}, 4); got {c.shape}")
+    c = c[:, :3]
+    if np.issubdtype(c.dtype, np.integer):
+        return c.astype(np.float64) / 255.0
+    return np.clip(c.astype(np.float64), 0.0, 1.0)
+
 class Gaussians(_GaussianOps, nn.Module):
     """A set of N 3D Gaussians with learnable parameters.
 
@@ -227,7 +239,8 @@ class Gaussians(_GaussianOps, nn.Module):
         The rotation's third column is the (area-weighted) vertex normal; both tangent scales
         are ``sqrt(A_avg / π)`` with ``A_avg`` the mean area of the faces around the vertex and
         the normal scale is ``normal_scale`` times that (so the normal is the smallest axis).
-        ``parent[i] = i``.
+        ``parent[i] = i``. ``colors``: (n, 3) or (n, 4) per vertex, floats in [0, 1] or integers
+        in [0, 255] (a loaded mesh's ``colors`` as they are); grey when None.
         """
         V = np.asarray(V, dtype=np.float64)
         F = np.asarray(F, dtype=np.int64)
@@ -259,9 +272,7 @@ class Gaussians(_GaussianOps, nn.Module):
         R = np.stack([t1, t2, vn], axis=2)  # columns
         quats = rotmat_to_quat(R)
         log_scales = np.log(np.stack([s, s, s * normal_scale], 1))
-        cols = np.full((n, 3), 0.5) if colors is None else np.asarray(colors, dtype=np.float64)
-        if cols.shape != (n, 3):
-            raise SplatError(f"colors must have shape ({n}, 3); got {cols.shape}")
+        cols = np.full((n, 3), 0.5) if colors is None else _unit_rgb(colors, n)
         sh = np.zeros((n, (sh_degree + 1) ** 2, 3))
         sh[:, 0] = rgb_to_sh0(cols)
         logit = np.log(opacity / (1 - opacity))

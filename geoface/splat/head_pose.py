@@ -91,7 +91,7 @@ def landmarks_on_mesh(V, F, camera, points2d) -> tuple[np.ndarray, np.ndarray]:
     return out, ok
 
 
-def _project(camera, X):
+def project_points(camera, X):
     Xc = X @ np.asarray(camera.R, np.float64).T + np.asarray(camera.t, np.float64)
     return np.stack([camera.fx * Xc[:, 0] / Xc[:, 2] + camera.cx, camera.fy * Xc[:, 1] / Xc[:, 2] + camera.cy], 1)
 
@@ -126,7 +126,7 @@ def solve_poses(camera, points3d, points2d, pivot, *, init=None, scale_px: float
 
         def resid(x):
             X = Q @ rodrigues(x[:3]).T + piv + x[3:]
-            return ((_project(camera, X) - q) * wk).ravel()
+            return ((project_points(camera, X) - q) * wk).ravel()
 
         # soft-L1 first (close to convex), then Cauchy from there (ignores moved points more)
         sol = least_squares(resid, x, loss="soft_l1", f_scale=2 * scale_px, method="trf", x_scale="jac", max_nfev=200)
@@ -158,7 +158,7 @@ def triangulate(camera, poses: dict, points2d, init, *, scale_px: float = 1.0) -
 
         def resid(X):
             Xw = np.einsum("fij,j->fi", Rk, X - piv) + piv + tk
-            return (_project(camera, Xw) - q).ravel()
+            return (project_points(camera, Xw) - q).ravel()
 
         out[k] = least_squares(resid, out[k], loss="cauchy", f_scale=scale_px, method="trf", x_scale="jac",
                                max_nfev=200).x
@@ -351,7 +351,7 @@ def _with_expressions(camera, P, obs, cols, R, t, piv, B, draws: int, seed: int)
         pick = rng.choice(J, size=int(rng.integers(1, min(3, J) + 1)), replace=False)
         w[pick] = rng.uniform(0.0, 1.0, len(pick))
         X = (P + off[f] + np.einsum("j,jkc->kc", w, B) - piv) @ R[f].T + piv + t[f]
-        new[i, cols] = _project(camera, X)
+        new[i, cols] = project_points(camera, X)
     return np.concatenate([obs, new]), np.concatenate([R, np.repeat(R, draws, 0)]), np.concatenate([t, np.repeat(t, draws, 0)])
 
 

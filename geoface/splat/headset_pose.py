@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from geoface.splat.errors import SplatError
-from geoface.splat.head_pose import _project, rodrigues, rotation_vector
+from geoface.splat.head_pose import project_points, rodrigues, rotation_vector
 
 __all__ = ["headset_centroids", "headset_components", "fit_headset", "refine_with_headset", "headset_poses"]
 
@@ -73,7 +73,7 @@ def _predict(camera, R, t, pivot, c, A=None) -> np.ndarray:
     """[T, 2]: where the model (:func:`fit_headset`: point ``c``, view map ``A`` [2, 2]) puts the
     silhouette's centroid in each pose (R [T, 3, 3], t [T, 3] about ``pivot``)."""
     X = np.einsum("fij,j->fi", R, np.asarray(c, np.float64) - pivot) + pivot + t
-    uv = _project(camera, X)
+    uv = project_points(camera, X)
     if A is not None:
         d = _centre(camera) - X
         d = np.einsum("fji,fj->fi", R, d / np.linalg.norm(d, axis=1, keepdims=True))  # in the head's frame
@@ -145,7 +145,7 @@ def refine_with_headset(camera, R, t, pivot, points3d, headset: dict, targets, *
         x0 = np.r_[rotation_vector(R[f]), t[f]]
 
         def lm(x):
-            return ((_project(camera, Q @ rodrigues(x[:3]).T + piv + x[3:])) * sw / sigma_landmarks_px).ravel()
+            return ((project_points(camera, Q @ rodrigues(x[:3]).T + piv + x[3:])) * sw / sigma_landmarks_px).ravel()
 
         J = np.stack([(lm(x0 + d) - lm(x0 - d)) / (2 * eps) for d in np.eye(6) * eps], 1)
         L = np.linalg.cholesky(J.T @ J + 1e-9 * np.eye(6)).T

@@ -13,13 +13,13 @@ from geoface._args import SEED, add_json, json_to_stdout, number, write_json, ou
 __all__ = ["register"]
 
 
-def _quiet(args) -> bool:
+def args_quiet(args) -> bool:
     from geoface.progress import QUIET
 
     return bool(getattr(args, "quiet", False) or QUIET)
 
 
-def _train_device(args) -> str:
+def train_device(args) -> str:
     """``--device`` of a training command: as given, else cuda when torch sees a GPU."""
     if args.device is not None:
         return args.device
@@ -42,11 +42,11 @@ def cmd_hmd_synth(args) -> int:
 
             reg, use = make_ict_hmd(tmp, frames=args.frames, usage_frames=args.usage_frames, res=args.res,
                                     seed=args.seed, motion=args.motion, jitter=args.jitter, rom=args.rom,
-                                    quiet=_quiet(args))
+                                    quiet=args_quiet(args))
         else:
             reg, use = make_synthetic_hmd(tmp, frames=args.frames, heldout=args.heldout, res=args.res,
                                           n_vertices=args.vertices, seed=args.seed, motion=args.motion,
-                                          quiet=_quiet(args))
+                                          quiet=args_quiet(args))
         reg, use = out / Path(reg).relative_to(tmp), out / Path(use).relative_to(tmp)
     print(f"{reg}: registration video; {use}: usage video with a headset (+ gt/, hmd_masks/)")
     return 0
@@ -95,8 +95,8 @@ def cmd_hmd_train(args) -> int:
     out = Path(args.output)
     cfg = _config(args)
     with output_folder(out, args.force) as tmp:  # complete or absent; never into a user's files
-        info = train_hfm(args.reg_dir, tmp, cfg, progress=None if not _quiet(args) else False, log=log,
-                         poses=args.poses, device=_train_device(args))
+        info = train_hfm(args.reg_dir, tmp, cfg, progress=None if not args_quiet(args) else False, log=log,
+                         poses=args.poses, device=train_device(args))
     h = info["history"]
     first = sum(r["loss"] for r in h[:20]) / len(h[:20])
     last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])

@@ -104,7 +104,7 @@ class HMDVideo:
         return self.landmarks[t][idx]
 
 
-def _stack_frames(paths, rgb=True) -> np.ndarray:
+def stack_frames(paths, rgb=True) -> np.ndarray:
     """The images of ``paths`` as one array; images of different sizes (or channel counts) are a
     one-line SplatError naming the first that differs."""
     imgs = [_read_png(p, rgb) for p in paths]
@@ -138,7 +138,7 @@ def _read_png(path: Path, rgb=True) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
-def _write_png(path: Path, img) -> None:
+def write_png(path: Path, img) -> None:
     a = np.asarray(img)
     if a.dtype != np.uint8:
         a = (np.clip(a, 0, 1) * 255 + 0.5).astype(np.uint8)
@@ -155,11 +155,11 @@ def write_frame(folder, t: int, img) -> Path:
 
     path = Path(folder) / "frames" / f"{t:06d}.png"
     with atomic_path(path) as tmp:
-        _write_png(tmp, img)
+        write_png(tmp, img)
     return path
 
 
-def _camera_from_json(d) -> Camera:
+def camera_from_json(d) -> Camera:
     """A :class:`Camera` from ``camera.json``'s object (or the file's path): focal lengths
     positive, sizes in 1..16384, ``R`` a rotation, everything finite; else a one-line SplatError."""
     where = "camera.json"
@@ -227,7 +227,7 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
         if not (folder / name).is_file():
             raise SplatError(f"{folder}: missing {name}")
     try:
-        cam = _camera_from_json(folder / "camera.json")
+        cam = camera_from_json(folder / "camera.json")
         meta = json.loads((folder / "meta.json").read_text())
         y_split = float(meta["y_split"])
     except (ValueError, KeyError, TypeError) as e:
@@ -239,7 +239,7 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
         raise SplatError(f"{folder}/landmarks.json: missing landmarks {missing}")
     if frames is not None:
         pts = pts[frames]
-    imgs = _stack_frames(paths)
+    imgs = stack_frames(paths)
     if imgs.shape[1:3] != (cam.height, cam.width):
         raise SplatError(f"{folder}: frames are {imgs.shape[2]}×{imgs.shape[1]} but camera.json says "
                          f"{cam.width}×{cam.height}")
@@ -248,7 +248,7 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
         ps = [folder / sub / p.name for p in paths]
         if not all(p.is_file() for p in ps):
             return None
-        a = _stack_frames(ps, rgb)
+        a = stack_frames(ps, rgb)
         if a.shape[1:3] != imgs.shape[1:3]:
             raise SplatError(f"{folder}/{sub}: images differ in size from frames/")
         return a
@@ -334,7 +334,7 @@ def expressions_from_drivers(d) -> list[dict]:
     return out
 
 
-def _rot(yaw, pitch, roll) -> np.ndarray:
+def euler_rotation(yaw, pitch, roll) -> np.ndarray:
     cy, sy, cp, sp, cr, sr = (math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch),
                               math.cos(roll), math.sin(roll))
     Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
@@ -410,7 +410,7 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
     log = {"registration": [], "usage": []}
     for t in progress(range(frames), "rendering HMD videos", total=frames, quiet=quiet):
         head = model.mesh(exprs[t])
-        R = _rot(yaw[t], pitch[t], roll[t])
+        R = euler_rotation(yaw[t], pitch[t], roll[t])
         pose = lambda X: (np.asarray(X) - pivot) @ R.T + pivot + trans[t]  # noqa: E731
         V = pose(head.V)
         which = "registration" if t < n_reg else "usage"
@@ -426,8 +426,8 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
                            "yaw_pitch_roll_deg": np.degrees([yaw[t], pitch[t], roll[t]]).tolist(),
                            "translation": trans[t].tolist()})
         if which == "registration":
-            _write_png(d / "frames" / name, r.rgb * r.alpha[..., None])
-            _write_png(d / "masks" / name, (r.alpha > 0.5).astype(np.uint8) * 255)
+            write_png(d / "frames" / name, r.rgb * r.alpha[..., None])
+            write_png(d / "masks" / name, (r.alpha > 0.5).astype(np.uint8) * 255)
         else:
             VV = np.concatenate([V, pose(hV)])
             FF = np.concatenate([head.F, hF + len(V)])
@@ -435,13 +435,13 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
             ro = render_mesh(VV, FF, cam, CC, supersample=supersample)
             hmd = render_mesh(VV, FF, cam, np.concatenate([np.zeros((len(V), 3)), np.ones((len(hV), 3))]),
                               supersample=supersample).rgb[..., 0]
-            _write_png(d / "frames" / name, ro.rgb * ro.alpha[..., None])
-            _write_png(d / "masks" / name, (ro.alpha > 0.5).astype(np.uint8) * 255)
-            _write_png(d / "hmd_masks" / name, (hmd > 0.5).astype(np.uint8) * 255)
-            _write_png(d / "gt" / name, r.rgb * r.alpha[..., None])
+            write_png(d / "frames" / name, ro.rgb * ro.alpha[..., None])
+            write_png(d / "masks" / name, (ro.alpha > 0.5).astype(np.uint8) * 255)
+            write_png(d / "hmd_masks" / name, (hmd > 0.5).astype(np.uint8) * 255)
+            write_png(d / "gt" / name, r.rgb * r.alpha[..., None])
             rest = model.mesh({**exprs[t], **{k: 0.0 for k in UPPER_EXPRESSIONS}})
             rs = render_mesh(pose(rest.V), rest.F, cam, rest.colors, supersample=supersample)
-            _write_png(d / "gt_static_upper" / name, rs.rgb * rs.alpha[..., None])
+            write_png(d / "gt_static_upper" / name, rs.rgb * rs.alpha[..., None])
     from geoface.mesh.io import save_mesh
 
     for which, d in dirs.items():

@@ -40,7 +40,7 @@ __all__ = ["arkit_curves", "make_ict_hmd", "ICTPerson", "ICT_PARTS", "is_upper_b
 
 #: the model's parts that are rendered (and become Gaussians)
 ICT_PARTS = ("skin", "eyes", "teeth", "mouth")
-_CM = 0.01  # the model's centimetres → metres
+CM_TO_M = 0.01  # the model's centimetres → metres
 # region numbers of ICTHead.labels (the order of geoface.synth.ict.REGIONS)
 _MOUTH, _EYE_SOCKET, _GUMS, _TEETH, _EYEBALL = 3, 4, 5, 6, 7
 _SOLIDS = {_MOUTH: ((0.30, 0.09, 0.09), 0.15), _GUMS: ((0.62, 0.27, 0.27), 0.4), _TEETH: ((0.86, 0.82, 0.70), 0.5)}
@@ -102,7 +102,7 @@ def arkit_curves(T: int, rng, *, fps: float = 25.0, loudness=None, talk: float =
         w = sum(np.sin(2 * np.pi * f[j] * t + ph[j]) / (j + 1) for j in range(3))
         emo[:, k] = np.clip((w - 0.3) / 1.1, 0, 1) ** 1.2
     if rom > 0:
-        from geoface.splat.template import _smooth as _ease
+        from geoface.splat.template import smoothstep as _ease
 
         free = _ease((t - 0.2 - rom) / 0.5)
         seg = rom / 3
@@ -137,7 +137,7 @@ def arkit_curves(T: int, rng, *, fps: float = 25.0, loudness=None, talk: float =
     return out
 
 
-def _motion(T: int, rng, fps: float, scale: float, jitter: float, ramp: int):
+def head_motion(T: int, rng, fps: float, scale: float, jitter: float, ramp: int):
     """[T, 3] yaw/pitch/roll (radians) and [T, 3] translation (m): slow sinusoids (yaw ±10°,
     pitch ±5°, roll ±3°, ±6 mm) plus a per-frame camera shake (``jitter`` × 0.3°, 0.5 mm); the
     first ``ramp`` frames ease in from rest."""
@@ -151,7 +151,7 @@ def _motion(T: int, rng, fps: float, scale: float, jitter: float, ramp: int):
     ang += jitter * np.radians(0.3) * rng.standard_normal((T, 3))
     tr += jitter * 0.0005 * rng.standard_normal((T, 3))
     if ramp:
-        from geoface.splat.template import _smooth as smoothstep
+        from geoface.splat.template import smoothstep
 
         w = smoothstep(np.arange(T) / ramp)
         ang *= w[:, None]
@@ -172,12 +172,12 @@ class ICTPerson:
 
     def __init__(self, rng, *, identity=None, res: int = 128, map_res: int = 512, supersample: int = 2):
         from geoface.nn.camera import Camera, look_at
-        from geoface.skin.render import _ict_eyes, _ict_source, random_lights, skin_maps, unweld_uv
+        from geoface.skin.render import ict_eyes, ict_source, random_lights, skin_maps, unweld_uv
         from geoface.splat.hfm_data import headset_mesh
 
         if supersample < 1 or res < 16:
             raise SplatError(f"need res >= 16 and supersample >= 1; got {res}, {supersample}")
-        model, regions = _ict_source(map_res)
+        model, regions = ict_source(map_res)
         if identity is None:
             ident = rng.standard_normal(model.n_identities)
         else:
@@ -189,10 +189,10 @@ class ICTPerson:
         self.model, self.ident = model, ident
         self.rest = rest = model.head(identity=ident, parts=ICT_PARTS)
         lab = rest.labels
-        self.V0 = V0 = rest.V * _CM
+        self.V0 = V0 = rest.V * CM_TO_M
         Vu, self.Fu, self.UVu, self.src = unweld_uv(rest.V, rest.F, rest.UV, rest.FUV, with_source=True)
         self.V_identity = rest.V  # cm, the expressionless shape; every frame adds its expression to it
-        self.eyes = _ict_eyes(self.V_identity, self.src, rest, rng)
+        self.eyes = ict_eyes(self.V_identity, self.src, rest, rng)
         self.maps = skin_maps(map_res, seed=int(rng.integers(1 << 31)), regions=regions)
         self.lights = random_lights(rng, int(rng.integers(2, 4)))
         self.solids = [(lab[self.src] == k, c, s) for k, (c, s) in _SOLIDS.items()]
@@ -211,7 +211,7 @@ class ICTPerson:
 
     def shape(self, expr: dict) -> np.ndarray:
         """The person's vertices (metres, canonical pose) under ARKit weights ``expr``."""
-        return self.model.add_expression(self.V_identity, expr, parts=ICT_PARTS) * _CM
+        return self.model.add_expression(self.V_identity, expr, parts=ICT_PARTS) * CM_TO_M
 
     def render(self, expr: dict, R, tr, headset: bool = False):
         """→ (posed vertices, RGB [res, res, 3], alpha [res, res], headset mask or None): the
@@ -261,7 +261,7 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
     range of motion, :func:`arkit_curves`; 0: none, the expressions are free throughout)."""
     from geoface.mesh.io import save_mesh
     from geoface.progress import progress
-    from geoface.splat.hfm_data import IBUG68_NAMES, IBUG68_LOWER, _rot, _write_png, camera_to_json
+    from geoface.splat.hfm_data import IBUG68_NAMES, IBUG68_LOWER, euler_rotation, write_png, camera_to_json
 
     usage_frames = max(5, frames // 4) if usage_frames is None else int(usage_frames)
     if frames < 5 or usage_frames < 1:
@@ -277,8 +277,8 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
 
     n_all = frames + usage_frames
     rng_r, rng_u = (np.random.default_rng([seed, 7102, k]) for k in range(2))
-    seqs = {"registration": (arkit_curves(frames, rng_r, fps=fps, rom=rom), _motion(frames, rng_r, fps, motion, jitter, 10)),
-            "usage": (arkit_curves(usage_frames, rng_u, fps=fps), _motion(usage_frames, rng_u, fps, motion, jitter, 0))}
+    seqs = {"registration": (arkit_curves(frames, rng_r, fps=fps, rom=rom), head_motion(frames, rng_r, fps, motion, jitter, 10)),
+            "usage": (arkit_curves(usage_frames, rng_u, fps=fps), head_motion(usage_frames, rng_u, fps, motion, jitter, 0))}
     # registration frame 0: the person at rest in the canonical pose (head.ply)
     seqs["registration"][0][0] = {k: 0.0 for k in seqs["registration"][0][0]}
     dirs = {"registration": out / "registration", "usage": out / "usage"}
@@ -294,7 +294,7 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
     lower_idx = list(IBUG68_LOWER)
     for _, (which, k) in zip(it, jobs):
         exprs, (ang, tr) = seqs[which]
-        R = _rot(*ang[k])
+        R = euler_rotation(*ang[k])
         d = dirs[which]
         name = f"{k:06d}.png"
         V, rgb, alpha, hmd = render(exprs[k], R, tr[k], which == "usage")
@@ -305,15 +305,15 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
         poses[which][1].append(tr[k])
         log[which].append({"frame": k, "expression": {n: round(v, 4) for n, v in exprs[k].items() if v > 1e-4},
                            "yaw_pitch_roll_deg": np.degrees(ang[k]).tolist(), "translation": tr[k].tolist()})
-        _write_png(d / "frames" / name, rgb)
-        _write_png(d / "masks" / name, (alpha > 0.5).astype(np.uint8) * 255)
+        write_png(d / "frames" / name, rgb)
+        write_png(d / "masks" / name, (alpha > 0.5).astype(np.uint8) * 255)
         if which == "usage":
-            _write_png(d / "hmd_masks" / name, hmd.astype(np.uint8) * 255)
+            write_png(d / "hmd_masks" / name, hmd.astype(np.uint8) * 255)
             _, g, _, _ = render(exprs[k], R, tr[k], False)
-            _write_png(d / "gt" / name, g)
+            write_png(d / "gt" / name, g)
             still = {n: (0.0 if is_upper_blendshape(n) else v) for n, v in exprs[k].items()}
             _, g, _, _ = render(still, R, tr[k], False)
-            _write_png(d / "gt_static_upper" / name, g)
+            write_png(d / "gt_static_upper" / name, g)
     for which, d in dirs.items():
         names = list(IBUG68_NAMES) if which == "registration" else [IBUG68_NAMES[i] for i in lower_idx]
         (d / "landmarks.json").write_text(json.dumps({"names": names, "points": lm_pts[which]}))
@@ -334,10 +334,10 @@ def _init_mesh(V0, head, src, UVu, maps, eyes, solids, target: int):
     vertices, coloured by the albedo of its nearest original vertex."""
     from scipy.spatial import cKDTree
 
-    from geoface.skin.render import _sample_uv_map, eye_albedo
+    from geoface.skin.render import sample_uv_map, eye_albedo
     from geoface.repair.remesh import remesh
 
-    col_u = _sample_uv_map(maps.stack()[..., :3], np.clip(UVu, 0, 1))
+    col_u = sample_uv_map(maps.stack()[..., :3], np.clip(UVu, 0, 1))
     ball = eyes["eyeball"]
     col_u[ball] = eye_albedo(eyes["cos"][ball], eyes["iris"])
     col_u[eyes["socket"]] = (0.55, 0.30, 0.27)

@@ -16,7 +16,7 @@ from geoface.splat.gaussians import Gaussians
 from geoface.nn.average import WeightAverage
 from geoface.splat.hfm_blocks import SegregationStrategy, boundary_loss
 from geoface.splat.hfm_model import HFMConfig, HFMModel
-from geoface.splat.model_dir import _load_state, read_model_dir, write_model_dir
+from geoface.splat.model_dir import load_model_state, read_model_dir, write_model_dir
 
 
 # ----------------------------------------------------------------------------- VGG perceptual
@@ -41,7 +41,7 @@ class VGGPerceptual(nn.Module):
                 c = v
         self.features = nn.Sequential(*layers)
         self.taps = {3, 8, 15}
-        sd = _load_state(weights)
+        sd = load_model_state(weights)
         sd = {k[len("features."):] if k.startswith("features.") else k: v for k, v in sd.items()}
         own = self.features.state_dict()
         missing = [k for k in own if k not in sd]
@@ -73,7 +73,7 @@ def _frames_tensors(video, crop):
     return imgs, crops, torch.tensor(video.boxes())
 
 
-def _pose(video, t):
+def frame_pose(video, t):
     """Frame ``t``'s tracked head pose (R, t, pivot) or None."""
     if video.poses is None:
         return None
@@ -261,7 +261,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
             model.refresh_keys()
         gt = imgs[f]
         theta = model.encoder(crops[f:f + 1], boxes[f:f + 1])
-        gd = refine.posed(theta, f) if refine is not None else model.deform(theta, _pose(video, f))
+        gd = refine.posed(theta, f) if refine is not None else model.deform(theta, frame_pose(video, f))
         rgb, alpha, depth, info = rasterize(gd, cam, background=bg, return_info=True)
         l1 = (rgb - gt).abs().mean()
         a, b = rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None]

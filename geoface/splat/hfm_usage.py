@@ -11,7 +11,7 @@ import torch
 from geoface.splat.errors import SplatError
 from geoface.splat.hfm_data import frame_input
 from geoface.splat.hfm_model import HFMModel
-from geoface.splat.hfm_train import _pose
+from geoface.splat.hfm_train import frame_pose
 
 
 # ----------------------------------------------------------------------------- usage
@@ -197,7 +197,7 @@ def _remove(model, video, out_dir, camera, composite, poses):
     boxes = video.boxes()
     for t in range(len(video)):
         t0 = time.perf_counter()
-        rgb = rasterize(model(*frame_input(video, t, model.cfg.crop, boxes), _pose(video, t)), cam,
+        rgb = rasterize(model(*frame_input(video, t, model.cfg.crop, boxes), frame_pose(video, t)), cam,
                         background=bg)[0].clamp(0, 1).numpy()
         times.append(time.perf_counter() - t0 + fit_s)
         renders.append(rgb)

@@ -13,7 +13,7 @@ from geoface.splat.errors import SplatError
 __all__ = ["write_model_dir", "read_model_dir", "read_model_config"]
 
 
-def _load_state(path) -> dict:
+def load_model_state(path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise SplatError(f"{path}: no such weights file")
@@ -49,7 +49,7 @@ def read_model_dir(model_dir, fmt: str, what: str) -> tuple[Path, dict, dict]:
     """(folder, config.json, state dict) of a model folder written by :func:`write_model_dir`
     whose config says ``"format": fmt``; any problem is a one-line SplatError."""
     d, meta = read_model_config(model_dir, fmt, what)
-    return d, meta, _load_state(d / "model.safetensors")
+    return d, meta, load_model_state(d / "model.safetensors")
 
 
 def read_model_config(model_dir, fmt: str, what: str) -> tuple[Path, dict]:

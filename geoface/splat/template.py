@@ -110,7 +110,7 @@ class Template:
             raise SplatError(f"{path}: not a geoface template ({type(e).__name__}: {e})") from None
 
 
-def _smooth(x):
+def smoothstep(x):
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3 - 2 * x)
 
@@ -129,8 +129,8 @@ def procedural_template(n_vertices: int = 8000, seed: int = 0, identity=None) ->
     y_chin = float(V[lm["chin"], 1])
     y_min = float(y.min())
     # neck → head blend over the throat, root → neck over the bottom of the neck
-    w_head = _smooth((y - (y_chin - 0.035)) / 0.05)
-    w_neck_all = _smooth((y - (y_min + 0.01)) / 0.04)
+    w_head = smoothstep((y - (y_chin - 0.035)) / 0.05)
+    w_neck_all = smoothstep((y - (y_min + 0.01)) / 0.04)
     W = np.zeros((len(V), 4))
     W[:, 3] = w_jaw * w_head
     W[:, 2] = (1 - w_jaw) * w_head

@@ -185,14 +185,14 @@ class AudioArticulation(nn.Module):
 # ============================================================================ the avatar
 
 PAPER_STAGES = (1500, 15000, 25000, 50000)  # skinning & pose, expression, blendshapes, SAAM
-PAPER_ITERS = 60000
+PAPER_ITERS = 150000  # Table 1: 150K steps in all, so SAAM starts at a third of training
 
 
 @dataclass
 class THGSConfig:
     """Training settings. ``stage_scale`` maps the paper's stage starts (Table 1: skinning and pose
-    from step 1500, expression 15K, blendshapes 25K, SAAM 50K, of ~60K) onto this run: None =
-    ``iters / 60000``."""
+    from step 1500, expression 15K, blendshapes 25K, SAAM 50K, of 150K) onto this run: None =
+    ``iters / 150000`` (the same fractions of the run as the paper's)."""
 
     iters: int = 3000
     stage_scale: float | None = None
@@ -344,7 +344,7 @@ class THGSModel(nn.Module):
         return ((g.means - self.V0[g.parent]) ** 2).sum(-1).mean()
 
 
-def _split(n: int, heldout: float):
+def train_heldout_split(n: int, heldout: float):
     k = max(1, int(round(n * (1 - heldout)))) if heldout > 0 else n
     return np.arange(k), np.arange(k, n)
 
@@ -368,7 +368,7 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     data = load_talking(data_dir)
-    tr, _ = _split(len(data), cfg.heldout)
+    tr, _ = train_heldout_split(len(data), cfg.heldout)
     model = THGSModel(data.template, cfg, data.audio.shape[1], len(data))
     A = model.audio_input(data.audio)
     model.audio_ref.copy_(torch.quantile(A[tr], 0.02, dim=0))
@@ -464,7 +464,7 @@ def save_thgs(model: THGSModel, out_dir) -> None:
 
 
 def load_thgs(model_dir) -> THGSModel:
-    from geoface.splat.model_dir import _load_state, read_model_config
+    from geoface.splat.model_dir import load_model_state, read_model_config
     from geoface.splat.template import Template
 
     from .errors import ModelFolderError
@@ -474,7 +474,7 @@ def load_thgs(model_dir) -> THGSModel:
     for key in ("audio_dim", "n_frames"):
         if isinstance(meta.get(key), bool) or not isinstance(meta.get(key), int) or meta[key] < 0:
             raise ModelFolderError(f"{d}/config.json: {key} must be a non-negative integer; got {meta.get(key)!r}")
-    sd = _load_state(d / "model.safetensors")
+    sd = load_model_state(d / "model.safetensors")
     tpl = Template.load(d / "template.npz")
     try:
         g = Gaussians(sd["gaussians.means"], sd["gaussians.log_scales"], sd["gaussians.quats"],
@@ -513,7 +513,7 @@ def animate(model: THGSModel, audio_path, out_dir=None, *, poses=None, fps: floa
     (.npz with rot/transl/expr; default: the rest pose, neutral expression). Writes
     ``out_dir/frames/*.png`` when given; returns (frames [T, H, W, 3], per-frame seconds)."""
     from geoface.splat.audio import audio_features, read_wav
-    from geoface.splat.hfm_data import _camera_from_json, write_frame
+    from geoface.splat.hfm_data import camera_from_json, write_frame
     from geoface.splat.thgs_data import load_poses
 
     p = Path(audio_path)
@@ -537,7 +537,7 @@ def animate(model: THGSModel, audio_path, out_dir=None, *, poses=None, fps: floa
         cam_path = Path(getattr(model, "_dir", "")) / "camera.json"
         if not cam_path.is_file():
             raise SplatError("no camera: the model folder has no camera.json")
-        camera = _camera_from_json(cam_path)
+        camera = camera_from_json(cam_path)
     frames, times = render_frames(model, camera, rot[:T], transl[:T], expr[:T], A)
     if out_dir is not None:
         for t, img in enumerate(frames):

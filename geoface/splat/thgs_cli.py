@@ -11,7 +11,7 @@ from geoface.errors import GeofaceError
 
 __all__ = ["register"]
 
-from geoface.splat.hfm_cli import _quiet, _train_device  # noqa: E402  (argparse only, no torch)
+from geoface.splat.hfm_cli import args_quiet, train_device  # noqa: E402  (argparse only, no torch)
 from geoface._io import output_folder  # noqa: E402
 from geoface._args import SEED, add_json, json_to_stdout, number, write_json, output_option
 
@@ -46,10 +46,10 @@ def cmd_talk_synth(args) -> int:
             from .thgs_ict import make_ict_talking
 
             make_ict_talking(tmp, seconds=args.seconds, fps=args.fps, res=args.res, n_vertices=args.vertices,
-                             seed=args.seed, perturb=perturb, quiet=_quiet(args))
+                             seed=args.seed, perturb=perturb, quiet=args_quiet(args))
         else:
             make_synthetic_talking(tmp, seconds=args.seconds, fps=args.fps, res=args.res, n_vertices=args.vertices,
-                                   seed=args.seed, quiet=_quiet(args))
+                                   seed=args.seed, quiet=args_quiet(args))
     what = "ICT-FaceKit person" if args.head == "ict" else "synthetic talking head"
     extra = f", tracking off by {perturb[0]:g}° / {perturb[1]:g} mm per frame" if any(perturb) else ""
     print(f"{out}: {what}, {args.seconds:g} s at {args.fps:g} fps, {args.res}² (audio.wav, poses.npz){extra}")
@@ -66,8 +66,8 @@ def cmd_talk_train(args) -> int:
                      audio_window=args.audio_window, lr_pose=args.lr_pose, pose_decay=args.pose_decay,
                      artic_prefit=args.prefit)
     with output_folder(out, args.force) as tmp:  # complete or absent; never into a user's files
-        info = train_thgs(args.data_dir, tmp, cfg, progress=None if not _quiet(args) else False,
-                          device=_train_device(args))
+        info = train_thgs(args.data_dir, tmp, cfg, progress=None if not args_quiet(args) else False,
+                          device=train_device(args))
     h = info["history"]
     first = sum(r["loss"] for r in h[:20]) / len(h[:20])
     last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])
@@ -141,7 +141,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
     t.add_argument("--iters", type=number(int, 1, 10_000_000), default=3000)
     t.add_argument("--stage-scale", type=number(float, 0, 100, lo_open=True), default=None,
-                   help="factor on the paper's stage starts 1.5K/15K/25K/50K (default iters/60000)")
+                   help="factor on the paper's stage starts 1.5K/15K/25K/50K of 150K (default iters/150000: the paper's fractions of the run)")
     t.add_argument("--no-leb", action="store_true", help="ablation: no learnable expression blendshapes")
     t.add_argument("--no-saam", action="store_true", help="ablation: no spatial audio attention")
     t.add_argument("--no-audio-pose", action="store_true",

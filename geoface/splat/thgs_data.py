@@ -40,7 +40,7 @@ import numpy as np
 
 from geoface.nn.camera import Camera, look_at
 from geoface.splat.errors import SplatError
-from geoface.splat.hfm_data import IBUG68_NAMES, _camera_from_json, _stack_frames, _write_png, camera_to_json, read_landmarks
+from geoface.splat.hfm_data import IBUG68_NAMES, camera_from_json, stack_frames, write_png, camera_to_json, read_landmarks
 from geoface.splat.template import Template
 
 __all__ = ["TalkingData", "load_talking", "load_tracked", "make_synthetic_talking", "speech_like",
@@ -107,7 +107,7 @@ def load_talking(folder) -> TalkingData:
         if not (folder / name).is_file():
             raise SplatError(f"{folder}: missing {name}")
     try:
-        cam = _camera_from_json(folder / "camera.json")
+        cam = camera_from_json(folder / "camera.json")
         meta = json.loads((folder / "meta.json").read_text())
         fps = float(meta["fps"])
     except (ValueError, KeyError, TypeError) as e:
@@ -119,7 +119,7 @@ def load_talking(folder) -> TalkingData:
     if not src.is_file():
         raise SplatError(f"{folder}: needs audio.wav or features.npy")
     A = audio_features(src, len(paths), fps)
-    imgs = _stack_frames(paths)
+    imgs = stack_frames(paths)
     if imgs.shape[1:3] != (cam.height, cam.width):
         raise SplatError(f"{folder}: frames are {imgs.shape[2]}×{imgs.shape[1]}, camera.json says {cam.width}×{cam.height}")
     meta["_folder"] = str(folder)
@@ -247,7 +247,7 @@ def make_synthetic_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res:
         M = torch.einsum("nj,jab->nab", Wv, A).numpy()
         V = (M[:, :3, :3] @ head.V[..., None])[..., 0] + M[:, :3, 3]
         r = render_mesh(V, head.F, cam, head.colors, supersample=supersample)
-        _write_png(out / "frames" / f"{k:06d}.png", r.rgb * r.alpha[..., None])
+        write_png(out / "frames" / f"{k:06d}.png", r.rgb * r.alpha[..., None])
         mouth_open_px.append(float(jaw_open[k]))
     # the tracker measures neither the jaw nor the lips' pucker: the audio's
     np.savez(out / "poses.npz", rot=rot, transl=transl, expr=expr, tracked_joints=np.arange(J) != tpl.jaw,

@@ -16,7 +16,7 @@ import torch
 
 from geoface.splat.errors import SplatError
 from geoface.splat.kinematics import joint_transforms
-from geoface.splat.thgs import THGSModel, _split, lbs, render_frames
+from geoface.splat.thgs import THGSModel, train_heldout_split, lbs, render_frames
 
 __all__ = ["evaluate_thgs", "mouth_openness", "head_pose_errors", "corrected_poses", "lip_gaps", "lip_points",
            "true_lip_gaps_px"]
@@ -133,7 +133,7 @@ def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
     from geoface.splat.fit import psnr, ssim_masked
 
     h = model.cfg.heldout if heldout is None else heldout
-    _, te = _split(len(data), h)
+    _, te = train_heldout_split(len(data), h)
     if len(te) < 2:
         raise SplatError("evaluation needs at least two held-out frames")
     R, times = render_frames(model, data.camera, data.rot, data.transl, data.expr, data.audio, te)
@@ -180,7 +180,7 @@ def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
                        lip_gap_px_corr_real=corr(px, true_px[te]))
     truth = Path(data.meta.get("_folder", "")) / "poses_true.npz"
     if truth.is_file():  # a capture with perturbed tracking: how far the corrections took the poses
-        tr, _ = _split(len(data), h)
+        tr, _ = train_heldout_split(len(data), h)
         with np.load(truth, allow_pickle=False) as z:
             r0, t0 = np.asarray(z["rot"])[tr], np.asarray(z["transl"])[tr]
         r1, t1 = corrected_poses(model, data.rot, data.transl)

@@ -103,14 +103,14 @@ def ict_template(person, n_vertices: int = 6000):
     full jawOpen, radians) and ``expression_names`` (the basis's order)."""
     from scipy.spatial import cKDTree
 
-    from geoface.splat.hfm_ict import _CM, ICT_PARTS
-    from geoface.splat.template import Template, _smooth as _smoothstep
+    from geoface.splat.hfm_ict import CM_TO_M, ICT_PARTS
+    from geoface.splat.template import Template, smoothstep as _smoothstep
 
     model, rest = person.model, person.rest
     V0 = person.V0
     names = [n for n in model.expression_names if n != "jawOpen"]
     view = model.view(ICT_PARTS)
-    E = {n: view.expression_modes[model.expression_names.index(n)].astype(np.float64) * _CM
+    E = {n: view.expression_modes[model.expression_names.index(n)].astype(np.float64) * CM_TO_M
          for n in model.expression_names}
     rv, hinge, w_jaw_full = _hinge(V0, E["jawOpen"])
     V, F, _ = person.init_mesh(n_vertices)
@@ -237,8 +237,8 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
     from scipy.spatial.transform import Rotation
 
     from geoface.progress import progress
-    from geoface.splat.hfm_data import _rot, _write_png, camera_to_json
-    from geoface.splat.hfm_ict import ICTPerson, _motion, arkit_curves
+    from geoface.splat.hfm_data import euler_rotation, write_png, camera_to_json
+    from geoface.splat.hfm_ict import ICTPerson, head_motion, arkit_curves
     from geoface.splat.thgs_data import speech_like
 
     deg, mm = (float(x) for x in perturb)
@@ -257,7 +257,7 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
     at = np.clip(((np.arange(T) + 0.5) / fps * sr).astype(int) - lag, 0, len(env) - 1)
     loud = env[at]
     curves = arkit_curves(T, rng, fps=fps, loudness=loud, emote=emote)
-    ang, tr = _motion(T, rng, fps, 1.0, 1.0, 0)
+    ang, tr = head_motion(T, rng, fps, 1.0, 1.0, 0)
     names = info["expression_names"]
     J = len(JOINT_NAMES)
     rot = np.zeros((T, J, 3))
@@ -267,13 +267,13 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
     lips = person.rest.landmarks[list(LIP_POINTS)]
     noise = np.random.default_rng([seed, 7203])
     for k in progress(range(T), "rendering ICT talking video", total=T, quiet=quiet):
-        R = _rot(*ang[k])
+        R = euler_rotation(*ang[k])
         V, rgb, alpha, _ = person.render(curves[k], R, tr[k])
         gap.append(float(np.linalg.norm(np.subtract(*V[lips]))))  # the true lip gap (a rigid motion keeps it)
         gap_px.append(float(np.linalg.norm(np.subtract(*person.cam.project(V[lips])[0]))))  # … as the camera sees it
         uv = person.cam.project(V[person.rest.landmarks])[0] + noise.normal(0, LANDMARK_NOISE_PX, (68, 2))
         marks.append(np.round(uv, 3).tolist())  # what a face tracker's landmark detector gives
-        _write_png(out / "frames" / f"{k:06d}.png", rgb * (alpha[..., None] > 0.5))
+        write_png(out / "frames" / f"{k:06d}.png", rgb * (alpha[..., None] > 0.5))
         rot[k, 0] = Rotation.from_matrix(R).as_rotvec()  # rigid about the root = the neck pivot
         transl[k] = tr[k]
         expr[k] = [0.0 if is_mouth_blendshape(n) else curves[k].get(n, 0.0) for n in names]

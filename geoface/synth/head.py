@@ -49,9 +49,9 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..errors import InvalidMeshError
-from .head_mesh import _Noise, _Param, _relax, _ring_layout, _snap_landmarks, _stitch, _texture_detail
+from .head_mesh import ValueNoise3D, DiskParam, relax_tangential, ring_layout, snap_landmarks, stitch_rings, texture_detail
 from .head_colors import head_colors
-from .head_shape import _dirs, _Shape
+from .head_shape import sphere_dirs, HeadShape
 from .head_types import (EXPRESSION_NAMES, LANDMARK_NAMES, MAX_VERTICES, MIN_VERTICES, HeadExpression, HeadIdentity,
                          SynthHead)
 
@@ -113,16 +113,16 @@ class HeadModel:
         if identity is None:
             identity = HeadIdentity.random(np.random.default_rng([self.seed, 1]))
         self.identity = HeadIdentity.from_dict(identity)
-        self._noise = _Noise(self.seed)
+        self._noise = ValueNoise3D(self.seed)
         self._build()
 
     # ---------------------------------------------------------------- template
     def _build(self):
         n = self.n_vertices
-        shape = _Shape(self.identity)
+        shape = HeadShape(self.identity)
         nt = int(np.clip(2.0 * np.sqrt(n), 200, 900))
         nphi = int(np.clip(np.sqrt(n), 128, 512))
-        par = _Param(shape, nt, nphi)
+        par = DiskParam(shape, nt, nphi)
         self._shape, self._par = shape, par
         # the neutral texture depends only on the surface: worker threads colour its row blocks
         # meanwhile (numpy releases the GIL); the blocks are assembled in order, so bytes are deterministic
@@ -137,15 +137,15 @@ class HeadModel:
         self._tex_P0 = np.concatenate([b[2] for b in blocks])
 
     def _build_mesh(self, shape, par, n):
-        rho, phi, ring_id, n_k, start = _ring_layout(par, n)
-        F = _stitch(phi, n_k, start)
+        rho, phi, ring_id, n_k, start = ring_layout(par, n)
+        F = stitch_rings(phi, n_k, start)
         p = np.stack([rho * np.sin(phi), -rho * np.cos(phi)], axis=1)
         fixed = ring_id == ring_id[-1]
-        landmarks = _snap_landmarks(par, p, F, fixed, self._landmark_dirs(shape))
-        p = _relax(par, p, F, fixed, iters=4 if n <= 20000 else 6)
+        landmarks = snap_landmarks(par, p, F, fixed, self._landmark_dirs(shape))
+        p = relax_tangential(par, p, F, fixed, iters=4 if n <= 20000 else 6)
         d = par.dirs_of_p(p)
         bnd = np.flatnonzero(ring_id == ring_id[-1])          # exactly on the cut y = y_cut
-        d[bnd] = _dirs(par._theta_max(phi[bnd]), phi[bnd])
+        d[bnd] = sphere_dirs(par._theta_max(phi[bnd]), phi[bnd])
         P0, Pn = shape.neutral(d)
         self._F, self._p, self._d, self._P0, self._Pn = F, p, d, P0, Pn
         self._UV = par.uv_of_p(p)
@@ -156,7 +156,7 @@ class HeadModel:
         self._eye_line_y = float(0.5 * (Vn[landmarks["eye_left_center"], 1] + Vn[landmarks["eye_right_center"], 1]))
         self._upper = Vn[:, 1] > self._eye_line_y
         C, reg = head_colors(shape, P0, regions=True)
-        self._colors0 = _texture_detail(C, reg, P0, self.identity, self._noise, fine=False)
+        self._colors0 = texture_detail(C, reg, P0, self.identity, self._noise, fine=False)
 
     @staticmethod
     def _landmark_dirs(shape):
@@ -201,7 +201,7 @@ class HeadModel:
 
     def _texture_colors(self, P0, e):
         C, reg = head_colors(self._shape, P0, e, regions=True)
-        return _texture_detail(C, reg, P0, self.identity, self._noise, fine=True)
+        return texture_detail(C, reg, P0, self.identity, self._noise, fine=True)
 
     def _texture_block(self, rows):
         """Neutral colours of the texture rows ``rows``, plus the texels (flat indices, base points)
@@ -252,7 +252,7 @@ class HeadModel:
         V = self.vertices(expr)
         if e[0] or e[1] or e[5] or e[6]:
             C, reg = head_colors(self._shape, self._P0, e, regions=True)
-            colors = _texture_detail(C, reg, self._P0, self.identity, self._noise, fine=False)
+            colors = texture_detail(C, reg, self._P0, self.identity, self._noise, fine=False)
         else:
             colors = self._colors0.copy()
         return SynthHead(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .head_shape import T_CL, T_CU, T_LT, T_UT, _gauss, _mix, _smoothstep
+from .head_shape import T_CL, T_CU, T_LT, T_UT, gauss2, mix_colors, smoothstep
 from .head_types import EXPRESSION_NAMES
 
 __all__ = ["head_colors"]
@@ -37,10 +37,10 @@ def head_colors(self, P0, e=None, regions=False):
     x, y, z = P0[:, 0], P0[:, 1], P0[:, 2]
     n = len(P0)
     C = np.tile(skin, (n, 1))
-    C *= (1.0 - 0.07 * _smoothstep((-0.12 - y) / 0.07))[:, None]
+    C *= (1.0 - 0.07 * smoothstep((-0.12 - y) / 0.07))[:, None]
     red = skin * np.array([1.0, 0.80, 0.78])
-    ear = _smoothstep((np.abs(x) - 0.05) / 0.015) * _gauss(z + 0.012, y + 0.013, 0.02, 0.035)
-    C = _mix(C, red, 0.3 * ear)
+    ear = smoothstep((np.abs(x) - 0.05) / 0.015) * gauss2(z + 0.012, y + 0.013, 0.02, 0.035)
+    C = mix_colors(C, red, 0.3 * ear)
     reg = {k: np.zeros(n) for k in ("brow", "eye", "lip", "beard")}
     face = np.flatnonzero(z > -0.02)                 # the facial colours live on the front only
     Cf, rf = _face_colors(self, P0[face], C[face], e, skin, hair, red)
@@ -48,7 +48,7 @@ def head_colors(self, P0, e=None, regions=False):
     for k, v in rf.items():
         reg[k][face] = v
     hm = self.hair(P0)[1]
-    C = np.clip(_mix(C, hair, hm), 0.0, 1.0)
+    C = np.clip(mix_colors(C, hair, hm), 0.0, 1.0)
     if regions:
         reg.update(hair=hm, skin=(1 - hm) * (1 - reg["eye"]))
         return C, reg
@@ -58,57 +58,57 @@ def _face_colors(self, P0, C, e, skin, hair, red):
     ident = self.ident
     x, y, z = P0[:, 0], P0[:, 1], P0[:, 2]
     ax = np.abs(x)
-    front = _smoothstep((z - 0.015) / 0.03)
-    C = _mix(C, red, front * (0.30 * _gauss(ax - 0.042, y + 0.03, 0.015, 0.014)
-                              + 0.2 * _gauss(x, y - self.nose["yt"], 0.008, 0.008)))
+    front = smoothstep((z - 0.015) / 0.03)
+    C = mix_colors(C, red, front * (0.30 * gauss2(ax - 0.042, y + 0.03, 0.015, 0.014)
+                              + 0.2 * gauss2(x, y - self.nose["yt"], 0.008, 0.008)))
     # beard shadow
     ym = self.mouth_line(x)
     hu, hl = self.lip_heights(x)
-    lip = front * np.where(y > ym, _smoothstep((ym + hu - y) / 0.0012 + 0.5),
-                           _smoothstep((y - ym + hl) / 0.0016 + 0.5)) * np.exp(-0.5 * (x / (self.mouth["mw"] + 0.002)) ** 8)
-    side_w = _smoothstep((ax - 0.012) / 0.014)                   # beard top: under the nose, then the cheek line
+    lip = front * np.where(y > ym, smoothstep((ym + hu - y) / 0.0012 + 0.5),
+                           smoothstep((y - ym + hl) / 0.0016 + 0.5)) * np.exp(-0.5 * (x / (self.mouth["mw"] + 0.002)) ** 8)
+    side_w = smoothstep((ax - 0.012) / 0.014)                   # beard top: under the nose, then the cheek line
     beard_top = (1.0 - side_w) * (self.nose["ys"] - 0.002) + side_w * (-0.03 + 0.35 * np.maximum(ax - 0.035, 0.0))
-    beard = _smoothstep((beard_top - y) / 0.012 + 0.2) * _smoothstep((y + 0.15) / 0.03) \
-        * _smoothstep((z + 0.02) / 0.03) * _smoothstep((0.078 - ax) / 0.01)
-    beard = beard * (1.0 - 0.7 * _gauss(x, y - self.mouth["ym"] + 0.014, 0.006, 0.004)) * (1.0 - lip)
-    C = _mix(C, 0.6 * skin + 0.4 * (0.5 * hair + 0.06), 0.4 * ident.stubble * beard)
+    beard = smoothstep((beard_top - y) / 0.012 + 0.2) * smoothstep((y + 0.15) / 0.03) \
+        * smoothstep((z + 0.02) / 0.03) * smoothstep((0.078 - ax) / 0.01)
+    beard = beard * (1.0 - 0.7 * gauss2(x, y - self.mouth["ym"] + 0.014, 0.006, 0.004)) * (1.0 - lip)
+    C = mix_colors(C, 0.6 * skin + 0.4 * (0.5 * hair + 0.06), 0.4 * ident.stubble * beard)
     # lips, mouth interior and teeth
     lipcol = skin * np.array([0.80, 0.58, 0.60]) + np.array([0.07, 0.02, 0.04])
-    C = _mix(C, lipcol, 0.8 * lip)
+    C = mix_colors(C, lipcol, 0.8 * lip)
     corner = front * self.mouth_corner(ax)
     t = y - ym
-    inner = corner * _smoothstep((0.0035 - np.abs(t)) / 0.0015)
-    C = _mix(C, skin * np.array([0.62, 0.36, 0.38]), inner)                  # inside of the lips
-    C = _mix(C, [0.16, 0.04, 0.05], 0.6 * e[1] * inner)                       # shadowed when open
-    C = _mix(C, [0.16, 0.04, 0.05], corner * _smoothstep((T_CU - t) / 0.0004 + 0.5) * _smoothstep((t - T_CL) / 0.0004 + 0.5))
+    inner = corner * smoothstep((0.0035 - np.abs(t)) / 0.0015)
+    C = mix_colors(C, skin * np.array([0.62, 0.36, 0.38]), inner)                  # inside of the lips
+    C = mix_colors(C, [0.16, 0.04, 0.05], 0.6 * e[1] * inner)                       # shadowed when open
+    C = mix_colors(C, [0.16, 0.04, 0.05], corner * smoothstep((T_CU - t) / 0.0004 + 0.5) * smoothstep((t - T_CL) / 0.0004 + 0.5))
     teeth = np.clip(3.0 * e[1] + 1.2 * e[0], 0.0, 1.0)
     if teeth > 0:
-        band = lambda a, b: _smoothstep((t - a) / 0.0003 + 0.5) * _smoothstep((b - t) / 0.0003 + 0.5)  # noqa: E731
+        band = lambda a, b: smoothstep((t - a) / 0.0003 + 0.5) * smoothstep((b - t) / 0.0003 + 0.5)  # noqa: E731
         tw = band(T_CU, T_UT) + np.clip(2.0 * e[1] - 0.6, 0.0, 1.0) * band(T_LT, T_CL)
-        C = _mix(C, [0.86, 0.84, 0.77], teeth * corner * tw * np.exp(-0.5 * (x / 0.019) ** 6))
+        C = mix_colors(C, [0.86, 0.84, 0.77], teeth * corner * tw * np.exp(-0.5 * (x / 0.019) ** 6))
     # nostrils
-    C = _mix(C, skin * 0.4, front * 0.8 * _gauss(ax - 0.0063, y - self.nose["ys"] - 0.005, 0.0024, 0.0017))
+    C = mix_colors(C, skin * 0.4, front * 0.8 * gauss2(ax - 0.0063, y - self.nose["ys"] - 0.005, 0.0024, 0.0017))
     # eyebrows: a tapered arch from the head (medial) to the tail (lateral)
     b = self.brow
-    yb = b["y"] + b["arch"] * np.exp(-0.5 * ((ax - 0.034) / 0.012) ** 2) - 0.0015 * _smoothstep((ax - 0.04) / 0.012)
+    yb = b["y"] + b["arch"] * np.exp(-0.5 * ((ax - 0.034) / 0.012) ** 2) - 0.0015 * smoothstep((ax - 0.04) / 0.012)
     s_ = np.clip((ax - 0.012) / 0.04, 0.0, 1.0)
     thick = b["thick"] * (1.25 - 0.85 * s_ ** 1.5)
-    brow = front * _smoothstep((thick - np.abs(y - yb)) / 0.0018 + 0.5) \
-        * _smoothstep((ax - 0.0115) / 0.004) * _smoothstep((0.053 - ax) / 0.006)
-    C = _mix(C, hair * 0.75 + 0.05 * skin, brow * (0.85 - 0.3 * s_))
+    brow = front * smoothstep((thick - np.abs(y - yb)) / 0.0018 + 0.5) \
+        * smoothstep((ax - 0.0115) / 0.004) * smoothstep((0.053 - ax) / 0.006)
+    C = mix_colors(C, hair * 0.75 + 0.05 * skin, brow * (0.85 - 0.3 * s_))
     # eyes: sclera (shaded toward the corners), iris, pupil; lash line on the upper lid margin
     closed = np.where(x > 0, e[5], e[6])
     opening, (ex, ey, u, up, lo) = self.eye_opening(ax, y, closed, soft=0.0008)
     opening = opening * front
     rho = np.hypot(ex + 0.0003, ey + 0.0002)
     eye = np.tile([0.88, 0.85, 0.80], (len(P0), 1))
-    eye *= (1.0 - 0.22 * _smoothstep((np.abs(u) - 0.45) / 0.5))[:, None]
-    eye = _mix(eye, [0.83, 0.55, 0.52], _smoothstep((-0.8 - u) / 0.15))
+    eye *= (1.0 - 0.22 * smoothstep((np.abs(u) - 0.45) / 0.5))[:, None]
+    eye = mix_colors(eye, [0.83, 0.55, 0.52], smoothstep((-0.8 - u) / 0.15))
     iris = _palette(ident.eye_color, IRIS)
-    ic = iris[None, :] * (0.7 + 0.5 * _smoothstep((rho - 0.0022) / 0.0035))[:, None]
-    eye = _mix(eye, ic, _smoothstep((0.006 - rho) / 0.0005 + 0.5))
-    eye = _mix(eye, [0.02, 0.02, 0.02], _smoothstep((0.0023 - rho) / 0.0003 + 0.5))
-    C = _mix(C, eye, opening)
-    lash = front * np.exp(-0.5 * ((ey - up - 0.0005) / 0.0008) ** 2) * _smoothstep((1.05 - np.abs(u)) / 0.15)
-    C = _mix(C, 0.25 * hair + 0.1 * skin, (0.6 + 0.2 * max(-ident.masculinity, 0.0)) * lash)
+    ic = iris[None, :] * (0.7 + 0.5 * smoothstep((rho - 0.0022) / 0.0035))[:, None]
+    eye = mix_colors(eye, ic, smoothstep((0.006 - rho) / 0.0005 + 0.5))
+    eye = mix_colors(eye, [0.02, 0.02, 0.02], smoothstep((0.0023 - rho) / 0.0003 + 0.5))
+    C = mix_colors(C, eye, opening)
+    lash = front * np.exp(-0.5 * ((ey - up - 0.0005) / 0.0008) ** 2) * smoothstep((1.05 - np.abs(u)) / 0.15)
+    C = mix_colors(C, 0.25 * hair + 0.1 * skin, (0.6 + 0.2 * max(-ident.masculinity, 0.0)) * lash)
     return C, dict(brow=brow, eye=opening, lip=lip, beard=beard)

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..mesh.core import signed_uv_areas, vertex_adjacency, vertex_face_incidence
-from .head_shape import _dirs, _gauss, _mix, _Shape, _smoothstep
+from .head_shape import sphere_dirs, gauss2, mix_colors, HeadShape, smoothstep
 from .head_types import TWO_PI
 
-class _Param:
+class DiskParam:
     """Map between the parameter disk ``p`` (|p| <= 1) and the surface.
 
     ``(t, phi)``: ``t`` runs from the crown (0) to the neck cut (1) along the meridian of
@@ -20,7 +20,7 @@ class _Param:
 
     t_ext = 1.04
 
-    def __init__(self, shape: _Shape, nt: int, nphi: int):
+    def __init__(self, shape: HeadShape, nt: int, nphi: int):
         self.shape = shape
         self.nt, self.nphi = nt, nphi
         phi = np.arange(nphi) * (TWO_PI / nphi)
@@ -28,7 +28,7 @@ class _Param:
         self.theta_max = self._theta_max(phi)
         t = np.linspace(0.0, self.t_ext, nt)
         self.t_grid = t
-        X = shape.position(_dirs(t[:, None] * self.theta_max[None, :], phi[None, :]).reshape(-1, 3)).reshape(nt, nphi, 3)
+        X = shape.position(sphere_dirs(t[:, None] * self.theta_max[None, :], phi[None, :]).reshape(-1, 3)).reshape(nt, nphi, 3)
         seg = np.linalg.norm(np.diff(X, axis=0), axis=2)
         s = np.concatenate([np.zeros((1, nphi)), np.cumsum(seg, axis=0)], axis=0)
         i1 = int(np.searchsorted(t, 1.0))
@@ -90,7 +90,7 @@ class _Param:
         y_cut = self.shape.y_cut * self.shape.scale[1]
         for _ in range(48):
             mid = 0.5 * (lo + hi)
-            above = self.shape.position(_dirs(mid, phi))[:, 1] > y_cut
+            above = self.shape.position(sphere_dirs(mid, phi))[:, 1] > y_cut
             lo = np.where(above, mid, lo)
             hi = np.where(above, hi, mid)
         return 0.5 * (lo + hi)
@@ -120,7 +120,7 @@ class _Param:
         rho = np.hypot(p[:, 0], p[:, 1])
         phi = np.mod(np.arctan2(p[:, 0], -p[:, 1]), TWO_PI)
         t = self._bilinear(self.t_tab, self.rho_ext, rho, phi)
-        return _dirs(t * self.theta_max_at(phi), phi)
+        return sphere_dirs(t * self.theta_max_at(phi), phi)
 
     def p_of_dirs(self, d):
         d = d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -133,7 +133,7 @@ class _Param:
         return self.shape.position(self.dirs_of_p(p))
 
 
-def _ring_layout(par: _Param, n_target: int):
+def ring_layout(par: DiskParam, n_target: int):
     """Rings of vertices at constant rho, equally spaced in 3D along each ring; exactly ``n_target`` vertices."""
     Lbar = float(par.L.mean())
     h = np.sqrt(2.0 * par.area / (np.sqrt(3.0) * n_target))
@@ -166,7 +166,7 @@ def _ring_layout(par: _Param, n_target: int):
     return rhos[ring_id], phi, ring_id, n_k, start
 
 
-def _stitch(phi, n_k, start):
+def stitch_rings(phi, n_k, start):
     """Triangulate the annuli between consecutive rings (vectorised merge of segment mid-angles).
 
     Segment ``i`` of a ring joins vertex ``i`` to ``i + 1``; it is closed by the vertex of the
@@ -210,7 +210,7 @@ def _min_angles(X, F):
     return np.arccos(np.clip(np.max(cos, axis=0), -1.0, 1.0))
 
 
-def _snap_landmarks(par, p, F, fixed, dirs, candidates=8):
+def snap_landmarks(par, p, F, fixed, dirs, candidates=8):
     """Move one vertex exactly onto each landmark; ``p`` and ``fixed`` are updated in place.
 
     Among the nearest free vertices (in the parameter disk) the one whose move leaves the
@@ -247,7 +247,7 @@ def _snap_landmarks(par, p, F, fixed, dirs, candidates=8):
     return out
 
 
-def _relax(par, p, F, fixed, iters, lam=0.6, eps=1e-5):
+def relax_tangential(par, p, F, fixed, iters, lam=0.6, eps=1e-5):
     """Tangential umbrella smoothing in 3D, pulled back to the parameter disk (no flips)."""
     A = vertex_adjacency(F, len(p))
     deg = np.asarray(A.sum(1)).ravel()
@@ -275,7 +275,7 @@ def _relax(par, p, F, fixed, iters, lam=0.6, eps=1e-5):
 
 
 # ============================================================================ texture detail
-class _Noise:
+class ValueNoise3D:
     """Deterministic 3D value noise (hashed lattice, smooth trilinear), values in [-1, 1]."""
 
     def __init__(self, seed: int):
@@ -304,7 +304,7 @@ class _Noise:
         return out
 
 
-def _texture_detail(C, reg, P0, ident, noise, fine=True):
+def texture_detail(C, reg, P0, ident, noise, fine=True):
     """Modulate colours with skin, freckle, hair and stubble detail (``fine=False``: low frequency only).
 
     Noise is evaluated only where its region weight is non-zero.
@@ -326,14 +326,14 @@ def _texture_detail(C, reg, P0, ident, noise, fine=True):
     C = C * mult[:, None]
     x, y = P0[:, 0], P0[:, 1]
     if ident.freckles > 0:
-        region = np.clip(_gauss(np.abs(x) - 0.025, y + 0.018, 0.028, 0.02) + _gauss(x, y + 0.01, 0.01, 0.02), 0, 1) * reg["skin"]
+        region = np.clip(gauss2(np.abs(x) - 0.025, y + 0.018, 0.028, 0.02) + gauss2(x, y + 0.01, 0.01, 0.02), 0, 1) * reg["skin"]
         spot = np.zeros(len(P0))
-        add(region, lambda P: _smoothstep((noise(P, 0.0019, 0.31) - (0.62 - 0.3 * ident.freckles)) / 0.1), spot)
-        C = _mix(C, C * np.array([0.78, 0.62, 0.52]), spot * 0.7 * ident.freckles)
+        add(region, lambda P: smoothstep((noise(P, 0.0019, 0.31) - (0.62 - 0.3 * ident.freckles)) / 0.1), spot)
+        C = mix_colors(C, C * np.array([0.78, 0.62, 0.52]), spot * 0.7 * ident.freckles)
     if ident.stubble > 0:
         dots = np.zeros(len(P0))
-        add(reg["beard"], lambda P: _smoothstep((noise(P, 0.0008, 7.7) - 0.1) / 0.3), dots)
-        C = _mix(C, C * 0.55, dots * 0.6 * ident.stubble)
+        add(reg["beard"], lambda P: smoothstep((noise(P, 0.0008, 7.7) - 0.1) / 0.3), dots)
+        C = mix_colors(C, C * 0.55, dots * 0.6 * ident.stubble)
     return np.clip(C, 0.0, 1.0)
 
 

@@ -9,22 +9,22 @@ from scipy.interpolate import PchipInterpolator
 from .head_types import TWO_PI, HeadIdentity
 
 # ============================================================================ helpers
-def _smoothstep(x):
+def smoothstep(x):
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
 
 
-def _gauss(a, b, sa, sb):
+def gauss2(a, b, sa, sb):
     return np.exp(-0.5 * ((a / sa) ** 2 + (b / sb) ** 2))
 
 
-def _dirs(theta, phi):
+def sphere_dirs(theta, phi):
     """Unit directions; theta from +Y, phi from +Z toward +X."""
     st = np.sin(theta)
     return np.stack([st * np.sin(phi), np.cos(theta), st * np.cos(phi)], axis=-1)
 
 
-def _mix(C, col, w):
+def mix_colors(C, col, w):
     """``C * (1 - w) + col * w`` (in place where ``w > 0``); ``col`` is (3,) or per-row (k, 3)."""
     w = np.asarray(w, dtype=np.float64)
     idx = np.flatnonzero(w > 0.0)
@@ -59,7 +59,7 @@ SIG_C = 0.0015
 T_UT, T_CU, T_CL, T_LT = 1.1 * SIG_C, 0.35 * SIG_C, -0.5 * SIG_C, -1.0 * SIG_C
 
 # ============================================================================ shape
-class _Shape:
+class HeadShape:
     """Canonical head surface of one identity: ``X(d) = S (c + r(d) d)``."""
 
     centre = np.array([0.0, -0.025, -0.005])
@@ -94,14 +94,14 @@ class _Shape:
         self.adam = 0.0045 * max(m, 0.0)
         hl = ident.hair_length
         self.hairp = dict(thick=0.003 + 0.009 * hl, nape=-0.068 - 0.05 * hl, behind=-0.015 - 0.045 * hl,
-                         sideburn=0.012 - 0.02 * max(m, 0.0), curtain=_smoothstep((hl - 0.45) / 0.3),
+                         sideburn=0.012 - 0.02 * max(m, 0.0), curtain=smoothstep((hl - 0.45) / 0.3),
                          bottom=-0.06 - 0.07 * hl)
 
     def _profiles(self, ident):
         m = ident.masculinity
         yg = np.linspace(self._y_lo, YTOP, self._ny)
-        jaw = _smoothstep((-0.04 - yg) / 0.03) * _smoothstep((yg + 0.13) / 0.02)
-        neck = _smoothstep((-0.105 - yg) / 0.02)
+        jaw = smoothstep((-0.04 - yg) / 0.03) * smoothstep((yg + 0.13) / 0.02)
+        neck = smoothstep((-0.105 - yg) / 0.02)
         chin = np.exp(-0.5 * ((yg + 0.1) / 0.01) ** 2)
         self.prof = {}
         for k, pts in PROFILES.items():
@@ -187,7 +187,7 @@ class _Shape:
     # ---------------------------------------------------------------- features
     def mouth_corner(self, ax):
         """1 between the mouth corners, 0 beyond them."""
-        return _smoothstep((self.mouth["mw"] + 0.0005 - ax) / 0.004)
+        return smoothstep((self.mouth["mw"] + 0.0005 - ax) / 0.004)
 
     def mouth_line(self, x):
         return self.mouth["ym"] - 0.0018 * (x / self.mouth["mw"]) ** 2
@@ -216,12 +216,12 @@ class _Shape:
         ex, ey, u, up, lo = self.eye_frame(ax, y)
         up = up + closed * (lo + 0.0004 - up)
         din = np.minimum(up - ey, ey - lo)
-        return _smoothstep(din / soft + 0.3) * _smoothstep((1.0 - np.abs(u)) / 0.08), (ex, ey, u, up, lo)
+        return smoothstep(din / soft + 0.3) * smoothstep((1.0 - np.abs(u)) / 0.08), (ex, ey, u, up, lo)
 
     def eyes(self, ax, y, closed):
         opening, (ex, ey, u, up, lo) = self.eye_opening(ax, y, closed)
-        socket = -0.0085 * _gauss(ex, ey - 0.002, 0.017, 0.0125)
-        bulge = 0.0062 * _gauss(ex, ey, 0.0105, 0.0085)
+        socket = -0.0085 * gauss2(ex, ey - 0.002, 0.017, 0.0125)
+        bulge = 0.0062 * gauss2(ex, ey, 0.0105, 0.0085)
         env = np.exp(-0.5 * (ex / 0.012) ** 4)
         _, _, _, up0, _ = self.eye_frame(ax, y)
         crease = -0.0011 * env * np.exp(-0.5 * ((ey - up0 - 0.0065) / 0.0016) ** 2)
@@ -232,16 +232,16 @@ class _Shape:
         n = self.nose
         prog = np.clip((n["yn"] - y) / (n["yn"] - n["yt"]), 0.0, 1.4)
         P = 0.001 + n["amp"] * prog ** 1.2
-        cut = _smoothstep((y - (n["ys"] + 0.001)) / (n["yt"] - n["ys"] - 0.001))
-        top = _smoothstep((0.02 - y) / 0.012)
+        cut = smoothstep((y - (n["ys"] + 0.001)) / (n["yt"] - n["ys"] - 0.001))
+        top = smoothstep((0.02 - y) / 0.012)
         wid = n["w0"] + n["w1"] * np.clip(prog, 0, 1)
         dorsum = P * cut * top * np.exp(-0.5 * (x / wid) ** 2)
         ax = np.abs(x)
         yb = n["ys"] + 0.008
-        tip = 0.0055 * _gauss(x, y - n["yt"] + 0.0015, 0.0078, 0.0068)
-        alae = 0.0085 * _gauss(ax - n["ala"], y - yb, 0.0062, 0.006)
-        nostril = -0.004 * _gauss(ax - 0.0063, y - yb + 0.0025, 0.003, 0.0022)
-        crease = -0.0015 * _gauss(ax - n["ala"] - 0.0065, y - yb - 0.001, 0.0025, 0.007)
+        tip = 0.0055 * gauss2(x, y - n["yt"] + 0.0015, 0.0078, 0.0068)
+        alae = 0.0085 * gauss2(ax - n["ala"], y - yb, 0.0062, 0.006)
+        nostril = -0.004 * gauss2(ax - 0.0063, y - yb + 0.0025, 0.003, 0.0022)
+        crease = -0.0015 * gauss2(ax - n["ala"] - 0.0065, y - yb - 0.001, 0.0025, 0.007)
         return dorsum + tip + alae + nostril + crease
 
     def _mouth(self, x, y):
@@ -249,34 +249,34 @@ class _Shape:
         ax = np.abs(x)
         ym = self.mouth_line(x)
         hu, _ = self.lip_heights(x)
-        muzzle = 0.006 * _gauss(x, y - ym - 0.004, 0.028, 0.02)
+        muzzle = 0.006 * gauss2(x, y - ym - 0.004, 0.028, 0.02)
         xenv = np.exp(-0.5 * (x / (mo["mw"] * 0.7)) ** 4)
         upper = mo["up"] * xenv * np.exp(-0.5 * ((y - ym - 0.004) / 0.0042) ** 2)
         border = 0.0007 * xenv * np.exp(-0.5 * ((y - ym - hu) / 0.001) ** 2)
         lower = mo["lo"] * np.exp(-0.5 * (x / (mo["mw"] * 0.64)) ** 4) * np.exp(-0.5 * ((y - ym + 0.0058) / 0.0052) ** 2)
         # exponential groove: steep walls down to the centre line, so rings of vertices land in every band
         crease = -0.009 * self.mouth_corner(ax) * np.exp(-np.sqrt((y - ym) ** 2 + 0.0002**2) / SIG_C)
-        dimple = -0.0015 * _gauss(ax - mo["mw"] - 0.0005, y - ym, 0.003, 0.003)
+        dimple = -0.0015 * gauss2(ax - mo["mw"] - 0.0005, y - ym, 0.003, 0.003)
         philtrum = (-0.0008 * np.exp(-0.5 * (x / 0.0025) ** 2) + 0.0005 * np.exp(-0.5 * ((ax - 0.0045) / 0.0015) ** 2)) \
-            * _smoothstep((y - ym - hu) / 0.002) * _smoothstep((self.nose["ys"] - y) / 0.003)
+            * smoothstep((y - ym - hu) / 0.002) * smoothstep((self.nose["ys"] - y) / 0.003)
         return muzzle + upper + border + lower + crease + dimple + philtrum
 
     def _ears(self, x, y, z):
-        side = _smoothstep((np.abs(x) - 0.03) / 0.02)
+        side = smoothstep((np.abs(x) - 0.03) / 0.02)
         ze, ye, tilt = -0.012, -0.013, np.deg2rad(15.0)
         c, s = np.cos(tilt), np.sin(tilt)
         ez = c * (z - ze) + s * (y - ye)
         ey = -s * (z - ze) + c * (y - ye)
         a, b = 0.0165, 0.031
         q = np.sqrt((ez / a) ** 2 + (ey / b) ** 2)
-        hf = 0.5 + 0.5 * _smoothstep(0.3 - ez / a)
-        edge = 0.3 + 0.1 * _smoothstep(-ey / b * 2.0)             # the front attaches to the head
-        back = _smoothstep(0.5 - ez / (0.6 * a))                  # blend front (attached) and back (free) edges
-        body = back * _smoothstep((1.35 - q) / 0.45) + (1.0 - back) * _smoothstep((1.05 - q) / edge)
-        rim = np.exp(-0.5 * ((q - 0.86) / 0.095) ** 2) * _smoothstep((ey + 0.6 * b) / (0.3 * b) + 0.5)
-        concha = 0.008 * _gauss(ez - 0.004, ey + 0.004, 0.006, 0.01)
-        tragus = 0.003 * _gauss(ez - 0.011, ey + 0.005, 0.003, 0.003)
-        anti = 0.003 * np.exp(-0.5 * ((q - 0.55) / 0.07) ** 2) * _smoothstep(-ez / a + 0.3)
+        hf = 0.5 + 0.5 * smoothstep(0.3 - ez / a)
+        edge = 0.3 + 0.1 * smoothstep(-ey / b * 2.0)             # the front attaches to the head
+        back = smoothstep(0.5 - ez / (0.6 * a))                  # blend front (attached) and back (free) edges
+        body = back * smoothstep((1.35 - q) / 0.45) + (1.0 - back) * smoothstep((1.05 - q) / edge)
+        rim = np.exp(-0.5 * ((q - 0.86) / 0.095) ** 2) * smoothstep((ey + 0.6 * b) / (0.3 * b) + 0.5)
+        concha = 0.008 * gauss2(ez - 0.004, ey + 0.004, 0.006, 0.01)
+        tragus = 0.003 * gauss2(ez - 0.011, ey + 0.005, 0.003, 0.003)
+        anti = 0.003 * np.exp(-0.5 * ((q - 0.55) / 0.07) ** 2) * smoothstep(-ez / a + 0.3)
         return side * (hf * (0.010 * body + 0.004 * rim + anti) - concha + tragus)
 
     #: hairline height by azimuth (degrees from the front); None = set by the identity
@@ -293,7 +293,7 @@ class _Shape:
                 140: h["nape"] + 0.012, 160: h["nape"] + 0.003, 180: h["nape"]}
         k = np.array([(a, fill.get(a, b)) for a, b in self.HAIRLINE], dtype=np.float64)
         yh = np.interp(psi, k[:, 0], k[:, 1])
-        return _smoothstep((P[:, 1] - yh) / 0.005 + 0.5)
+        return smoothstep((P[:, 1] - yh) / 0.005 + 0.5)
 
     def hair(self, P):
         """(radial hair thickness, hair colour weight) at base points ``P``.
@@ -303,43 +303,43 @@ class _Shape:
         """
         h = self.hairp
         hm = self.hair_mask(P)
-        top = _smoothstep((P[:, 1] + 0.01) / 0.09)
+        top = smoothstep((P[:, 1] + 0.01) / 0.09)
         layer = h["thick"] * (0.55 + 0.45 * top) * hm
         if h["curtain"] <= 0:
             return layer, hm
         x, y, z = P[:, 0], P[:, 1], P[:, 2]
         rb = np.maximum(np.hypot(x, z), 1e-9)
-        rtop = self.section(np.full(len(P), -0.005), x / rb, z / rb) + h["thick"] * (0.55 + 0.45 * _smoothstep(0.005 / 0.09))
-        taper = 1.0 - 0.22 * _smoothstep((-0.005 - y) / 0.13)
-        fill = np.maximum(rtop * taper - rb, 0.0) * _smoothstep((-0.005 - y) / 0.02 + 1.0)
+        rtop = self.section(np.full(len(P), -0.005), x / rb, z / rb) + h["thick"] * (0.55 + 0.45 * smoothstep(0.005 / 0.09))
+        taper = 1.0 - 0.22 * smoothstep((-0.005 - y) / 0.13)
+        fill = np.maximum(rtop * taper - rb, 0.0) * smoothstep((-0.005 - y) / 0.02 + 1.0)
         psi = np.degrees(np.abs(np.arctan2(x, z)))
-        w = h["curtain"] * _smoothstep((psi - 100.0) / 35.0) * _smoothstep((y - h["bottom"]) / 0.03)
+        w = h["curtain"] * smoothstep((psi - 100.0) / 35.0) * smoothstep((y - h["bottom"]) / 0.03)
         horiz = np.maximum(np.hypot(x, z - self.centre[2]) / np.maximum(np.linalg.norm(P - self.centre, axis=1), 1e-9), 0.5)
         curtain = w * fill / horiz
         k = 0.004
         hh = np.clip(0.5 + 0.5 * (layer - curtain) / k, 0.0, 1.0)
-        return curtain + (layer - curtain) * hh + k * hh * (1.0 - hh), np.maximum(hm, w * _smoothstep(fill / 0.004))
+        return curtain + (layer - curtain) * hh + k * hh * (1.0 - hh), np.maximum(hm, w * smoothstep(fill / 0.004))
 
     def detail(self, P):
         """Neutral radial displacement ``(n,)`` of all features at base points ``P`` (canonical)."""
         x, y, z = P[:, 0], P[:, 1], P[:, 2]
         ax = np.abs(x)
-        front = _smoothstep((z - 0.015) / 0.03)
+        front = smoothstep((z - 0.015) / 0.03)
         b = self.brow
         yb = b["y"] + b["arch"] * np.exp(-0.5 * ((ax - 0.034) / 0.012) ** 2)
         dr = b["amp"] * np.exp(-0.5 * ((y - yb) / 0.006) ** 2) * np.exp(-0.5 * ((ax - 0.028) / 0.02) ** 2)
-        dr += 0.5 * b["amp"] * _gauss(x, y - 0.02, 0.01, 0.008)
-        dr += 0.0015 * _gauss(ax - 0.025, y - 0.055, 0.02, 0.02)
+        dr += 0.5 * b["amp"] * gauss2(x, y - 0.02, 0.01, 0.008)
+        dr += 0.0015 * gauss2(ax - 0.025, y - 0.055, 0.02, 0.02)
         dr += self.eyes(ax, y, 0.0)
         ck = self.cheek
-        dr += ck["amp"] * _gauss(ax - 0.05, y - ck["y"], 0.014, 0.009) + ck["fat"] * _gauss(ax - 0.038, y + 0.045, 0.014, 0.016)
-        dr -= 0.0015 * _gauss(ax - 0.027, y + 0.013, 0.011, 0.005)
+        dr += ck["amp"] * gauss2(ax - 0.05, y - ck["y"], 0.014, 0.009) + ck["fat"] * gauss2(ax - 0.038, y + 0.045, 0.014, 0.016)
+        dr -= 0.0015 * gauss2(ax - 0.027, y + 0.013, 0.011, 0.005)
         dr += self._nose(x, y) + self._mouth(x, y)
-        dr += -0.002 * _gauss(x, y - self.mouth["ym"] + 0.019, 0.014, 0.004)
-        dr += self.chin["amp"] * _gauss(x, y + 0.099, self.chin["sx"], 0.011)
+        dr += -0.002 * gauss2(x, y - self.mouth["ym"] + 0.019, 0.014, 0.004)
+        dr += self.chin["amp"] * gauss2(x, y + 0.099, self.chin["sx"], 0.011)
         out = front * dr
-        out -= 0.003 * _gauss(ax - 0.06, y - 0.03, 0.02, 0.015) * np.exp(-0.5 * ((z - 0.045) / 0.02) ** 2)
-        out += self.adam * _gauss(x, y + 0.14, 0.007, 0.012) * _smoothstep((z - 0.0) / 0.02)
+        out -= 0.003 * gauss2(ax - 0.06, y - 0.03, 0.02, 0.015) * np.exp(-0.5 * ((z - 0.045) / 0.02) ** 2)
+        out += self.adam * gauss2(x, y + 0.14, 0.007, 0.012) * smoothstep((z - 0.0) / 0.02)
         out += self._ears(x, y, z)
         out += self.hair(P)[0]
         return out
@@ -368,10 +368,10 @@ class _Shape:
         mw = self.mouth["mw"]
         yj = np.where(ax < mw, self.mouth_line(x), self.mouth_line(mw) + 0.25 * (ax - mw))
         spread = 0.7 * np.maximum(ax - mw + 0.002, 0.0)
-        w = _smoothstep((yj + T_CU + spread - y) / (T_CU - T_CL + 2.0 * spread))
+        w = smoothstep((yj + T_CU + spread - y) / (T_CU - T_CL + 2.0 * spread))
         # gentle falloffs toward the back and down the neck: the rotation moves points back by up to ~4 cm,
         # so a weight slope above ~1/0.04 per metre along z would fold the surface
-        fall = _smoothstep((z + 0.03) / 0.09) * _smoothstep((y + 0.17) / 0.065)
+        fall = smoothstep((z + 0.03) / 0.09) * smoothstep((y + 0.17) / 0.065)
         return (w, fall) if split else w * fall
 
     def displacement(self, P0, Pn, d, e):
@@ -384,7 +384,7 @@ class _Shape:
         smile, jaw, pl, pr, pk, cl, cr, puff, br, fr = (float(v) for v in e)
         x, y, z = P0[:, 0], P0[:, 1], P0[:, 2]
         ax = np.abs(x)
-        front = _smoothstep((z - 0.015) / 0.03)
+        front = smoothstep((z - 0.015) / 0.03)
         ym = self.mouth_line(x)
         mw = self.mouth["mw"]
         D = np.zeros_like(Pn)
@@ -394,15 +394,15 @@ class _Shape:
 
         if smile:
             for sg in (1.0, -1.0):
-                add(smile * front * _gauss(x - sg * mw, y - ym, 0.012, 0.011), (sg * 0.0045, 0.0065, -0.003))
-                add(smile * front * _gauss(x - sg * 0.038, y + 0.03, 0.016, 0.015), (sg * 0.001, 0.0035, 0.0025))
-            D[:, 0] += smile * 0.15 * x * front * _gauss(x, y - ym, 0.032, 0.012)
+                add(smile * front * gauss2(x - sg * mw, y - ym, 0.012, 0.011), (sg * 0.0045, 0.0065, -0.003))
+                add(smile * front * gauss2(x - sg * 0.038, y + 0.03, 0.016, 0.015), (sg * 0.001, 0.0035, 0.0025))
+            D[:, 0] += smile * 0.15 * x * front * gauss2(x, y - ym, 0.032, 0.012)
             lipw = smile * front * np.exp(-0.5 * (x / 0.02) ** 4)
-            above = _smoothstep((y - ym) / 0.002 + 0.5)
+            above = smoothstep((y - ym) / 0.002 + 0.5)
             D[:, 1] += lipw * (0.0016 * above * np.exp(-0.5 * ((y - ym) / 0.008) ** 2)
                                - 0.0010 * (1 - above) * np.exp(-0.5 * ((y - ym) / 0.008) ** 2))
             ex, ey, u, up, lo = self.eye_frame(ax, y)
-            D[:, 1] += smile * front * 0.0012 * _gauss(ex, ey - lo + 0.003, 0.012, 0.004)
+            D[:, 1] += smile * front * 0.0012 * gauss2(ex, ey - lo + 0.003, 0.012, 0.004)
             fold = self._fold_distance(ax, y)
             D -= (smile * front * 0.0018 * np.exp(-0.5 * (fold / 0.0025) ** 2))[:, None] * d
         if jaw:
@@ -420,33 +420,33 @@ class _Shape:
             D -= band[:, None] * d
         for sg, amount in ((1.0, pl), (-1.0, pr)):
             if amount:
-                wl = amount * front * _gauss(x, y - ym, 0.03, 0.014)
+                wl = amount * front * gauss2(x, y - ym, 0.03, 0.014)
                 add(wl, (sg * 0.006, 0.0, 0.0035))
-                add(wl * _smoothstep(sg * x / 0.02 + 0.5), (0.0, 0.0005, 0.003))
+                add(wl * smoothstep(sg * x / 0.02 + 0.5), (0.0, 0.0005, 0.003))
         if pk:
-            D[:, 2] += pk * 0.011 * front * _gauss(x, y - ym, 0.02, 0.012)
-            D[:, 0] -= pk * 0.33 * x * front * _gauss(x, y - ym, 0.034, 0.016)
-            D -= (pk * 0.002 * front * _gauss(ax - 0.04, y + 0.045, 0.014, 0.016))[:, None] * d
+            D[:, 2] += pk * 0.011 * front * gauss2(x, y - ym, 0.02, 0.012)
+            D[:, 0] -= pk * 0.33 * x * front * gauss2(x, y - ym, 0.034, 0.016)
+            D -= (pk * 0.002 * front * gauss2(ax - 0.04, y + 0.045, 0.014, 0.016))[:, None] * d
         if cl or cr:
             closed = np.where(x > 0, cl, cr)
             dr = front * (self.eyes(ax, y, closed) - self.eyes(ax, y, 0.0))
             D += dr[:, None] * d
         if puff:
-            D += (puff * 0.012 * front * _gauss(ax - 0.043, y + 0.052, 0.017, 0.017))[:, None] * d
-            D[:, 2] += puff * 0.002 * front * _gauss(x, y - ym, 0.02, 0.012)
+            D += (puff * 0.012 * front * gauss2(ax - 0.043, y + 0.052, 0.017, 0.017))[:, None] * d
+            D[:, 2] += puff * 0.002 * front * gauss2(x, y - ym, 0.02, 0.012)
         if br:
-            w = br * front * _smoothstep((y - 0.006) / 0.014) * (1.0 - _smoothstep((y - 0.04) / 0.05)) \
+            w = br * front * smoothstep((y - 0.006) / 0.014) * (1.0 - smoothstep((y - 0.04) / 0.05)) \
                 * np.exp(-0.5 * (ax / 0.055) ** 4)
             add(w, (0.0, 0.008, 0.001))
-            fold = 0.5 * (1.0 - np.cos(TWO_PI * (y - 0.036) / 0.0105)) * _smoothstep((y - 0.036) / 0.004) \
-                * _smoothstep((0.075 - y) / 0.01) * np.exp(-0.5 * (x / 0.045) ** 4)
+            fold = 0.5 * (1.0 - np.cos(TWO_PI * (y - 0.036) / 0.0105)) * smoothstep((y - 0.036) / 0.004) \
+                * smoothstep((0.075 - y) / 0.01) * np.exp(-0.5 * (x / 0.045) ** 4)
             D -= (br * 0.0005 * front * fold)[:, None] * d
         if fr:
             for sg in (1.0, -1.0):
-                add(fr * front * _gauss(x - sg * 0.017, y - 0.021, 0.012, 0.009), (-sg * 0.004, -0.004, 0.0012))
-            add(fr * front * _gauss(ax - 0.042, y - 0.024, 0.012, 0.008), (0.0, -0.0012, 0.0))
-            furrow = np.exp(-0.5 * ((ax - 0.0055) / 0.0013) ** 2) * _smoothstep((y - 0.01) / 0.004) \
-                * _smoothstep((0.032 - y) / 0.004)
+                add(fr * front * gauss2(x - sg * 0.017, y - 0.021, 0.012, 0.009), (-sg * 0.004, -0.004, 0.0012))
+            add(fr * front * gauss2(ax - 0.042, y - 0.024, 0.012, 0.008), (0.0, -0.0012, 0.0))
+            furrow = np.exp(-0.5 * ((ax - 0.0055) / 0.0013) ** 2) * smoothstep((y - 0.01) / 0.004) \
+                * smoothstep((0.032 - y) / 0.004)
             D -= (fr * 0.0007 * front * furrow)[:, None] * d
         return D
 

@@ -11,11 +11,11 @@ from .._lazy import lazy_import
 from ..errors import GeofaceError
 
 DEFAULT_PORT = 8080
-_GREY = (204, 199, 189)
-_BOUNDARY = (230, 40, 40)
+GREY_COLOR = (204, 199, 189)
+BOUNDARY_COLOR = (230, 40, 40)
 
 
-def _viser():
+def import_viser():
     return lazy_import("viser", "geoface view --web (pip install 'geoface[web]')")
 
 
@@ -41,7 +41,7 @@ def item_kind(path) -> str:
 
 # ----------------------------------------------------------------------------- items
 @dataclass
-class _Item:
+class ViewItem:
     path: Path
     kind: str
     V: np.ndarray            # a surface for the layout (and the camera); splats: their means
@@ -58,25 +58,25 @@ class _Item:
         return self.V.max(0)
 
 
-def _load(path: Path, kind: str, drive=None, fps: float = 25.0) -> _Item:
+def load_item(path: Path, kind: str, drive=None, fps: float = 25.0) -> ViewItem:
     if kind == "mesh":
         from ..mesh.io import load_mesh
 
         m = load_mesh(path)
-        return _Item(path, kind, m.V, m.F, path.name, {"mesh": m})
+        return ViewItem(path, kind, m.V, m.F, path.name, {"mesh": m})
     if kind == "gimage":
         from ..gimage import load_gimage, reconstruct
 
         folder = path if (path / "position.png").is_file() else path / "aug0"
         gi = load_gimage(folder)
         m = reconstruct(gi)
-        return _Item(path, kind, m.V, m.F, path.name, {"mesh": m, "gi": gi, "folder": folder})
+        return ViewItem(path, kind, m.V, m.F, path.name, {"mesh": m, "gi": gi, "folder": folder})
     if kind == "splat":
         from ..splat.ply import load_ply
 
         g = load_ply(path)
         means = g.means.detach().numpy().astype(np.float64)
-        return _Item(path, kind, means, None, path.name, {"gaussians": g})
+        return ViewItem(path, kind, means, None, path.name, {"gaussians": g})
     if kind == "avatar":
         from ..splat.drive import avatar_drive
 
@@ -85,7 +85,7 @@ def _load(path: Path, kind: str, drive=None, fps: float = 25.0) -> _Item:
                                "folder (talking avatars), --drive USAGE_DIR (headset removal)")
         d = avatar_drive(path, drive, fps=fps)
         means = d.gaussians(0).means.detach().numpy().astype(np.float64)
-        return _Item(path, kind, means, None, path.name, {"drive": d})
+        return ViewItem(path, kind, means, None, path.name, {"drive": d})
     raise GeofaceError(f"unknown item kind {kind!r}")
 
 
@@ -121,7 +121,7 @@ def uv_distortion_colors(mesh, metric: str = "qc") -> tuple[np.ndarray, np.ndarr
     return V2, F2, _colormap(v, lo, hi, cmap), (lo, hi)
 
 
-def _trimesh(V, F, *, vertex_colors=None, face_colors=None, uv=None, texture=None, flat=False):
+def import_trimesh(V, F, *, vertex_colors=None, face_colors=None, uv=None, texture=None, flat=False):
     import trimesh
 
     V = np.asarray(V, np.float64)
@@ -158,7 +158,7 @@ def _trimesh(V, F, *, vertex_colors=None, face_colors=None, uv=None, texture=Non
     return tm
 
 
-def _boundary_segments(V, F) -> np.ndarray:
+def boundary_segments(V, F) -> np.ndarray:
     """(k, 2, 3) segments of every boundary edge (edges with one face)."""
     from ..mesh.core import edge_topology
 
@@ -167,11 +167,11 @@ def _boundary_segments(V, F) -> np.ndarray:
     return np.asarray(V, np.float64)[b]
 
 
-def _gimage_images(gi, folder: Path) -> dict:
+def gimage_images(gi, folder: Path) -> dict:
     """name → (N, N, 3) uint8 image of a geometry image's modalities, mask and ROI."""
-    from ..viz import _gimage_tiles
+    from ..viz import gimage_tiles
 
-    tiles = dict(_gimage_tiles(gi))
+    tiles = dict(gimage_tiles(gi))
     m = np.asarray(gi.mask, bool)
     roi = Path(folder) / "roi.png"
     if roi.is_file():

@@ -9,8 +9,8 @@ import numpy as np
 
 from ..errors import GeofaceError
 from .guard import check_host, check_port, guarded_serve, md_text, plain_text
-from .items import (_BOUNDARY, _GREY, DEFAULT_PORT, _boundary_segments, _gimage_images, _Item, _load,
-                    _trimesh, _viser, glb_bytes, item_kind, uv_distortion_colors)
+from .items import (BOUNDARY_COLOR, GREY_COLOR, DEFAULT_PORT, boundary_segments, gimage_images, ViewItem, load_item,
+                    import_trimesh, import_viser, glb_bytes, item_kind, uv_distortion_colors)
 
 __all__ = ["WebView"]
 
@@ -55,11 +55,11 @@ class WebView:
         kinds = [item_kind(p) for p in paths]
         if drive is not None and "avatar" not in kinds:
             raise GeofaceError("--drive drives an avatar; none of the paths is an avatar model folder")
-        self.items = [_load(p, k, drive=drive, fps=fps) for p, k in zip(paths, kinds)]
+        self.items = [load_item(p, k, drive=drive, fps=fps) for p, k in zip(paths, kinds)]
         for it in self.items:
             it.extra["frame"] = self._frame_of(it)
         self.frame = self.items[0].extra["frame"]
-        viser = _viser()
+        viser = import_viser()
         self._quiet = quiet
         with guarded_serve(host), self._hush():  # same-origin WebSocket handshakes only, Host naming this machine
             self.server = viser.ViserServer(host=host, port=int(port), verbose=not quiet)
@@ -74,7 +74,7 @@ class WebView:
         host = "127.0.0.1" if host in ("0.0.0.0", "", None) else host
         return f"http://{host}:{self.server.get_port()}"
 
-    def _face_of(self, it: _Item):
+    def _face_of(self, it: ViewItem):
         meta = it.path.with_suffix(".json")
         if it.kind == "mesh" and meta.is_file():
             import json
@@ -88,7 +88,7 @@ class WebView:
                 return np.asarray(face, np.int64)
         return None
 
-    def _frame_of(self, it: _Item):
+    def _frame_of(self, it: ViewItem):
         from ..mesh.frame import mesh_frame, points_frame
 
         if it.F is None:  # splats: their centres
@@ -154,7 +154,7 @@ class WebView:
         cam.up = tuple(float(v) for v in fr.up)
         cam.near, cam.far = dist * 1e-3, dist * 20.0  # scans come in mm, m or anything else
 
-    def _add_mesh(self, it: _Item, node: str, place: dict, k: int):
+    def _add_mesh(self, it: ViewItem, node: str, place: dict, k: int):
         srv = self.server
         m = it.extra["mesh"]
         has_tex = m.texture is not None and m.UV is not None
@@ -176,24 +176,24 @@ class WebView:
             mode = colour.value
             legend.content = ""
             if mode == "texture":
-                from ..viz import _texture_uint8, split_corner_uvs
+                from ..viz import texture_uint8, split_corner_uvs
 
                 V2, F2, uv2, _ = split_corner_uvs(m.V, m.F, m.UV, m.FUV)
-                tm = _trimesh(V2, F2, uv=uv2, texture=_texture_uint8(m.texture), flat=flat)
+                tm = import_trimesh(V2, F2, uv=uv2, texture=texture_uint8(m.texture), flat=flat)
                 handles["surface"] = srv.scene.add_glb(f"{node}/surface", glb_bytes(tm), **place)
             elif mode == "colours":
-                tm = _trimesh(m.V, m.F, vertex_colors=m.colors[:, :3], flat=flat)
+                tm = import_trimesh(m.V, m.F, vertex_colors=m.colors[:, :3], flat=flat)
                 handles["surface"] = srv.scene.add_glb(f"{node}/surface", glb_bytes(tm), **place)
             elif mode.startswith("UV distortion"):
                 metric = "qc" if "QC" in mode else "area"
                 V2, F2, fc, (lo, hi) = uv_distortion_colors(m, metric)
-                tm = _trimesh(V2, F2, face_colors=fc)
+                tm = import_trimesh(V2, F2, face_colors=fc)
                 handles["surface"] = srv.scene.add_glb(f"{node}/surface", glb_bytes(tm), **place)
                 legend.content = (f"{'QC ratio' if metric == 'qc' else 'log area ratio'}: "
                                   f"{lo:.2f} (dark) … {hi:.2f} (bright); flipped triangles magenta")
             else:
                 handles["surface"] = srv.scene.add_mesh_simple(
-                    f"{node}/surface", m.V.astype(np.float32), m.F.astype(np.uint32), color=_GREY,
+                    f"{node}/surface", m.V.astype(np.float32), m.F.astype(np.uint32), color=GREY_COLOR,
                     flat_shading=flat, side="double", **place)
 
         def draw_wire(_=None):
@@ -208,10 +208,10 @@ class WebView:
             if "boundary" in handles:
                 handles.pop("boundary").remove()
             if bnd.value:
-                seg = _boundary_segments(m.V, m.F)
+                seg = boundary_segments(m.V, m.F)
                 if len(seg):
                     handles["boundary"] = srv.scene.add_line_segments(
-                        f"{node}/boundary", seg.astype(np.float32), _BOUNDARY, thickness=3.0,
+                        f"{node}/boundary", seg.astype(np.float32), BOUNDARY_COLOR, thickness=3.0,
                         thickness_units="screen", **place)
 
         colour.on_update(draw)
@@ -221,11 +221,11 @@ class WebView:
         draw()
         draw_boundary()
 
-    def _add_gimage(self, it: _Item, node: str, place: dict, k: int):
+    def _add_gimage(self, it: ViewItem, node: str, place: dict, k: int):
         srv = self.server
         gi = it.extra["gi"]
         self._add_mesh(it, node, place, k)  # the surface it encodes
-        tiles = _gimage_images(gi, it.extra["folder"])
+        tiles = gimage_images(gi, it.extra["folder"])
         size = it.extra["height"]
         # the images stand to the right of the surface, facing the camera
         R = np.column_stack([self.frame.right, self.frame.up, self.frame.front])
@@ -251,7 +251,7 @@ class WebView:
         which.on_update(draw)
         draw()
 
-    def _add_splat(self, it: _Item, node: str, place: dict, k: int):
+    def _add_splat(self, it: ViewItem, node: str, place: dict, k: int):
         g = it.extra["gaussians"]
         self._splats(node, g.means, g.log_scales, g.quats, g.opacity_logits, g.colors, place)
         with self.server.gui.add_folder(f"{k + 1}. {_label(it.name)}"):
@@ -271,7 +271,7 @@ class WebView:
             f"{node}/splats", means.detach().numpy().astype(np.float32), cov.astype(np.float32),
             rgb.astype(np.float32), op.astype(np.float32), **place)
 
-    def _add_avatar(self, it: _Item, node: str, place: dict, k: int):
+    def _add_avatar(self, it: ViewItem, node: str, place: dict, k: int):
         srv = self.server
         drive = it.extra["drive"]
         T = drive.n_frames

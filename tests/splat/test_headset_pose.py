@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from geoface.splat.errors import SplatError
-from geoface.splat.head_pose import _project, rodrigues
+from geoface.splat.head_pose import project_points, rodrigues
 from geoface.splat.headset_pose import fit_headset, headset_centroids, headset_components, headset_poses
 
 RES = 256
@@ -27,7 +27,7 @@ def _mask(cam, R, t, piv, box):
     from scipy.spatial import ConvexHull
     from skimage.draw import polygon
 
-    uv = _project(cam, (box - piv) @ R.T + piv + t)
+    uv = project_points(cam, (box - piv) @ R.T + piv + t)
     h = uv[ConvexHull(uv).vertices]
     m = np.zeros((RES, RES), bool)
     rr, cc = polygon(h[:, 1] - 0.5, h[:, 0] - 0.5, m.shape)  # pixel centres at +0.5
@@ -57,8 +57,8 @@ def _rig(T=60, seed=0):
 
 def _err_px(cam, R, t, Ra, ta, piv, X):
     """Mean image distance of head points ``X`` under two sets of poses."""
-    return float(np.mean([np.linalg.norm(_project(cam, (X - piv) @ Ra[f].T + piv + ta[f])
-                                         - _project(cam, (X - piv) @ R[f].T + piv + t[f]), axis=1).mean()
+    return float(np.mean([np.linalg.norm(project_points(cam, (X - piv) @ Ra[f].T + piv + ta[f])
+                                         - project_points(cam, (X - piv) @ R[f].T + piv + t[f]), axis=1).mean()
                           for f in range(len(R))]))
 
 
@@ -70,7 +70,7 @@ def test_headset_centroids_of_a_drawn_box_and_what_is_left_out():
     c = headset_centroids(masks)
     assert np.isfinite(c).all()
     # the silhouette's centroid lies near the projection of the box's front face centre
-    front = _project(cam, ((_box()[1::2].mean(0) - piv) @ R[0].T + piv + t[0])[None])[0]
+    front = project_points(cam, ((_box()[1::2].mean(0) - piv) @ R[0].T + piv + t[0])[None])[0]
     assert np.linalg.norm(c[0] - front) < 1.0
     m = masks.copy()
     m[1, :, 0] = True      # touches the border: cut off

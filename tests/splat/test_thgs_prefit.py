@@ -8,7 +8,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from geoface.splat.kinematics import joint_transforms  # noqa: E402
-from geoface.splat.thgs import AudioArticulation, THGSConfig, THGSModel, _split  # noqa: E402
+from geoface.splat.thgs import AudioArticulation, THGSConfig, THGSModel, train_heldout_split  # noqa: E402
 from geoface.splat.thgs_data import load_talking, mouth_landmark_targets  # noqa: E402
 from geoface.splat.thgs_ict import make_ict_talking  # noqa: E402
 from geoface.splat.thgs_prefit import posed_points, prefit_articulation, prefit_training  # noqa: E402
@@ -92,7 +92,7 @@ def test_prefit_recovers_an_articulation_that_made_the_landmarks(capture):
         X = posed_points(teacher, idx, rot + dr * (~teacher.tracked_joints)[:, None], transl, expr + de * ~teacher.tracked_expr)
         pts = data.camera.project(X.reshape(-1, 3))[0].reshape(len(data), -1, 2)
     student, _ = _model(data, seed=2)
-    tr, te = _split(len(data), 0.2)
+    tr, te = train_heldout_split(len(data), 0.2)
     info = prefit_articulation(student, a[tr], rot[tr], transl[tr], expr[tr], idx, pts[tr], data.camera, max_steps=300,
                                lr=1e-2)
     assert info["px_before"] > 1.0 and info["px_after"] < 0.05 * info["px_before"]
@@ -113,7 +113,7 @@ def test_prefit_on_the_capture_opens_the_lips_with_the_person(capture):
     (r > 0.8 over the training frames)."""
     d, data = capture
     m, A = _model(data)
-    tr, _ = _split(len(data), 0.2)
+    tr, _ = train_heldout_split(len(data), 0.2)
     lv, px = mouth_landmark_targets(data)
     lmk = ([int(i[0]) for i in m.gaussians_of(lv)], px)
     info = prefit_training(m, data, tr, A, lmk)
