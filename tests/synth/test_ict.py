@@ -202,11 +202,11 @@ def test_model_from_a_clone_and_pack_ict(tiny_clone, tmp_path):
 
 
 def test_broken_clone_files_are_one_line_errors(tiny_clone):
-    from geoface.synth.ict import load_item, load_ict_model
+    from geoface.synth.ict import _load, load_ict_model
 
     clone, V, modes = tiny_clone
     (clone / "FaceXModel" / "identity001.obj").write_text("v 0 0 0\n")
-    load_item.cache_clear()
+    _load.cache_clear()
     with pytest.raises(GeofaceError, match="1 vertices where the neutral mesh has 25"):
         load_ict_model(clone)
     (clone / "FaceXModel" / "jawOpen.obj").unlink()
