@@ -26,6 +26,7 @@ from .errors import (
     MissingDependencyError,
     ParameterizationError,
 )
+from ._lazy import lazy_exports
 from .tol import tol
 
 __version__ = "0.2.0"
@@ -44,18 +45,19 @@ _VERBS = {
 _SUBPACKAGES = {"mesh", "repair", "synth", "param", "gimage", "uvmap", "learn", "splat", "cli", "pipeline"}
 
 
-def __getattr__(name):  # lazy subpackages (geoface.mesh, ...) and verbs (geoface.convert, ...)
-    import importlib
+_verb, _verbs_dir, _VERB_NAMES = lazy_exports("geoface", _VERBS)
 
-    if name in _VERBS:
-        return getattr(importlib.import_module(_VERBS[name]), name)
+
+def __getattr__(name):  # lazy subpackages (geoface.mesh, ...) and verbs (geoface.convert, ...)
     if name in _SUBPACKAGES:
+        import importlib
+
         return importlib.import_module(f".{name}", __name__)
-    raise AttributeError(f"module 'geoface' has no attribute {name!r}")
+    return _verb(name)
 
 
 def __dir__():
-    return sorted(set(globals()) | set(_VERBS) | _SUBPACKAGES)
+    return sorted(set(globals()) | set(_verbs_dir()) | _SUBPACKAGES)
 
 
 __all__ = [
@@ -70,5 +72,5 @@ __all__ = [
     "errors",
     "tol",
     "__version__",
-    *_VERBS,
+    *_VERB_NAMES,
 ]

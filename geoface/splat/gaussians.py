@@ -180,7 +180,6 @@ class GaussianTensors(_GaussianOps):
         self.opacity_logits, self.colors, self.parent = opacity_logits, colors, parent
 
 
-
 def _unit_rgb(colors, n: int) -> np.ndarray:
     """Per-vertex colours as (n, 3) floats in [0, 1]: RGB or RGBA (alpha dropped), floats in [0, 1]
     or integers in [0, 255] (a mesh's ``colors`` as loaded)."""
@@ -191,6 +190,7 @@ def _unit_rgb(colors, n: int) -> np.ndarray:
     if np.issubdtype(c.dtype, np.integer):
         return c.astype(np.float64) / 255.0
     return np.clip(c.astype(np.float64), 0.0, 1.0)
+
 
 class Gaussians(_GaussianOps, nn.Module):
     """A set of N 3D Gaussians with learnable parameters.

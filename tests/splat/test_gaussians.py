@@ -101,3 +101,15 @@ def test_ply_rejects_other_files(tmp_path):
     p.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 0\nend_header\n")
     with pytest.raises(GeofaceError, match="binary_little_endian"):
         load_ply(p)
+
+
+def test_from_mesh_takes_a_loaded_meshs_colours():
+    """RGB floats, RGBA floats (alpha dropped) and 0–255 integers give the same colours."""
+    V, F = _grid()
+    rgb = np.random.default_rng(0).integers(0, 256, (len(V), 3))
+    want = Gaussians.from_mesh(V, F, colors=rgb / 255.0, dtype=torch.float64).colors
+    rgba = np.concatenate([rgb / 255.0, np.full((len(V), 1), 0.3)], 1)
+    for cols in (rgba, rgb.astype(np.uint8), np.concatenate([rgb, np.full((len(V), 1), 255)], 1)):
+        assert torch.allclose(Gaussians.from_mesh(V, F, colors=cols, dtype=torch.float64).colors, want)
+    with pytest.raises(GeofaceError, match="colors must have shape"):
+        Gaussians.from_mesh(V, F, colors=rgb[:, :2])
