@@ -301,13 +301,19 @@ def turntable(mesh_or_VF, path, *, seconds: float = 6.0, fps: float = 25.0, wind
     pl = _plotter(True, window_size)
     _add_mesh(pl, mesh_or_VF)
     el = np.radians(elevation)
+    # far enough that the bounding sphere fits the narrower view angle, with a margin (a tall
+    # figure keeps its head and feet in every frame)
+    aspect = window_size[0] / window_size[1]
+    half = np.radians(pl.camera.view_angle) / 2
+    half = min(half, np.arctan(np.tan(half) * aspect))
+    dist = 1.08 * fr.radius / np.sin(half)
 
     def frames():
         try:
             for k in range(n):
                 a = 2 * np.pi * k / n
                 d = np.cos(el) * (np.cos(a) * fr.front + np.sin(a) * fr.right) + np.sin(el) * fr.up
-                pl.camera_position = [tuple(fr.center + 2.6 * fr.radius * d), tuple(fr.center), tuple(fr.up)]
+                pl.camera_position = [tuple(fr.center + dist * d), tuple(fr.center), tuple(fr.up)]
                 pl.reset_camera_clipping_range()
                 pl.render()  # pyvista renders only on the first screenshot unless asked after the camera moves
                 yield np.asarray(pl.screenshot(return_img=True))[..., :3]

@@ -197,3 +197,19 @@ def test_the_private_name_check_sees_one(tmp_path):
     (root / "a" / "_sub.py").write_text("")
     (root / "a" / "y.py").write_text("def f():\n    from .x import _h\n    from . import _sub\n    from geoface.a.x import __doc__\n")
     assert private_imports(root) == ["geoface/a/y.py:2 imports geoface.a.x._h"]
+
+
+def test_lazy_exports_refuse_a_name_its_own_module_shadows():
+    """``from geoface.nn import render_mesh`` returned the module ``render_mesh.py`` once it had
+    been imported; lazy_exports refuses such a table, and every package's table imports."""
+    import importlib
+
+    from geoface._lazy import lazy_exports
+
+    with pytest.raises(ImportError, match="render_mesh"):
+        lazy_exports("geoface.nn", {"render_mesh": "render_mesh"})
+    for pkg in ("geoface", "geoface.nn", "geoface.splat", "geoface.learn", "geoface.skin"):
+        importlib.import_module(pkg)
+    from geoface.nn import mesh_render, render_mesh
+
+    assert callable(render_mesh) and render_mesh is mesh_render.render_mesh

@@ -107,3 +107,23 @@ def test_a_turntable_turns(tmp_path):
     assert not 0.5 < w[n // 4] / w[0] < 2.0, f"no profile at a quarter turn: widths {w}"
     assert abs(w[n // 2] - w[0]) <= 0.15 * w[0], f"the back is not as wide as the front: widths {w}"
     assert w[-1] > 0.8 * w[0]
+
+
+def test_a_turntable_shows_all_of_a_tall_figure(tmp_path):
+    """A standing figure (a column four times taller than wide) stays whole in every frame: the
+    top and bottom rows of the picture are background (at 2.6 radii it lost its head and feet)."""
+    pytest.importorskip("pyvista")
+    import trimesh
+
+    from geoface.mesh.io import save_mesh
+
+    col = trimesh.creation.box(extents=(0.5, 2.0, 0.3))
+    path = tmp_path / "column.obj"
+    save_mesh(path, V=np.asarray(col.vertices), F=np.asarray(col.faces))
+    out = tmp_path / "turn.mp4"
+    assert main(["view", str(path), "--turntable", str(out), "--seconds", "0.5", "--size", "96,96", "--up", "+y", "-q"]) == 0
+    for f in _frames(out):
+        fg = np.abs(f - f[0, 0]).sum(-1) > 40
+        rows = np.flatnonzero(fg.any(1))
+        assert len(rows) and rows.min() > 0 and rows.max() < f.shape[0] - 1, (rows.min(), rows.max())
+        assert np.ptp(rows) > 0.5 * f.shape[0]  # and not a speck: it fills the picture's height

@@ -34,11 +34,7 @@ def cmd_synth_head(args) -> int:
     head = procedural_head(
         n_vertices=args.vertices, seed=args.seed, expression=_parse_expression(args.expression) or None, texture_size=args.texture_size
     )
-    ext = Path(args.output).suffix.lower()
-    if ext in (".obj", ".glb", ".gltf"):
-        mesh = Mesh.from_vertex_uv(head.V, head.F, head.UV, texture=head.texture)
-    else:
-        mesh = Mesh(head.V, head.F, colors=head.colors)
+    mesh = head.mesh(texture=Path(args.output).suffix.lower() in (".obj", ".glb", ".gltf"))
     save_mesh(args.output, mesh, overwrite=args.force)
     if args.meta:
         from .._io import atomic_write_text

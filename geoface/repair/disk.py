@@ -35,6 +35,8 @@ from .step import StepResult
 
 OpenMode = Literal["auto", "plane", "cap", "none"]
 OPEN_MODES = ("auto", "plane", "cap", "none")
+#: pieces of a scan smaller than this fraction of its area are debris to the frame of a standing figure
+WHOLE_AREA_FRACTION = 0.01
 
 
 @dataclass(frozen=True)
@@ -237,6 +239,7 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
 
     log(f"make_disk: {len(V)} vertices, {len(F)} faces; cleaning", quiet=quiet, detail=True)
     res = clean(V, F, merge_tolerance=opts.merge_tolerance)
+    cleaned = res
     res = res.then(keep_components(res.V, res.F, min_area_fraction=opts.min_component_area))
     _strict(res, "clean")
     if opts.target_vertices is not None:
@@ -248,7 +251,8 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
     if isinstance(opts.up, str) and opts.up == "auto":
         from .upright import upright_frame
 
-        frame = upright_frame(res.V, res.F)
+        pieces = keep_components(cleaned.V, cleaned.F, min_area_fraction=WHOLE_AREA_FRACTION, largest_only=False)
+        frame = upright_frame(res.V, res.F, whole=(pieces.V, pieces.F))
         opts = replace(opts, up=frame.up)
         # an uncertain frame is said whatever the verbosity (the user should check it)
         log(f"make_disk: up {axis_text(frame.up)}, front {axis_text(frame.front)} ({frame.kind}; {frame.how})"

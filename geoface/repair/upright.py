@@ -247,12 +247,14 @@ def _front_about(V, F, up):
 
 
 def upright_frame(V, F, *, samples: int = 12000, seed: int = 0, fallback_up=(0.0, 1.0, 0.0),
-                  snap: float = SNAP_DEGREES) -> UprightFrame:
+                  snap: float = SNAP_DEGREES, whole=None) -> UprightFrame:
     """Up and front of the surface ``(V, F)`` — one clean component, as :func:`make_disk` has it
     after cleaning — from its shape (see the module's description).  An up (and then a front)
     within ``snap`` degrees of one of the file's axes is taken as that axis: scans are modelled
-    along their axes, and a head whose up is the file's +Z should be cut level with it."""
-    fr = _upright_frame(V, F, samples, seed, fallback_up)
+    along their axes, and a head whose up is the file's +Z should be cut level with it.
+    ``whole``: ``(V, F)`` of every sizeable piece of the scan, where ``(V, F)`` is its largest:
+    a standing figure's front is found on it."""
+    fr = _upright_frame(V, F, samples, seed, fallback_up, whole)
     if snap <= 0:
         return fr
     up = _snapped(fr.up, snap)
@@ -276,7 +278,7 @@ def _snapped(v, degrees):
     return v
 
 
-def _upright_frame(V, F, samples, seed, fallback_up) -> UprightFrame:
+def _upright_frame(V, F, samples, seed, fallback_up, whole=None) -> UprightFrame:
     V = np.asarray(V, np.float64)
     F = np.asarray(F, np.int64)
     if len(F) == 0:
@@ -307,7 +309,9 @@ def _upright_frame(V, F, samples, seed, fallback_up) -> UprightFrame:
     if fig is not None and fig[1] <= FIGURE_FIT:
         up, fit_top, fit_bottom, sure, head_front = fig
         cues.update(figure_head_fit=fit_top, figure_foot_fit=fit_bottom)
-        front, how = _front_about(V, F, up)  # (the template's front at a body's head end is too rough)
+        # the whole figure's front (its shoes, hands and hair are often pieces of their own, and
+        # the feet are the cue); the template's front at a body's head end is too rough
+        front, how = _front_about(*(whole if whole is not None else (V, F)), up)
         return UprightFrame(up, front, "figure", f"the long axis, towards the head (one piece, where the template fits); "
                             f"front by {how}", certain=sure, why="" if sure else "which end is the head is not clear",
                             cues=cues)

@@ -3,7 +3,7 @@
 (:mod:`geoface.learn.texture`) and of the avatar captures (:mod:`geoface.splat.hfm_ict`).
 
 Numpy only; the layer sits above :mod:`geoface.nn` (it rasterises with
-:func:`geoface.nn.render_mesh.rasterize_mesh`) and below ``learn`` and ``splat``.
+:func:`geoface.nn.mesh_render.rasterize_mesh`) and below ``learn`` and ``splat``.
 """
 from geoface.errors import GeofaceError
 

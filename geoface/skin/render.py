@@ -267,7 +267,7 @@ def render_skin_sample(V, F, UV, maps: SkinMaps, camera, lights, *, normals=None
     ``maps`` [H,W,7] (albedo, micronormal, specular looked up through the pixel's UV),
     ``uv`` [H,W,2], ``normal`` [H,W,3] (camera-space geometric normal, encoded n/2 + ½),
     ``mask`` [H,W] bool (pixels the mesh covers) and ``face`` [H,W] (the triangle seen, -1 for none)."""
-    from geoface.nn.render_mesh import rasterize_mesh
+    from geoface.nn.mesh_render import rasterize_mesh
 
     V, F, UV = np.asarray(V, np.float64), np.asarray(F, np.int64), np.asarray(UV, np.float64)
     if normals is None:

@@ -15,7 +15,7 @@ _NAMES = {
     "save_ply": "ply", "load_ply": "ply",
     "rasterize": "rasterizer", "rasterize_reference": "rasterizer",
     "DensityConfig": "density", "DensityStrategy": "density", "make_optimizer": "density",
-    "render_mesh": "geoface.nn.render_mesh", "rasterize_mesh": "geoface.nn.render_mesh", "MeshRender": "geoface.nn.render_mesh",
+    "render_mesh": "geoface.nn.mesh_render", "rasterize_mesh": "geoface.nn.mesh_render", "MeshRender": "geoface.nn.mesh_render",
     "FitConfig": "fit", "FitResult": "fit", "fit_mesh": "fit",
     "SplatError": "errors", "CameraError": "errors", "GaussianPlyError": "errors",
 }

@@ -4,7 +4,7 @@ Pipeline:
   1. cameras: ``views`` training cameras on orbit rings at ``elevations`` around the mesh's
      bounding sphere (framed to fill the image), and ``heldout`` cameras at azimuths *and*
      elevations between the training ones;
-  2. ground truth: :func:`geoface.nn.render_mesh.render_mesh` (albedo colours, supersampled
+  2. ground truth: :func:`geoface.nn.mesh_render.render_mesh` (albedo colours, supersampled
      edges) stored premultiplied, so any background can be composited per iteration;
   3. init: :meth:`Gaussians.from_mesh` (THGS: one Gaussian per vertex);
   4. optimise one random view per step with Adam, one named param group per attribute
@@ -41,7 +41,7 @@ from geoface.splat.density import DensityConfig, DensityStrategy, make_optimizer
 from geoface.splat.errors import SplatError
 from geoface.splat.gaussians import Gaussians
 from geoface.splat.rasterizer import rasterize
-from geoface.nn.render_mesh import render_mesh
+from geoface.nn.mesh_render import render_mesh
 
 __all__ = ["FitConfig", "FitResult", "fit_mesh", "fit_cameras", "psnr", "ssim_masked", "heldout_images"]
 

@@ -64,7 +64,7 @@ def rotation_vector(R) -> np.ndarray:
 def landmarks_on_mesh(V, F, camera, points2d) -> tuple[np.ndarray, np.ndarray]:
     """3D points [K, 3] where the camera rays through ``points2d`` [K, 2] (pixels) meet the mesh,
     and a bool [K]: whether the ray met it (NaN rows where not)."""
-    from geoface.nn.render_mesh import rasterize_mesh
+    from geoface.nn.mesh_render import rasterize_mesh
 
     V, F = np.asarray(V, np.float64), np.asarray(F, np.int64)
     pts = np.asarray(points2d, np.float64)

@@ -368,7 +368,7 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
     (yaw ±8°, pitch ±4°, roll ±3°, a few millimetres of translation; 0 = a still head).
     """
     from geoface.progress import progress
-    from geoface.nn.render_mesh import render_mesh
+    from geoface.nn.mesh_render import render_mesh
     from geoface.synth.head import HeadModel
 
     if frames < 5 or not 0 < heldout < 1:

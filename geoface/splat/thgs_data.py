@@ -199,7 +199,7 @@ def make_synthetic_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res:
     from scipy.io import wavfile
 
     from geoface.progress import progress
-    from geoface.nn.render_mesh import render_mesh
+    from geoface.nn.mesh_render import render_mesh
     from geoface.splat.template import procedural_template
     from geoface.synth.head import EXPRESSION_NAMES, HeadModel
     import torch

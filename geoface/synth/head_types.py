@@ -243,4 +243,13 @@ class SynthHead:
         """Landmark name -> ``(3,)`` position."""
         return {k: self.V[v].copy() for k, v in self.landmarks.items()}
 
+    def mesh(self, texture: bool = True):
+        """As a :class:`geoface.mesh.io.Mesh`: the UV layout and texture (``texture=True``) or
+        the per-vertex colours (``texture=False``)."""
+        from ..mesh.io import Mesh
+
+        if texture:
+            return Mesh.from_vertex_uv(self.V, self.F, self.UV, texture=self.texture)
+        return Mesh(self.V, self.F, colors=self.colors)
+
 

@@ -3,7 +3,7 @@ import pytest
 
 from geoface.nn.camera import Camera, look_at
 from geoface.nn.errors import RenderError
-from geoface.nn.render_mesh import rasterize_mesh, render_mesh
+from geoface.nn.mesh_render import rasterize_mesh, render_mesh
 
 
 def _axis_camera(W=40, H=30, f=20.0):

@@ -84,3 +84,17 @@ def test_convert_reports_an_uncertain_frame_in_one_line(tmp_path, capsys):
     lines = [ln for ln in capsys.readouterr().err.splitlines() if "uncertain" in ln]
     assert len(lines) == 1 and "pass --up" in lines[0]
     assert m["frame"]["certain"] is False
+
+
+@pytest.mark.parametrize("name", ["male02.obj", "female02.obj"])
+@pytest.mark.parametrize("convention", ["y-up", "z-up-y"])
+def test_a_standing_figure_in_pieces_faces_its_front(name, convention):
+    """A body whose shoes, hands and hair are separate pieces: make_disk keeps the largest
+    piece for the disk, but the front is the whole figure's (its feet point forward). On the
+    largest piece alone both figures were turned 180° (front −Z)."""
+    from geoface.repair import make_disk
+
+    case = S.moved(S.real_base(name), convention)
+    fr = make_disk(case.V, case.F).frame
+    assert fr.kind == "figure" and _deg(fr.up, case.up) < 1e-9, (fr.up, case.up)
+    assert _deg(fr.front, case.front) < 1e-9, (fr.front, case.front, fr.how)
