@@ -37,7 +37,7 @@ def child(n: int, sampling: bool, repeats: int) -> dict:
     import torch
 
     from geoface.splat.gaussians import Gaussians
-    from geoface.splat.hfm import HFMConfig, HFMModel
+    from geoface.hfm import HFMConfig, HFMModel
     from geoface.synth.head import HeadModel
 
     torch.manual_seed(0)

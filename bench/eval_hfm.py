@@ -33,8 +33,8 @@ def main(argv=None) -> int:
     import torch
 
     from geoface.nn.camera import Camera
-    from geoface.splat.hfm import ABLATIONS, HFMConfig, evaluate_hmd, hmd_metrics, load_hfm, remove_hmd, train_hfm
-    from geoface.splat.hfm_data import load_video, make_synthetic_hmd
+    from geoface.hfm import ABLATIONS, HFMConfig, evaluate_hmd, hmd_metrics, load_hfm, remove_hmd, train_hfm
+    from geoface.hfm.data import load_video, make_synthetic_hmd
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=200)

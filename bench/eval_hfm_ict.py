@@ -8,7 +8,7 @@
     python bench/eval_hfm_ict.py calibration --out DIR --group val/0/full/10,22,23,24 [--grid 0:0,8:0.01,...]
     python bench/eval_hfm_ict.py table --out DIR
 
-``data`` writes one capture per identity seed (:func:`geoface.splat.hfm_ict.make_ict_hmd`: a
+``data`` writes one capture per identity seed (:func:`geoface.hfm.ict.make_ict_hmd`: a
 talking, emoting, lit ICT person, registration and usage videos of different sequences) under
 ``DIR/data/<split>_<seed>``.  ``run`` trains, for each capture and model seed, the variants
 
@@ -35,7 +35,7 @@ estimate costs, the true one (``file``).  One JSON line per score in ``DIR/resul
 ``calibration`` scores trained models with each calibration setting of ``--grid``
 (components:ridge[:w][:s][:eN][:hR]: w weighs the landmarks, s fits the usage poses to the 8 stable lower landmarks,
 eN sees each registration frame N more times with
-generic expressions, hR corrects the usage poses by the headset masks, :mod:`geoface.splat.headset_pose`,
+generic expressions, hR corrects the usage poses by the headset masks, :mod:`geoface.hfm.headset_pose`,
 with expression-map ridge R; each row also says how far those usage poses put the upper and the lower landmarks
 from where the true poses put them, ``upper_px`` / ``lower_px``);
 ``poses`` scores the head poses alone against the truth: registration poses fitted to the 68
@@ -72,7 +72,7 @@ MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]
 
 
 def _data(a) -> None:
-    from geoface.splat.hfm_ict import make_ict_hmd
+    from geoface.hfm.ict import make_ict_hmd
 
     for split, seeds in (("val", a.val), ("test", a.test)):
         for s in seeds:
@@ -97,8 +97,8 @@ def _job(job) -> list:
 def _job_rows(job) -> list:
     import torch
 
-    from geoface.splat.hfm import ABLATIONS, HFMConfig, evaluate_hmd, load_hfm, train_hfm
-    from geoface.splat.hfm_data import load_video
+    from geoface.hfm import ABLATIONS, HFMConfig, evaluate_hmd, load_hfm, train_hfm
+    from geoface.hfm.data import load_video
 
     d, split, data_seed, seed, variant, iters, threads, device, models = job
     torch.set_num_threads(threads)
@@ -188,9 +188,9 @@ def _poses(a) -> None:
     from dataclasses import replace
 
     from geoface.mesh.io import load_mesh
-    from geoface.splat.head_pose import LOWER_RIGID_NAMES, poses_from_landmarks, solve_poses
-    from geoface.splat.hfm_data import load_video
-    from geoface.splat.hfm_train import registration_poses
+    from geoface.avatar.head_pose import LOWER_RIGID_NAMES, poses_from_landmarks, solve_poses
+    from geoface.hfm.data import load_video
+    from geoface.hfm.train import registration_poses
 
     def errors(fit_R, fit_t, piv, video):
         rv, dt = _pose_offsets(video.poses, fit_R, fit_t, piv)
@@ -225,8 +225,8 @@ def _registration(reg_dir, model, model_dir=None):
     """The registration video with the poses the model was trained in: those its folder saved
     (training corrected them), else fitted to the landmarks as training fits them."""
     from geoface.mesh.io import load_mesh
-    from geoface.splat.hfm_data import load_video
-    from geoface.splat.hfm_train import load_registration_poses, registration_poses
+    from geoface.hfm.data import load_video
+    from geoface.hfm.train import load_registration_poses, registration_poses
 
     reg = load_video(reg_dir, need_mesh=True)
     saved = load_registration_poses(model_dir, len(reg)) if model_dir is not None else None
@@ -241,7 +241,7 @@ def _pose_offsets(true_poses, R, t, pivot):
     """Per frame, the rotation vector (degrees) and the translation (mm) from the true poses
     (R, t, pivot) to the poses ``R``, ``t``; translations compared at ``pivot`` (the same rigid
     motion moves it to the same place)."""
-    from geoface.splat.head_pose import repivot, rotation_vector
+    from geoface.avatar.head_pose import repivot, rotation_vector
 
     Rt, tt, pt = true_poses
     rv = np.degrees([rotation_vector(Rt[f].T @ R[f]) for f in range(len(R))])
@@ -257,7 +257,7 @@ def _registration_error(reg_dir, model, model_dir) -> dict:
     """How far the registration poses a no-file model was fitted in are from the true ones
     (``head_poses.npz``), frame by frame about their mean offset (the frame the avatar learned):
     root-mean-square degrees and millimetres (at the pivot)."""
-    from geoface.splat.hfm_data import load_video
+    from geoface.hfm.data import load_video
 
     reg = _registration(reg_dir, model, model_dir)
     R, t, p = reg.poses
@@ -270,7 +270,7 @@ def _recalibrate(model, reg, components: int, ridge: float, weighted: bool = Fal
     """Learn the model's usage pose calibration anew from ``reg`` with these settings (None: none learned)."""
     from dataclasses import replace
 
-    from geoface.splat.hfm_train import calibrate_usage_poses
+    from geoface.hfm.train import calibrate_usage_poses
 
     model.cfg = replace(model.cfg, pose_calibration=components, pose_calibration_ridge=ridge,
                         pose_calibration_weighted=weighted, pose_calibration_expressions=expressions,
@@ -287,9 +287,9 @@ def _calibration(a) -> None:
 
     import torch
 
-    from geoface.splat.hfm import evaluate_hmd, load_hfm
-    from geoface.splat.hfm_data import load_video
-    from geoface.splat.hfm_usage import expression_coverage, usage_poses
+    from geoface.hfm import evaluate_hmd, load_hfm
+    from geoface.hfm.data import load_video
+    from geoface.hfm.usage import expression_coverage, usage_poses
 
     torch.set_num_threads(a.threads)
     models = Path(a.models or Path(a.out) / "models")
@@ -333,8 +333,8 @@ def _upper_error(model, use, pose) -> dict:
     """How far the usage poses ``pose`` (fitted to the landmarks, as the model's settings say) put the head's
     upper (iBUG 17–47: brows, nose bridge, eyes) and lower landmarks from where the true poses put
     them: mean image distance, pixels."""
-    from geoface.splat.hfm_data import IBUG68_NAMES
-    from geoface.splat.head_pose import repivot
+    from geoface.avatar.capture import IBUG68_NAMES
+    from geoface.avatar.head_pose import repivot
 
     R, t, piv = pose
     Rt, tt, pt = use.poses

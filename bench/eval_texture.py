@@ -117,7 +117,7 @@ def summarise(out: Path, split: str, per: dict) -> None:
         emit(out, stage="heldout", split=split, variant=v, n=len(rows), **row)
 
 
-def _read_png16(path) -> np.ndarray:
+def read_png16(path) -> np.ndarray:
     """A 16-bit PNG the CLI wrote → float [H, W, C] in [0, 1], RGB order."""
     import cv2
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -156,7 +156,7 @@ def run_4k(a, out: Path, model_dir: Path, fitted: dict) -> None:
     peak_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr).group(1))
     wall = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([\d:.]+)", r.stderr).group(1)
     secs = sum(float(x) * 60 ** i for i, x in enumerate(reversed(wall.split(":"))))
-    pred = {f.stem: _read_png16(f) for f in sorted(maps_dir.glob("*.png"))}
+    pred = {f.stem: read_png16(f) for f in sorted(maps_dir.glob("*.png"))}
     shapes = {k: list(v.shape) for k, v in pred.items()}
     pred = {k: pred[k][..., : s.stop - s.start] for k, s in MAPS.items()}
     emit(out, stage="4k_reconstruct", size=size, seconds=round(secs, 1), peak_rss_mib=round(peak_kb / 1024, 1),

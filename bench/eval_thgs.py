@@ -38,9 +38,9 @@ VARIANTS = {"full": {}, "no_leb": {"use_leb": False}, "no_saam": {"use_saam": Fa
 def main(argv=None) -> int:
     import torch
 
-    from geoface.splat.thgs import PAPER_STAGES, THGSConfig, load_thgs, train_thgs
-    from geoface.splat.thgs_eval import evaluate_thgs
-    from geoface.splat.thgs_data import load_talking, make_synthetic_talking
+    from geoface.thgs.model import PAPER_STAGES, THGSConfig, load_thgs, train_thgs
+    from geoface.thgs.eval import evaluate_thgs
+    from geoface.thgs.data import load_talking, make_synthetic_talking
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=8.0)
@@ -82,7 +82,7 @@ def main(argv=None) -> int:
     runs = [(name, data_dir, VARIANTS[name]) for name in a.variants.split(",") if name]
     kw = dict(seconds=a.seconds, res=a.res, n_vertices=a.vertices, seed=a.data_seed, quiet=True)
     if a.head == "ict":
-        from geoface.splat.thgs_ict import make_ict_talking as make
+        from geoface.thgs.ict import make_ict_talking as make
     else:
         make = make_synthetic_talking
     if not (data_dir / "poses.npz").is_file():
@@ -92,7 +92,7 @@ def main(argv=None) -> int:
         if a.head != "ict":
             raise SystemExit("eval_thgs: --perturb needs --head ict")
         if not (out / "data_perturbed" / "poses.npz").is_file():
-            from geoface.splat.thgs_ict import perturb_capture
+            from geoface.thgs.ict import perturb_capture
 
             perturb_capture(data_dir, out / "data_perturbed", pert, seed=a.data_seed)  # the same video, other poses
         runs.append(("full_perturbed", out / "data_perturbed", {}))

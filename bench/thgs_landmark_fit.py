@@ -26,10 +26,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(argv=None) -> int:
     import torch
 
-    from geoface.splat.thgs import THGSConfig, THGSModel, train_heldout_split
-    from geoface.splat.thgs_data import load_talking, mouth_landmark_targets
-    from geoface.splat.thgs_eval import true_lip_gaps_px
-    from geoface.splat.thgs_prefit import posed_points
+    from geoface.thgs.model import THGSConfig, THGSModel, train_heldout_split
+    from geoface.thgs.data import load_talking, mouth_landmark_targets
+    from geoface.thgs.eval import true_lip_gaps_px
+    from geoface.thgs.prefit import posed_points
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("talk_dir")

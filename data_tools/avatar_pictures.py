@@ -39,7 +39,7 @@ def _renders(model, video, source: str):
     landmark poses aligned with the image, 20 steps a frame)."""
     from dataclasses import replace
 
-    from geoface.splat.hfm_usage import remove_hmd
+    from geoface.hfm.usage import remove_hmd
 
     cfg = model.cfg
     model.cfg = replace(cfg, pose_align=20 if source.endswith("+image") else 0)
@@ -52,14 +52,15 @@ def _renders(model, video, source: str):
 def hmd(a) -> "np.ndarray":
     import numpy as np
 
-    from geoface.splat.hfm_data import _read_png, load_video
-    from geoface.splat.hfm_train import load_hfm
+    from geoface.hfm.data import load_video
+    from geoface.avatar.capture import read_png
+    from geoface.hfm.train import load_hfm
 
     model = load_hfm(a.model_dir)
     video = load_video(a.data_dir)
     renders = _renders(model, video, a.poses)
     frames = [f for f in a.frames if f < len(video)]
-    gt = [_read_png(Path(a.data_dir) / "gt" / f"{f:06d}.png") for f in frames]
+    gt = [read_png(Path(a.data_dir) / "gt" / f"{f:06d}.png") for f in frames]
     restored = [np.where(video.hmd_masks[f][..., None], renders[f], video.frames[f]) for f in frames]
     rows = [[video.frames[f] for f in frames], restored, gt, [renders[f] for f in frames]]
     for source in a.error_poses:
@@ -72,9 +73,9 @@ def hmd(a) -> "np.ndarray":
 def talk(a) -> "np.ndarray":
     import numpy as np
 
-    from geoface.splat.thgs import train_heldout_split, load_thgs, render_frames
-    from geoface.splat.thgs_eval import _mouth_rect, mouth_openness
-    from geoface.splat.thgs_data import load_talking
+    from geoface.thgs.model import train_heldout_split, load_thgs, render_frames
+    from geoface.thgs.eval import _mouth_rect, mouth_openness
+    from geoface.thgs.data import load_talking
 
     model = load_thgs(a.model_dir)
     data = load_talking(a.data_dir)

@@ -174,9 +174,9 @@ print(f"{len(back.means)} Gaussians, {(WORK / 'head_gs.ply').stat().st_size / 1e
 tracked poses that leave the jaw to the audio). `train_thgs` fits the avatar: LBS with a voxel
 skinning grid, learnable expression blendshapes, and the spatial audio attention module that moves
 the mouth with the sound. `animate` drives it from the audio alone."""),
-    new_code_cell("""from geoface.splat.thgs import animate, load_thgs, train_thgs, THGSConfig
-from geoface.splat.thgs_eval import evaluate_thgs
-from geoface.splat.thgs_data import load_talking, make_synthetic_talking
+    new_code_cell("""from geoface.thgs.model import animate, load_thgs, train_thgs, THGSConfig
+from geoface.thgs.eval import evaluate_thgs
+from geoface.thgs.data import load_talking, make_synthetic_talking
 
 talk = make_synthetic_talking(WORK / "talk", seconds=TALK_SECONDS, res=64, n_vertices=2000, quiet=True)
 train_thgs(talk, WORK / "avatar", THGSConfig(iters=TALK_ITERS, stage_scale=TALK_ITERS / 100_000), progress=False, log=lambda *a: None)
@@ -189,7 +189,7 @@ print(f"lip sync: r {ev['lipsync_corr']:.2f} between the rendered mouth's openin
 for a correlation to mean anything (the real frames' own value, printed beside it, shows how
 noisy it is), and TALK_ITERS steps are too few for the mouth to learn the audio. `docs/thgs.md`
 measures it on longer clips after 5,000 steps: r 0.45 for the avatar where the real frames'
-own is 0.47 (and −0.09 without the audio attention module)."""),,
+own is 0.47 (and −0.09 without the audio attention module)."""),
     new_code_cell("""frames, seconds = animate(model, talk / "audio.wav")
 strip = np.concatenate(list(frames[:: max(1, len(frames) // 6)][:6]), 1)
 print(f"{len(frames)} frames rendered from the audio, {len(frames) / max(np.sum(seconds), 1e-9):.0f} frames/s; "

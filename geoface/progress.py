@@ -189,3 +189,8 @@ class StepProgress:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def args_quiet(args) -> bool:
+    """Whether a command runs quietly: its ``--quiet`` flag or ``GEOFACE_QUIET``."""
+    return bool(getattr(args, "quiet", False) or QUIET)

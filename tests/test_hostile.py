@@ -278,7 +278,7 @@ def test_text_encoder_specs(spec):
 
 def test_texture_and_camera_and_gimage_values_are_checked(tmp_path):
     from geoface.learn.texture import TextureTrainConfig
-    from geoface.splat.hfm_data import camera_from_json
+    from geoface.avatar.capture import camera_from_json
 
     for kw in ({"k": 0}, {"gde_res": 1e9}, {"epochs": (1, 2)}, {"lr": -1.0}):
         with pytest.raises(GeofaceError):

@@ -356,9 +356,9 @@ def test_bad_audio_and_template_are_one_line(tmp_path):
     """A truncated or 1 Hz WAV, a truncated template.npz: one line, exit 2."""
     import wave
 
-    from geoface.splat.audio import read_wav
+    from geoface.avatar.audio import read_wav
     from geoface.splat.errors import SplatError
-    from geoface.splat.template import Template
+    from geoface.avatar.template import Template
 
     def write_wav(path, rate, n):
         with wave.open(str(path), "wb") as f:
@@ -386,7 +386,7 @@ def test_bad_audio_and_template_are_one_line(tmp_path):
 
 def test_failed_synth_leaves_no_folder(tmp_path, monkeypatch):
     """talk/hmd/texture synth write into a temporary folder: a failure leaves nothing."""
-    import geoface.splat.thgs_data as td
+    import geoface.thgs.data as td
     from geoface.cli import main
 
     def boom(out, **kw):

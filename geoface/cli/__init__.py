@@ -176,10 +176,10 @@ def build_parser() -> argparse.ArgumentParser:
     from ..splat.cli import register as register_splat  # argparse only: torch loads inside the command
 
     register_splat(sub, common)
-    from ..splat.hfm_cli import register as register_hmd
+    from ..hfm.cli import register as register_hmd
 
     register_hmd(sub, common)
-    from ..splat.thgs_cli import register as register_talk
+    from ..thgs.cli import register as register_talk
 
     register_talk(sub, common)
     register_texture(sub, common)

@@ -362,7 +362,7 @@ def cmd_view(args) -> int:
     if path.is_file() and item_kind(path) == "splat":  # Gaussian splats: our rasterizer, off-screen
         if movie is None:
             raise GeofaceError(f"{path} holds Gaussian splats: look at them with --turntable OUT.mp4 or --web")
-        from ..splat.drive import splat_turntable
+        from ..drive.avatars import splat_turntable
         from ..splat.ply import load_ply
 
         n = splat_turntable(load_ply(path), movie, seconds=args.seconds, size=size, up=args.up)

@@ -27,7 +27,7 @@ def _parse_expression(text: str | None) -> dict:
 
 
 def cmd_synth_head(args) -> int:
-    from ..mesh.io import Mesh, save_mesh
+    from ..mesh.io import save_mesh
     from ..synth.head import procedural_head
 
     guard_outputs(args, [], [*mesh_outputs(args.output), args.meta])

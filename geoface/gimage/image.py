@@ -227,7 +227,7 @@ def _write_png16(path: Path, rgb: np.ndarray) -> None:
     write_image(path, q[:, :, ::-1])
 
 
-def _read_png(path: Path, expect: int | None = None) -> np.ndarray:
+def read_png(path: Path, expect: int | None = None) -> np.ndarray:
     from .._io import image_size
 
     cv2 = import_cv2()
@@ -316,7 +316,7 @@ def load_gimage(folder: str | os.PathLike) -> GeometryImage:
     for name, cn in MODALITIES.items():
         if not all(c in meta["channels"] for c in cn):
             continue
-        img = _read_png(folder / f"{name}.png", expect=N)
+        img = read_png(folder / f"{name}.png", expect=N)
         if img.dtype != np.uint16:
             raise InvalidGeometryImageError(f"{name}.png must be 16-bit; got {img.dtype}")
         if img.shape != (N, N, 3):
@@ -327,7 +327,7 @@ def load_gimage(folder: str | os.PathLike) -> GeometryImage:
         raise InvalidGeometryImageError(f"{folder} has no position image")
     mpng = folder / "mask.png"
     if mpng.is_file():
-        m = _read_png(mpng, expect=N)
+        m = read_png(mpng, expect=N)
         if m.ndim != 2 or m.shape != (N, N):
             raise InvalidGeometryImageError(f"mask.png must be {N}x{N} grey; got {m.shape}")
         mask = m > 0

@@ -18,6 +18,6 @@ __getattr__, __dir__, __all__ = lazy_exports("geoface.nn", {
     "HashEncoding": "hashenc", "TriPlaneHashEncoding": "hashenc", "hash_encode": "hashenc",
     "ssim": "losses", "dssim": "losses", "laplacian_loss": "losses",
     "render_mesh": "mesh_render", "rasterize_mesh": "mesh_render", "MeshRender": "mesh_render",
-    "WeightAverage": "average", "config_from_dict": "config",
+    "WeightAverage": "average", "config_from_dict": "config", "train_device": "device",
     "NNError": "errors", "RenderError": "errors", "CameraError": "errors",
 })

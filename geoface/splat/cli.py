@@ -43,8 +43,8 @@ def cmd_splat_fit(args) -> int:
     from geoface.mesh.io import load_mesh
     from geoface.progress import QUIET, log
 
-    from .fit import FitConfig, fit_mesh, heldout_images
-    from .ply import save_ply
+    from geoface.splat.fit import FitConfig, fit_mesh, heldout_images
+    from geoface.splat.ply import save_ply
 
     if Path(args.output).suffix.lower() != ".ply":
         raise GeofaceError(f"-o must name a .ply file; got {args.output}")

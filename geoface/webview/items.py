@@ -78,7 +78,7 @@ def load_item(path: Path, kind: str, drive=None, fps: float = 25.0) -> ViewItem:
         means = g.means.detach().numpy().astype(np.float64)
         return ViewItem(path, kind, means, None, path.name, {"gaussians": g})
     if kind == "avatar":
-        from ..splat.drive import avatar_drive
+        from ..drive.avatars import avatar_drive
 
         if drive is None:
             raise GeofaceError(f"{path}: an avatar needs something to drive it: --drive WAV or a `talk synth` "

@@ -1,0 +1,187 @@
+"""The capture folder that both avatars read (HFM-GS and THGS): frames as PNGs, the camera as
+JSON, the 68 iBUG landmark names, head rotations, and the headset's proxy mesh.
+
+A capture folder (HFM-GS registration or usage, THGS talking) holds::
+
+    frames/000000.png ...   RGB frames, background removed (black)
+    masks/000000.png ...    optional foreground masks (nonzero = person); default: frame != 0
+    landmarks.json          {"names": [...], "points": [[[x, y], ...] per frame]} in pixels;
+                            without "names", 68 points per frame are the iBUG 68 (IBUG68_NAMES)
+    camera.json             {"fx", "fy", "cx", "cy", "width", "height", "R", "t"} (OpenCV, world→camera)
+    head_poses.npz          optional: the tracked rigid head pose per frame, R [T, 3, 3], t [T, 3],
+                            pivot [3] (X' = R (X − pivot) + pivot + t)
+
+Each avatar adds files of its own (:mod:`geoface.hfm.data`, :mod:`geoface.thgs.data`).
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from geoface.nn.camera import Camera
+from geoface.errors import GeofaceError
+from geoface.splat.errors import SplatError
+
+__all__ = ["IBUG68_NAMES", "IBUG68_LOWER", "IBUG68_RIGID", "read_png", "write_png", "write_frame", "stack_frames",
+           "camera_from_json", "camera_to_json", "read_landmarks", "euler_rotation", "headset_mesh"]
+
+
+def _ibug68_names() -> tuple:
+    names = ([f"jaw_{i:02d}" for i in range(17)] + [f"brow_right_{i}" for i in range(5)]
+             + [f"brow_left_{i}" for i in range(5)] + [f"nose_bridge_{i}" for i in range(4)]
+             + [f"nose_base_{i}" for i in range(5)] + [f"eye_right_{i}" for i in range(6)]
+             + [f"eye_left_{i}" for i in range(6)] + [f"lips_outer_{i:02d}" for i in range(12)]
+             + [f"lips_inner_{i}" for i in range(8)])
+    # the four the lower-face crop reads (the subject's left is the image right in a frontal view)
+    names[8], names[30], names[48], names[54] = "chin", "nose_tip", "mouth_right", "mouth_left"
+    return tuple(names)
+
+
+#: names of the 68 iBUG / Multi-PIE points (dlib, face_alignment, OpenFace order): a
+#: ``landmarks.json`` whose points are [T, 68, 2] may leave out ``names`` and gets these
+IBUG68_NAMES = _ibug68_names()
+
+
+#: indices of the 68 below a headset: jaw line, nose base (with its tip), lips
+IBUG68_LOWER = tuple(range(0, 17)) + (30, 31, 32, 33, 34, 35) + tuple(range(48, 68))
+
+
+#: indices of the 68 that move little with expressions (head-pose fitting): upper jaw line, nose,
+#: eye corners
+IBUG68_RIGID = (0, 1, 2, 14, 15, 16, 27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39, 42, 45)
+
+
+def stack_frames(paths, rgb=True) -> np.ndarray:
+    """The images of ``paths`` as one array; images of different sizes (or channel counts) are a
+    one-line SplatError naming the first that differs."""
+    imgs = [read_png(p, rgb) for p in paths]
+    for p, a in zip(paths, imgs):
+        if a.shape != imgs[0].shape:
+            raise SplatError(f"{p}: {a.shape[1]}×{a.shape[0]}, but {Path(paths[0]).name} is "
+                             f"{imgs[0].shape[1]}×{imgs[0].shape[0]}; every frame must have one size")
+    return np.stack(imgs)
+
+
+def read_png(path: Path, rgb=True) -> np.ndarray:
+    import cv2
+
+    from geoface._io import image_size
+
+    try:
+        image_size(path)
+    except (GeofaceError, OSError) as e:
+        raise SplatError(f"{path}: {e}") from None
+    a = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if a is None:
+        raise SplatError(f"{path}: not a readable image")
+    scale = 65535.0 if a.dtype == np.uint16 else 255.0
+    a = a.astype(np.float32) / scale
+    if rgb:
+        if a.ndim == 2:
+            a = np.repeat(a[..., None], 3, -1)
+        a = a[..., :3][..., ::-1]  # BGR -> RGB
+    elif a.ndim == 3:
+        a = a[..., 0]
+    return np.ascontiguousarray(a)
+
+
+def write_png(path: Path, img) -> None:
+    a = np.asarray(img)
+    if a.dtype != np.uint8:
+        a = (np.clip(a, 0, 1) * 255 + 0.5).astype(np.uint8)
+    if a.ndim == 3:
+        a = a[..., ::-1]
+    from geoface._io import write_image
+
+    write_image(path, a)
+
+
+def write_frame(folder, t: int, img) -> Path:
+    """``folder/frames/{t:06d}.png``, written under a temporary name and renamed (never partial)."""
+    from geoface._io import atomic_path
+
+    path = Path(folder) / "frames" / f"{t:06d}.png"
+    with atomic_path(path) as tmp:
+        write_png(tmp, img)
+    return path
+
+
+def camera_from_json(d) -> Camera:
+    """A :class:`Camera` from ``camera.json``'s object (or the file's path): focal lengths
+    positive, sizes in 1..16384, ``R`` a rotation, everything finite; else a one-line SplatError."""
+    where = "camera.json"
+    if isinstance(d, (str, Path)):
+        where = str(d)
+        try:
+            d = json.loads(Path(d).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as e:
+            raise SplatError(f"{where}: not readable JSON ({type(e).__name__})") from None
+    need = "needs fx, fy, cx, cy, width, height, R (3×3 rotation), t (3)"
+    try:
+        fx, fy, cx, cy = (float(d[k]) for k in ("fx", "fy", "cx", "cy"))
+        w, h = d["width"], d["height"]
+        R, t = np.asarray(d["R"], float), np.asarray(d["t"], float)
+    except (KeyError, TypeError, ValueError, IndexError) as e:
+        raise SplatError(f"{where}: {need} ({type(e).__name__}: {str(e)[:80]})") from None
+    if not all(np.isfinite([fx, fy, cx, cy])) or fx <= 0 or fy <= 0:
+        raise SplatError(f"{where}: fx, fy must be positive and fx, fy, cx, cy finite")
+    if any(isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 16384 for v in (w, h)):
+        raise SplatError(f"{where}: width and height must be integers in 1..16384; got {w!r}, {h!r}"[:200])
+    if R.shape != (3, 3) or t.shape != (3,) or not (np.isfinite(R).all() and np.isfinite(t).all()):
+        raise SplatError(f"{where}: {need}")
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
+        raise SplatError(f"{where}: R is not a rotation (R Rᵀ ≠ I or det < 0)")
+    return Camera(fx, fy, cx, cy, int(w), int(h), R, t)
+
+
+def camera_to_json(cam: Camera) -> dict:
+    return {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width,
+            "height": cam.height, "R": cam.R.tolist(), "t": cam.t.tolist()}
+
+
+def read_landmarks(path, n_frames: int) -> tuple[np.ndarray, list]:
+    """(points [T, K, 2] pixels, names [K]) of a ``landmarks.json`` (module doc); every problem is
+    a one-line SplatError."""
+    try:
+        lm = json.loads(Path(path).read_text())
+        pts = np.asarray(lm["points"], dtype=np.float64)
+        names = [str(n) for n in lm["names"]] if "names" in lm else (
+            list(IBUG68_NAMES) if pts.ndim == 3 and pts.shape[1] == 68 else None)
+        if names is None:
+            raise KeyError("'names' (needed unless the points are the 68 iBUG landmarks)")
+    except (ValueError, KeyError, TypeError) as e:
+        raise SplatError(f"{path}: malformed landmarks ({type(e).__name__}: {e})") from None
+    if pts.ndim == 3 and pts.shape[1] != len(names):
+        raise SplatError(f"{path}: {len(names)} names but {pts.shape[1]} points per frame")
+    if pts.ndim != 3 or pts.shape[0] != n_frames or pts.shape[2] != 2 or len(set(names)) != len(names):
+        raise SplatError(f"{path}: points must be [frames={n_frames}, K, 2] with K distinct names; got {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise SplatError(f"{path}: non-finite landmarks")
+    return pts, names
+
+
+def euler_rotation(yaw, pitch, roll) -> np.ndarray:
+    cy, sy, cp, sp, cr, sr = (math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch),
+                              math.cos(roll), math.sin(roll))
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rx = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
+    Rz = np.array([[cr, -sr, 0], [sr, cr, 0], [0, 0, 1]])
+    return Ry @ Rx @ Rz
+
+
+def headset_mesh(y_split: float, front_z: float, width: float = 0.19, height: float = 0.075,
+                 depth: float = 0.07):
+    """A box-shaped headset (V, F) in front of the upper face: bottom edge at ``y_split``, front face
+    at ``front_z + 0.02``."""
+    x0, x1 = -width / 2, width / 2
+    y0, y1 = y_split, y_split + height
+    z1 = front_z + 0.02
+    z0 = z1 - depth
+    V = np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)], dtype=np.float64)
+    # vertex index = 4·ix + 2·iy + iz; outward, counter-clockwise faces
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (1, 5, 7, 3), (0, 2, 6, 4)]
+    F = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
+    return V, F

@@ -1,0 +1,276 @@
+"""``geoface hmd synth|train|remove|eval`` — HFM-GS head-mounted-display removal.
+
+Wired into :mod:`geoface.cli` through :func:`register`; torch loads inside the commands.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from geoface.errors import GeofaceError
+from geoface.nn.device import train_device
+from geoface.progress import args_quiet
+from geoface._args import SEED, add_json, json_to_stdout, number, write_json, output_option
+
+__all__ = ["register"]
+
+
+def cmd_hmd_synth(args) -> int:
+    from geoface.hfm.data import make_synthetic_hmd
+
+    out = Path(args.output)
+    if out.exists() and any(out.iterdir()):
+        raise GeofaceError(f"{out} exists and is not empty; choose a new folder")
+    from geoface._io import atomic_dir
+
+    with atomic_dir(out, overwrite=True) as tmp:  # complete or absent: a failure leaves nothing
+        if args.head == "ict":
+            from geoface.hfm.ict import make_ict_hmd
+
+            reg, use = make_ict_hmd(tmp, frames=args.frames, usage_frames=args.usage_frames, res=args.res,
+                                    seed=args.seed, motion=args.motion, jitter=args.jitter, rom=args.rom,
+                                    quiet=args_quiet(args))
+        else:
+            reg, use = make_synthetic_hmd(tmp, frames=args.frames, heldout=args.heldout, res=args.res,
+                                          n_vertices=args.vertices, seed=args.seed, motion=args.motion,
+                                          quiet=args_quiet(args))
+        reg, use = out / Path(reg).relative_to(tmp), out / Path(use).relative_to(tmp)
+    print(f"{reg}: registration video; {use}: usage video with a headset (+ gt/, hmd_masks/)")
+    return 0
+
+
+def _add_usage_pose_options(p) -> None:
+    """``--poses`` and ``--headset-pose`` of ``hmd remove`` and ``hmd eval``."""
+    p.add_argument("--poses", choices=("auto", "file", "landmarks", "image"), default="auto",
+                   help="head pose per frame: USAGE_DIR/head_poses.npz (file; a headset's own tracking), fitted to the "
+                        "landmarks below the headset (landmarks), read from the lower-face crop (image), or the first "
+                        "of these the folder allows (auto)")
+    p.add_argument("--headset-pose", action=argparse.BooleanOptionalAction, default=None,
+                   help="with --poses landmarks (or auto without a pose file): also correct the poses by where the "
+                        "headset masks (USAGE_DIR/hmd_masks) lie (default: the model's setting)")
+    p.add_argument("--pose-align", type=int, default=None, metavar="STEPS",
+                   help="with --poses landmarks (or auto without a pose file): then turn each frame's pose so that the "
+                        "avatar's render matches the pixels outside the headset masks, STEPS gradient steps per frame "
+                        "(0: not; default: the model's setting; slow on a CPU, about 0.25 s a step at 128 px)")
+    p.add_argument("--pose-align-translation", action=argparse.BooleanOptionalAction, default=None,
+                   help="the alignment also moves the head, not only turns it (default: the model's setting)")
+
+
+def _config(args):
+    from geoface.hfm import ABLATIONS, HFMConfig
+
+    kw = dict(iters=args.iters, seed=args.seed, threads=args.threads, vgg_weights=args.vgg_weights,
+              densify=not args.no_densify, warmup=args.warmup, ema=args.ema, map_theta=args.map_theta,
+              gm_input=args.gm_input, pm_per_component=args.pm_per_component, split_margin=args.split_margin)
+    for arg, field in (("y_split", "y_split"), ("pose_landmarks", "registration_landmarks"),
+                       ("pose_residual", "pose_residual"), ("pose_head_detach", "image_pose_detach"),
+                       ("usage_landmarks", "usage_landmarks"), ("calibration_weights", "pose_calibration_weighted"),
+                       ("calibration_expressions", "pose_calibration_expressions"), ("pose_refine", "pose_refine")):
+        if getattr(args, arg) is not None:  # None: the model's default
+            kw[field] = getattr(args, arg)
+    kw.update(ABLATIONS[args.ablation])
+    return HFMConfig(**kw)
+
+
+def cmd_hmd_train(args) -> int:
+    from geoface.progress import log
+
+    from geoface.hfm import train_hfm
+
+    from geoface._io import output_folder
+
+    out = Path(args.output)
+    cfg = _config(args)
+    with output_folder(out, args.force) as tmp:  # complete or absent; never into a user's files
+        info = train_hfm(args.reg_dir, tmp, cfg, progress=None if not args_quiet(args) else False, log=log,
+                         poses=args.poses, device=train_device(args))
+    h = info["history"]
+    first = sum(r["loss"] for r in h[:20]) / len(h[:20])
+    last = sum(r["loss"] for r in h[-20:]) / len(h[-20:])
+    print(f"{args.reg_dir} -> {out}: {cfg.iters} steps in {info['seconds']:.1f} s, loss {first:.4f} -> {last:.4f}, "
+          f"{info['n_gaussians']} Gaussians ({info['n_upper']} upper), {info['dropped_children']} split children "
+          f"dropped at the boundary; weights averaged over the last {info['averaged_steps']} steps; head poses "
+          + ("from head_poses.npz" if info["poses"] == "file" else
+             f"fitted to {info['pose_landmarks']} landmarks (median {info['pose_fit_rms_px']} px)")
+          + (f"; usage poses from the lower landmarks calibrated to them ({info['pose_calibration']} components)"
+             if info.get("pose_calibration") else ""))
+    return 0
+
+
+def _load_for_usage(args):
+    """The model of ``args.model_dir`` with the usage pose options (``--headset-pose``,
+    ``--pose-align``, ``--pose-align-translation``) applied where given."""
+    from geoface.hfm import HFMConfig, load_hfm
+
+    if args.pose_align is not None and args.pose_align < 0:
+        raise GeofaceError(f"--pose-align: a number of steps per frame, >= 0; got {args.pose_align}")
+    model = load_hfm(args.model_dir)
+    given = {f: getattr(args, f) for f in ("headset_pose", "pose_align", "pose_align_translation")
+             if getattr(args, f) is not None}
+    model.cfg = HFMConfig(**{**model.cfg.to_dict(), **given}) if given else model.cfg
+    return model
+
+
+def cmd_hmd_remove(args) -> int:
+    from geoface.hfm import remove_hmd
+
+    if args.output is None and args.video is None:
+        raise GeofaceError("say where the frames go: -o OUT_DIR (PNG frames) and/or --video OUT.mp4")
+    if args.video is not None and Path(args.video).suffix.lower() != ".mp4":
+        raise GeofaceError(f"--video: an .mp4 path; got {args.video}")
+    model = _load_for_usage(args)
+    from geoface.hfm.data import load_video
+
+    video = load_video(args.usage_dir)
+    out = None if args.output is None else Path(args.output)
+    composite = not args.no_composite
+    from geoface._io import output_folder
+
+    with output_folder(out, args.force) as tmp:  # the frames appear all at once, or not at all
+        renders, times = remove_hmd(model, video, out_dir=tmp, composite=composite, poses=args.poses)
+    import numpy as np
+
+    where = [] if out is None else [f"{out}/frames"]
+    if args.video is not None:
+        from geoface.video import write_video
+
+        if composite and video.hmd_masks is not None:
+            frames = (np.where(video.hmd_masks[t][..., None], renders[t], video.frames[t]) for t in range(len(renders)))
+        else:
+            frames = iter(renders)
+        wav = Path(args.usage_dir) / "audio.wav"
+        import json
+
+        meta = json.loads((Path(args.usage_dir) / "meta.json").read_text(encoding="utf-8"))
+        write_video(frames, args.video, fps=args.fps or float(meta.get("fps", 25.0)),
+                    audio=wav if wav.is_file() else None)
+        where.append(str(args.video))
+    med = float(np.median(times))
+    print(f"{args.usage_dir} -> {' and '.join(where)}: {len(times)} frames, {1 / med:.1f} FPS "
+          f"(median {1000 * med:.1f} ms per frame: crop, encode, deform, render)")
+    return 0
+
+
+def cmd_hmd_eval(args) -> int:
+    import numpy as np
+
+    from geoface.hfm import evaluate_hmd
+
+    model = _load_for_usage(args)
+    from geoface.hfm.data import load_video
+
+    res = evaluate_hmd(model, load_video(args.usage_dir), poses=args.poses)
+    say = (lambda *a, **k: None) if json_to_stdout(args) else print
+    say(f"{args.usage_dir} (head poses: {res['poses']}): face PSNR {res['psnr_face']:.2f} dB SSIM {res['ssim_face']:.4f}; occluded region "
+          f"PSNR {res['psnr_occluded']:.2f} dB SSIM {res['ssim_occluded']:.4f}; {res['fps']:.1f} FPS "
+          f"({res['frames']} frames); expression motion upper {res['upper_motion_mm']:.2f} mm, "
+          f"lower {res['lower_motion_mm']:.2f} mm")
+    if not np.isnan(res["psnr_occluded_outline"]):
+        say(f"occluded region: interior PSNR {res['psnr_occluded_interior']:.2f} dB, outline (the face's edge under the "
+            f"headset) {res['psnr_occluded_outline']:.2f} dB")
+    if res.get("expression_frames") == 0:
+        say("expression region: no usage frame has an upper-face expression to score")
+    elif "psnr_expression" in res:
+        say(f"expression region (what brows and lids change, {res['expression_frames']} frames): PSNR "
+              f"{res['psnr_expression']:.2f} dB SSIM {res['ssim_expression']:.4f}; the rest-pose upper face "
+              f"scores {res['psnr_expression_rest']:.2f} dB there")
+    write_json(args, res)
+    return 0
+
+
+def register(sub, common: argparse.ArgumentParser) -> None:
+    """Add ``geoface hmd ...`` to the ``geoface`` sub-parsers."""
+    h = sub.add_parser("hmd", help="HFM-GS: remove a head-mounted display from video (needs torch)")
+    hs = h.add_subparsers(dest="what", metavar="WHAT")
+    hs.required = True
+    s = hs.add_parser("synth", parents=[common], help="write synthetic registration and usage videos")
+    output_option(s, "OUT_DIR", "folder for the registration and usage captures")
+    s.add_argument("--frames", type=number(int, 2, 100_000), default=200, help="frames in the whole sequence (200)")
+    s.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.2, help="last fraction that becomes the usage video (0.2)")
+    s.add_argument("--res", type=number(int, 16, 4096), default=128, help="image side in pixels (128)")
+    s.add_argument("--head", choices=("procedural", "ict"), default="procedural",
+                   help="procedural (the toy head; the sequence is split) or ict (an ICT-FaceKit person, lit, talking; "
+                        "--seed picks the person)")
+    s.add_argument("--usage-frames", type=number(int, 1, 100_000), default=None,
+                   help="--head ict: frames of the usage video, its own sequence (default frames/4)")
+    s.add_argument("--vertices", type=number(int, 1000, 200_000), default=8000, help="procedural head vertices (8000)")
+    s.add_argument("--motion", type=number(float, 0, 100), default=1.0, help="head motion scale (1; 0 = still)")
+    s.add_argument("--jitter", type=number(float, 0, 100), default=1.0, help="--head ict: camera shake scale (1)")
+    s.add_argument("--rom", type=number(float, 0, 3600), default=0.0, metavar="SECONDS",
+                   help="--head ict: the registration video opens with a range of motion of this length: surprise, "
+                        "smile and anger in turn at full weight (0: none)")
+    s.add_argument("--seed", type=SEED, default=0)
+    s.set_defaults(func=cmd_hmd_synth)
+    t = hs.add_parser("train", parents=[common], help="register a person from an unoccluded video folder")
+    t.add_argument("reg_dir", metavar="REG_DIR")
+    t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
+    t.add_argument("--iters", type=number(int, 1, 10_000_000), default=2000, help="optimisation steps (2000)")
+    t.add_argument("--warmup", type=number(float, 0, 1, hi_open=True), default=0.2,
+                   help="fraction of the steps that trains the Gaussians alone before the networks (0.2)")
+    t.add_argument("--ema", type=number(float, 0, 1, hi_open=True), default=0.99, metavar="DECAY",
+                   help="save the moving average of the weights over the steps after density control, with this "
+                        "decay per step (0.99; 0 saves the last step's weights)")
+    t.add_argument("--ablation", choices=sorted(ABLATION_NAMES), default="full")
+    t.add_argument("--vgg-weights", default=None, metavar="FILE",
+                   help="local VGG-16 feature weights (.safetensors or .pth) for the perceptual term")
+    t.add_argument("--y-split", type=number(float), default=None, help="upper/lower split height y_t (default: meta.json)")
+    t.add_argument("--no-densify", action="store_true", help="no clone/split/prune")
+    t.add_argument("--map-theta", action="store_true", help="MLP_mapping also reads the latent θ (the paper's input)")
+    t.add_argument("--gm-input", choices=("x", "xsr"), default="x",
+                   help="MLP_gm embeds the position (x, default) or position, scale and rotation (xsr, the paper's)")
+    t.add_argument("--pm-per-component", action="store_true",
+                   help="one MLP_pm per deformation component (ΔX, ΔS, ΔR), each mapping head reads its own")
+    t.add_argument("--split-margin", type=number(float, 0, 1), default=0.0, metavar="D",
+                   help="margin d (metres) of the boundary losses: each half held d from y_t (0)")
+    t.add_argument("--threads", type=number(int, 1, 1024), default=None, help="torch CPU threads")
+    t.add_argument("--poses", choices=("auto", "file", "landmarks"), default="auto",
+                   help="registration head poses: head_poses.npz (file), fitted to the landmarks (landmarks), "
+                        "or the file when there is one (auto)")
+    t.add_argument("--pose-landmarks", choices=("rigid", "stable", "lower"), default=None,
+                   help="registration poses fitted to the landmarks that move little with expressions (rigid), "
+                        "to those of them that stay put best (stable: jaw line ends, nose ridge and tip, eye corners), "
+                        "or to those below a headset, as the usage poses are (lower); default: the model's")
+    t.add_argument("--usage-landmarks", choices=("lower", "stable"), default=None,
+                   help="the landmarks below a headset that usage poses are fitted to (and the calibration learns): "
+                        "the 12 rigid ones (lower) or the 8 of them that stay put best (stable); default: the model's")
+    t.add_argument("--pose-residual", action=argparse.BooleanOptionalAction, default=None,
+                   help="the global pose MLP corrects the tracked head pose of each frame (default: the model's)")
+    t.add_argument("--pose-head-detach", action=argparse.BooleanOptionalAction, default=None,
+                   help="the pose MLP that reads the head pose from the crop learns alone: its loss does not train "
+                        "the image encoder (default: the model's)")
+    t.add_argument("--calibration-weights", action=argparse.BooleanOptionalAction, default=None,
+                   help="the usage pose calibration weighs each lower landmark by how little it moved in "
+                        "registration (default: the model's)")
+    t.add_argument("--calibration-expressions", type=int, default=None, metavar="N",
+                   help="the usage pose calibration also sees each registration frame N times with generic "
+                        "expressions of the ICT-FaceKit model added to its landmarks (0: off; default: the model's)")
+    t.add_argument("--pose-refine", action=argparse.BooleanOptionalAction, default=None,
+                   help="registration poses fitted to the landmarks are corrected frame by frame with the "
+                        "image loss (default: the model's)")
+    t.add_argument("--device", default=None, help="cpu or cuda (default: cuda when torch sees a GPU)")
+    t.add_argument("--seed", type=SEED, default=0)
+    t.set_defaults(func=cmd_hmd_train)
+    r = hs.add_parser("remove", parents=[common], help="restore the full face in a headset video (streams, reports FPS)")
+    r.add_argument("model_dir", metavar="MODEL_DIR")
+    r.add_argument("usage_dir", metavar="USAGE_DIR")
+    r.add_argument("-o", "--output", default=None, metavar="OUT_DIR", help="write the frames as OUT_DIR/frames/*.png")
+    r.add_argument("--video", default=None, metavar="OUT.mp4", help="write an H.264 MP4 (with USAGE_DIR/audio.wav if any)")
+    r.add_argument("--fps", type=number(float, 0.1, 240), default=None,
+                   help="frame rate of the video (default: the usage folder's, else 25)")
+    _add_usage_pose_options(r)
+    r.add_argument("--no-composite", action="store_true", help="write the avatar renders, not frames with the HMD region replaced")
+    r.set_defaults(func=cmd_hmd_remove)
+    from geoface.drive.cli import add_export_parser
+
+    add_export_parser(hs, common, "the registered avatar's", "a usage folder (its frames drive the avatar)", True)
+    e = hs.add_parser("eval", parents=[common], help="PSNR/SSIM (whole face, occluded region) and FPS on a usage folder with gt/")
+    e.add_argument("model_dir", metavar="MODEL_DIR")
+    e.add_argument("usage_dir", metavar="USAGE_DIR")
+    _add_usage_pose_options(e)
+    add_json(e, "the figures")
+    e.set_defaults(func=cmd_hmd_eval)
+
+
+# the keys of geoface.hfm.ABLATIONS (kept here so that building the parser imports no torch)
+ABLATION_NAMES = ("full", "no_global_pose", "no_gaussian_feature_mapping", "no_gaussian_feature_mapping_separate",
+                  "no_feature_mapping", "no_sampling")
