@@ -23,7 +23,8 @@ LAYERS = [
     ("Geometry", ["geoface.mesh", "geoface.synth", "geoface.repair", "geoface.param", "geoface.gimage", "geoface.uvmap"]),
     ("Pipelines", ["geoface.pipeline", "geoface.dataset"]),
     ("Pictures", ["geoface.viz", "geoface.webview"]),
-    ("Neural consumers", ["geoface.nn", "geoface.learn", "geoface.splat", "geoface.skin"]),
+    ("Neural consumers", ["geoface.nn", "geoface.learn", "geoface.skin", "geoface.splat"]),
+    ("Avatars", ["geoface.avatar", "geoface.hfm", "geoface.thgs", "geoface.drive"]),
 ]
 
 

@@ -48,3 +48,15 @@ class MissingDependencyError(GeofaceError, ImportError):
 
 class GeofaceWarning(UserWarning):
     """Something was changed or could not be kept (e.g. a format that cannot store UVs)."""
+
+
+class NNError(GeofaceError):
+    """An invalid argument or input to a shared neural building block (shapes, sizes, options)."""
+
+
+class RenderError(NNError):
+    """Bad input to a renderer: meshes, colours, textures, shading, cameras."""
+
+
+class CameraError(RenderError):
+    """A camera that cannot be built (degenerate look-at, non-positive focal length...)."""

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoface.nn.camera import Camera
+from geoface.camera import Camera
 from geoface.errors import GeofaceError
 from geoface.splat.errors import SplatError
 

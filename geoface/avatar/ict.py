@@ -146,7 +146,7 @@ class ICTPerson:
     gives the same person.  :meth:`render` poses the model rigidly about the neck ``pivot``."""
 
     def __init__(self, rng, *, identity=None, res: int = 128, map_res: int = 512, supersample: int = 2):
-        from geoface.nn.camera import Camera, look_at
+        from geoface.camera import Camera, look_at
         from geoface.skin.render import ict_eyes, ict_source, random_lights, skin_maps, unweld_uv
         from geoface.avatar.capture import headset_mesh
 

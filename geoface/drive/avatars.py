@@ -186,7 +186,7 @@ def splat_turntable(gaussians, path, *, seconds: float = 6.0, fps: float = 25.0,
     (:func:`geoface.mesh.frame.points_frame`), ``elevation`` degrees above the horizon. Returns
     the frame count."""
     from geoface.mesh.frame import points_frame
-    from geoface.nn.camera import look_at
+    from geoface.camera import look_at
     from geoface.splat.rasterizer import rasterize
     from geoface.video import write_video
 

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoface.nn.camera import Camera, look_at
+from geoface.camera import Camera, look_at
 from geoface.splat.errors import SplatError
 from geoface.avatar.capture import (camera_from_json, camera_to_json, euler_rotation, headset_mesh, read_landmarks,
                                     stack_frames, write_png)

@@ -18,7 +18,7 @@ from .errors import LearnError
 
 def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, vertices: int, head_source: str = "procedural",
                           supersample: int = 1) -> None:
-    from geoface.nn.camera import look_at
+    from geoface.camera import look_at
     from geoface.synth import procedural_head
 
     from .texture import save_sample

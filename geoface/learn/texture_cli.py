@@ -55,7 +55,7 @@ def _read_camera(path):
         d = json.loads(Path(path).read_text(encoding="utf-8"))
         if "Rt" in d:
             return Camera.from_matrix(d["K"], d["Rt"])
-        return Camera(d["K"], d["R"], d["t"])
+        return Camera.from_K(d["K"], d["R"], d["t"])
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
         raise GeofaceError(f"{path}: a camera JSON needs K (3x3) and R (3x3) + t (3) or Rt (4x4) "
                            f"({type(e).__name__}: {e})") from None
@@ -136,7 +136,7 @@ def cmd_reconstruct(args) -> int:
         fit = fit_landmarks(ict, L, (W, H), focal=args.focal)
         head = fit.head(ict)
         mesh = Mesh(head.V, head.F, UV=head.UV, FUV=head.FUV)
-        cam = Camera(fit.K, fit.R, fit.t)
+        cam = Camera.from_K(fit.K, fit.R, fit.t)
         fit_msg = f"; ICT head fitted to the landmarks (RMS {fit.rms_px:.2f} px, focal {fit.focal:.0f} px)"
     elif args.mesh:
         from geoface.mesh.io import load_mesh

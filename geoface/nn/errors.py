@@ -1,18 +1,7 @@
-"""Errors of the shared building blocks (rooted at :class:`geoface.GeofaceError`)."""
+"""Errors of the shared building blocks (rooted at :class:`geoface.GeofaceError`; defined in
+:mod:`geoface.errors`, where the camera, below every consumer, raises them too)."""
 from __future__ import annotations
 
-from geoface.errors import GeofaceError
+from geoface.errors import CameraError, NNError, RenderError
 
 __all__ = ["NNError", "RenderError", "CameraError"]
-
-
-class NNError(GeofaceError):
-    """An invalid argument or input to a shared building block (shapes, sizes, options)."""
-
-
-class RenderError(NNError):
-    """Bad input to a renderer: meshes, colours, textures, shading, cameras."""
-
-
-class CameraError(RenderError):
-    """A camera that cannot be built (degenerate look-at, non-positive focal length...)."""

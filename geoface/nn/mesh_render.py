@@ -1,6 +1,6 @@
 """Ground-truth renders of coloured meshes: a small vectorised numpy z-buffer.
 
-For every pixel centre (``(j + 0.5, i + 0.5)``, the :class:`~geoface.nn.camera.Camera`
+For every pixel centre (``(j + 0.5, i + 0.5)``, the :class:`~geoface.camera.Camera`
 convention) the nearest triangle is found by enumerating the pixels of each triangle's
 bounding box (:func:`geoface.gimage.raster.bbox_pixels`, shared with the UV rasterizer and the
 projection z-buffer) and keeping, per pixel, the candidate with the smallest camera depth.
@@ -19,7 +19,7 @@ from typing import Literal
 import numpy as np
 
 from geoface.gimage.raster import bbox_pixels, sample_texture
-from geoface.nn.camera import Camera
+from geoface.camera import Camera
 from geoface.nn.errors import RenderError
 
 __all__ = ["MeshRender", "rasterize_mesh", "render_mesh"]
@@ -64,7 +64,7 @@ def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_0
     if len(F) and (F.min() < 0 or F.max() >= len(V)):
         raise RenderError(f"F indexes vertices out of range [0, {len(V)})")
     if not isinstance(camera, Camera):
-        raise RenderError(f"camera must be a geoface.nn.camera.Camera; got {type(camera).__name__}")
+        raise RenderError(f"camera must be a geoface.camera.Camera; got {type(camera).__name__}")
     H, W = camera.height, camera.width
     uv, z = camera.project(V)
     x, y, zf = uv[F, 0] - 0.5, uv[F, 1] - 0.5, z[F]  # bbox_pixels: pixel centres at integers

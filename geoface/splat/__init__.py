@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib
 
 _NAMES = {
-    "Camera": "geoface.nn.camera", "look_at": "geoface.nn.camera", "orbit": "geoface.nn.camera",
+    "Camera": "geoface.camera", "look_at": "geoface.camera", "orbit": "geoface.camera",
     "Gaussians": "gaussians", "GaussianTensors": "gaussians", "eval_sh": "gaussians",
     "covariance": "gaussians",
     "save_ply": "ply", "load_ply": "ply",

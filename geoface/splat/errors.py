@@ -9,7 +9,7 @@ __all__ = ["SplatError", "CameraError", "GaussianPlyError", "ModelFolderError"]
 
 class SplatError(RenderError):
     """Bad input to the Gaussian-splatting toolkit (shapes, files, avatar options).  Cameras and
-    mesh renders (:mod:`geoface.nn.camera`, :mod:`geoface.nn.mesh_render`) raise
+    mesh renders (:mod:`geoface.camera`, :mod:`geoface.nn.mesh_render`) raise
     :class:`geoface.nn.errors.CameraError` / ``RenderError``, of which this is a sibling."""
 
 

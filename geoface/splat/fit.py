@@ -36,7 +36,7 @@ from typing import Callable, Literal
 import numpy as np
 import torch
 
-from geoface.nn.camera import Camera, orbit
+from geoface.camera import Camera, orbit
 from geoface.splat.density import DensityConfig, DensityStrategy, make_optimizer
 from geoface.splat.errors import SplatError
 from geoface.splat.gaussians import Gaussians

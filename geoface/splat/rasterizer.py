@@ -26,7 +26,7 @@ import math
 
 import torch
 
-from geoface.nn.camera import Camera
+from geoface.camera import Camera
 from geoface.splat.errors import SplatError
 
 LOWPASS = 0.3
@@ -84,7 +84,7 @@ def _pixels(x0, x1, y0, y1, dtype, device=None):
 
 def _prepare(gaussians, camera, near):
     if not isinstance(camera, Camera):
-        raise SplatError(f"camera must be a geoface.nn.camera.Camera; got {type(camera).__name__}")
+        raise SplatError(f"camera must be a geoface.camera.Camera; got {type(camera).__name__}")
     uv, z, conic, radius = project_gaussians(gaussians.means, gaussians.covariances(), camera, near)
     colors = gaussians.rgb(camera.center)
     return uv, z, conic, radius, gaussians.opacities(), colors

@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoface.nn.camera import Camera, look_at
+from geoface.camera import Camera, look_at
 from geoface.splat.errors import SplatError
 from geoface.avatar.capture import IBUG68_NAMES, camera_from_json, stack_frames, write_png, camera_to_json, read_landmarks
 from geoface.avatar.template import Template

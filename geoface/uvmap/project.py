@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..camera import Camera
 from ..errors import GeofaceError
 from ..gimage.raster import bbox_pixels
 from ..mesh.core import bbox_diagonal
@@ -25,47 +26,6 @@ from ..mesh.io import Mesh
 from .bake import texel_geometry
 
 __all__ = ["Camera", "depth_buffer", "project_views", "ProjectionResult"]
-
-
-@dataclass(frozen=True)
-class Camera:
-    """Pinhole camera: intrinsics ``K (3, 3)``, world→camera ``R (3, 3)``, ``t (3,)`` (OpenCV)."""
-
-    K: np.ndarray
-    R: np.ndarray
-    t: np.ndarray
-
-    @classmethod
-    def from_matrix(cls, K, Rt) -> "Camera":
-        """From a 4×4 (or 3×4) world→camera matrix."""
-        Rt = np.asarray(Rt, np.float64)
-        if Rt.shape not in ((4, 4), (3, 4)):
-            raise GeofaceError(f"extrinsics must be a 3x4 or 4x4 matrix; got {Rt.shape}")
-        return cls(K, Rt[:3, :3], Rt[:3, 3])
-
-    def __post_init__(self):
-        for name, shape in (("K", (3, 3)), ("R", (3, 3)), ("t", (3,))):
-            a = np.asarray(getattr(self, name), np.float64)
-            if a.shape != shape or not np.isfinite(a).all():
-                raise GeofaceError(f"camera {name} must be a finite {shape} array; got {a.shape}")
-            object.__setattr__(self, name, a)
-        if abs(np.linalg.det(self.R) - 1.0) > 1e-6 or np.abs(self.R @ self.R.T - np.eye(3)).max() > 1e-6:
-            raise GeofaceError("camera R must be a rotation matrix (orthonormal, det +1)")
-        if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
-            raise GeofaceError("camera K must have positive focal lengths K[0,0], K[1,1]")
-
-    @property
-    def center(self) -> np.ndarray:
-        """Camera centre in world coordinates, ``-Rᵀ t``."""
-        return -self.R.T @ self.t
-
-    def project(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World points ``(k, 3)`` → pixel coordinates ``(k, 2)`` (u = column, v = row) and depth ``z (k,)``."""
-        Xc = X @ self.R.T + self.t
-        z = Xc[:, 2]
-        zs = np.where(np.abs(z) > 1e-12, z, 1e-12)
-        uvw = Xc @ self.K.T
-        return uvw[:, :2] / zs[:, None], z
 
 
 def depth_buffer(V, F, camera: Camera, shape: tuple[int, int], *, chunk: int = 2_000_000) -> np.ndarray:
@@ -148,7 +108,7 @@ def project_views(mesh: Mesh, images, cameras, size: int = 1024, *, power: float
 
     Examples
     --------
-    >>> cam = Camera(K, R, t)                                    # doctest: +SKIP
+    >>> cam = Camera.from_K(K, R, t)                             # doctest: +SKIP
     >>> res = project_views(mesh, photo, cam, 1024)             # doctest: +SKIP
     >>> seen = res.weight > 0                                    # doctest: +SKIP
     """

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from geoface.nn.camera import look_at
+from geoface.camera import look_at
 from geoface.splat.errors import SplatError
 from geoface.avatar.head_pose import (landmarks_on_mesh, poses_from_landmarks, rodrigues, rotation_vector, solve_poses,
                                      triangulate)

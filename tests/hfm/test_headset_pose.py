@@ -12,7 +12,7 @@ RES = 256
 
 
 def _camera():
-    from geoface.nn.camera import look_at
+    from geoface.camera import look_at
 
     return look_at([0.0, 0.0, 0.45], [0.0, 0.0, 0.0], width=RES, height=RES, fov_y_deg=36.0)
 

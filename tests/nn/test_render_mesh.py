@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from geoface.nn.camera import Camera, look_at
+from geoface.camera import Camera, look_at
 from geoface.nn.errors import RenderError
 from geoface.nn.mesh_render import rasterize_mesh, render_mesh
 

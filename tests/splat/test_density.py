@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from geoface.errors import GeofaceError
-from geoface.nn.camera import Camera
+from geoface.camera import Camera
 from geoface.splat.density import (PARAM_NAMES, DensityConfig, DensityStrategy, keep_gaussians,
                                    make_optimizer)
 from geoface.splat.gaussians import Gaussians

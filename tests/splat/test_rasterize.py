@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from geoface.errors import GeofaceError
-from geoface.nn.camera import Camera, look_at
+from geoface.camera import Camera, look_at
 from geoface.splat.gaussians import Gaussians, GaussianTensors
 from geoface.splat.rasterizer import ALPHA_MIN, rasterize, rasterize_reference
 

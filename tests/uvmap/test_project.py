@@ -23,7 +23,7 @@ R0 = np.diag([1.0, -1.0, -1.0])  # looking down world -z, image y = world -y
 
 
 def _camera(center):
-    return Camera(K, R0, -R0 @ np.asarray(center, float))
+    return Camera.from_K(K, R0, -R0 @ np.asarray(center, float))
 
 
 def _scene():
@@ -148,9 +148,9 @@ def test_bad_inputs_raise(scene):
     cam = _camera([0, 0, 4.0])
     img = np.zeros((20, 20, 3))
     with pytest.raises(GeofaceError, match="K"):
-        Camera(np.eye(2), np.eye(3), np.zeros(3))
+        Camera.from_K(np.eye(2), np.eye(3), np.zeros(3))
     with pytest.raises(GeofaceError, match="rotation"):
-        Camera(K, 2 * np.eye(3), np.zeros(3))
+        Camera.from_K(K, 2 * np.eye(3), np.zeros(3))
     with pytest.raises(GeofaceError, match="extrinsics"):
         Camera.from_matrix(K, np.eye(3))
     assert np.allclose(Camera.from_matrix(K, np.vstack([np.column_stack([R0, cam.t]), [0, 0, 0, 1]])).center, cam.center)

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from geoface.errors import GeofaceError
-from geoface.nn.camera import Camera, look_at, orbit
+from geoface.camera import Camera, look_at, orbit
 
 
 def test_look_at_centres_target_and_up_is_image_up():
@@ -56,3 +56,19 @@ def test_bad_cameras_raise():
         Camera(10, 10, 5, 5, 10, 10, np.diag([1, 1, -1.0]), np.zeros(3))
     with pytest.raises(GeofaceError, match="n must be"):
         orbit(0, 1.0)
+
+
+def test_one_camera_class_for_the_library():
+    """uvmap's projection, the renderers and the avatars share one pinhole camera: the class
+    from K (uvmap's OpenCV form) projects as the one from focal lengths does."""
+    import geoface.nn
+    import geoface.splat
+    import geoface.uvmap
+    from geoface.camera import Camera, look_at
+
+    assert geoface.uvmap.Camera is Camera and geoface.nn.Camera is Camera and geoface.splat.Camera is Camera
+    cam = look_at([0.3, 0.1, 2.0], [0, 0, 0], width=320, height=240, fov_y_deg=50)
+    again = Camera.from_K(cam.K, cam.R, cam.t)
+    assert (again.width, again.height) == (320, 240)
+    X = np.random.default_rng(0).normal(size=(20, 3)) * 0.3
+    assert np.allclose(again.project(X)[0], cam.project(X)[0]) and np.allclose(again.K, cam.K)

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geoface.nn.errors import CameraError
+from geoface.errors import CameraError
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,28 @@ class Camera:
         f = 0.5 * height / np.tan(np.radians(fov_y_deg) / 2)
         return cls(f, f, width / 2, height / 2, width, height, R, t)
 
+    @classmethod
+    def from_K(cls, K, R, t, width: int | None = None, height: int | None = None) -> "Camera":
+        """From an intrinsic matrix ``K (3, 3)`` (OpenCV: Xc = R X + t, +z forward, y down); the image
+        size defaults to twice the principal point."""
+        K = np.asarray(K, np.float64)
+        if K.shape != (3, 3) or not np.isfinite(K).all():
+            raise CameraError(f"camera K must be a finite (3, 3) array; got {K.shape}")
+        if abs(K[0, 1]) > 1e-9 * abs(K[0, 0]) or np.abs(K[2] - [0, 0, 1]).max() > 1e-9:
+            raise CameraError("camera K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)")
+        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+        w = int(round(2 * cx)) if width is None else int(width)
+        h = int(round(2 * cy)) if height is None else int(height)
+        return cls(fx, fy, cx, cy, max(w, 1), max(h, 1), R, t)
+
+    @classmethod
+    def from_matrix(cls, K, Rt, width: int | None = None, height: int | None = None) -> "Camera":
+        """From ``K`` and a 4×4 (or 3×4) world→camera matrix."""
+        Rt = np.asarray(Rt, np.float64)
+        if Rt.shape not in ((4, 4), (3, 4)):
+            raise CameraError(f"extrinsics must be a 3x4 or 4x4 matrix; got {Rt.shape}")
+        return cls.from_K(K, Rt[:3, :3], Rt[:3, 3], width, height)
+
     @property
     def K(self) -> np.ndarray:
         """Intrinsic matrix, (3, 3) float64."""
@@ -75,8 +97,9 @@ class Camera:
         """World points (n, 3) → (uv (n, 2) pixels, depth (n,)). Depth is camera-space z."""
         Xc = self.world_to_camera(X)
         z = Xc[:, 2]
-        u = self.fx * Xc[:, 0] / z + self.cx
-        v = self.fy * Xc[:, 1] / z + self.cy
+        zs = np.where(np.abs(z) > 1e-12, z, 1e-12) if isinstance(X, np.ndarray) else z
+        u = self.fx * Xc[:, 0] / zs + self.cx
+        v = self.fy * Xc[:, 1] / zs + self.cy
         stack = np.stack if isinstance(X, np.ndarray) else __import__("torch").stack
         return stack([u, v], 1), z
 
