@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(argv=None) -> int:
     import torch
 
-    from geoface.nn.camera import Camera
+    from geoface.camera import Camera
     from geoface.hfm import ABLATIONS, HFMConfig, evaluate_hmd, hmd_metrics, load_hfm, remove_hmd, train_hfm
     from geoface.hfm.data import load_video, make_synthetic_hmd
 

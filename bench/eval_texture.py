@@ -129,7 +129,7 @@ def run_4k(a, out: Path, model_dir: Path, fitted: dict) -> None:
     """Render one new face at ``a.size4k``², write its photo and landmarks, run the CLI on them."""
     from geoface.learn.skin_synth import make_texture_dataset
     from geoface.learn.texture import load_sample
-    from geoface.learn.texture_cli import _write_png16
+    from geoface.images import save_image
     size = a.size4k
     t = time.perf_counter()
     [path] = make_texture_dataset(out / f"face{size}", 1, size, map_res=size, seed=SEEDS["4k"], head_source="ict",
@@ -138,7 +138,7 @@ def run_4k(a, out: Path, model_dir: Path, fitted: dict) -> None:
     with np.load(path) as z:
         lm = z["landmarks"]
     photo_png, lm_json = out / f"face{size}" / "photo.png", out / f"face{size}" / "landmarks.json"
-    _write_png16(photo_png, d["photo"])
+    save_image(photo_png, d["photo"], bits=16)
     lm_json.write_text(json.dumps({"image_size": [size, size], "landmarks": lm.tolist()}))
     emit(out, stage="4k_data", size=size, seconds=round(time.perf_counter() - t, 1))
     maps_dir = out / f"maps{size}"

@@ -53,14 +53,14 @@ def hmd(a) -> "np.ndarray":
     import numpy as np
 
     from geoface.hfm.data import load_video
-    from geoface.avatar.capture import read_png
+    from geoface.images import read_image
     from geoface.hfm.train import load_hfm
 
     model = load_hfm(a.model_dir)
     video = load_video(a.data_dir)
     renders = _renders(model, video, a.poses)
     frames = [f for f in a.frames if f < len(video)]
-    gt = [read_png(Path(a.data_dir) / "gt" / f"{f:06d}.png") for f in frames]
+    gt = [read_image(Path(a.data_dir) / "gt" / f"{f:06d}.png") for f in frames]
     restored = [np.where(video.hmd_masks[f][..., None], renders[f], video.frames[f]) for f in frames]
     rows = [[video.frames[f] for f in frames], restored, gt, [renders[f] for f in frames]]
     for source in a.error_poses:

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geoface.errors import CameraError
+from geoface.rotations import look_at_rotation  # noqa: F401  (re-exported)
 
 
 @dataclass(frozen=True)
@@ -102,27 +103,6 @@ class Camera:
         v = self.fy * Xc[:, 1] / zs + self.cy
         stack = np.stack if isinstance(X, np.ndarray) else __import__("torch").stack
         return stack([u, v], 1), z
-
-
-def look_at_rotation(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """World → camera rotation for a camera at ``eye`` looking at ``target``.
-
-    The camera +z axis points from ``eye`` to ``target``; the image +y (down) axis is opposite
-    to ``up`` projected onto the image plane, so ``up`` appears at the top of the image.
-    """
-    eye, target, up = (np.asarray(a, dtype=np.float64).reshape(3) for a in (eye, target, up))
-    z = target - eye
-    nz = np.linalg.norm(z)
-    if nz < 1e-12:
-        raise CameraError("look_at: eye and target coincide")
-    z = z / nz
-    x = np.cross(-up, z)  # right = down × forward (x = y × z)
-    nx = np.linalg.norm(x)
-    if nx < 1e-9:
-        raise CameraError("look_at: up is parallel to the viewing direction")
-    x = x / nx
-    y = np.cross(z, x)
-    return np.stack([x, y, z])  # rows are camera axes in world coordinates
 
 
 def look_at(eye, target, up=(0.0, 1.0, 0.0), *, width=256, height=256, fov_y_deg=40.0) -> Camera:

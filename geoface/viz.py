@@ -66,20 +66,15 @@ def _off_screen(off_screen: bool | None, screenshot) -> bool:
 
 
 def save_png(path: str | os.PathLike, img: np.ndarray) -> Path:
-    """Write an ``(H, W, 3|4) uint8`` RGB(A) image as PNG, atomically."""
+    """Write an ``(H, W, 3|4) uint8`` RGB(A) image as PNG, atomically (:func:`geoface.images.save_image`)."""
+    from .images import save_image
+
     lazy_import("cv2", "PNG output")
     img = np.asarray(img)
     if img.dtype != np.uint8:
         raise GeofaceError(f"save_png needs a uint8 image; got {img.dtype}")
-    bgr = img[..., ::-1] if img.ndim == 3 else img
-    if img.ndim == 3 and img.shape[2] == 4:
-        bgr = img[..., [2, 1, 0, 3]]
-    path = Path(path)
-    with atomic_path(path, suffix=".png") as tmp:
-        from ._io import write_image
-
-        write_image(tmp, bgr)
-    return path
+    save_image(path, img)
+    return Path(path)
 
 
 def _check_VF(V, F):

@@ -72,3 +72,23 @@ def test_one_camera_class_for_the_library():
     assert (again.width, again.height) == (320, 240)
     X = np.random.default_rng(0).normal(size=(20, 3)) * 0.3
     assert np.allclose(again.project(X)[0], cam.project(X)[0]) and np.allclose(again.K, cam.K)
+
+
+def test_rotations_agree_with_each_other_and_scipy():
+    """geoface.rotations: Rodrigues and its inverse, yaw/pitch/roll, quaternions (w first) and
+    look-at agree with scipy's Rotation and with each other on random rotations."""
+    from scipy.spatial.transform import Rotation
+
+    from geoface.rotations import euler_rotation, look_at_rotation, rodrigues, rotation_vector, rotmat_to_quat
+
+    rng = np.random.default_rng(3)
+    for w in rng.normal(size=(20, 3)) * 1.2:
+        R = rodrigues(w)
+        assert np.allclose(R, Rotation.from_rotvec(w).as_matrix(), atol=1e-12)
+        assert np.allclose(rodrigues(rotation_vector(R)), R, atol=1e-10)
+        q = rotmat_to_quat(R[None])[0]
+        assert q[0] >= 0 and np.allclose(np.abs(q), np.abs(Rotation.from_matrix(R).as_quat()[[3, 0, 1, 2]]), atol=1e-10)
+    yaw, pitch, roll = 0.4, -0.2, 0.1
+    assert np.allclose(euler_rotation(yaw, pitch, roll), Rotation.from_euler("YXZ", [yaw, pitch, roll]).as_matrix())
+    R = look_at_rotation([0, 0, 3.0], [0, 0, 0])
+    assert np.allclose(R @ [0, 0, -1.0], [0, 0, 1.0]) and np.allclose(R @ [0, 1.0, 0], [0, -1.0, 0])  # forward +z, up is -y

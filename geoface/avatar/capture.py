@@ -16,16 +16,16 @@ Each avatar adds files of its own (:mod:`geoface.hfm.data`, :mod:`geoface.thgs.d
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 
 from geoface.camera import Camera
-from geoface.errors import GeofaceError
 from geoface.splat.errors import SplatError
+from geoface.images import read_image, save_image
+from geoface.rotations import euler_rotation  # noqa: F401  (re-exported)
 
-__all__ = ["IBUG68_NAMES", "IBUG68_LOWER", "IBUG68_RIGID", "read_png", "write_png", "write_frame", "stack_frames",
+__all__ = ["IBUG68_NAMES", "IBUG68_LOWER", "IBUG68_RIGID", "write_frame", "stack_frames",
            "camera_from_json", "camera_to_json", "read_landmarks", "euler_rotation", "headset_mesh"]
 
 
@@ -57,7 +57,7 @@ IBUG68_RIGID = (0, 1, 2, 14, 15, 16, 27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39,
 def stack_frames(paths, rgb=True) -> np.ndarray:
     """The images of ``paths`` as one array; images of different sizes (or channel counts) are a
     one-line SplatError naming the first that differs."""
-    imgs = [read_png(p, rgb) for p in paths]
+    imgs = [read_image(p, "rgb" if rgb else "gray") for p in paths]
     for p, a in zip(paths, imgs):
         if a.shape != imgs[0].shape:
             raise SplatError(f"{p}: {a.shape[1]}×{a.shape[0]}, but {Path(paths[0]).name} is "
@@ -65,47 +65,10 @@ def stack_frames(paths, rgb=True) -> np.ndarray:
     return np.stack(imgs)
 
 
-def read_png(path: Path, rgb=True) -> np.ndarray:
-    import cv2
-
-    from geoface._io import image_size
-
-    try:
-        image_size(path)
-    except (GeofaceError, OSError) as e:
-        raise SplatError(f"{path}: {e}") from None
-    a = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if a is None:
-        raise SplatError(f"{path}: not a readable image")
-    scale = 65535.0 if a.dtype == np.uint16 else 255.0
-    a = a.astype(np.float32) / scale
-    if rgb:
-        if a.ndim == 2:
-            a = np.repeat(a[..., None], 3, -1)
-        a = a[..., :3][..., ::-1]  # BGR -> RGB
-    elif a.ndim == 3:
-        a = a[..., 0]
-    return np.ascontiguousarray(a)
-
-
-def write_png(path: Path, img) -> None:
-    a = np.asarray(img)
-    if a.dtype != np.uint8:
-        a = (np.clip(a, 0, 1) * 255 + 0.5).astype(np.uint8)
-    if a.ndim == 3:
-        a = a[..., ::-1]
-    from geoface._io import write_image
-
-    write_image(path, a)
-
-
 def write_frame(folder, t: int, img) -> Path:
     """``folder/frames/{t:06d}.png``, written under a temporary name and renamed (never partial)."""
-    from geoface._io import atomic_path
-
     path = Path(folder) / "frames" / f"{t:06d}.png"
-    with atomic_path(path) as tmp:
-        write_png(tmp, img)
+    save_image(path, img)  # atomic: never partial
     return path
 
 
@@ -161,15 +124,6 @@ def read_landmarks(path, n_frames: int) -> tuple[np.ndarray, list]:
     if not np.isfinite(pts).all():
         raise SplatError(f"{path}: non-finite landmarks")
     return pts, names
-
-
-def euler_rotation(yaw, pitch, roll) -> np.ndarray:
-    cy, sy, cp, sp, cr, sr = (math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch),
-                              math.cos(roll), math.sin(roll))
-    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    Rx = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
-    Rz = np.array([[cr, -sr, 0], [sr, cr, 0], [0, 0, 1]])
-    return Ry @ Rx @ Rz
 
 
 def headset_mesh(y_split: float, front_z: float, width: float = 0.19, height: float = 0.075,

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from geoface.splat.errors import SplatError
+from geoface.rotations import rodrigues, rotation_vector  # noqa: F401  (re-exported)
 
 __all__ = ["landmarks_on_mesh", "solve_poses", "triangulate", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
            "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "calibration_scores", "expression_reach",
@@ -41,24 +42,6 @@ LOWER_STABLE_NAMES = ("nose_tip", "nose_base_1", "nose_base_2", "nose_base_3", "
 #: which a frown pulls; no third jaw points, which the mouth moves)
 STABLE_NAMES = ("jaw_00", "jaw_01", "jaw_15", "jaw_16", "nose_bridge_1", "nose_bridge_2", "nose_tip", "nose_base_2",
                 "eye_right_0", "eye_right_3", "eye_left_0", "eye_left_3")
-
-
-def rodrigues(w) -> np.ndarray:
-    """Rotation matrix of the axis-angle vector ``w`` (radians)."""
-    w = np.asarray(w, np.float64)
-    a = float(np.linalg.norm(w))
-    if a < 1e-12:
-        return np.eye(3)
-    k = w / a
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
-
-
-def rotation_vector(R) -> np.ndarray:
-    """Axis-angle vector of a rotation matrix (inverse of :func:`rodrigues`)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(np.asarray(R, np.float64)).as_rotvec()
 
 
 def landmarks_on_mesh(V, F, camera, points2d) -> tuple[np.ndarray, np.ndarray]:

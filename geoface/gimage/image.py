@@ -221,30 +221,24 @@ def import_cv2():
 
 def _write_png16(path: Path, rgb: np.ndarray) -> None:
     import_cv2()  # a clear message when OpenCV is missing
-    q = np.round(np.clip(rgb, 0.0, 1.0) * Q).astype(np.uint16)
-    from .._io import write_image
+    from ..images import save_image
 
-    write_image(path, q[:, :, ::-1])
+    save_image(path, np.clip(rgb, 0.0, 1.0), bits=16, atomic=False)  # round(v * Q), Q = 65535
 
 
 def read_png(path: Path, expect: int | None = None) -> np.ndarray:
-    from .._io import image_size
+    """The file's own integers (RGB order, alpha dropped); a one-line InvalidGeometryImageError
+    when it is missing, not a PNG, or not ``expect`` pixels square."""
+    from ..images import read_image
 
-    cv2 = import_cv2()
+    import_cv2()
     if not path.is_file():
         raise InvalidGeometryImageError(f"missing {path.name} in {path.parent}")
     try:
-        size = image_size(path)
+        img = read_image(path, "any", as_float=False, expect_size=None if expect is None else (expect, expect))
     except GeofaceError as e:
-        raise InvalidGeometryImageError(str(e)) from None
-    if expect is not None and size is not None and size != (expect, expect):
-        raise InvalidGeometryImageError(f"{path.name} must be {expect}x{expect}; its header says {size[0]}x{size[1]}")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InvalidGeometryImageError(f"{path} is not a readable PNG")
-    if img.ndim == 3:
-        img = img[:, :, ::-1][:, :, -3:] if img.shape[2] >= 3 else img
-    return img
+        raise InvalidGeometryImageError(str(e).replace("not a readable image", "not a readable PNG")) from None
+    return img[..., :3] if img.ndim == 3 else img
 
 
 def save_gimage(folder: str | os.PathLike, gi: GeometryImage, *, overwrite: bool = True) -> Path:

@@ -37,8 +37,9 @@ import numpy as np
 
 from geoface.camera import Camera, look_at
 from geoface.splat.errors import SplatError
+from geoface.images import save_image
 from geoface.avatar.capture import (camera_from_json, camera_to_json, euler_rotation, headset_mesh, read_landmarks,
-                                    stack_frames, write_png)
+                                    stack_frames)
 
 __all__ = ["HMDVideo", "load_video", "lower_face_box", "crop_lower_face", "make_synthetic_hmd", "LOWER_FACE_LANDMARKS", "UPPER_EXPRESSIONS", "expressions_from_drivers", "frame_input"]
 
@@ -293,8 +294,8 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
                            "yaw_pitch_roll_deg": np.degrees([yaw[t], pitch[t], roll[t]]).tolist(),
                            "translation": trans[t].tolist()})
         if which == "registration":
-            write_png(d / "frames" / name, r.rgb * r.alpha[..., None])
-            write_png(d / "masks" / name, (r.alpha > 0.5).astype(np.uint8) * 255)
+            save_image(d / "frames" / name, r.rgb * r.alpha[..., None])
+            save_image(d / "masks" / name, (r.alpha > 0.5).astype(np.uint8) * 255)
         else:
             VV = np.concatenate([V, pose(hV)])
             FF = np.concatenate([head.F, hF + len(V)])
@@ -302,13 +303,13 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
             ro = render_mesh(VV, FF, cam, CC, supersample=supersample)
             hmd = render_mesh(VV, FF, cam, np.concatenate([np.zeros((len(V), 3)), np.ones((len(hV), 3))]),
                               supersample=supersample).rgb[..., 0]
-            write_png(d / "frames" / name, ro.rgb * ro.alpha[..., None])
-            write_png(d / "masks" / name, (ro.alpha > 0.5).astype(np.uint8) * 255)
-            write_png(d / "hmd_masks" / name, (hmd > 0.5).astype(np.uint8) * 255)
-            write_png(d / "gt" / name, r.rgb * r.alpha[..., None])
+            save_image(d / "frames" / name, ro.rgb * ro.alpha[..., None])
+            save_image(d / "masks" / name, (ro.alpha > 0.5).astype(np.uint8) * 255)
+            save_image(d / "hmd_masks" / name, (hmd > 0.5).astype(np.uint8) * 255)
+            save_image(d / "gt" / name, r.rgb * r.alpha[..., None])
             rest = model.mesh({**exprs[t], **{k: 0.0 for k in UPPER_EXPRESSIONS}})
             rs = render_mesh(pose(rest.V), rest.F, cam, rest.colors, supersample=supersample)
-            write_png(d / "gt_static_upper" / name, rs.rgb * rs.alpha[..., None])
+            save_image(d / "gt_static_upper" / name, rs.rgb * rs.alpha[..., None])
     from geoface.mesh.io import save_mesh
 
     for which, d in dirs.items():

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from geoface.splat.errors import SplatError
+from geoface.images import save_image
 from geoface.avatar.ict import ICTPerson, arkit_curves, head_motion, is_upper_blendshape
 
 __all__ = ["make_ict_hmd"]
@@ -54,7 +55,7 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
     range of motion, :func:`arkit_curves`; 0: none, the expressions are free throughout)."""
     from geoface.mesh.io import save_mesh
     from geoface.progress import progress
-    from geoface.avatar.capture import IBUG68_NAMES, IBUG68_LOWER, euler_rotation, write_png, camera_to_json
+    from geoface.avatar.capture import IBUG68_NAMES, IBUG68_LOWER, euler_rotation, camera_to_json
 
     usage_frames = max(5, frames // 4) if usage_frames is None else int(usage_frames)
     if frames < 5 or usage_frames < 1:
@@ -98,15 +99,15 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
         poses[which][1].append(tr[k])
         log[which].append({"frame": k, "expression": {n: round(v, 4) for n, v in exprs[k].items() if v > 1e-4},
                            "yaw_pitch_roll_deg": np.degrees(ang[k]).tolist(), "translation": tr[k].tolist()})
-        write_png(d / "frames" / name, rgb)
-        write_png(d / "masks" / name, (alpha > 0.5).astype(np.uint8) * 255)
+        save_image(d / "frames" / name, rgb)
+        save_image(d / "masks" / name, (alpha > 0.5).astype(np.uint8) * 255)
         if which == "usage":
-            write_png(d / "hmd_masks" / name, hmd.astype(np.uint8) * 255)
+            save_image(d / "hmd_masks" / name, hmd.astype(np.uint8) * 255)
             _, g, _, _ = render(exprs[k], R, tr[k], False)
-            write_png(d / "gt" / name, g)
+            save_image(d / "gt" / name, g)
             still = {n: (0.0 if is_upper_blendshape(n) else v) for n, v in exprs[k].items()}
             _, g, _, _ = render(still, R, tr[k], False)
-            write_png(d / "gt_static_upper" / name, g)
+            save_image(d / "gt_static_upper" / name, g)
     for which, d in dirs.items():
         names = list(IBUG68_NAMES) if which == "registration" else [IBUG68_NAMES[i] for i in lower_idx]
         (d / "landmarks.json").write_text(json.dumps({"names": names, "points": lm_pts[which]}))

@@ -13,6 +13,7 @@ import numpy as np
 
 from geoface.errors import GeofaceError
 from geoface._args import SEED, number, output_option
+from geoface.images import save_image
 
 __all__ = ["register"]
 
@@ -24,29 +25,13 @@ def _quiet(args):
 
 
 def _read_photo(path) -> np.ndarray:
-    import cv2
-    p = Path(path)
-    if not p.is_file():
-        raise GeofaceError(f"{p}: no such file")
-    from geoface._io import image_size
+    """An RGB photo as float32 in [0, 1]; a grey or unreadable file is a one-line error."""
+    from geoface.images import read_image
 
-    image_size(p)  # a forged header claiming 60000^2 is refused before decoding
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-    if img is None or img.ndim != 3 or img.shape[2] < 3:
-        raise GeofaceError(f"{p} is not a readable RGB image")
-    img = img[:, :, :3][:, :, ::-1]
-    scale = 65535.0 if img.dtype == np.uint16 else 255.0
-    return img.astype(np.float32) / scale
-
-
-def _write_png16(path: Path, img: np.ndarray) -> None:
-    """[H, W, 1 or 3] in [0, 1] → 16-bit PNG, written under a temporary name then renamed."""
-    q = np.round(np.clip(img, 0, 1) * 65535).astype(np.uint16)
-    q = q[:, :, 0] if q.shape[2] == 1 else np.ascontiguousarray(q[:, :, ::-1])
-    from .._io import atomic_path, write_image
-
-    with atomic_path(path, suffix=".png") as tmp:
-        write_image(tmp, q)
+    img = read_image(path, "any")  # (a forged header claiming 60000^2 is refused before decoding)
+    if img.ndim != 3 or img.shape[2] < 3:
+        raise GeofaceError(f"{path} is not a readable RGB image")
+    return np.ascontiguousarray(img[..., :3])
 
 
 def _read_camera(path):
@@ -164,7 +149,7 @@ def cmd_reconstruct(args) -> int:
     out = Path(args.output)  # only now: a failure above leaves no partial output
     out.mkdir(parents=True, exist_ok=True)
     for name, img in images.items():
-        _write_png16(out / f"{name}.png", img)
+        save_image(out / f"{name}.png", img, bits=16)
     print(msg)
     return 0
 

@@ -13,19 +13,11 @@ from geoface._args import SEED, number
 __all__ = ["register", "cmd_splat_fit"]
 
 
-def _save_png(path: Path, img) -> None:
-    import numpy as np
-    from PIL import Image
-
-    from geoface._io import atomic_path
-
-    with atomic_path(path) as tmp:
-        Image.fromarray(np.round(np.clip(img, 0, 1) * 255).astype(np.uint8)).save(tmp, format="PNG")
-
-
 def write_renders(folder, pairs) -> list[Path]:
     """Save held-out (ground truth | fit) pairs side by side as ``heldout_XX.png``."""
     import numpy as np
+
+    from geoface.images import save_image
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -33,7 +25,7 @@ def write_renders(folder, pairs) -> list[Path]:
     for k, (gt, fit) in enumerate(pairs):
         gap = np.ones((gt.shape[0], 2, 3))
         p = folder / f"heldout_{k:02d}.png"
-        _save_png(p, np.concatenate([gt, gap, fit], 1))
+        save_image(p, np.concatenate([gt, gap, fit], 1))
         out.append(p)
     return out
 

@@ -10,6 +10,7 @@ import torch
 from torch import Tensor, nn
 
 from geoface.splat.errors import SplatError
+from geoface.rotations import rotmat_to_quat  # noqa: F401  (re-exported)
 
 # standard 3DGS real spherical-harmonics constants (degrees 0..3)
 SH_C0 = 0.28209479177387814
@@ -64,33 +65,6 @@ def rotmat_to_quat_torch(R: Tensor) -> Tensor:  # [N, 3, 3] proper rotations -> 
     q = torch.gather(cand, 1, k[:, None, None].expand(-1, 1, 4))[:, 0]
     q = q * torch.where(q[:, :1] < 0, -1.0, 1.0)  # w >= 0
     return q / q.norm(dim=-1, keepdim=True)
-
-
-def rotmat_to_quat(R: np.ndarray) -> np.ndarray:  # [N, 3, 3] -> [N, 4] (w, x, y, z), w >= 0
-    """Quaternions from proper rotation matrices (Shepperd's method, numerically robust)."""
-    R = np.asarray(R, dtype=np.float64)
-    tr = np.trace(R, axis1=1, axis2=2)
-    cand = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], 1)
-    k = np.argmax(cand, 1)
-    q = np.empty((len(R), 4))
-    for i in range(4):  # four branches, each vectorised over its rows
-        m = k == i
-        r = R[m]
-        if i == 0:
-            s = np.sqrt(1 + tr[m]) * 2
-            q[m] = np.stack([s / 4, (r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s,
-                             (r[:, 1, 0] - r[:, 0, 1]) / s], 1)
-        else:
-            a, b, c = i - 1, i % 3, (i + 1) % 3
-            s = np.sqrt(1 + r[:, a, a] - r[:, b, b] - r[:, c, c]) * 2
-            v = np.empty((m.sum(), 4))
-            v[:, 0] = (r[:, c, b] - r[:, b, c]) / s
-            v[:, 1 + a] = s / 4
-            v[:, 1 + b] = (r[:, b, a] + r[:, a, b]) / s
-            v[:, 1 + c] = (r[:, c, a] + r[:, a, c]) / s
-            q[m] = v
-    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
 def covariance(log_scales: Tensor, quats: Tensor) -> Tensor:  # [N,3], [N,4] -> [N,3,3]

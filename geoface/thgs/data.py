@@ -40,7 +40,8 @@ import numpy as np
 
 from geoface.camera import Camera, look_at
 from geoface.splat.errors import SplatError
-from geoface.avatar.capture import IBUG68_NAMES, camera_from_json, stack_frames, write_png, camera_to_json, read_landmarks
+from geoface.images import save_image
+from geoface.avatar.capture import IBUG68_NAMES, camera_from_json, stack_frames, camera_to_json, read_landmarks
 from geoface.avatar.template import Template
 
 __all__ = ["TalkingData", "load_talking", "load_tracked", "make_synthetic_talking", "speech_like",
@@ -247,7 +248,7 @@ def make_synthetic_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res:
         M = torch.einsum("nj,jab->nab", Wv, A).numpy()
         V = (M[:, :3, :3] @ head.V[..., None])[..., 0] + M[:, :3, 3]
         r = render_mesh(V, head.F, cam, head.colors, supersample=supersample)
-        write_png(out / "frames" / f"{k:06d}.png", r.rgb * r.alpha[..., None])
+        save_image(out / "frames" / f"{k:06d}.png", r.rgb * r.alpha[..., None])
         mouth_open_px.append(float(jaw_open[k]))
     # the tracker measures neither the jaw nor the lips' pucker: the audio's
     np.savez(out / "poses.npz", rot=rot, transl=transl, expr=expr, tracked_joints=np.arange(J) != tpl.jaw,

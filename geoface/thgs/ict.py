@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from geoface.splat.errors import SplatError
+from geoface.images import save_image
 from geoface.avatar.capture import IBUG68_NAMES
 
 __all__ = ["ict_template", "make_ict_talking", "perturb_capture", "is_mouth_blendshape", "JOINT_NAMES"]
@@ -237,7 +238,7 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
     from scipy.spatial.transform import Rotation
 
     from geoface.progress import progress
-    from geoface.avatar.capture import euler_rotation, write_png, camera_to_json
+    from geoface.avatar.capture import euler_rotation, camera_to_json
     from geoface.avatar.ict import ICTPerson, head_motion, arkit_curves
     from geoface.thgs.data import speech_like
 
@@ -273,7 +274,7 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
         gap_px.append(float(np.linalg.norm(np.subtract(*person.cam.project(V[lips])[0]))))  # … as the camera sees it
         uv = person.cam.project(V[person.rest.landmarks])[0] + noise.normal(0, LANDMARK_NOISE_PX, (68, 2))
         marks.append(np.round(uv, 3).tolist())  # what a face tracker's landmark detector gives
-        write_png(out / "frames" / f"{k:06d}.png", rgb * (alpha[..., None] > 0.5))
+        save_image(out / "frames" / f"{k:06d}.png", rgb * (alpha[..., None] > 0.5))
         rot[k, 0] = Rotation.from_matrix(R).as_rotvec()  # rigid about the root = the neck pivot
         transl[k] = tr[k]
         expr[k] = [0.0 if is_mouth_blendshape(n) else curves[k].get(n, 0.0) for n in names]
