@@ -17,7 +17,7 @@ from geoface.images import save_image
 
 __all__ = ["register"]
 
-MAP_FILES = {"albedo": 3, "micronormal": 3, "specular": 1}
+from .texture_uv import MAP_CHANNELS as MAP_FILES  # noqa: E402  (argparse only: texture_uv imports no torch)
 
 
 def _quiet(args):
@@ -35,7 +35,8 @@ def _read_photo(path) -> np.ndarray:
 
 
 def _read_camera(path):
-    from geoface.uvmap.project import Camera
+    from geoface.camera import Camera
+
     try:
         d = json.loads(Path(path).read_text(encoding="utf-8"))
         if "Rt" in d:
@@ -98,54 +99,47 @@ def cmd_train(args) -> int:
 
 
 def cmd_reconstruct(args) -> int:
-    from .texture import TextureModel, reconstruct
+    from .texture import TextureModel
+    from .texture_uv import reconstruct_textures
+
     if (args.mesh is None) != (args.camera is None):
         raise GeofaceError("--mesh and --camera go together (the camera that took the photo of that mesh)")
     if args.landmarks and args.mesh:
         raise GeofaceError("--landmarks fits the ICT head and its camera to the photo; it replaces --mesh and --camera")
     photo = _read_photo(args.photo)
     model = TextureModel.load(args.model)
-    mesh = cam = None
-    fit_msg = ""
+    mesh = cam = L = None
     if args.landmarks:
-        from geoface.mesh.io import Mesh
-        from geoface.synth.ict import load_ict_model
-        from geoface.synth.ict_fit import fit_landmarks, load_landmarks
-        from geoface.uvmap.project import Camera
+        from geoface.synth.ict_fit import load_landmarks
 
         L, size = load_landmarks(args.landmarks)
         H, W = photo.shape[:2]
         if size is not None and tuple(size) != (W, H):
             raise GeofaceError(f"{args.landmarks} was written for a {size[0]}x{size[1]} image; {args.photo} is {W}x{H}")
-        ict = load_ict_model()
-        fit = fit_landmarks(ict, L, (W, H), focal=args.focal)
-        head = fit.head(ict)
-        mesh = Mesh(head.V, head.F, UV=head.UV, FUV=head.FUV)
-        cam = Camera.from_K(fit.K, fit.R, fit.t)
-        fit_msg = f"; ICT head fitted to the landmarks (RMS {fit.rms_px:.2f} px, focal {fit.focal:.0f} px)"
     elif args.mesh:
         from geoface.mesh.io import load_mesh
+
         mesh = load_mesh(args.mesh)
         if mesh.UV is None:
             raise GeofaceError(f"{args.mesh} has no UVs to project the maps into")
         cam = _read_camera(args.camera)
-    maps = reconstruct(model, photo, k=args.k, refine=not args.no_refine)
+    try:
+        rec = reconstruct_textures(model, photo, mesh=mesh, camera=cam, landmarks=L, focal=args.focal,
+                                   uv_size=args.uv_size, k=args.k, refine=not args.no_refine)
+    except GeofaceError as e:
+        if "sees none" in str(e):
+            raise GeofaceError(f"the camera sees none of the mesh (check {args.camera or args.landmarks})") from None
+        raise
     images = {}
     for name in (*MAP_FILES, "uv", "normal"):
-        img = maps[name]
+        img = rec.maps[name]
         images[name] = np.concatenate([img, np.zeros_like(img[:, :, :1])], 2) if img.shape[2] == 2 else img
+    images.update({f"uv_{name}": img for name, img in rec.uv_maps.items()})
     msg = f"{args.output}: albedo, micronormal, specular ({photo.shape[0]}²)"
-    if mesh is not None:
-        from geoface.uvmap.inpaint import inpaint
-        from geoface.uvmap.project import project_views
-        for name, c in MAP_FILES.items():
-            img = maps[name] if c == 3 else np.repeat(maps[name], 3, 2)
-            res = project_views(mesh, [img.astype(np.float64)], [cam], size=args.uv_size)
-            if not (res.weight > 0).any():
-                raise GeofaceError(f"the camera sees none of the mesh (check {args.camera or args.landmarks})")
-            tex = inpaint(res.texture, res.weight > 0)
-            images[f"uv_{name}"] = tex if c == 3 else tex[:, :, :1]
-        msg += f"; UV maps {args.uv_size}² (seen by the camera: {float((res.weight > 0).mean()):.0%} of texels)" + fit_msg
+    if rec.uv_maps:
+        msg += f"; UV maps {args.uv_size}² (seen by the camera: {rec.coverage:.0%} of texels)"
+    if rec.fit is not None:
+        msg += f"; ICT head fitted to the landmarks (RMS {rec.fit.rms_px:.2f} px, focal {rec.fit.focal:.0f} px)"
     out = Path(args.output)  # only now: a failure above leaves no partial output
     out.mkdir(parents=True, exist_ok=True)
     for name, img in images.items():

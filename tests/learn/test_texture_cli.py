@@ -65,6 +65,17 @@ def test_synth_train_reconstruct_end_to_end(tmp_path, capsys):
     assert main(["texture", "reconstruct", str(tmp_path / "photo.png"), "--model", str(model), "--landmarks",
                  str(tmp_path / "lm2.json"), "-o", str(tmp_path / "out5"), "-q"]) == 2
     assert "written for a 128x64 image" in capsys.readouterr().err
+    # the same as one library call: what the command wrote is what reconstruct_textures returns
+    from geoface.camera import Camera
+    from geoface.images import read_image
+    from geoface.learn import TextureModel, reconstruct_textures
+    from geoface.mesh.io import load_mesh
+
+    cam = {"K": [[60, 0, 32], [0, 60, 32], [0, 0, 1]], "R": np.diag([1.0, -1.0, -1.0]), "t": [0, 0, 2]}
+    rec = reconstruct_textures(TextureModel.load(model), read_image(tmp_path / "photo.png"), mesh=load_mesh(tmp_path / "plane.obj"),
+                               camera=Camera.from_K(cam["K"], cam["R"], cam["t"]), uv_size=64)
+    assert 0 < rec.coverage <= 1 and rec.fit is None and set(rec.uv_maps) == {"albedo", "micronormal", "specular"}
+    assert np.abs(rec.uv_maps["albedo"] - read_image(out / "uv_albedo.png")).max() < 1e-3
 
 
 @pytest.mark.parametrize("argv,msg", [
