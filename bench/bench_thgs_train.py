@@ -22,7 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(argv=None) -> int:
     import torch
 
-    from geoface.thgs.model import PAPER_STAGES, THGSConfig, train_thgs
+    from geoface.thgs.model import PAPER_STAGES, THGSConfig
+    from geoface.thgs.train import train_thgs
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("data_dir")

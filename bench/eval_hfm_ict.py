@@ -226,7 +226,8 @@ def _registration(reg_dir, model, model_dir=None):
     (training corrected them), else fitted to the landmarks as training fits them."""
     from geoface.mesh.io import load_mesh
     from geoface.hfm.data import load_video
-    from geoface.hfm.train import load_registration_poses, registration_poses
+    from geoface.hfm.io import load_registration_poses
+    from geoface.hfm.train import registration_poses
 
     reg = load_video(reg_dir, need_mesh=True)
     saved = load_registration_poses(model_dir, len(reg)) if model_dir is not None else None

@@ -38,7 +38,9 @@ VARIANTS = {"full": {}, "no_leb": {"use_leb": False}, "no_saam": {"use_saam": Fa
 def main(argv=None) -> int:
     import torch
 
-    from geoface.thgs.model import PAPER_STAGES, THGSConfig, load_thgs, train_thgs
+    from geoface.thgs.model import PAPER_STAGES, THGSConfig
+    from geoface.thgs.inference import load_thgs
+    from geoface.thgs.train import train_thgs
     from geoface.thgs.eval import evaluate_thgs
     from geoface.thgs.data import load_talking, make_synthetic_talking
 

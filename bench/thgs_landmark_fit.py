@@ -26,7 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(argv=None) -> int:
     import torch
 
-    from geoface.thgs.model import THGSConfig, THGSModel, train_heldout_split
+    from geoface.thgs.model import THGSConfig, THGSModel
+    from geoface.thgs.train import train_heldout_split
     from geoface.thgs.data import load_talking, mouth_landmark_targets
     from geoface.thgs.eval import true_lip_gaps_px
     from geoface.thgs.prefit import posed_points

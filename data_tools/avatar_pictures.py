@@ -54,7 +54,7 @@ def hmd(a) -> "np.ndarray":
 
     from geoface.hfm.data import load_video
     from geoface.images import read_image
-    from geoface.hfm.train import load_hfm
+    from geoface.hfm.io import load_hfm
 
     model = load_hfm(a.model_dir)
     video = load_video(a.data_dir)
@@ -73,7 +73,8 @@ def hmd(a) -> "np.ndarray":
 def talk(a) -> "np.ndarray":
     import numpy as np
 
-    from geoface.thgs.model import train_heldout_split, load_thgs, render_frames
+    from geoface.thgs.train import train_heldout_split
+    from geoface.thgs.inference import load_thgs, render_frames
     from geoface.thgs.eval import _mouth_rect, mouth_openness
     from geoface.thgs.data import load_talking
 

@@ -174,7 +174,7 @@ print(f"{len(back.means)} Gaussians, {(WORK / 'head_gs.ply').stat().st_size / 1e
 tracked poses that leave the jaw to the audio). `train_thgs` fits the avatar: LBS with a voxel
 skinning grid, learnable expression blendshapes, and the spatial audio attention module that moves
 the mouth with the sound. `animate` drives it from the audio alone."""),
-    new_code_cell("""from geoface.thgs.model import animate, load_thgs, train_thgs, THGSConfig
+    new_code_cell("""from geoface.thgs import animate, load_thgs, train_thgs, THGSConfig
 from geoface.thgs.eval import evaluate_thgs
 from geoface.thgs.data import load_talking, make_synthetic_talking
 

@@ -67,7 +67,7 @@ def avatar_drive(model_dir, source, *, fps: float = 25.0, model=None) -> AvatarD
     """Load the avatar in ``model_dir`` (or use ``model``) and what drives it (``source``)."""
     kind = avatar_kind(model_dir)
     if source is None and kind == "thgs":  # the rest pose, silent, neutral: one frame
-        from geoface.thgs.model import load_thgs
+        from geoface.thgs.inference import load_thgs
 
         m = model or load_thgs(model_dir)
         J, K = len(m.template.joints), m.template.n_expr
@@ -79,10 +79,10 @@ def avatar_drive(model_dir, source, *, fps: float = 25.0, model=None) -> AvatarD
     if not source.exists():
         raise SplatError(f"{source}: no such file or folder to drive the avatar")
     if kind == "thgs":
-        from geoface.thgs.model import load_thgs
+        from geoface.thgs.inference import load_thgs
 
         return _thgs_drive(model or load_thgs(model_dir), source, fps)
-    from geoface.hfm.train import load_hfm
+    from geoface.hfm.io import load_hfm
 
     return _hfm_drive(model or load_hfm(model_dir), source)
 

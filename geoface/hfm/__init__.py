@@ -18,10 +18,10 @@ __getattr__, __dir__, __all__ = lazy_exports("geoface.hfm", {
     "load_video": "data", "lower_face_box": "data", "make_synthetic_hmd": "data",
     "fit_headset": "headset_pose", "headset_centroids": "headset_pose", "headset_components": "headset_pose",
     "headset_poses": "headset_pose", "refine_with_headset": "headset_pose",
-    "ABLATIONS": "model", "HFMConfig": "model", "HFMModel": "model", "select_keys": "model",
+    "ABLATIONS": "config", "HFMConfig": "config", "HFMModel": "model", "select_keys": "model",
     "ImageEncoder": "blocks", "SegregationStrategy": "blocks", "boundary_loss": "blocks",
     "farthest_point_sampling": "blocks", "inverse_distance_weights": "blocks",
-    "VGGPerceptual": "train", "build_model": "train", "load_hfm": "train", "save_hfm": "train", "train_hfm": "train",
+    "VGGPerceptual": "train", "build_model": "train", "load_hfm": "io", "save_hfm": "io", "train_hfm": "train",
     "evaluate_hmd": "usage", "expression_coverage": "usage", "expression_motion": "usage", "hmd_metrics": "usage",
     "remove_hmd": "usage", "make_ict_hmd": "ict", "WeightAverage": "geoface.nn.average",
 })

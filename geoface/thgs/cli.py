@@ -58,7 +58,8 @@ def cmd_talk_synth(args) -> int:
 
 
 def cmd_talk_train(args) -> int:
-    from geoface.thgs.model import THGSConfig, train_thgs
+    from geoface.thgs.model import THGSConfig
+    from geoface.thgs.train import train_thgs
 
     out = Path(args.output)
     cfg = THGSConfig(iters=args.iters, stage_scale=args.stage_scale, use_leb=not args.no_leb,
@@ -78,7 +79,7 @@ def cmd_talk_train(args) -> int:
 
 
 def cmd_talk_animate(args) -> int:
-    from geoface.thgs.model import animate, load_thgs
+    from geoface.thgs.inference import animate, load_thgs
 
     if args.output is None and args.video is None:
         raise GeofaceError("say where the animation goes: -o OUT_DIR (PNG frames) and/or --video OUT.mp4")
@@ -103,7 +104,7 @@ def cmd_talk_animate(args) -> int:
 
 
 def cmd_talk_eval(args) -> int:
-    from geoface.thgs.model import load_thgs
+    from geoface.thgs.inference import load_thgs
     from geoface.thgs.eval import evaluate_thgs
     from geoface.thgs.data import load_talking
 

@@ -16,7 +16,9 @@ import torch
 
 from geoface.splat.errors import SplatError
 from geoface.avatar.kinematics import joint_transforms
-from geoface.thgs.model import THGSModel, train_heldout_split, lbs, render_frames
+from geoface.thgs.model import THGSModel, lbs
+from geoface.thgs.train import train_heldout_split
+from geoface.thgs.inference import render_frames
 
 __all__ = ["evaluate_thgs", "mouth_openness", "head_pose_errors", "corrected_poses", "lip_gaps", "lip_points",
            "true_lip_gaps_px"]

@@ -1,4 +1,4 @@
-"""THGS building blocks: forward LBS with voxel skinning, learnable expression blendshapes, and the
+"""The THGS model: forward LBS with voxel skinning, learnable expression blendshapes, and the
 Spatial Audio Attention Module (Chen et al., "THGS: talking human avatars with Gaussian splatting").
 
 * :func:`joint_transforms` (eq. 4–5): per joint the world transform G_j(θ) · G_j(0)⁻¹ of the
@@ -27,159 +27,35 @@ Spatial Audio Attention Module (Chen et al., "THGS: talking human avatars with G
 """
 from __future__ import annotations
 
-import json
-import time
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 import torch
-import torch.nn.functional as Fnn
 from torch import Tensor, nn
 
 from geoface.mesh.core import vertex_normals
 from geoface.splat.errors import SplatError
-from geoface.avatar.corrections import FrameCorrections
 from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat, rotmat_to_quat_torch
-from geoface.avatar.kinematics import axis_angle_to_matrix, joint_transforms, skin_points
+from geoface.avatar.kinematics import axis_angle_to_matrix, joint_transforms
+from geoface.thgs.blocks import AudioArticulation, ExpressionBlendshapes, SpatialAudioAttention, VoxelSkinning, lbs, mouth_gaussians
 
 __all__ = ["axis_angle_to_matrix", "joint_transforms", "VoxelSkinning", "lbs", "rotmat_to_quat_torch",
            "ExpressionBlendshapes", "SpatialAudioAttention", "AudioArticulation", "ExternalAttention", "mouth_gaussians",
            "THGSConfig", "THGSModel", "train_thgs", "save_thgs", "load_thgs", "render_frames", "animate"]
 
 
-class VoxelSkinning(nn.Module):
-    """Skinning weights in a ``res``³ grid over the template's bounding box (module doc)."""
-
-    def __init__(self, V, weights, res: int = 64, k: int = 4, pad: float = 0.1, learn_offsets: bool = True):
-        super().__init__()
-        from scipy.spatial import cKDTree
-
-        V = np.asarray(V, np.float64)
-        W = np.asarray(weights, np.float64)
-        lo, hi = V.min(0), V.max(0)
-        ext = hi - lo
-        lo, hi = lo - pad * ext, hi + pad * ext
-        g = [np.linspace(lo[i], hi[i], res) for i in range(3)]
-        P = np.stack(np.meshgrid(*g, indexing="ij"), -1).reshape(-1, 3)
-        d, j = cKDTree(V).query(P, k=k)
-        d, j = d.reshape(len(P), k), j.reshape(len(P), k)
-        w = 1.0 / (d + 1e-9)
-        G = (W[j] * w[..., None]).sum(1) / w.sum(1, keepdims=True)
-        self.res = res
-        self.register_buffer("lo", torch.tensor(lo, dtype=torch.float32))
-        self.register_buffer("hi", torch.tensor(hi, dtype=torch.float32))
-        grid = torch.tensor(G.reshape(res, res, res, -1), dtype=torch.float32).permute(3, 0, 1, 2)
-        self.register_buffer("grid", grid.contiguous())  # [J, R, R, R] (x, y, z)
-        self.offsets = nn.Parameter(torch.zeros_like(grid)) if learn_offsets else None
-
-    def forward(self, X: Tensor) -> Tensor:  # [N, 3] -> [N, J]
-        u = (X - self.lo) / (self.hi - self.lo) * 2 - 1  # grid_sample: x ↔ last dim (z here)
-        G = self.grid if self.offsets is None else Fnn.relu(self.grid + self.offsets)
-        s = Fnn.grid_sample(G[None], u.flip(-1)[None, :, None, None], mode="bilinear", padding_mode="border",
-                            align_corners=True)[0, :, :, 0, 0].T
-        return s / s.sum(1, keepdim=True).clamp_min(1e-12)
 
 
-def lbs(X: Tensor, quats: Tensor, W: Tensor, A: Tensor) -> tuple[Tensor, Tensor]:
-    """Posed means and quaternions: x' = Σ w_j A_j x, q' = normalise(Σ w_j q_j) ⊗ q."""
-    Xp = skin_points(X, W, A)
-    qj = rotmat_to_quat_torch(A[:, :3, :3])
-    qj = qj * torch.where(qj[:, :1] < 0, -1.0, 1.0)  # one hemisphere
-    qb = W.to(qj.dtype) @ qj
-    return Xp, quat_mul(qb / qb.norm(dim=-1, keepdim=True), quats / quats.norm(dim=-1, keepdim=True))
 
 
-class ExpressionBlendshapes(nn.Module):
-    """LEB: Ê = E + ΔE ∘ M_H (eq. 8–9)."""
-
-    def __init__(self, basis, head_mask):
-        super().__init__()
-        self.register_buffer("E", torch.as_tensor(np.asarray(basis), dtype=torch.float32))
-        self.register_buffer("mask", torch.as_tensor(np.asarray(head_mask), dtype=torch.float32)[None, :, None])
-        self.delta = nn.Parameter(torch.zeros_like(self.E))
-
-    def basis(self) -> Tensor:
-        return self.E + self.delta * self.mask
-
-    def forward(self, psi: Tensor, learned: bool = True) -> Tensor:  # [K] -> [n, 3]
-        B = self.basis() if learned else self.E
-        return torch.einsum("k,knc->nc", psi, B)
-
-    def penalty(self) -> Tensor:
-        return ((self.delta * self.mask) ** 2).sum(-1).mean()
 
 
-def mouth_gaussians(X, box, margin: float = 0.02) -> Tensor:
-    """Bool [N]: inside the mouth/teeth box grown by ``margin`` (THGS: teeth bbox + 0.02)."""
-    box = box.to(X) if torch.is_tensor(box) else torch.as_tensor(np.asarray(box), dtype=X.dtype, device=X.device)
-    return ((X >= box[0] - margin) & (X <= box[1] + margin)).all(-1)
 
 
-class ExternalAttention(nn.Module):
-    """External attention (Guo et al. 2021): A = double-norm(F M_kᵀ), out = A M_v, residual."""
-
-    def __init__(self, dim: int, memory: int = 64):
-        super().__init__()
-        self.mk = nn.Linear(dim, memory, bias=False)
-        self.mv = nn.Linear(memory, dim, bias=False)
-
-    def forward(self, F: Tensor) -> Tensor:  # [N, dim]
-        a = torch.softmax(self.mk(F), dim=0)  # normalise over the tokens ...
-        a = a / (a.sum(-1, keepdim=True) + 1e-9)  # ... then over the memory slots
-        return F + self.mv(a)
 
 
-class SpatialAudioAttention(nn.Module):
-    """SAAM (module doc): mouth Gaussians' Δμ, Δr, Δs from their position and the audio."""
-
-    def __init__(self, box, audio_dim: int, *, margin: float = 0.02, hidden: int = 64, audio_hidden: int = 32,
-                 levels: int = 8, features: int = 2, log2_table: int = 12, memory: int = 64, seed: int = 0):
-        super().__init__()
-        from geoface.nn.hashenc import TriPlaneHashEncoding
-
-        lo = np.asarray(box, np.float64)[0] - margin
-        hi = np.asarray(box, np.float64)[1] + margin
-        self.margin = margin
-        self.register_buffer("box", torch.tensor(np.stack([lo + margin, hi - margin]), dtype=torch.float32))
-        self.enc = TriPlaneHashEncoding((lo, hi), levels=levels, features=features, log2_table=log2_table,
-                                        max_res=128, seed=seed)
-        self.audio = nn.Sequential(nn.Linear(audio_dim, audio_hidden), nn.ReLU(), nn.Linear(audio_hidden, audio_hidden))
-        d = self.enc.out_dim + audio_hidden
-        self.attn = ExternalAttention(d, memory)
-        layers = [nn.Linear(d, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
-                  nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 10)]
-        nn.init.zeros_(layers[-1].weight)
-        nn.init.zeros_(layers[-1].bias)
-        self.mlp = nn.Sequential(*layers)
-
-    def _g(self, e: Tensor, a: Tensor) -> Tensor:
-        h = torch.cat([e, self.audio(a).expand(len(e), -1)], -1)
-        return self.mlp(self.attn(h))
-
-    def forward(self, X: Tensor, audio: Tensor) -> Tensor:  # [M, 3] mouth Gaussians, [D] -> [M, 10]
-        e = self.enc(X)
-        return self._g(e, audio[None]) - self._g(e, torch.zeros_like(audio)[None])
 
 
-class AudioArticulation(nn.Module):
-    """What the tracker does not measure (the jaw, the mouth's blendshapes) from the frame's
-    audio: an MLP of the normalised audio features → joint rotations [J, 3] and expression
-    weights [K], relative to silence (f(a) − f(0)) and with its last layer zero at start.  The
-    model applies it to the untracked DOFs only, so the template's own jaw and lips open the
-    mouth (SAAM then refines the mouth Gaussians)."""
-
-    def __init__(self, audio_dim: int, n_joints: int, n_expr: int, hidden: int = 64):
-        super().__init__()
-        self.J = n_joints
-        self.mlp = nn.Sequential(nn.Linear(audio_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
-                                 nn.Linear(hidden, n_joints * 3 + n_expr))
-        nn.init.zeros_(self.mlp[-1].weight)
-        nn.init.zeros_(self.mlp[-1].bias)
-
-    def forward(self, audio: Tensor) -> tuple[Tensor, Tensor]:  # [..., D] -> ([..., J, 3], [..., K])
-        o = self.mlp(audio) - self.mlp(torch.zeros_like(audio))
-        return o[..., : self.J * 3].unflatten(-1, (self.J, 3)), o[..., self.J * 3:]
 
 
 # ============================================================================ the avatar
@@ -344,203 +220,14 @@ class THGSModel(nn.Module):
         return ((g.means - self.V0[g.parent]) ** 2).sum(-1).mean()
 
 
-def train_heldout_split(n: int, heldout: float):
-    k = max(1, int(round(n * (1 - heldout)))) if heldout > 0 else n
-    return np.arange(k), np.arange(k, n)
 
 
-def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=None, log=print,
-               device: str = "cpu") -> dict:
-    """Fit a THGS avatar to a talking data folder (first 1 − heldout of the frames).  ``device``:
-    "cpu" or "cuda" (the gsplat rasteriser when installed, else the torch one on the GPU); the
-    saved model is the same either way."""
-    from geoface.nn.config import resolve_device
-    from geoface.nn.losses import dssim
-    from geoface.progress import progress as bar
-    from geoface.splat.density import make_optimizer
-    from geoface.splat.rasterizer import rasterize
-    from geoface.thgs.data import landmark_loss, load_talking, mouth_landmark_targets
-    from geoface.thgs.prefit import prefit_training
-
-    cfg = cfg or THGSConfig()
-    if cfg.threads:
-        torch.set_num_threads(int(cfg.threads))
-    torch.manual_seed(cfg.seed)
-    rng = np.random.default_rng(cfg.seed)
-    data = load_talking(data_dir)
-    tr, _ = train_heldout_split(len(data), cfg.heldout)
-    model = THGSModel(data.template, cfg, data.audio.shape[1], len(data))
-    A = model.audio_input(data.audio)
-    model.audio_ref.copy_(torch.quantile(A[tr], 0.02, dim=0))
-    model.audio_scale.copy_(A[tr].std(0).clamp_min(1e-3))
-    model.tracked_joints.copy_(torch.as_tensor(data.tracked_joints))
-    model.tracked_expr.copy_(torch.as_tensor(data.tracked_expr))
-    dev = resolve_device(device, SplatError) or "cpu"
-    model.to(dev)
-    A = A.to(dev)
-    g = model.gaussians
-    ext = float(np.ptp(data.template.V, 0).max())
-    opt = make_optimizer(g, {"means": cfg.lr_means * ext, "log_scales": 5e-3, "quats": 1e-3,
-                             "opacity_logits": 2.5e-2, "colors": 1e-2}, eps=1e-15)
-    opt.add_param_group({"params": [model.skin.offsets], "lr": cfg.lr_nets * 0.1, "name": "skin"})
-    # what the tracker did not measure (a jaw, lips left to the audio) gets no per-frame correction:
-    # one would fit each training frame's mouth and leave the audio module nothing to learn;
-    # translation corrections in metres: the rotation's step times the head's size
-    frame_opt = FrameCorrections([(model.d_rot, cfg.lr_pose, torch.tensor(data.tracked_joints)[:, None]),
-                                  (model.d_transl, cfg.lr_pose * ext),
-                                  (model.d_expr, cfg.lr_pose, torch.tensor(data.tracked_expr))])
-    opt.add_param_group({"params": [model.leb.delta], "lr": cfg.lr_nets * 0.01, "name": "leb"})
-    if model.saam is not None:
-        opt.add_param_group({"params": list(model.saam.parameters()), "lr": cfg.lr_nets, "name": "saam"})
-    if model.artic is not None:
-        opt.add_param_group({"params": list(model.artic.parameters()), "lr": cfg.lr_nets, "name": "artic"})
-    imgs = torch.tensor(data.frames, device=dev)
-    lmk = mouth_landmark_targets(data) if cfg.lambda_landmarks > 0 else None
-    if lmk is not None:  # the Gaussian bound to each landmark's vertex
-        lmk = ([int(i[0]) for i in model.gaussians_of(lmk[0])], lmk[1])
-    stages = cfg.stages()
-    history, order = [], []
-    bg = torch.zeros(3, device=dev)
-    t0 = time.perf_counter()
-    steps = range(cfg.iters)
-    if not callable(progress):
-        steps = bar(steps, "training THGS", total=cfg.iters, quiet=None if progress is None else not progress)
-    prefit = None
-    for it in steps:
-        model.stage = sum(it >= s for s in stages)
-        if model.stage >= 2 and prefit is None:
-            prefit = prefit_training(model, data, tr, A, lmk) if cfg.artic_prefit else {}
-        if not order:
-            order = list(rng.permutation(tr))
-        f = int(order.pop())
-        gd = model(data.rot[f], data.transl[f], data.expr[f], A[f], frame=f)
-        rgb = rasterize(gd, data.camera, background=bg)[0]
-        gt = imgs[f]
-        l1 = (rgb - gt).abs().mean()
-        loss = (1 - cfg.lambda_dssim) * l1 + cfg.lambda_dssim * dssim(rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])
-        loss = loss + cfg.lambda_vertex * model.vertex_loss() / ext**2
-        lm = (cfg.lambda_landmarks * landmark_loss(gd.means[lmk[0]], data.camera, lmk[1][f])
-              if lmk is not None and model.stage >= 2 else None)
-        if lm is not None and cfg.landmarks_pose:
-            loss, lm = loss + lm, None
-        if model.stage >= 3:
-            if cfg.use_leb:
-                loss = loss + cfg.lambda_leb * model.leb.penalty() / ext**2
-            loss = loss + cfg.lambda_normal * model.normal_loss()
-        if lm is not None:  # the landmark term's gradient reaches the networks, not the pose corrections
-            lm.backward(retain_graph=True)
-            frame_opt.zero_grad()
-        loss.backward()
-        loss = loss if lm is None else loss + lm.detach()
-        for grp in opt.param_groups:  # staged schedule: parts not yet switched on keep still
-            name = grp["name"]
-            on = {"skin": model.stage >= 1, "leb": model.stage >= 3 and cfg.use_leb,
-                  "saam": model.stage >= 4, "artic": model.stage >= 2}.get(name, True)
-            if not on:
-                for p in grp["params"]:
-                    p.grad = None
-        opt.step()
-        opt.zero_grad(set_to_none=True)
-        if model.stage >= 1:  # pose corrections from the first stage (expression ones act from the second)
-            frame_opt.step(f, cfg.pose_decay ** -((it - stages[0]) / max(cfg.iters - 1 - stages[0], 1)))
-        frame_opt.zero_grad()
-        history.append({"step": it, "loss": float(loss.detach()), "l1": float(l1.detach()), "stage": model.stage})
-        if callable(progress) and (it % 50 == 0 or it == cfg.iters - 1):
-            progress(it, history[-1])
-    save_thgs(model.cpu(), out_dir)
-    from geoface.avatar.capture import camera_to_json
-    (Path(out_dir) / "camera.json").write_text(json.dumps(camera_to_json(data.camera)))
-    return {"seconds": time.perf_counter() - t0, "history": history, "stages": stages, "n_gaussians": len(g),
-            "artic_prefit": prefit or {}}
 
 
-def save_thgs(model: THGSModel, out_dir) -> None:
-    from geoface.avatar.model_dir import write_model_dir
-
-    out = write_model_dir(out_dir, model, {"format": "geoface-thgs", "version": 1, "config": asdict(model.cfg),
-                                           "audio_dim": int(model.audio_dim),
-                                           "n_frames": int(model.d_rot.shape[0])})
-    model.template.save(out / "template.npz")
 
 
-def load_thgs(model_dir) -> THGSModel:
-    from geoface.avatar.model_dir import load_model_state, read_model_config
-    from geoface.avatar.template import Template
-
-    from geoface.splat.errors import ModelFolderError
-
-    d, meta = read_model_config(model_dir, "geoface-thgs", "THGS")
-    cfg = THGSConfig.from_dict(meta["config"], where=f"{d}/config.json")
-    for key in ("audio_dim", "n_frames"):
-        if isinstance(meta.get(key), bool) or not isinstance(meta.get(key), int) or meta[key] < 0:
-            raise ModelFolderError(f"{d}/config.json: {key} must be a non-negative integer; got {meta.get(key)!r}")
-    sd = load_model_state(d / "model.safetensors")
-    tpl = Template.load(d / "template.npz")
-    try:
-        g = Gaussians(sd["gaussians.means"], sd["gaussians.log_scales"], sd["gaussians.quats"],
-                      sd["gaussians.opacity_logits"], sd["gaussians.colors"], sd["gaussians.parent"])
-        model = THGSModel(tpl, cfg, int(meta["audio_dim"]), int(meta["n_frames"]), g)
-        sd.setdefault("d_transl", torch.zeros_like(model.d_transl))  # saved before translation corrections
-        sd.setdefault("tracked_joints", model.tracked_joints)  # ... and before the tracked masks
-        sd.setdefault("tracked_expr", model.tracked_expr)
-        model.load_state_dict(sd, strict=True)
-    except (KeyError, RuntimeError) as e:
-        raise SplatError(f"{d}: weights do not match config.json ({str(e).splitlines()[0][:160]})") from None
-    model.eval()
-    model._dir = str(d)
-    return model
 
 
-@torch.no_grad()
-def render_frames(model: THGSModel, camera, rot, transl, expr, audio, frames=None):
-    """Render poses (and audio features) → ([T, H, W, 3] float32, per-frame seconds)."""
-    from geoface.splat.rasterizer import rasterize
-
-    out, times = [], []
-    bg = torch.zeros(3)
-    idx = range(len(rot)) if frames is None else frames
-    audio = None if audio is None else model.audio_input(audio)
-    for t in idx:
-        t0 = time.perf_counter()
-        gd = model(rot[t], transl[t], expr[t], None if audio is None else audio[t])
-        out.append(rasterize(gd, camera, background=bg)[0].clamp(0, 1).numpy())
-        times.append(time.perf_counter() - t0)
-    return np.stack(out), np.asarray(times)
 
 
-def animate(model: THGSModel, audio_path, out_dir=None, *, poses=None, fps: float = 25.0, camera=None):
-    """Drive the avatar by speech (a WAV, or a .npy/.npz of per-frame features) and optional poses
-    (.npz with rot/transl/expr; default: the rest pose, neutral expression). Writes
-    ``out_dir/frames/*.png`` when given; returns (frames [T, H, W, 3], per-frame seconds)."""
-    from geoface.avatar.audio import audio_features, read_wav
-    from geoface.avatar.capture import camera_from_json, write_frame
-    from geoface.thgs.data import load_poses
-
-    p = Path(audio_path)
-    if p.suffix.lower() == ".wav":
-        x, sr = read_wav(p)
-        T = max(1, int(len(x) / sr * fps))
-    else:
-        T = None
-    J, K = len(model.template.joints), model.template.n_expr
-    if poses is not None:
-        rot, transl, expr = load_poses(poses, J, K)
-        T = len(rot) if T is None else min(T, len(rot))
-    elif T is None:
-        raise SplatError("with precomputed audio features give --poses (they fix the frame count)")
-    A = audio_features(p, T, fps)
-    if A.shape[1] != model.audio_dim:
-        raise SplatError(f"{p}: {A.shape[1]} audio features per frame; the model was trained on {model.audio_dim}")
-    if poses is None:
-        rot, transl, expr = np.zeros((T, J, 3)), np.zeros((T, 3)), np.zeros((T, K))
-    if camera is None:
-        cam_path = Path(getattr(model, "_dir", "")) / "camera.json"
-        if not cam_path.is_file():
-            raise SplatError("no camera: the model folder has no camera.json")
-        camera = camera_from_json(cam_path)
-    frames, times = render_frames(model, camera, rot[:T], transl[:T], expr[:T], A)
-    if out_dir is not None:
-        for t, img in enumerate(frames):
-            write_frame(out_dir, t, img)
-    return frames, times
 

@@ -626,7 +626,7 @@ def test_pose_corrections_learned_with_the_image_undo_tracking_errors(ict_captur
 def test_training_corrects_the_landmark_poses_saves_them_and_calibrates_to_them(ict_capture, tmp_path):
     from geoface.mesh.io import load_mesh
     from geoface.hfm import HFMConfig, load_hfm, train_hfm
-    from geoface.hfm.train import load_registration_poses
+    from geoface.hfm.io import load_registration_poses
 
     reg, _ = ict_capture
     cfg = HFMConfig(iters=40, warmup=0.2, densify=False, seed=0, n_keys=64, crop=64, pose_refine=True, lr_pose=4e-3)

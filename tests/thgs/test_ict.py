@@ -159,7 +159,8 @@ def test_cli_talk_synth_ict_with_perturbed_tracking_trains_and_reports_pose_erro
                  "--perturb", "3,5", "-q"]) == 0
     assert "off by 3° / 5 mm" in capsys.readouterr().out
     assert main(["talk", "train", str(d), "-o", str(tmp_path / "m"), "--iters", "3", "--heldout", "0.2", "-q"]) == 0
-    from geoface.thgs.model import THGSConfig, load_thgs
+    from geoface.thgs.model import THGSConfig
+    from geoface.thgs.inference import load_thgs
     from geoface.thgs.cli import THGS_AUDIO_WINDOW, THGS_LANDMARK_WEIGHT, THGS_LR_POSE, THGS_POSE_DECAY
 
     assert THGS_LANDMARK_WEIGHT == THGSConfig().lambda_landmarks == load_thgs(tmp_path / "m").cfg.lambda_landmarks
@@ -233,7 +234,9 @@ def test_mouth_landmarks_teach_the_audio_to_open_the_jaw(tmp_path):
     """Trained with the capture's mouth landmarks, the audio articulation opens the jaw as the
     true jaw opens (r > 0.5 over the frames), by a tenth of the true range or more within 150
     steps (without them it stays within a hundredth of a degree on the 12 s capture of the docs)."""
-    from geoface.thgs.model import THGSConfig, load_thgs, train_thgs
+    from geoface.thgs.model import THGSConfig
+    from geoface.thgs.inference import load_thgs
+    from geoface.thgs.train import train_thgs
     from geoface.thgs.data import load_talking
 
     d = make_ict_talking(tmp_path / "talk", seconds=2.5, res=40, n_vertices=1200, map_res=128, supersample=1,
@@ -255,7 +258,9 @@ def test_landmark_term_can_leave_the_pose_corrections_alone(tmp_path):
     """By default (``landmarks_pose=False``) a training step moves the drawn frame's pose
     corrections exactly as it does without the landmark term, while the landmark term still
     reaches the networks; with ``landmarks_pose=True`` it moves the corrections too."""
-    from geoface.thgs.model import THGSConfig, load_thgs, train_thgs
+    from geoface.thgs.model import THGSConfig
+    from geoface.thgs.inference import load_thgs
+    from geoface.thgs.train import train_thgs
 
     d = make_ict_talking(tmp_path / "talk", seconds=1.0, res=32, n_vertices=1200, map_res=128, supersample=1,
                          seed=3, quiet=True)

@@ -8,7 +8,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from geoface.avatar.kinematics import joint_transforms  # noqa: E402
-from geoface.thgs.model import AudioArticulation, THGSConfig, THGSModel, train_heldout_split  # noqa: E402
+from geoface.thgs.model import AudioArticulation, THGSConfig, THGSModel  # noqa: E402
+from geoface.thgs.train import train_heldout_split  # noqa: E402
 from geoface.thgs.data import load_talking, mouth_landmark_targets  # noqa: E402
 from geoface.thgs.ict import make_ict_talking  # noqa: E402
 from geoface.thgs.prefit import posed_points, prefit_articulation, prefit_training  # noqa: E402
@@ -134,7 +135,8 @@ def test_prefit_on_the_capture_opens_the_lips_with_the_person(capture):
 
 
 def test_training_runs_the_prefit_once_and_the_evaluation_reports_the_image_gap(capture, tmp_path):
-    from geoface.thgs.model import load_thgs, train_thgs
+    from geoface.thgs.inference import load_thgs
+    from geoface.thgs.train import train_thgs
     from geoface.thgs.eval import evaluate_thgs, true_lip_gaps_px
 
     d, data = capture

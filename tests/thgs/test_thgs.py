@@ -12,8 +12,9 @@ import torch
 from geoface.avatar.audio import audio_features, envelope, log_mel
 from geoface.splat.errors import SplatError
 from geoface.avatar.template import Template, load_smplx, procedural_template
-from geoface.thgs.model import (AudioArticulation, ExpressionBlendshapes, SpatialAudioAttention, THGSConfig, THGSModel,
-                                VoxelSkinning, axis_angle_to_matrix, joint_transforms, lbs, load_thgs, train_thgs)
+from geoface.thgs.model import AudioArticulation, ExpressionBlendshapes, SpatialAudioAttention, THGSConfig, THGSModel, VoxelSkinning, axis_angle_to_matrix, joint_transforms, lbs
+from geoface.thgs.inference import load_thgs
+from geoface.thgs.train import train_thgs
 from geoface.thgs.eval import evaluate_thgs, mouth_openness
 
 
@@ -437,7 +438,7 @@ def test_audio_context_stacks_the_neighbouring_frames_and_repeats_the_ends():
 def test_audio_window_trains_saves_and_drives_with_the_neighbouring_frames(talk_dir, tmp_path):
     """With ``audio_window`` the networks read 2 W + 1 frames of features; the folder keeps the
     per-frame count, so the same WAV or features drive it, and a frame's neighbours change it."""
-    from geoface.thgs.model import render_frames
+    from geoface.thgs.inference import render_frames
     from geoface.thgs.data import load_talking
 
     cfg = THGSConfig(iters=30, stage_scale=0.0004, audio_window=2)
