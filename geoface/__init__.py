@@ -37,7 +37,7 @@ _VERBS = {
     "Mesh": "geoface.mesh", "load_mesh": "geoface.mesh", "save_mesh": "geoface.mesh",
     "make_disk": "geoface.repair", "surface_from_points": "geoface.repair",
     "ricci_flow_rectangle": "geoface.param.ricci", "RicciFlowSolver": "geoface.param.ricci",
-    "measure_preserving_map": "geoface.param.measure",
+    "measure_preserving_map": "geoface.param.measure", "MeasurePreservingSolver": "geoface.param.measure",
     "geometry_image": "geoface.gimage", "load_gimage": "geoface.gimage", "save_gimage": "geoface.gimage",
     "reconstruct": "geoface.gimage",
     "convert": "geoface.pipeline", "ConvertOptions": "geoface.pipeline",

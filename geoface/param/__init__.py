@@ -17,7 +17,7 @@ __getattr__, __dir__, __all__ = lazy_exports("geoface.param", {
     "RicciFlowSolver": "ricci", "RicciFlowResult": "ricci", "ricci_flow_rectangle": "ricci",
     "corner_sets": "corners", "default_corners": "corners", "boundary_arclength": "corners",
     # measure-preserving: optimal transport, power diagrams, the fold-free map
-    "measure_preserving_map": "measure", "MeasureMapResult": "measure", "area_error": "measure",
+    "measure_preserving_map": "measure", "MeasurePreservingSolver": "measure", "MeasureMapResult": "measure", "area_error": "measure",
     "semi_discrete_ot": "ot", "OTResult": "ot", "power_diagram": "power", "PowerDiagram": "power",
     "convex_combination_map": "foldfree", "FoldFreeResult": "foldfree",
     "area_balanced_map": "balance", "BalancedMap": "balance",

@@ -53,10 +53,10 @@ DIRECT_STALL = 4
 #: solves started again from the centroids the last one reached, when it stopped short
 MAX_RESTARTS = 4
 
-__all__ = ["MeasureMapResult", "measure_preserving_map", "signed_uv_areas", "area_error"]
+__all__ = ["MeasureMapResult", "MeasurePreservingSolver", "measure_preserving_map", "signed_uv_areas", "area_error"]
 
 
-@dataclass
+@dataclass(frozen=True)
 class MeasureMapResult:
     """Result of :func:`measure_preserving_map`.
 
@@ -125,6 +125,150 @@ def area_error(F: np.ndarray, uv: np.ndarray, nu: np.ndarray) -> float:
     return float(np.mean(np.abs(np.log(np.maximum(va, 1e-300) / nu))))
 
 
+class MeasurePreservingSolver:
+    """Measure-preserving maps of one disk ``(V, F)``: the mesh is checked and its vertex areas
+    and boundary found once; :meth:`solve` maps any starting ``uv`` (several corner sets, several
+    ``lam``). A solve from the same ``uv`` as the last one starts OT from the heights that solve
+    reached (a warm start: a sweep of ``lam`` or ``roi`` on one map).
+
+    >>> from geoface.synth import square_grid
+    >>> V, F = square_grid(6)
+    >>> uv = V[:, :2] - V[:, :2].min(0); uv /= uv.max(0)
+    >>> solver = MeasurePreservingSolver(V, F)
+    >>> solver.solve(uv).converged and solver.solve(uv, lam=2.0, roi=V[:, 0] < 0.5).converged
+    True
+    """
+
+    def __init__(self, V, F, *, tol: float = 1e-3, fold_free: bool = True, linear_solver: str = "auto",
+                 backend: str = "auto", quiet: bool | None = None):
+        V, F = check_mesh(V, F)
+        n = len(V)
+        va = vertex_areas(V, F)
+        used = np.zeros(n, bool)
+        used[F.ravel()] = True
+        if not used.all():
+            raise ParameterizationError(f"{int((~used).sum())} vertices are not used by any face")
+        if (va <= 0).any() or not np.isfinite(va).all():
+            # a vertex only in flat triangles still needs a cell: a tiny mass, not a failure
+            floor = 1e-6 * float(np.median(va[va > 0])) if (va > 0).any() else 1.0
+            log(f"  measure-preserving map: {int((va <= 0).sum())} vertices lie only in flat triangles; "
+                f"they get a mass of {floor:.3g}", quiet=quiet, detail=True)
+            va = np.where(np.isfinite(va) & (va > 0), va, floor)
+        loops = boundary_loops(F)
+        self.V, self.F, self.vertex_areas = V, F, va
+        self.boundary = np.concatenate(loops) if loops else np.zeros(0, np.int64)
+        self.tol, self.fold_free, self.linear_solver, self.backend, self.quiet = tol, fold_free, linear_solver, backend, quiet
+        self._warm: tuple | None = None  # (uv, heights) of the last solve from the starting map
+        self.warm_started = False  # whether the last solve started from the previous heights
+
+    def masses(self, roi=None, lam: float = 2.5) -> np.ndarray:
+        """The target masses ``ν_i = λ_i · (vertex area)``: ``lam`` on ``roi``, 1 elsewhere."""
+        n = len(self.V)
+        if not (np.isfinite(lam) and lam > 0):
+            raise ParameterizationError(f"lam must be positive; got {lam}")
+        weight = np.ones(n)
+        if roi is not None:
+            roi = np.asarray(roi)
+            if roi.shape != (n,):
+                raise ParameterizationError(f"roi must be a ({n},) vertex mask; got shape {roi.shape}")
+            weight = np.where(roi.astype(bool), float(lam), 1.0)
+        return weight * self.vertex_areas
+
+    def solve(self, uv, *, roi=None, lam: float = 2.5, h0=None) -> "MeasureMapResult":
+        """The measure-preserving map from ``uv`` (see :func:`measure_preserving_map`)."""
+        V, F, quiet, tol = self.V, self.F, self.quiet, self.tol
+        fold_free, linear_solver, backend = self.fold_free, self.linear_solver, self.backend
+        t0 = time.perf_counter()
+        uv = np.asarray(uv, np.float64)
+        n = len(V)
+        if uv.shape != (n, 2) or not np.isfinite(uv).all():
+            raise ParameterizationError(f"uv must be a finite ({n}, 2) array")
+        if uv.min() < -1e-9 or uv.max() > 1 + 1e-9:
+            raise ParameterizationError("uv must lie in the unit square (use RicciFlowResult.unit_square())")
+        nu = self.masses(roi, lam)
+        roi = None if roi is None else np.asarray(roi)
+        self.warm_started = False
+        if h0 is None and self._warm is not None and np.array_equal(self._warm[0], uv):
+            h0, self.warm_started = self._warm[1], True
+        bnd = self.boundary
+        sides = square_sides(uv[bnd])
+        if len(bnd) and not sides.any(1).all():
+            raise ParameterizationError("the starting map does not put every boundary vertex on the square's sides")
+        orient = 1.0 if signed_uv_areas(F, uv).sum() >= 0 else -1.0
+        attempts: list = []
+
+        def attempt(sites_uv, label, **kw):
+            t = time.perf_counter()
+            try:
+                r = semi_discrete_ot(sites_uv, nu, tol=tol, h0=h0 if label == "conformal" else None, linear_solver=linear_solver,
+                                     backend=backend, partial=True, quiet=quiet, **kw)
+            except ParameterizationError as e:  # no start at all (cells empty even after merging sites)
+                attempts.append({"sites": label, "converged": False, "error": str(e), "seconds": time.perf_counter() - t})
+                return None
+            attempts.append({"sites": label, "converged": bool(r.converged), "residual": float(r.residual),
+                             "iterations": int(r.iterations), "halvings": int(r.halvings), "stages": int(r.stages),
+                             "gradient_steps": int(r.gradient_steps), "error": r.failure or None,
+                             "seconds": time.perf_counter() - t})
+            return r
+
+        ot = attempt(uv, "conformal", stall=DIRECT_STALL)
+        best = (ot, uv, "conformal") if ot is not None else None
+        bal = None
+        restarts = 0
+        if ot is None or not ot.converged:
+            # crowded sites: move them to an area-balanced embedding first (the normal path for
+            # conformal factors spanning many orders of magnitude, not an error)
+            bal = area_balanced_map(F, uv, nu)
+            log(f"  measure-preserving map: OT sites from an area-balanced embedding (worst log area ratio "
+                f"{bal.start_max_log_ratio:.1f} -> {bal.max_log_ratio:.1f} in {bal.best_round} rounds)", quiet=quiet, detail=True)
+            cur = bal.uv
+            for k in range(MAX_RESTARTS + 1):
+                r = attempt(cur, "balanced" if k == 0 else f"balanced, moved {k}x", max_iterations=600)
+                if r is not None and (best is None or r.residual < best[0].residual):
+                    best, restarts = (r, cur, "balanced"), k
+                if r is None or r.converged or k == MAX_RESTARTS:
+                    break
+                # start again from the map the solve reached: its centroids, made fold-free, are
+                # sites whose cells are closer to their masses than the last ones'
+                try:
+                    cur = convex_combination_map(F, _snap(r.centroid, bnd, sides), cur).uv
+                except ParameterizationError:
+                    break
+        ot, sites_uv, sites = best if best is not None else (None, uv, "conformal")
+        if ot is not None and ot.merged:
+            import warnings
+
+            from ..errors import GeofaceWarning
+
+            warnings.warn(f"{ot.merged} vertices lie on top of each other in the map; they share a cell (and a centroid; "
+                          "the fold-free step separates them)", GeofaceWarning, stacklevel=2)
+        result = None
+        if ot is not None:
+            result = _from_centroids(F, ot, bnd, sides, orient, sites_uv, fold_free, quiet)
+        if bal is not None and (result is None or not ot.converged):
+            # OT did not reach tol from any sites: the balanced embedding if it is closer
+            bal_res = _max_rel_area_error(F, bal.uv, nu)
+            if result is None or bal_res < ot.residual:
+                result = (bal.uv, 0, 0, None, area_error(F, bal.uv, nu), area_error(F, bal.uv, nu))
+                ot, sites = None, "balanced"
+        new, flipped_before, flipped_after, ff, err_before, err_after = result
+        residual = float(ot.residual) if ot is not None else _max_rel_area_error(F, new, nu)
+        if residual > tol:
+            log(f"  measure-preserving map: reached max relative area error {residual:.3g} (tolerance {tol:g})", quiet=quiet, detail=True)
+        share = None
+        if roi is not None:
+            fa = np.abs(signed_uv_areas(F, new))
+            in_roi = roi.astype(bool)[F].all(1)
+            share = float(fa[in_roi].sum() / fa.sum())
+        if ot is not None and sites == "conformal":
+            self._warm = (uv.copy(), np.asarray(ot.h, np.float64).copy())
+        return MeasureMapResult(
+            uv=new, ot=ot, flipped_before=flipped_before, flipped_after=flipped_after, seconds=time.perf_counter() - t0,
+            fold_free=ff, area_error_before=err_before, area_error_after=err_after, roi_share=share, sites=sites, balanced=bal,
+            attempts=attempts, residual=residual, converged=residual <= tol, restarts=restarts,
+        )
+
+
 def measure_preserving_map(
     V,
     F,
@@ -152,110 +296,8 @@ def measure_preserving_map(
         False returns the centroids (snapped to the sides), which may fold
     backend : power-diagram construction (``"auto"``, ``"cgal"``, ``"qhull"``)
     """
-    t0 = time.perf_counter()
-    V, F = check_mesh(V, F)
-    uv = np.asarray(uv, np.float64)
-    n = len(V)
-    if uv.shape != (n, 2) or not np.isfinite(uv).all():
-        raise ParameterizationError(f"uv must be a finite ({n}, 2) array")
-    if uv.min() < -1e-9 or uv.max() > 1 + 1e-9:
-        raise ParameterizationError("uv must lie in the unit square (use RicciFlowResult.unit_square())")
-    if not (np.isfinite(lam) and lam > 0):
-        raise ParameterizationError(f"lam must be positive; got {lam}")
-    weight = np.ones(n)
-    if roi is not None:
-        roi = np.asarray(roi)
-        if roi.shape != (n,):
-            raise ParameterizationError(f"roi must be a ({n},) vertex mask; got shape {roi.shape}")
-        weight = np.where(roi.astype(bool), float(lam), 1.0)
-    va = vertex_areas(V, F)
-    used = np.zeros(n, bool)
-    used[F.ravel()] = True
-    if not used.all():
-        raise ParameterizationError(f"{int((~used).sum())} vertices are not used by any face")
-    if (va <= 0).any() or not np.isfinite(va).all():
-        # a vertex only in flat triangles still needs a cell: a tiny mass, not a failure
-        floor = 1e-6 * float(np.median(va[va > 0])) if (va > 0).any() else 1.0
-        log(f"  measure-preserving map: {int((va <= 0).sum())} vertices lie only in flat triangles; "
-            f"they get a mass of {floor:.3g}", quiet=quiet, detail=True)
-        va = np.where(np.isfinite(va) & (va > 0), va, floor)
-    nu = weight * va
-    loops = boundary_loops(F)
-    bnd = np.concatenate(loops) if loops else np.zeros(0, np.int64)
-    sides = square_sides(uv[bnd])
-    if len(bnd) and not sides.any(1).all():
-        raise ParameterizationError("the starting map does not put every boundary vertex on the square's sides")
-    orient = 1.0 if signed_uv_areas(F, uv).sum() >= 0 else -1.0
-    attempts: list = []
-
-    def attempt(sites_uv, label, **kw):
-        t = time.perf_counter()
-        try:
-            r = semi_discrete_ot(sites_uv, nu, tol=tol, h0=h0 if label == "conformal" else None, linear_solver=linear_solver,
-                                 backend=backend, partial=True, quiet=quiet, **kw)
-        except ParameterizationError as e:  # no start at all (cells empty even after merging sites)
-            attempts.append({"sites": label, "converged": False, "error": str(e), "seconds": time.perf_counter() - t})
-            return None
-        attempts.append({"sites": label, "converged": bool(r.converged), "residual": float(r.residual),
-                         "iterations": int(r.iterations), "halvings": int(r.halvings), "stages": int(r.stages),
-                         "gradient_steps": int(r.gradient_steps), "error": r.failure or None,
-                         "seconds": time.perf_counter() - t})
-        return r
-
-    ot = attempt(uv, "conformal", stall=DIRECT_STALL)
-    best = (ot, uv, "conformal") if ot is not None else None
-    bal = None
-    restarts = 0
-    if ot is None or not ot.converged:
-        # crowded sites: move them to an area-balanced embedding first (the normal path for
-        # conformal factors spanning many orders of magnitude, not an error)
-        bal = area_balanced_map(F, uv, nu)
-        log(f"  measure-preserving map: OT sites from an area-balanced embedding (worst log area ratio "
-            f"{bal.start_max_log_ratio:.1f} -> {bal.max_log_ratio:.1f} in {bal.best_round} rounds)", quiet=quiet, detail=True)
-        cur = bal.uv
-        for k in range(MAX_RESTARTS + 1):
-            r = attempt(cur, "balanced" if k == 0 else f"balanced, moved {k}x", max_iterations=600)
-            if r is not None and (best is None or r.residual < best[0].residual):
-                best, restarts = (r, cur, "balanced"), k
-            if r is None or r.converged or k == MAX_RESTARTS:
-                break
-            # start again from the map the solve reached: its centroids, made fold-free, are
-            # sites whose cells are closer to their masses than the last ones'
-            try:
-                cur = convex_combination_map(F, _snap(r.centroid, bnd, sides), cur).uv
-            except ParameterizationError:
-                break
-    ot, sites_uv, sites = best if best is not None else (None, uv, "conformal")
-    if ot is not None and ot.merged:
-        import warnings
-
-        from ..errors import GeofaceWarning
-
-        warnings.warn(f"{ot.merged} vertices lie on top of each other in the map; they share a cell (and a centroid; "
-                      "the fold-free step separates them)", GeofaceWarning, stacklevel=2)
-    result = None
-    if ot is not None:
-        result = _from_centroids(F, ot, bnd, sides, orient, sites_uv, fold_free, quiet)
-    if bal is not None and (result is None or not ot.converged):
-        # OT did not reach tol from any sites: the balanced embedding if it is closer
-        bal_res = _max_rel_area_error(F, bal.uv, nu)
-        if result is None or bal_res < ot.residual:
-            result = (bal.uv, 0, 0, None, area_error(F, bal.uv, nu), area_error(F, bal.uv, nu))
-            ot, sites = None, "balanced"
-    new, flipped_before, flipped_after, ff, err_before, err_after = result
-    residual = float(ot.residual) if ot is not None else _max_rel_area_error(F, new, nu)
-    if residual > tol:
-        log(f"  measure-preserving map: reached max relative area error {residual:.3g} (tolerance {tol:g})", quiet=quiet, detail=True)
-    share = None
-    if roi is not None:
-        fa = np.abs(signed_uv_areas(F, new))
-        in_roi = roi.astype(bool)[F].all(1)
-        share = float(fa[in_roi].sum() / fa.sum())
-    return MeasureMapResult(
-        uv=new, ot=ot, flipped_before=flipped_before, flipped_after=flipped_after, seconds=time.perf_counter() - t0,
-        fold_free=ff, area_error_before=err_before, area_error_after=err_after, roi_share=share, sites=sites, balanced=bal,
-        attempts=attempts, residual=residual, converged=residual <= tol, restarts=restarts,
-    )
+    return MeasurePreservingSolver(V, F, tol=tol, fold_free=fold_free, linear_solver=linear_solver, backend=backend,
+                                   quiet=quiet).solve(uv, roi=roi, lam=lam, h0=h0)
 
 
 def _max_rel_area_error(F, uv, nu) -> float:

@@ -300,3 +300,25 @@ def test_measure_preserving_head(head_map, lam):
     assert abs(m.roi_share - expect) < 0.03
     if lam == 1.0:
         assert d["log_area_abs_mean"] <= 0.1
+
+
+def test_solver_keeps_set_up_and_warm_starts_a_lam_sweep(head_map):
+    """MeasurePreservingSolver: the same map as the function, and a second solve from the same
+    starting map (another lam) starts OT from the first one's heights: the same result within
+    the tolerance in far fewer Newton steps (ICT head, 12K vertices: 12 steps cold, 2 warm)."""
+    from geoface.param.measure import MeasurePreservingSolver
+
+    h, r = head_map
+    uv = r.unit_square()
+    once = measure_preserving_map(h.V, r.F, uv, roi=h.face_mask, lam=3.0)
+    solver = MeasurePreservingSolver(h.V, r.F)
+    first = solver.solve(uv, roi=h.face_mask, lam=2.5)
+    assert not solver.warm_started and first.converged
+    warm = solver.solve(uv, roi=h.face_mask, lam=3.0)
+    assert solver.warm_started and warm.converged and warm.flipped_after == 0
+    assert warm.ot.iterations < once.ot.iterations
+    assert abs(warm.roi_share - once.roi_share) < 2e-3 and np.abs(warm.uv - once.uv).max() < 0.02
+    other = solver.solve(np.column_stack([1 - uv[:, 0], uv[:, 1]]), roi=h.face_mask, lam=3.0)  # another start: cold
+    assert not solver.warm_started and other.converged
+    with pytest.raises(AttributeError):
+        warm.residual = 0.0  # results are frozen
