@@ -35,7 +35,7 @@ MODALITIES = {"position": ("px", "py", "pz"), "normal": ("nx", "ny", "nz"), "tex
 Q = 65535.0
 
 
-@dataclass
+@dataclass(frozen=True)
 class GeometryImage:
     """image : (C, N, N) float32 in [0, 1]; mask : (N, N) bool coverage; meta : dict with
     ``bbox_min``, ``bbox_max``, ``channels``, ``resolution``, ``version`` and whatever the

@@ -53,7 +53,7 @@ STAGE_TOL = 1.0
 REFINEMENT_STEPS = 2
 
 
-@dataclass
+@dataclass(frozen=True)
 class OTResult:
     """Result of :func:`semi_discrete_ot`.
 

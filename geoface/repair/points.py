@@ -28,7 +28,7 @@ from ..progress import log
 __all__ = ["PointSurface", "surface_from_points", "load_points"]
 
 
-@dataclass
+@dataclass(frozen=True)
 class PointSurface:
     """A surface reconstructed from points: ``V``, ``F``, how many of Poisson's faces were
     trimmed as too far from any point, and whether the normals were estimated."""

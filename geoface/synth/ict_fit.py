@@ -43,7 +43,7 @@ def project(X, R, t, focal: float, centre) -> np.ndarray:
     return np.column_stack([focal * Xc[:, 0] / z + centre[0], focal * Xc[:, 1] / z + centre[1]])
 
 
-@dataclass
+@dataclass(frozen=True)
 class LandmarkFit:
     """The fitted head and camera. ``identity`` (the first ``n_identity`` weights),
     ``expression`` ({name: weight} of the weights above 0.01), ``R (3, 3)``, ``t (3,)`` (cm),
