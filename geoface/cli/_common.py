@@ -158,3 +158,12 @@ def guard_by_table(args) -> None:
     if key[0] in ("hmd", "talk") and key[1] in ("train", "remove", "animate"):
         resumable = [getattr(args, "output", None)]  # they check their model/frames folders themselves (--force)
     guard_outputs(args, inputs, outputs, resumable=resumable)
+
+
+def verbs(parser, common):
+    """Second-level subcommands (``geoface synth head``); each accepts the common flags (-q)."""
+    sp = parser.add_subparsers(dest="what", metavar="WHAT", parser_class=Parser)
+    sp.required = True
+    add = sp.add_parser
+    sp.add_parser = lambda *a, **k: add(*a, parents=[common], **k)
+    return sp

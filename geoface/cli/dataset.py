@@ -60,3 +60,29 @@ def cmd_dataset_ict(args) -> int:
                           heldout_share=args.heldout_share, workers=args.workers, scheduler=args.dask,
                           retry_failed=args.retry_failed, rebuild=args.force)
     return _dataset_report(args, out, s)
+
+
+def register(sub, common) -> None:
+    """``geoface dataset build|ict``."""
+    from .._args import SEED, number, output_option
+    from ._common import verbs
+
+    s = sub.add_parser("dataset", help="build geometry-image datasets from folders of meshes")
+    dv = verbs(s, common)
+    b = dv.add_parser("build", help="every mesh x corner set -> a geometry-image folder (resumable, parallel)")
+    b.add_argument("in_dir", help="folder of meshes (optional <stem>.json face masks, labels.jsonl)")
+    output_option(b, "OUT_DIR", "the dataset folder (resumed when it exists)")
+    b.add_argument("--labels", default=None, help="labels/prompts per mesh stem (.jsonl or .json; default IN_DIR/labels.jsonl)")
+    b.add_argument("--roi", choices=["auto", "face", "none"], default="auto", help="auto: <stem>.json face mask when present, else the face cone")
+    dataset_options(b)
+    b.set_defaults(func=cmd_dataset_build)
+    b = dv.add_parser("ict", help="labelled real heads of the ICT-FaceKit model -> geometry images (resumable, parallel)")
+    output_option(b, "OUT_DIR", "the dataset folder (resumed when it exists)")
+    b.add_argument("--count", type=number(int, 1, 10_000_000), required=True, help="number of heads (one identity each)")
+    b.add_argument("--seed", type=SEED, default=0, help="draws identities, expressions, prompts and the split")
+    b.add_argument("--model", default=None, help="the ICT-FaceKit model (.npz or a clone; default: the copy shipped with geoface)")
+    b.add_argument("--mix-share", type=number(float, 0, 1), default=0.3, help="share of random ARKit mixes (the rest: named presets)")
+    b.add_argument("--heldout-share", type=number(float, 0, 1), default=0.2, help="share of identities labelled split=heldout")
+    b.add_argument("--roi", choices=["auto", "face", "none"], default="auto", help="auto: the model's face area")
+    dataset_options(b)
+    b.set_defaults(func=cmd_dataset_ict)

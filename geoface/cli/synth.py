@@ -127,3 +127,41 @@ def cmd_synth_surface(args) -> int:
     save_mesh(args.output, V=V, F=F, overwrite=args.force)
     print(f"wrote {args.output}: {args.name}, {len(V)} vertices, {len(F)} faces")
     return 0
+
+
+def register(sub, common) -> None:
+    """``geoface synth head|ict|pack-ict|surface``."""
+    from .._args import SEED, number
+    from ._common import verbs
+
+    s = sub.add_parser("synth", help="write procedural test geometry")
+    ss = verbs(s, common)
+    h = ss.add_parser("head", help="the procedural expressive head")
+    h.add_argument("-o", "--output", required=True, help="output mesh (obj with texture, ply with colours, ...)")
+    h.add_argument("--vertices", type=number(int, 1000, 200_000), default=20000, help="about this many vertices")
+    h.add_argument("--seed", type=SEED, default=0, help="draws the identity")
+    h.add_argument("--expression", default=None, help="e.g. smile=0.8,jaw_open=0.3")
+    h.add_argument("--texture-size", type=number(int, 16, 8192), default=512, help="texture image size in pixels")
+    h.add_argument("--meta", default=None, help="also write identity, expression, landmarks and face mask as JSON")
+    h.set_defaults(func=cmd_synth_head)
+    i = ss.add_parser("ict", help="a real head of the ICT-FaceKit morphable model (identity, expression, parts)")
+    i.add_argument("-o", "--output", required=True)
+    i.add_argument("--seed", type=SEED, default=0, help="draws the identity weights ~ N(0, 1)")
+    i.add_argument("--identity", default=None, metavar="W1,W2,...", help="identity weights instead of --seed (0,0 = the mean head)")
+    i.add_argument("--n-identity", type=number(int, 0, 100), default=None, help="with --seed: draw only the first N modes")
+    i.add_argument("--expression", default=None, help="ARKit blendshapes, e.g. mouthSmile_L=1,jawOpen=0.3 (weights in [0, 1])")
+    i.add_argument("--parts", default="skin", help="skin (default: face, head and neck), face, head, eyes, teeth, mouth, "
+                   "eye_extras or all; comma-separated")
+    i.add_argument("--model", default=None, help="the model (.npz or an ICT-FaceKit clone; default: the copy shipped with geoface)")
+    i.add_argument("--meta", default=None, help="also write weights, landmarks, face mask and regions as JSON (--roi for convert)")
+    i.set_defaults(func=cmd_synth_ict)
+    k = ss.add_parser("pack-ict", help="pack an ICT-FaceKit clone (FaceXModel/ OBJs) into one .npz")
+    k.add_argument("clone", help="the clone (or its FaceXModel folder)")
+    k.add_argument("-o", "--output", required=True, metavar="MODEL.npz")
+    k.set_defaults(func=cmd_synth_pack_ict)
+    a = ss.add_parser("surface", help="an analytic surface")
+    a.add_argument("name", choices=SURFACES)
+    a.add_argument("-o", "--output", required=True)
+    a.add_argument("--resolution", type=number(int, 2, 2048), default=24, help="grid resolution of the surface")
+    a.add_argument("--seed", type=SEED, default=0, help="for the random surfaces")
+    a.set_defaults(func=cmd_synth_surface)

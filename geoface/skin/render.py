@@ -126,7 +126,7 @@ def skin_maps(res: int = 1024, seed: int = 0, *, pore_density: float = 3e5, frec
     """Random skin at ``res``² (see the module docstring).  ``pore_density`` = pores per unit UV area.
 
     ``regions``: soft masks ``{name: [res, res]}`` of a face layout
-    (:func:`geoface.learn.skin_regions.ict_uv_regions`).  With them the skin varies by region:
+    (:func:`geoface.skin.regions.ict_uv_regions`).  With them the skin varies by region:
     pores large and dense on the nose, fewer on the forehead, none on lips and eyelids; lips
     red, lined and shiny; brows of hair strokes in the person's hair colour; fine folds on the
     eyelids; horizontal forehead lines; a shiny T-zone; redness and freckles on cheeks and nose;
