@@ -13,6 +13,7 @@ $(STAMP): pyproject.toml constraints.txt setup.py geoface/param/_native/regular_
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	-@$(MAKE) --no-print-directory cgal-headers
 	$(PY) -m pip install --disable-pip-version-check -q -c constraints.txt -e ".[all,dev]"
+	$(PY) -m pip install --disable-pip-version-check -q -c constraints.txt --no-deps mediapipe
 	@$(PY) -c "from geoface.param import regular as r; print('CGAL exact power diagrams:', 'built' if r.available() else 'NOT built: ' + r.INSTALL_HINT)"
 	-@$(MAKE) --no-print-directory cholmod
 	-@$(MAKE) --no-print-directory chromium

@@ -1,0 +1,209 @@
+"""Tracking a face in video with real tools: what a user has instead of the renderer's oracle.
+
+MediaPipe's face mesh (its wheel ships the models; nothing is downloaded) gives 468 points per
+frame; :data:`IBUG68_FROM_MEDIAPIPE` turns them into the 68 iBUG landmarks that the avatars read
+(each a fixed convex combination of four face-mesh points, fitted on rendered ICT-FaceKit
+people against their true landmarks and checked on other people: ``data_tools/fit_mediapipe_ibug68.py``).
+MediaPipe's selfie segmentation gives the person's mask. :func:`track_capture` writes a capture
+folder (:mod:`geoface.avatar.capture`) whose ``landmarks.json`` and ``masks/`` come from the
+tracker: ``geoface track``.
+
+Frames where no face is found get the landmarks of the nearest frames (linearly interpolated)
+and are counted (:attr:`Tracking.found`).
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import shutil
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from geoface.errors import GeofaceError, MissingDependencyError
+
+__all__ = ["Tracking", "track_frames", "track_capture", "ibug68_from_mediapipe", "TRACKER", "facemesh_points"]
+
+#: the tracker named in the landmarks files it writes
+TRACKER = "mediapipe-facemesh"
+_TABLE = Path(__file__).with_name("data") / "mediapipe_ibug68.json"
+
+
+def _mediapipe():
+    import os
+
+    # MediaPipe's C++ side logs to stderr (glog/absl); a quiet library keeps it to errors
+    os.environ.setdefault("GLOG_minloglevel", "2")
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+    try:
+        import mediapipe as mp  # noqa: F401
+    except ImportError as e:
+        raise MissingDependencyError("face tracking needs MediaPipe: pip install 'geoface[track]' "
+                                     "(mediapipe 0.10.21 --no-deps, absl-py, attrs, flatbuffers, protobuf<5)") from e
+    return mp
+
+
+@lru_cache(maxsize=1)
+def ibug68_from_mediapipe() -> tuple[np.ndarray, np.ndarray]:
+    """(indices (68, k) into the 468 face-mesh points, weights (68, k), rows summing to 1)."""
+    d = json.loads(_TABLE.read_text())
+    idx, w = np.asarray(d["indices"], np.int64), np.asarray(d["weights"], np.float64)
+    if idx.shape != w.shape or idx.shape[0] != 68 or idx.min() < 0 or idx.max() >= 468:
+        raise GeofaceError(f"{_TABLE}: malformed landmark table")
+    return idx, w
+
+
+@contextlib.contextmanager
+def _native_stderr_quiet():
+    """MediaPipe's C++ graph writes its set-up chatter (TFLite delegates, feedback tensors) straight
+    to file descriptor 2, past Python's logging: hold it while the graph runs, unless the
+    ``geoface`` logger is at DEBUG (``-v``)."""
+    import logging
+    import os
+    import sys
+
+    if logging.getLogger("geoface").isEnabledFor(logging.DEBUG):
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _uint8(img) -> np.ndarray:
+    a = np.asarray(img)
+    if a.dtype != np.uint8:
+        a = np.round(np.clip(a, 0, 1) * 255).astype(np.uint8)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise GeofaceError(f"frames must be (H, W, 3) RGB images; got {a.shape}")
+    return np.ascontiguousarray(a)
+
+
+def facemesh_points(frames, *, video: bool = True, quiet: bool | None = None) -> np.ndarray:
+    """MediaPipe's 468 face-mesh points of each frame in pixels, ``(T, 468, 2)`` (NaN where no
+    face is found). ``video``: track from frame to frame (MediaPipe's video mode)."""
+    from geoface.progress import progress
+
+    mp = _mediapipe()
+    frames = list(frames)
+    out = []
+    with _native_stderr_quiet():  # the graph's chatter comes while it is built and first run
+        fm = mp.solutions.face_mesh.FaceMesh(static_image_mode=not video, max_num_faces=1, refine_landmarks=False,
+                                             min_detection_confidence=0.5, min_tracking_confidence=0.5)
+        first = fm.process(_uint8(frames[0])) if frames else None
+    try:
+        for k, img in enumerate(progress(frames, "tracking the face", quiet=quiet, unit="frames")):
+            a = _uint8(img)
+            r = first if k == 0 else fm.process(a)
+            if not r.multi_face_landmarks:
+                out.append(np.full((468, 2), np.nan))
+                continue
+            lm = r.multi_face_landmarks[0].landmark
+            out.append(np.array([[p.x * a.shape[1], p.y * a.shape[0]] for p in lm[:468]]))
+    finally:
+        fm.close()
+    return np.stack(out) if out else np.zeros((0, 468, 2))
+
+
+def person_masks(frames, *, quiet: bool | None = None) -> np.ndarray:
+    """MediaPipe's selfie segmentation of each frame, ``(T, H, W)`` float in [0, 1]."""
+    from geoface.progress import progress
+
+    mp = _mediapipe()
+    frames = list(frames)
+    with _native_stderr_quiet():
+        ss = mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=0)
+        first = ss.process(_uint8(frames[0])).segmentation_mask
+    try:
+        return np.stack([np.asarray(first if k == 0 else ss.process(_uint8(f)).segmentation_mask, np.float32)
+                         for k, f in enumerate(progress(frames, "segmenting the person", quiet=quiet, unit="frames"))])
+    finally:
+        ss.close()
+
+
+@dataclass(frozen=True)
+class Tracking:
+    """``landmarks (T, 68, 2)`` iBUG points in pixels (interpolated where no face was found);
+    ``found (T,)`` bool; ``mesh (T, 468, 2)`` the face-mesh points (NaN where not found);
+    ``masks (T, H, W)`` the person's segmentation, or None."""
+
+    landmarks: np.ndarray
+    found: np.ndarray
+    mesh: np.ndarray
+    masks: np.ndarray | None = None
+
+
+def _fill(P: np.ndarray, found: np.ndarray) -> np.ndarray:
+    """Frames without a face: the landmarks linearly interpolated between the found ones."""
+    if found.all():
+        return P
+    t = np.arange(len(P))
+    flat = P.reshape(len(P), -1).copy()
+    for c in range(flat.shape[1]):
+        flat[~found, c] = np.interp(t[~found], t[found], flat[found, c])
+    return flat.reshape(P.shape)
+
+
+def track_frames(frames, *, masks: bool = True, video: bool = True, quiet: bool | None = None) -> Tracking:
+    """Track ``frames`` ((T, H, W, 3) RGB, float in [0, 1] or uint8): the 68 iBUG landmarks from
+    MediaPipe's face mesh and (``masks``) the person's segmentation."""
+    frames = list(frames)
+    if not frames:
+        raise GeofaceError("no frames to track")
+    mesh = facemesh_points(frames, video=video, quiet=quiet)
+    found = np.isfinite(mesh).all((1, 2))
+    if not found.any():
+        raise GeofaceError(f"no face found in any of the {len(frames)} frames")
+    idx, w = ibug68_from_mediapipe()
+    lm = np.einsum("tkjd,kj->tkd", mesh[:, idx], w)
+    lm = _fill(lm, found)
+    return Tracking(landmarks=lm, found=found, mesh=mesh, masks=person_masks(frames, quiet=quiet) if masks else None)
+
+
+def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, overwrite: bool = False,
+                  quiet: bool | None = None) -> Tracking:
+    """A copy of the capture folder ``capture_dir`` (frames, camera, head mesh, ...) in
+    ``out_dir`` whose ``landmarks.json`` and ``masks/`` come from the tracker instead of the
+    originals (which are not copied). ``names``: the landmark names to write (default: those of
+    the capture's own ``landmarks.json`` when it has one, else all 68)."""
+    from geoface._io import output_folder
+    from geoface.avatar.capture import IBUG68_NAMES
+    from geoface.images import read_image, save_image
+
+    src = Path(capture_dir)
+    files = sorted((src / "frames").glob("*.png"))
+    if not files:
+        raise GeofaceError(f"{src}/frames holds no PNG frames")
+    if names is None and (src / "landmarks.json").is_file():
+        try:
+            names = json.loads((src / "landmarks.json").read_text()).get("names")
+        except (OSError, ValueError):
+            names = None
+    names = list(IBUG68_NAMES) if names is None else [str(n) for n in names]
+    unknown = sorted(set(names) - set(IBUG68_NAMES))
+    if unknown:
+        raise GeofaceError(f"the tracker gives the 68 iBUG landmarks; not: {', '.join(unknown[:5])}")
+    cols = [IBUG68_NAMES.index(n) for n in names]
+    frames = [read_image(f) for f in files]
+    tr = track_frames(frames, masks=masks, quiet=quiet)
+    with output_folder(Path(out_dir), overwrite) as tmp:
+        for p in src.iterdir():
+            if p.name in ("landmarks.json",) or (masks and p.name == "masks"):
+                continue
+            (shutil.copytree if p.is_dir() else shutil.copy2)(p, tmp / p.name)
+        doc = {"names": names, "points": np.round(tr.landmarks[:, cols], 3).tolist(), "tracker": TRACKER,
+               "found": [bool(x) for x in tr.found]}
+        (tmp / "landmarks.json").write_text(json.dumps(doc))
+        if masks:
+            (tmp / "masks").mkdir()
+            for f, m in zip(files, tr.masks):
+                save_image(tmp / "masks" / f.name, (m > 0.5).astype(np.uint8) * 255, atomic=False)
+    return tr
