@@ -1,5 +1,5 @@
 """Fit the table that turns MediaPipe's 468 face-mesh points into the 68 iBUG landmarks
-(geoface/avatar/data/mediapipe_ibug68.json), on rendered ICT-FaceKit people whose true
+(geoface/data/mediapipe_ibug68.json), on rendered ICT-FaceKit people whose true
 landmarks are known, and measure it on other people.
 
 For each iBUG landmark: the ``k`` face-mesh points nearest to it on average (training people),
@@ -26,7 +26,7 @@ SPLITS = {"train": (0, 1, 2), "val": (3, 4), "test": (5, 6)}
 def capture(seed: int, frames: int, res: int, work: Path):
     from geoface.hfm.ict import make_ict_hmd
     from geoface.avatar.capture import read_landmarks
-    from geoface.avatar.track import facemesh_points
+    from geoface.track import facemesh_points
     from geoface.images import read_image
 
     reg, _ = make_ict_hmd(work / f"p{seed}", frames=frames, usage_frames=2, res=res, seed=seed, quiet=True)
@@ -68,7 +68,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--res", type=int, default=256)
-    ap.add_argument("--out", default=str(ROOT / "geoface/avatar/data/mediapipe_ibug68.json"))
+    ap.add_argument("--out", default=str(ROOT / "geoface/data/mediapipe_ibug68.json"))
     a = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="mp68_"))
     data = {s: [capture(seed, a.frames, a.res, work) for seed in seeds] for s, seeds in SPLITS.items()}

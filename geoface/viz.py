@@ -5,6 +5,8 @@ pyvista is imported lazily inside the functions (``pip install 'geoface[viz]'``)
 an ``(H, W, 3) uint8`` array and writes it as a PNG (atomically) when ``screenshot=path``.
 Rendering is off-screen when a screenshot is requested or when there is no display
 (no ``DISPLAY`` / ``WAYLAND_DISPLAY`` on Linux); otherwise an interactive window opens.
+What is drawn, as plain arrays (meshes unpacked, UVs split per vertex, 8-bit colours and
+tiles, distances), is :mod:`geoface.viz_arrays`.
 
 Examples
 --------
@@ -24,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._io import atomic_path
 from ._lazy import lazy_import
 from .errors import GeofaceError, InvalidGeometryImageError, InvalidMeshError
+from .viz_arrays import check_VF, distances, gimage_tiles, split_corner_uvs, texture_uint8, to_uint8_rgb, unpack_mesh
 
 __all__ = ["has_display", "to_pyvista", "plot_mesh", "turntable", "plot_uv_distortion", "gimage_montage", "compare_meshes",
            "save_png"]
@@ -77,24 +79,6 @@ def save_png(path: str | os.PathLike, img: np.ndarray) -> Path:
     return Path(path)
 
 
-def _check_VF(V, F):
-    from .mesh.core import check_mesh
-
-    return check_mesh(V, F)
-
-
-def _to_uint8_rgb(colors: np.ndarray, n: int, what: str) -> np.ndarray:
-    C = np.asarray(colors)
-    if C.ndim == 1 and C.shape[0] == 3:
-        C = np.broadcast_to(C, (n, 3))
-    if C.ndim != 2 or C.shape[0] != n or C.shape[1] not in (3, 4):
-        raise InvalidMeshError(f"{what} must have shape ({n}, 3) or ({n}, 4); got {C.shape}")
-    C = C[:, :3]
-    if C.dtype != np.uint8:
-        C = np.clip(np.round(np.asarray(C, np.float64) * 255.0), 0, 255).astype(np.uint8)
-    return np.ascontiguousarray(C)
-
-
 def to_pyvista(V, F, uv=None, colors=None, scalars=None):
     """A :class:`pyvista.PolyData` from arrays.
 
@@ -106,7 +90,7 @@ def to_pyvista(V, F, uv=None, colors=None, scalars=None):
     scalars : (n,) or (m,) float, optional — point or cell array ``"scalars"``
     """
     pv = _pv()
-    V, F = _check_VF(V, F)
+    V, F = check_VF(V, F)
     faces = np.hstack([np.full((len(F), 1), 3, np.int64), F]).ravel()
     mesh = pv.PolyData(V.copy(), faces)
     if uv is not None:
@@ -115,7 +99,7 @@ def to_pyvista(V, F, uv=None, colors=None, scalars=None):
             raise InvalidMeshError(f"uv must have shape ({len(V)}, 2); got {uv.shape}")
         mesh.active_texture_coordinates = uv
     if colors is not None:
-        mesh.point_data["rgb"] = _to_uint8_rgb(colors, len(V), "colors")
+        mesh.point_data["rgb"] = to_uint8_rgb(colors, len(V), "colors")
     if scalars is not None:
         s = np.asarray(scalars, np.float64).ravel()
         if len(s) == len(V):
@@ -125,35 +109,6 @@ def to_pyvista(V, F, uv=None, colors=None, scalars=None):
         else:
             raise InvalidMeshError(f"scalars must have {len(V)} (vertices) or {len(F)} (faces) values; got {len(s)}")
     return mesh
-
-
-def split_corner_uvs(V, F, UV, FUV):
-    """Split vertices so that per-corner UVs become per-vertex (needed for VTK texturing).
-
-    Returns ``V2 (k, 3)``, ``F2 (m, 3)``, ``uv2 (k, 2)`` and ``vmap (k,)`` (new vertex → old vertex);
-    one new vertex per distinct (vertex, UV index) pair.
-    """
-    V, F = _check_VF(V, F)
-    FUV = np.asarray(FUV, np.int64)
-    pairs = np.stack([F.ravel(), FUV.ravel()], axis=1)
-    uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
-    vmap = uniq[:, 0]
-    return V[vmap], inv.reshape(F.shape).astype(np.int64), np.asarray(UV, np.float64)[uniq[:, 1]], vmap
-
-
-def _unpack_mesh(mesh_or_VF):
-    """(V, F, UV, FUV, colors, texture) from a Mesh, a SynthHead-like object or a (V, F) tuple."""
-    if isinstance(mesh_or_VF, (tuple, list)):
-        if len(mesh_or_VF) != 2:
-            raise InvalidMeshError("pass a Mesh or a (V, F) pair")
-        return mesh_or_VF[0], mesh_or_VF[1], None, None, None, None
-    m = mesh_or_VF
-    if not hasattr(m, "V") or not hasattr(m, "F"):
-        raise InvalidMeshError(f"expected a Mesh or a (V, F) pair; got {type(m).__name__}")
-    UV, FUV = getattr(m, "UV", None), getattr(m, "FUV", None)
-    if UV is not None and FUV is None and len(UV) == len(m.V):
-        FUV = m.F  # per-vertex UVs (e.g. SynthHead)
-    return m.V, m.F, UV, FUV, getattr(m, "colors", None), getattr(m, "texture", None)
 
 
 def _plotter(off_screen: bool, window_size, shape=(1, 1)):
@@ -186,25 +141,10 @@ def _finish(pl, screenshot, off_screen: bool) -> np.ndarray:
     return img
 
 
-def texture_uint8(texture) -> np.ndarray:
-    T = np.asarray(texture)
-    if T.ndim == 2:
-        T = np.repeat(T[..., None], 3, axis=2)
-    if T.ndim != 3 or T.shape[2] not in (1, 3, 4):
-        raise InvalidMeshError(f"texture must be an (h, w, 3) image; got shape {T.shape}")
-    if T.shape[2] == 1:
-        T = np.repeat(T, 3, axis=2)
-    if T.dtype == np.uint16:
-        T = (T // 257).astype(np.uint8)
-    elif T.dtype != np.uint8:
-        T = np.clip(np.round(np.asarray(T, np.float64) * 255), 0, 255).astype(np.uint8)
-    return np.ascontiguousarray(T[..., :3])
-
-
 def _add_mesh(pl, mesh_or_VF, texture=None, colors=None, color=None, scalars=None, **kw):
     """Add a mesh to the plotter: textured if it has UVs and a texture, else coloured."""
     pv = _pv()
-    V, F, UV, FUV, mcol, mtex = _unpack_mesh(mesh_or_VF)
+    V, F, UV, FUV, mcol, mtex = unpack_mesh(mesh_or_VF)
     tex = texture if texture is not None else mtex
     col = colors if colors is not None else mcol
     if tex is not None and UV is not None and scalars is None and colors is None:
@@ -272,7 +212,7 @@ def _set_view(pl, view: str, mesh_or_VF=None, *, up=None, face=None, frame=None)
     if view not in VIEWS:
         raise GeofaceError(f"view must be one of {', '.join([*VIEWS, *AXIS_VIEWS])}; got {view!r}")
     if frame is None:
-        V, F = _unpack_mesh(mesh_or_VF)[:2]
+        V, F = unpack_mesh(mesh_or_VF)[:2]
         if face is None and getattr(mesh_or_VF, "face_mask", None) is not None:  # a SynthHead knows its face
             face = mesh_or_VF.face_mask
         frame = mesh_frame(V, F, up=up, face=face)
@@ -288,7 +228,7 @@ def turntable(mesh_or_VF, path, *, seconds: float = 6.0, fps: float = 25.0, wind
     from .mesh.frame import mesh_frame
     from .video import write_video
 
-    V, F = _unpack_mesh(mesh_or_VF)[:2]
+    V, F = unpack_mesh(mesh_or_VF)[:2]
     if face is None and getattr(mesh_or_VF, "face_mask", None) is not None:
         face = mesh_or_VF.face_mask
     fr = mesh_frame(V, F, up=up, face=face)
@@ -330,7 +270,7 @@ def plot_uv_distortion(V, F, uv, metric: str = "qc", *, screenshot=None, window_
 
     if metric not in ("qc", "area"):
         raise GeofaceError(f"metric must be 'qc' or 'area'; got {metric!r}")
-    V, F = _check_VF(V, F)
+    V, F = check_VF(V, F)
     uv = np.asarray(uv, np.float64)
     if uv.shape != (len(V), 2):
         raise InvalidMeshError(f"uv must have shape ({len(V)}, 2); got {uv.shape}")
@@ -357,18 +297,6 @@ def plot_uv_distortion(V, F, uv, metric: str = "qc", *, screenshot=None, window_
     pl.view_xy()
     pl.reset_camera()
     return _finish(pl, screenshot, off)
-
-
-def gimage_tiles(gi) -> list[tuple[str, np.ndarray]]:
-    """(name, (N, N, 3) uint8) tiles of a GeometryImage's modalities and mask."""
-    tiles = []
-    for name in ("position", "normal", "texture"):
-        if gi.has(name):
-            t = np.clip(gi.modality(name).transpose(1, 2, 0), 0, 1)
-            tiles.append((name, np.round(t * 255).astype(np.uint8)))
-    m = np.asarray(gi.mask, bool)
-    tiles.append(("mask", np.repeat((m * 255).astype(np.uint8)[..., None], 3, axis=2)))
-    return tiles
 
 
 def gimage_montage(gi, *, screenshot=None, surface: bool = False, gap: int = 4, labels: bool = True,
@@ -434,21 +362,6 @@ def _label(tile: np.ndarray, text: str) -> np.ndarray:
     return out
 
 
-def _distances(A_V, B_V, B_F):
-    """Distance from each point of A_V to the surface (V, F) B (closest point on triangles)."""
-    try:
-        import igl  # noqa: F401
-
-        d2, _, _ = igl.point_mesh_squared_distance(np.asarray(A_V, np.float64), np.asarray(B_V, np.float64),
-                                                   np.asarray(B_F, np.int64))
-        return np.sqrt(np.maximum(d2, 0.0))
-    except Exception:  # igl missing or API mismatch: vertex-to-vertex distance
-        from scipy.spatial import cKDTree
-
-        d, _ = cKDTree(np.asarray(B_V, np.float64)).query(np.asarray(A_V, np.float64))
-        return d
-
-
 def compare_meshes(A, B, *, distance: bool = False, titles=("original", "reconstruction"), screenshot=None,
                    window_size=(1400, 700), off_screen=None, view: str = "front", up=None, clim=None) -> np.ndarray:
     """Two meshes side by side with linked cameras (e.g. original vs reconstruction).
@@ -459,7 +372,7 @@ def compare_meshes(A, B, *, distance: bool = False, titles=("original", "reconst
     """
     off = _off_screen(off_screen, screenshot)
     pl = _plotter(off, window_size, shape=(1, 2))
-    A_, B_ = _unpack_mesh(A), _unpack_mesh(B)
+    A_, B_ = unpack_mesh(A), unpack_mesh(B)
     frame = None
     if view not in AXIS_VIEWS:
         from .mesh.frame import mesh_frame
@@ -467,8 +380,8 @@ def compare_meshes(A, B, *, distance: bool = False, titles=("original", "reconst
         frame = mesh_frame(A_[0], A_[1], up=up, face=getattr(A, "face_mask", None))
     dA = dB = None
     if distance:
-        dA = _distances(A_[0], B_[0], B_[1])
-        dB = _distances(B_[0], A_[0], A_[1])
+        dA = distances(A_[0], B_[0], B_[1])
+        dB = distances(B_[0], A_[0], A_[1])
         if clim is None:
             hi = float(max(np.quantile(dA, 0.98), np.quantile(dB, 0.98), 1e-12))
             clim = (0.0, hi)

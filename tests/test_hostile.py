@@ -260,11 +260,11 @@ def test_ddpm_configs_are_bounded(field, value):
                                    {"step": -1, "bbox_min": [0, 0, 0], "bbox_max": [1, 1, 1]},
                                    {"step": 1, "bbox_min": [0, 0, 0], "bbox_max": [1, 0, 1]}])
 def test_ddpm_state_files_are_checked(state, tmp_path):
-    from geoface.learn.ddpm import _check_state
+    from geoface.learn.ddpm_checkpoint import check_state
 
     with pytest.raises(GeofaceError):
-        _check_state(state, tmp_path / "state.json")
-    _check_state({"step": 3, "bbox_min": [0, 0, 0], "bbox_max": [1, 1, 1]}, tmp_path / "state.json")
+        check_state(state, tmp_path / "state.json")
+    check_state({"step": 3, "bbox_min": [0, 0, 0], "bbox_max": [1, 1, 1]}, tmp_path / "state.json")
 
 
 @pytest.mark.parametrize("spec", ["hash:abc", "hash:-5", "hash:0", "hash:", "nonsense"])

@@ -12,9 +12,9 @@ PKG = Path(__file__).resolve().parents[1] / "geoface"
 #: rank of each top-level module or package; a module may import only lower ranks (same rank:
 #: siblings that must not know each other, e.g. learn and splat)
 RANKS = {
-    "errors": 0, "tol": 0.1, "rotations": 0.11, "camera": 0.12, "images": 0.16, "_io": 0.15, "_args": 0.2, "_lazy": 0.2, "progress": 0.3, "video": 0.4, "": 0.5,
-    "mesh": 1, "synth": 2, "repair": 2.5, "param": 3, "gimage": 4, "uvmap": 5, "viz": 5.5,
-    "pipeline": 6, "dataset": 6.5, "nn": 7, "skin": 7.5, "learn": 8, "splat": 8,
+    "errors": 0, "tol": 0.1, "rotations": 0.11, "camera": 0.12, "landmarks": 0.13, "images": 0.16, "_io": 0.15, "_args": 0.2, "_lazy": 0.2, "progress": 0.3, "video": 0.4, "": 0.5,
+    "mesh": 1, "synth": 2, "repair": 2.5, "param": 3, "gimage": 4, "uvmap": 5, "viz_arrays": 5.49, "viz": 5.5,
+    "pipeline": 6, "dataset": 6.5, "nn": 7, "track": 7.2, "skin": 7.5, "learn": 8, "splat": 8,
     "avatar": 8.1, "hfm": 8.3, "thgs": 8.3, "drive": 8.4, "hfm.cli": 8.45, "thgs.cli": 8.45, "webview": 8.5, "cli": 9, "__main__": 10,
 }
 GEOMETRY_CORE = ("mesh", "repair", "param", "gimage", "uvmap")
@@ -159,10 +159,10 @@ def test_cycle_finder_finds_one():
 
 
 def test_modules_stay_small():
-    """One idea per module, a few hundred lines (docs/architecture.md): none grows past ~500."""
+    """One idea per module, a few hundred lines (docs/architecture.md): none grows past 450."""
     big = {str(p.relative_to(PKG)): n for p in PKG.rglob("*.py")
-           if (n := len(p.read_text(encoding="utf-8").splitlines())) > 550}
-    assert not big, f"modules over 550 lines (split them by concern): {big}"
+           if (n := len(p.read_text(encoding="utf-8").splitlines())) > 450}
+    assert not big, f"modules over 450 lines (split them by concern): {big}"
 
 
 def private_imports(root: Path = PKG) -> list[str]:

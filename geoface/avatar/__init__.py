@@ -11,7 +11,7 @@ from geoface._lazy import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports("geoface.avatar", {
     "audio_context": "audio", "audio_features": "audio", "envelope": "audio", "log_mel": "audio",
-    "read_wav": "audio", "IBUG68_LOWER": "capture", "IBUG68_NAMES": "capture", "IBUG68_RIGID": "capture",
+    "read_wav": "audio", "IBUG68_LOWER": "geoface.landmarks", "IBUG68_NAMES": "geoface.landmarks", "IBUG68_RIGID": "geoface.landmarks",
     "camera_from_json": "capture", "camera_to_json": "capture", "euler_rotation": "capture",
     "headset_mesh": "capture", "read_landmarks": "capture", "stack_frames": "capture",
     "write_frame": "capture", "FrameCorrections": "corrections",

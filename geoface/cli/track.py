@@ -5,7 +5,7 @@ from pathlib import Path
 
 
 def cmd_track(args) -> int:
-    from ..avatar.track import TRACKER, track_capture
+    from ..track import TRACKER, track_capture
     from ..progress import args_quiet
 
     tr = track_capture(args.capture, args.output, masks=not args.no_masks, overwrite=args.force,

@@ -8,25 +8,13 @@ Each item is a dict:
 * ``prompt`` str (``""`` when none is known).
 * ``index``  int.
 
-**One position normalisation for the whole dataset** (:class:`Normalization`): positions are
-decoded to mesh units from each item's box and mapped by one centre and one scale — the
-centre and 1.05 × the largest half-extent of the union of the items' boxes — so head proportions and
-sizes survive (a per-item box would stretch every head to the same cube).  The boxes come from
-the manifest rows (``bbox``, written by ``geoface dataset build``) or, for older datasets and
-plain folder trees, from each item's ``meta.json``.  Normals and texture map ``[0, 1] → [-1, 1]``.
+The items, their sources (a manifest or a folder tree) and the one position frame of the
+whole dataset are :mod:`geoface.learn.data_items`; downsampling and the rigid augmentation
+:mod:`geoface.learn.data_transforms`.
 
 **Lazy**: items are read from disk when asked for; at most ``cache_mb`` of decoded items are
 kept (float16, least recently used first), so memory stays bounded whatever the dataset size.
-
-Sources: ``DATA_DIR/manifest.jsonl`` (see :mod:`geoface.dataset`: rows with ``status == "ok"``,
-item folder ``DATA_DIR/<item>``, optional ``prompt``; the last row of an item wins) or, with no
-manifest, every folder below ``DATA_DIR`` holding a ``meta.json`` (prompt from
-``meta["prompt"]`` if present).
-
-Augmentation (seeded; the paper's rigid augmentation) acts in the normalised space, which is
-isotropic, so it is rigid in mesh units too: a rotation about the vertical (y) axis by up to
-``max_angle`` degrees, a uniform scale in ``scale_range`` and a translation up to
-``max_shift``; normals get the same rotation and stay unit.
+Normals and texture map ``[0, 1] → [-1, 1]``.
 
 **Standardisation** (:class:`DataStats`, :func:`data_stats`): heads are alike, so what a
 model must learn is how a head differs from the others, not where a head is.  The diffusion
@@ -41,7 +29,6 @@ of the items and its own seed.
 from __future__ import annotations
 
 import json
-import math
 import os
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -52,161 +39,13 @@ import torch
 
 from geoface.errors import GeofaceError
 
+from .data_items import Item, Normalization, find_items
+from .data_transforms import AugmentOptions, area_resize, rigid_augment, unit_normals
+
 __all__ = ["GImageDataset", "AugmentOptions", "Normalization", "DataStats", "data_stats", "ShardSampler", "Item",
            "find_items", "area_resize", "rigid_augment", "unit_normals", "CHANNELS"]
 
 CHANNELS = ("position", "normal", "texture")
-
-
-@dataclass(frozen=True)
-class AugmentOptions:
-    max_angle: float = 30.0          # degrees, rotation about +y
-    max_shift: float = 0.05          # translation, normalised units
-    scale_range: tuple = (0.9, 1.0)  # uniform scale
-
-
-@dataclass(frozen=True)
-class Item:
-    folder: Path
-    prompt: str
-    bbox: tuple | None = None  # ((3,), (3,)) mesh-unit box of the position image, when the manifest has it
-
-
-@dataclass(frozen=True)
-class Normalization:
-    """``normalised = (p - center) / scale`` for positions ``p`` in mesh units."""
-
-    center: tuple
-    scale: float
-
-    #: the union box's largest half-extent is mapped to 1 / MARGIN: the data lie in about
-    #: [-0.95, 0.95], which leaves samples room before the [-1, 1] clamp
-    MARGIN = 1.05
-
-    @classmethod
-    def from_boxes(cls, lo: np.ndarray, hi: np.ndarray) -> "Normalization":
-        lo, hi = np.min(np.asarray(lo, np.float64), axis=0), np.max(np.asarray(hi, np.float64), axis=0)
-        scale = float(np.max(hi - lo) / 2) * cls.MARGIN
-        if not np.isfinite(scale) or scale <= 0:
-            raise GeofaceError("the dataset's position boxes are empty or not finite")
-        return cls(tuple(float(x) for x in (lo + hi) / 2), scale)
-
-    def to_dict(self) -> dict:
-        return {"center": list(self.center), "scale": self.scale}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "Normalization":
-        try:
-            c = [float(x) for x in d["center"]]
-            s = float(d["scale"])
-        except (KeyError, TypeError, ValueError):
-            raise GeofaceError(f"a normalisation needs 'center' (3 numbers) and 'scale'; got {d!r}") from None
-        if len(c) != 3 or not np.isfinite(c).all() or not (np.isfinite(s) and s > 0):
-            raise GeofaceError(f"bad normalisation {d!r}")
-        return cls(tuple(c), s)
-
-    def box(self) -> tuple[list, list]:
-        """The cube ``center ± scale`` (where normalised -1 and 1 land), as bbox_min / bbox_max."""
-        c = np.asarray(self.center)
-        return (c - self.scale).tolist(), (c + self.scale).tolist()
-
-
-def _bbox_of(row: dict):
-    b = row.get("bbox")
-    if isinstance(b, dict) and isinstance(b.get("min"), list) and isinstance(b.get("max"), list):
-        lo, hi = np.asarray(b["min"], np.float64), np.asarray(b["max"], np.float64)
-        if lo.shape == hi.shape == (3,) and np.isfinite(lo).all() and np.isfinite(hi).all():
-            return tuple(lo.tolist()), tuple(hi.tolist())
-    return None
-
-
-def find_items(data_dir: str | os.PathLike) -> list[Item]:
-    """The dataset's items (folder, prompt, box when the manifest has it) in a stable (sorted) order."""
-    root = Path(data_dir)
-    if not root.is_dir():
-        raise GeofaceError(f"data folder not found: {root}")
-    man = root / "manifest.jsonl"
-    items: list[Item] = []
-    if man.is_file():
-        last: dict[str, dict] = {}
-        try:
-            text = man.read_bytes().decode("utf-8")
-        except UnicodeDecodeError:
-            raise GeofaceError(f"{man} is not a text file (not UTF-8)") from None
-        for n, line in enumerate(text.splitlines(), 1):
-            if not line.strip():
-                continue
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError as e:
-                raise GeofaceError(f"{man}: line {n} is not JSON ({e})") from None
-            if not isinstance(row, dict):
-                raise GeofaceError(f"{man}: line {n} is not a JSON object")
-            if isinstance(row.get("item"), str):
-                last[row["item"]] = row
-        for name in sorted(last):
-            row = last[name]
-            folder = root / name
-            if row.get("status") == "ok" and (folder / "meta.json").is_file():
-                items.append(Item(folder, str(row.get("prompt") or ""), _bbox_of(row)))
-    else:
-        for meta in sorted(root.rglob("meta.json")):
-            try:
-                m = json.loads(meta.read_text(encoding="utf-8"))
-                prompt = str(m.get("prompt") or "") if isinstance(m, dict) else ""
-            except (OSError, json.JSONDecodeError, UnicodeDecodeError):
-                prompt = ""
-            items.append(Item(meta.parent, prompt))
-    if not items:
-        raise GeofaceError(f"no geometry images found in {root} (need manifest.jsonl rows with status 'ok' "
-                           "or folders with meta.json)")
-    return items
-
-
-def area_resize(image: np.ndarray, mask: np.ndarray, res: int) -> tuple[np.ndarray, np.ndarray]:
-    """Downsample ``image (C, N, N)`` by averaging the *valid* pixels of each block (N % res == 0)."""
-    C, N, _ = image.shape
-    if res == N:
-        return image, mask
-    if res > N or N % res:
-        raise GeofaceError(f"training resolution {res} must divide the image resolution {N}")
-    k = N // res
-    m = mask.astype(np.float32).reshape(res, k, res, k)
-    s = (image * mask).reshape(C, res, k, res, k).sum(axis=(2, 4))
-    cnt = m.sum(axis=(1, 3))
-    out = np.where(cnt > 0, s / np.maximum(cnt, 1), 0.0).astype(np.float32)
-    return out, cnt > 0
-
-
-def unit_normals(n: np.ndarray, full: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Block-averaged normals ``n (3, r, r)`` back to unit length.  Where a block's normals cancel
-    (a thin fold seen from both sides) the normal of the block's first pixel in ``full (3, N, N)``
-    stands in.  Uncovered pixels stay 0."""
-    r = n.shape[-1]
-    k = full.shape[-1] // r
-    norm = np.linalg.norm(n, axis=0)
-    corner = full[:, ::k, ::k]
-    out = np.where(norm > 1e-3, n / np.maximum(norm, 1e-12), corner / np.maximum(np.linalg.norm(corner, axis=0), 1e-12))
-    return (out * mask[None]).astype(np.float32)
-
-
-def rigid_augment(x: torch.Tensor, mask: torch.Tensor, gen: torch.Generator,
-                  opts: AugmentOptions = AugmentOptions()) -> torch.Tensor:
-    """Rotate/scale/shift positions (channels 0-2) and rotate normals (3-5) of ``x [C, R, R]``."""
-    u = torch.rand(5, generator=gen, dtype=torch.float64)
-    a = math.radians(opts.max_angle) * (2 * float(u[0]) - 1)
-    lo, hi = opts.scale_range
-    s = lo + (hi - lo) * float(u[1])
-    t = torch.tensor([opts.max_shift * (2 * float(u[i]) - 1) for i in (2, 3, 4)], dtype=torch.float32)
-    c, sn = math.cos(a), math.sin(a)
-    R = torch.tensor([[c, 0.0, sn], [0.0, 1.0, 0.0], [-sn, 0.0, c]], dtype=torch.float32)
-    y = x.clone()
-    p = torch.einsum("ij,jhw->ihw", R, x[0:3]) * s + t[:, None, None]
-    n = torch.einsum("ij,jhw->ihw", R, x[3:6])
-    m = mask.to(x.dtype)
-    y[0:3] = p * m
-    y[3:6] = n * m
-    return y
 
 
 @dataclass(frozen=True)

@@ -104,12 +104,16 @@ def cmd_reconstruct(args) -> int:
 
     if (args.mesh is None) != (args.camera is None):
         raise GeofaceError("--mesh and --camera go together (the camera that took the photo of that mesh)")
+    if args.track and (args.landmarks or args.mesh):
+        raise GeofaceError("--track finds the landmarks in the photo; it replaces --landmarks and --mesh/--camera")
     if args.landmarks and args.mesh:
         raise GeofaceError("--landmarks fits the ICT head and its camera to the photo; it replaces --mesh and --camera")
     photo = _read_photo(args.photo)
     model = TextureModel.load(args.model)
     mesh = cam = L = None
-    if args.landmarks:
+    if args.track:
+        L = "track"
+    elif args.landmarks:
         from geoface.synth.ict_fit import load_landmarks
 
         L, size = load_landmarks(args.landmarks)
@@ -128,7 +132,7 @@ def cmd_reconstruct(args) -> int:
                                    uv_size=args.uv_size, k=args.k, refine=not args.no_refine)
     except GeofaceError as e:
         if "sees none" in str(e):
-            raise GeofaceError(f"the camera sees none of the mesh (check {args.camera or args.landmarks})") from None
+            raise GeofaceError(f"the camera sees none of the mesh (check {args.camera or args.landmarks or 'the tracked face'})") from None
         raise
     images = {}
     for name in (*MAP_FILES, "uv", "normal"):
@@ -198,6 +202,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     r.add_argument("--landmarks", default=None, metavar="L.json",
                    help="68 face landmarks of the photo (JSON, .npy, .txt, .pts): fit the ICT head and camera to them "
                         "and write the maps in its UV layout (instead of --mesh and --camera)")
+    r.add_argument("--track", action="store_true",
+                   help="find the 68 landmarks in the photo with MediaPipe (geoface[track]) and fit the ICT head to them: "
+                        "the maps in its UV layout from the photo alone")
     r.add_argument("--focal", type=number(float, 1, 1e6), default=None, metavar="PX",
                    help="the photo's focal length in pixels, when known (e.g. from EXIF); else estimated")
     r.add_argument("--uv-size", type=number(int, 16, 16384), default=1024)

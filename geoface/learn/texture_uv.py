@@ -6,7 +6,8 @@ maps aligned with the photo. With a mesh and the camera that took the photo, eac
 projected into the mesh's UV space (:func:`geoface.uvmap.project_views`) and the texels no
 camera ray sees are filled by push-pull (:func:`geoface.uvmap.inpaint`). With 2D landmarks
 instead, the ICT-FaceKit head and its camera are first fitted to them
-(:func:`geoface.synth.ict_fit.fit_landmarks`), so a photo and its 68 landmarks are enough.
+(:func:`geoface.synth.ict_fit.fit_landmarks`); the landmarks may come from MediaPipe
+(``landmarks="track"``), so that a photo alone is enough.
 """
 from __future__ import annotations
 
@@ -43,8 +44,9 @@ def reconstruct_textures(model, photo: np.ndarray, *, mesh=None, camera=None, la
     """Skin maps of ``photo`` ((H, W, 3) float in [0, 1]) by ``model`` (a trained
     :class:`geoface.learn.texture.TextureModel`), and, given ``mesh`` (a :class:`geoface.mesh.io.Mesh`
     with UVs) and ``camera`` (:class:`geoface.camera.Camera`) or ``landmarks`` ((68, 2) pixels,
-    iBUG order), the same maps in UV space at ``uv_size``². ``focal`` (pixels) fixes the landmark
-    fit's focal length instead of fitting it."""
+    iBUG order, or ``"track"``: found in the photo by MediaPipe, :mod:`geoface.track`), the same
+    maps in UV space at ``uv_size``². ``focal`` (pixels) fixes the landmark fit's focal length
+    instead of fitting it."""
     from .texture import reconstruct
 
     photo = np.asarray(photo)
@@ -55,6 +57,12 @@ def reconstruct_textures(model, photo: np.ndarray, *, mesh=None, camera=None, la
     if landmarks is not None and mesh is not None:
         raise GeofaceError("landmarks fit the ICT head and its camera to the photo; they replace a mesh and camera")
     fit = None
+    if isinstance(landmarks, str):
+        if landmarks != "track":
+            raise GeofaceError(f"landmarks must be (68, 2) points or 'track'; got {landmarks!r}")
+        from geoface.track import track_frames
+
+        landmarks = track_frames([photo], masks=False, video=False, quiet=True).landmarks[0]
     if landmarks is not None:
         from geoface.camera import Camera
         from geoface.mesh.io import Mesh

@@ -9,6 +9,9 @@ Geometry and attributes travel separately, as in libigl's ``readOBJ``:
   corner ``k`` of face ``f``), so UV seams survive welding.
 * ``colors`` — per-vertex RGBA in ``[0, 1]``; ``texture`` — the texture image (uint8).
 
+The :class:`Mesh` that holds them is :mod:`geoface.mesh.mesh_data`; the files written beside a
+mesh file (MTL, texture, glTF buffer) are :mod:`geoface.mesh.companions`.
+
 >>> m = load_mesh("head.obj")                        # doctest: +SKIP
 >>> save_mesh("copy.ply", m)                           # doctest: +SKIP
 """
@@ -17,130 +20,19 @@ from __future__ import annotations
 
 import os
 import warnings
-from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from .._io import atomic_path
 from ..errors import GeofaceWarning, InvalidMeshError, MeshFormatError, PointCloudError
+from .companions import atomic_group, companion_names, name_companions, refuse_existing, without_maps
 from .core import check_mesh
 from .formats import referenced_files  # noqa: F401  (re-exported: the files a mesh file refers to)
+from .mesh_data import Mesh, first_corner_uv, mesh_with  # noqa: F401  (re-exported: the mesh a file loads into)
 
 #: file extensions geoface reads and writes
 FORMATS = ("obj", "ply", "off", "stl", "glb", "gltf")
-
-
-def first_corner_uv(F: np.ndarray, FUV: np.ndarray, n_vertices: int) -> np.ndarray:
-    """Per vertex, the UV index of the first face corner that uses it (-1 if none): one UV
-    per vertex where seams give several."""
-    vert_uv = np.full(n_vertices, -1, np.int64)
-    vert_uv[F.ravel()[::-1]] = FUV.ravel()[::-1]
-    return vert_uv
-
-
-@dataclass(frozen=True)
-class Mesh:
-    """A triangle mesh with the attributes that travel with it.
-
-    Attributes
-    ----------
-    V : (n, 3) float64
-    F : (m, 3) int64
-    UV : (t, 2) float64 or None, texture coordinates
-    FUV : (m, 3) int64 or None, per-corner indices into ``UV``
-    colors : (n, 4) float64 in [0, 1] or None, per-vertex RGBA
-    texture : (h, w, c) uint8 or None, texture image (row 0 = top, v = 1)
-    """
-
-    V: np.ndarray
-    F: np.ndarray
-    UV: np.ndarray | None = None
-    FUV: np.ndarray | None = None
-    colors: np.ndarray | None = None
-    texture: np.ndarray | None = None
-
-    def __post_init__(self):
-        V, F = check_mesh(self.V, self.F)
-        object.__setattr__(self, "V", V)
-        object.__setattr__(self, "F", F)
-        if (self.UV is None) != (self.FUV is None):
-            raise InvalidMeshError("UV and FUV must be given together")
-        if self.UV is not None:
-            UV = np.asarray(self.UV, np.float64)
-            FUV = np.asarray(self.FUV, np.int64)
-            if UV.ndim != 2 or UV.shape[1] != 2:
-                raise InvalidMeshError(f"UV must have shape (t, 2); got {UV.shape}")
-            if FUV.shape != F.shape:
-                raise InvalidMeshError(f"FUV must have the shape of F {F.shape}; got {FUV.shape}")
-            if len(FUV) and (FUV.min() < 0 or FUV.max() >= len(UV)):
-                raise InvalidMeshError("FUV indexes outside UV")
-            if not np.isfinite(UV).all():
-                raise InvalidMeshError("UV has NaN or infinite values")
-            object.__setattr__(self, "UV", UV)
-            object.__setattr__(self, "FUV", FUV)
-        if self.colors is not None:
-            C = np.asarray(self.colors, np.float64)
-            if C.ndim != 2 or C.shape[0] != len(V) or C.shape[1] not in (3, 4):
-                raise InvalidMeshError(f"colors must have shape (n, 3|4) with n={len(V)}; got {C.shape}")
-            if C.shape[1] == 3:
-                C = np.concatenate([C, np.ones((len(C), 1))], 1)
-            object.__setattr__(self, "colors", np.clip(C, 0.0, 1.0))
-        if self.texture is not None:
-            T = np.asarray(self.texture)
-            if T.ndim not in (2, 3) or T.dtype != np.uint8:
-                raise InvalidMeshError(f"texture must be an (h, w[, c]) uint8 image; got {T.shape} {T.dtype}")
-
-    @classmethod
-    def from_vertex_uv(cls, V, F, UV=None, **kw) -> "Mesh":
-        """Build from a per-vertex ``UV (n, 2)`` (``FUV = F``)."""
-        if UV is None:
-            return cls(V, F, **kw)
-        return cls(V, F, UV=UV, FUV=np.asarray(F, np.int64), **kw)
-
-    def with_geometry(self, V, F, vertex_map: np.ndarray, face_map: np.ndarray) -> "Mesh":
-        """Carry attributes over to a repaired mesh.
-
-        ``vertex_map[i]`` is the original vertex of new vertex ``i`` (or -1), ``face_map[f]``
-        the original face of new face ``f`` (or -1).  UVs follow kept faces; new faces get
-        the UV of their corners' original vertices where one exists, else (0, 0).
-        """
-        V, F = check_mesh(V, F)
-        vertex_map = _index_map(vertex_map, len(V), len(self.V), "vertex_map", "vertices")
-        face_map = _index_map(face_map, len(F), len(self.F), "face_map", "faces")
-        colors = None
-        if self.colors is not None:
-            colors = np.zeros((len(V), 4))
-            colors[:, 3] = 1.0
-            ok = vertex_map >= 0
-            colors[ok] = self.colors[vertex_map[ok]]
-        UV = FUV = None
-        if self.UV is not None:
-            F = np.asarray(F, np.int64)
-            FUV = np.zeros_like(F)
-            kept = face_map >= 0
-            FUV[kept] = self.FUV[face_map[kept]]
-            vert_uv = first_corner_uv(self.F, self.FUV, len(self.V))
-            newc = F[~kept]
-            src = np.where(vertex_map[newc] >= 0, vert_uv[np.maximum(vertex_map[newc], 0)], -1)
-            extra = len(self.UV)
-            UV = np.concatenate([self.UV, np.zeros((1, 2))])
-            FUV[~kept] = np.where(src >= 0, src, extra)
-        return Mesh(V, F, UV=UV, FUV=FUV, colors=colors, texture=self.texture)
-
-
-def _index_map(a, n: int, n_old: int, name: str, what: str) -> np.ndarray:
-    """``a`` as an (n,) int64 map into ``n_old`` old elements (-1: new), or InvalidMeshError."""
-    try:
-        m = np.asarray(a)
-    except (TypeError, ValueError):
-        raise InvalidMeshError(f"{name} must be an integer array") from None
-    if m.dtype.kind not in "iu" or m.shape != (n,):
-        raise InvalidMeshError(f"{name} must be {n} integers (one per new {what[:-1]}); got {m.dtype} of shape {m.shape}")
-    m = m.astype(np.int64)
-    if len(m) and (m.min() < -1 or m.max() >= n_old):
-        raise InvalidMeshError(f"{name} must hold old {what} in 0..{n_old - 1} or -1; got {m.min()}..{m.max()}")
-    return m
 
 
 def format_of(path) -> str:
@@ -325,20 +217,6 @@ def _check_obj_indices(path: Path) -> str:
     return text
 
 
-def companion_names(path: str | os.PathLike) -> list[Path]:
-    """The files that belong to a mesh file and are written with it, all named after the mesh:
-    for OBJ the MTL, the texture and the normal map (``head.obj`` → ``head.mtl``,
-    ``head_texture.png``, ``head_normal.png``); for glTF its one buffer (``head.bin``); none
-    for other formats."""
-    path = Path(path)
-    ext = path.suffix.lower()
-    if ext == ".gltf":
-        return [path.with_suffix(".bin")]
-    if ext != ".obj":
-        return []
-    return [path.with_suffix(".mtl"), path.with_name(f"{path.stem}_texture.png"), path.with_name(f"{path.stem}_normal.png")]
-
-
 def _obj_digits(V: np.ndarray) -> int:
     """Decimals that keep ~9 significant digits of the largest coordinate (8 fixed
     decimals would write a head scaled by 1e-9 as all zeros)."""
@@ -385,10 +263,10 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
                             digits=_obj_digits(mesh.V))
         text, files = result if isinstance(result, tuple) else (result, {})
         if mesh.texture is None:  # UVs without an image: no placeholder picture (trimesh writes a 2x2 grey one)
-            files = {k: _without_maps(v) for k, v in files.items() if k.endswith(".mtl")}
-        files = _name_companions(path, files)
+            files = {k: without_maps(v) for k, v in files.items() if k.endswith(".mtl")}
+        files = name_companions(path, files)
         refuse_existing([path, *(path.parent / n for n in files)], overwrite, OutputError)
-        with _atomic_group(path, files) as (tmp_main, tmp_files):
+        with atomic_group(path, files) as (tmp_main, tmp_files):
             Path(tmp_main).write_text(text)
             for name, data in files.items():
                 Path(tmp_files[name]).write_bytes(data)
@@ -399,7 +277,7 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
         from .formats import gltf_one_buffer
 
         main, side = gltf_one_buffer(path, data)
-        with _atomic_group(path, side) as (tmp_main, tmp_files):
+        with atomic_group(path, side) as (tmp_main, tmp_files):
             Path(tmp_main).write_bytes(main)
             for name, blob in side.items():
                 Path(tmp_files[name]).write_bytes(blob)
@@ -408,78 +286,3 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
         Path(tmp).write_bytes(data if isinstance(data, bytes) else data.encode())
 
 
-def _without_maps(mtl) -> bytes:
-    """An MTL without its image references (``map_*`` lines)."""
-    text = mtl.decode("utf-8") if isinstance(mtl, bytes) else mtl
-    return "".join(ln for ln in text.splitlines(True) if not ln.lstrip().lower().startswith("map_")).encode("utf-8")
-
-
-def refuse_existing(paths, overwrite: bool, error) -> None:
-    if overwrite:
-        return
-    for p in paths:
-        if Path(p).exists():
-            raise error(f"{p} exists; pass --force to replace it")
-
-
-def _name_companions(path: Path, files: dict) -> dict:
-    """trimesh names textures after materials (``material_0.png``): rename them after the
-    mesh and point the MTL at the new names."""
-    images = [k for k in files if not k.endswith(".mtl")]
-    ren = {}
-    for i, k in enumerate(images):
-        ext = Path(k).suffix or ".png"
-        ren[k] = f"{path.stem}_texture{ext}" if len(images) == 1 else f"{path.stem}_texture{i}{ext}"
-    out = {}
-    for k, data in files.items():
-        if k.endswith(".mtl"):
-            text = data.decode("utf-8") if isinstance(data, bytes) else data
-            for old, new in ren.items():
-                text = text.replace(f" {old}", f" {new}")
-            out[k] = text.encode("utf-8")
-        else:
-            out[ren[k]] = data
-    return out
-
-
-class _atomic_group:
-    """Write a main file and its side files to temporaries, then rename them all (with the
-    user's umask)."""
-
-    def __init__(self, main: Path, side: dict):
-        self.main = main
-        self.side = {name: main.parent / name for name in side}
-
-    def __enter__(self):
-        import tempfile
-
-        from .._io import temp_prefix, clean_stale_temporaries
-
-        self.main.parent.mkdir(parents=True, exist_ok=True)
-        self.tmps = {}
-        for key, target in [("__main__", self.main), *self.side.items()]:
-            clean_stale_temporaries(target)
-            fd, tmp = tempfile.mkstemp(prefix=temp_prefix(target), suffix=".tmp", dir=target.parent)
-            os.close(fd)
-            self.tmps[key] = Path(tmp)
-        return self.tmps["__main__"], {k: v for k, v in self.tmps.items() if k != "__main__"}
-
-    def __exit__(self, exc_type, exc, tb):
-        from .._io import default_mode
-
-        if exc_type is None:
-            mode = default_mode()
-            for tmp in self.tmps.values():
-                os.chmod(tmp, mode)
-            for name, target in self.side.items():
-                os.replace(self.tmps[name], target)
-            os.replace(self.tmps["__main__"], self.main)
-        else:
-            for tmp in self.tmps.values():
-                tmp.unlink(missing_ok=True)
-        return False
-
-
-def mesh_with(mesh: Mesh, **changes) -> Mesh:
-    """``dataclasses.replace`` for :class:`Mesh` (re-validates)."""
-    return replace(mesh, **changes)

@@ -39,21 +39,22 @@ then a rectangle with the corners at its corners.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InvalidMeshError, ParameterizationError
-from ..mesh.core import boundary_loops, check_mesh, edge_keys, edge_topology, halfedge_twins, has_edge
+from ..mesh.core import boundary_loops, check_mesh, edge_topology
 from ..progress import log
 from ..tol import tol
 from .corners import default_corners
 from .delaunay import IntrinsicTriangulation, flip_flat_degenerate
-from .tracking import FlipTracker, scale_bary
+from .tracking import FlipTracker
 from .intrinsic import corner_angles, cotan_laplacian, cotan_weights, edge_lengths, lobachevsky
 from .linsolve import SPDSolver
 from .layout import align_rectangle, layout, to_unit_square  # noqa: F401  (to_unit_square: public here too)
+from .ricci_mesh import degenerate_boundary_edges, flip_ears, n_degenerate
+from .ricci_result import RicciFlowResult
 
 
 #: trial steps whose log conformal factors span more than this are refused (lengths overflow)
@@ -61,85 +62,6 @@ MAX_LOG_SCALE_RANGE = 600.0
 #: a triangulation with an angle outside these (radians) starts on intrinsic Delaunay flips
 POOR_MIN_ANGLE = np.radians(1.0)
 POOR_MAX_ANGLE = np.radians(177.0)
-
-
-@dataclass(frozen=True)
-class RicciFlowResult:
-    """Result of a Ricci-flow rectangle map.
-
-    Attributes
-    ----------
-    uv : (n, 2) float64 — rectangle layout, corner 0 at the origin, corner 1 on +x
-    F : (m, 3) int64 — the triangulation ``uv`` is valid for: the input's, except that
-        "ears" (boundary vertices with a single triangle, which cannot have a straight
-        boundary angle) had the edge opposite them flipped; ``ears_flipped`` counts them
-    u : (n,) float64 — log conformal factors
-    corners : (4,) int64 — the corner vertices, counter-clockwise from the origin
-    width, height : float — rectangle sides; ``aspect = width / height``
-    converged : bool; iterations : int; residual : float (max |target - angle sum|)
-    seconds : float; history : list of residuals per iteration
-    V : (n', 3) float64 — the mesh's vertices; the input's, followed by the midpoints of
-        boundary edges split by the boundary refinement (``split_edges[i]`` holds the
-        endpoints of vertex ``n + i``), if any
-    mesh_F : (m', 3) int64 — the mesh triangulation the flow started from (the input after
-        ear flips and boundary splits); :meth:`map_points` takes faces of it
-    tracker : replays intrinsic flips (None without them)
-    """
-
-    uv: np.ndarray
-    u: np.ndarray
-    corners: np.ndarray
-    width: float
-    height: float
-    converged: bool
-    iterations: int
-    residual: float
-    seconds: float
-    history: list = field(default_factory=list)
-    degenerate_triangles: int = 0
-    F: np.ndarray | None = None
-    ears_flipped: int = 0
-    intrinsic_flips: int = 0
-    mesh_F: np.ndarray | None = None
-    V: np.ndarray | None = None
-    split_edges: np.ndarray | None = None
-    tracker: FlipTracker | None = field(default=None, repr=False)
-
-    @property
-    def aspect(self) -> float:
-        return self.width / self.height
-
-    def map_points(self, face, bary, interpolation: str = "projective") -> np.ndarray:
-        """The conformal map at points of the mesh: ``face (k,)`` indexes ``mesh_F`` (the
-        input triangulation after ear flips and boundary splits), ``bary (k, 3)`` in its
-        corner order → ``(k, 2)`` in the layout's coordinates.
-
-        ``projective`` (default): the discrete conformal map itself, which takes each
-        triangle's circumcircle to the circumcircle of its image (barycentrics scale by
-        ``exp(-u_i)``; Springborn 2019).  With intrinsic flips the points are first carried
-        through them (:mod:`geoface.param.tracking`), and the map is projective on each piece
-        of the common refinement.  ``linear``: ``uv`` interpolated linearly, as a renderer
-        does with the vertex UVs (only without intrinsic flips).
-        """
-        face = np.asarray(face, np.int64)
-        bary = np.asarray(bary, np.float64).reshape(-1, 3)
-        if interpolation not in ("projective", "linear"):
-            raise ParameterizationError(f"interpolation must be 'projective' or 'linear'; got {interpolation!r}")
-        if self.tracker is None:
-            b = bary if interpolation == "linear" else scale_bary(self.F, face, bary, self.u)
-            return np.einsum("ki,kij->kj", b, self.uv[self.F[face]])
-        if interpolation == "linear":
-            raise ParameterizationError("a result with intrinsic flips has no linear interpolation on the mesh's triangles")
-        tface, tbary = self.tracker.track(face, bary)
-        if not np.array_equal(self.tracker.F_final, self.F):
-            raise ParameterizationError("internal: replayed flips do not reproduce the final triangulation")
-        b = scale_bary(self.F, tface, tbary, self.u)
-        return np.einsum("ki,kij->kj", b, self.uv[self.F[tface]])
-
-    def unit_square(self, fit: str = "stretch") -> np.ndarray:
-        """UVs in the unit square: ``stretch`` each side to 1 (default) or ``uniform``
-        (keep the aspect ratio, centred)."""
-        return to_unit_square(self.uv, self.width, self.height, fit)
 
 
 def _energy_terms(lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -299,7 +221,7 @@ class RicciFlowSolver:
         cap = min(self.max_iterations, 30) if auto and tri is None else self.max_iterations
         u, ang, F, it, res, history, converged = self._newton(corners, theta, u, tri, quiet, cap,
                                                               stall=3 if auto and tri is None else 0)
-        if auto and tri is None and (not converged or _n_degenerate(ang) > 0):
+        if auto and tri is None and (not converged or n_degenerate(ang) > 0):
             log(f"ricci: no flat metric on the mesh's own triangulation (residual {res:.2e} after {it} iterations); "
                 "continuing on its intrinsic Delaunay triangulation", quiet=quiet, detail=True)
             tri = IntrinsicTriangulation(self.F, self.l0)
@@ -308,11 +230,11 @@ class RicciFlowSolver:
             history += h2
         rounds = 0
         while tri is not None and converged:
-            if _n_degenerate(ang) > 0:
+            if n_degenerate(ang) > 0:
                 flip_flat_degenerate(tri, u)
                 F = tri.F
                 _, _, ang = self.energy(u, theta, F, tri)
-            bad = _degenerate_boundary_edges(tri, u)
+            bad = degenerate_boundary_edges(tri, u)
             if not bad or rounds >= self.max_refinements:
                 break
             rounds += 1
@@ -329,7 +251,7 @@ class RicciFlowSolver:
             history += h2
         self._u_warm = u.copy()
         lengths = np.exp(0.5 * self._lam(u, F, tri))
-        degenerate = _n_degenerate(ang)
+        degenerate = n_degenerate(ang)
         uv = layout(lengths, F, ang, None if tri is None else tri.twin)
         uv, w, h = align_rectangle(uv, corners)
         if tol.strict and converged:
@@ -393,7 +315,7 @@ class RicciFlowSolver:
             # them, but the minimiser of a realisable problem has none); with intrinsic flips the
             # guard gives way sooner (below 1/1000: flips and the boundary refinement after the
             # solve resolve what is left, and a slivered mesh would otherwise crawl)
-            n_deg = _n_degenerate(ang)
+            n_deg = n_degenerate(ang)
             t = 1.0
             while True:
                 un = u + t * d
@@ -404,7 +326,7 @@ class RicciFlowSolver:
                 noise = abs(t * slope) < 1e-11 * max(abs(E), 1.0)
                 if noise and np.isfinite(En):
                     armijo = float(np.abs(gn).max()) < float(np.abs(g).max())
-                if armijo and (_n_degenerate(angn) <= n_deg or t < (1e-3 if tri is not None else 1e-6)):
+                if armijo and (n_degenerate(angn) <= n_deg or t < (1e-3 if tri is not None else 1e-6)):
                     break
                 t *= 0.5
                 if t < 1e-12:
@@ -480,69 +402,6 @@ class RicciFlowSolver:
         if ((np.diff(np.r_[p, p[0]]) % len(self.boundary)) == 0).any() or ((p - p[0]) % len(self.boundary)).tolist() != sorted(((p - p[0]) % len(self.boundary)).tolist()):
             raise ParameterizationError("corners must be given in boundary order (counter-clockwise)")
         return c
-
-
-def flip_ears(V: np.ndarray, F: np.ndarray, boundary: np.ndarray) -> tuple[np.ndarray, int]:
-    """Flip the edge opposite every boundary vertex that has a single triangle.
-
-    Such a vertex can never reach a straight boundary angle (pi) without its triangle
-    degenerating, so Newton would crawl along the energy's degenerate extension.  The
-    flip gives it two triangles; it is skipped where it would duplicate an edge or fold
-    the surface (new normals against the old ones).
-    """
-    F = F.copy()
-    count = np.bincount(F.ravel(), minlength=len(V))
-    ears = boundary[count[boundary] == 1]
-    if len(ears) == 0:
-        return F, 0
-    keys = edge_keys(F)
-    twin = halfedge_twins(F)
-    done = 0
-    touched = set()
-    for v in ears.tolist():
-        f = int(np.flatnonzero((F == v).any(1))[0])
-        k = int(np.flatnonzero(F[f] == v)[0])
-        b, c = int(F[f, (k + 1) % 3]), int(F[f, (k + 2) % 3])
-        h = int(twin[3 * f + (k + 1) % 3])  # twin of half-edge b -> c
-        if h < 0 or f in touched:
-            continue
-        g = h // 3
-        if g in touched:
-            continue
-        d = int(F[g, (h % 3 + 2) % 3])
-        # (a flip can never re-create another flip's new edge: both faces of each
-        # flip are marked touched, and every ear has only one face)
-        if d == v or has_edge(keys, v, d):
-            continue
-        new1, new2 = (v, b, d), (v, d, c)
-        n_old = np.cross(V[b] - V[v], V[c] - V[v]) + np.cross(V[b] - V[c], V[d] - V[c])
-        if any(np.cross(V[t[1]] - V[t[0]], V[t[2]] - V[t[0]]) @ n_old <= 0 for t in (new1, new2)):
-            continue
-        F[f], F[g] = new1, new2
-        touched.update((f, g))
-        done += 1
-    return F, done
-
-
-def _degenerate_boundary_edges(tri: IntrinsicTriangulation, u: np.ndarray, tol: float = 1e-4) -> list[tuple[int, int]]:
-    """Boundary edges ``(a, b)`` whose opposite angle is within ``tol`` of pi (or whose
-    triangle breaks the triangle inequality) in the metric scaled by ``u``."""
-    lc = tri.corner_lengths(u)
-    ang = corner_angles(lc)
-    a, b, c = lc[:, 0], lc[:, 1], lc[:, 2]
-    bad = ~((a < b + c) & (b < c + a) & (c < a + b)) | (ang.max(1) > np.pi - tol)
-    out = []
-    for f in np.flatnonzero(bad).tolist():
-        k = int(np.argmax(ang[f]))
-        h = 3 * f + (k + 1) % 3  # the half-edge opposite corner k
-        if tri.twin[h] < 0:
-            out.append((int(tri.F[f, (k + 1) % 3]), int(tri.F[f, (k + 2) % 3])))
-    return out
-
-
-def _n_degenerate(ang: np.ndarray) -> int:
-    """Triangles at the triangle-inequality limit (an angle of 0 or pi)."""
-    return int(((ang < 1e-12) | (ang > np.pi - 1e-12)).any(1).sum())
 
 
 def ricci_flow_rectangle(V, F, corners=None, **kw) -> RicciFlowResult:

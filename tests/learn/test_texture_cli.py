@@ -76,6 +76,20 @@ def test_synth_train_reconstruct_end_to_end(tmp_path, capsys):
                                camera=Camera.from_K(cam["K"], cam["R"], cam["t"]), uv_size=64)
     assert 0 < rec.coverage <= 1 and rec.fit is None and set(rec.uv_maps) == {"albedo", "micronormal", "specular"}
     assert np.abs(rec.uv_maps["albedo"] - read_image(out / "uv_albedo.png")).max() < 1e-3
+    # a real photo alone (skimage's astronaut): MediaPipe finds the 68 landmarks, the ICT head is fitted
+    pytest.importorskip("mediapipe")
+    from skimage import data
+
+    save_image = __import__("geoface.images", fromlist=["save_image"]).save_image
+    save_image(tmp_path / "astronaut.png", cv2.resize(data.astronaut(), (256, 256), interpolation=cv2.INTER_AREA))
+    out6 = tmp_path / "out6"
+    assert main(["texture", "reconstruct", str(tmp_path / "astronaut.png"), "--model", str(model), "--track",
+                 "--uv-size", "64", "-o", str(out6), "-q"]) == 0
+    msg = capsys.readouterr().out
+    assert "ICT head fitted to the landmarks" in msg and float(msg.split("RMS ")[1].split(" px")[0]) < 3.0
+    assert read_image(out6 / "uv_albedo.png").shape == (64, 64, 3)
+    assert main(["texture", "reconstruct", str(tmp_path / "astronaut.png"), "--model", str(model), "--track",
+                 "--landmarks", str(tmp_path / "lm.json"), "-o", str(tmp_path / "out7"), "-q"]) == 2
 
 
 @pytest.mark.parametrize("argv,msg", [

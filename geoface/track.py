@@ -5,7 +5,7 @@ frame; :data:`IBUG68_FROM_MEDIAPIPE` turns them into the 68 iBUG landmarks that 
 (each a fixed convex combination of four face-mesh points, fitted on rendered ICT-FaceKit
 people against their true landmarks and checked on other people: ``data_tools/fit_mediapipe_ibug68.py``).
 MediaPipe's selfie segmentation gives the person's mask. :func:`track_capture` writes a capture
-folder (:mod:`geoface.avatar.capture`) whose ``landmarks.json`` and ``masks/`` come from the
+folder (``frames/``, ``camera.json``, ...; :mod:`geoface.avatar.capture`) whose ``landmarks.json`` and ``masks/`` come from the
 tracker: ``geoface track``.
 
 Frames where no face is found get the landmarks of the nearest frames (linearly interpolated)
@@ -175,7 +175,7 @@ def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, overw
     originals (which are not copied). ``names``: the landmark names to write (default: those of
     the capture's own ``landmarks.json`` when it has one, else all 68)."""
     from geoface._io import output_folder
-    from geoface.avatar.capture import IBUG68_NAMES
+    from geoface.landmarks import IBUG68_NAMES
     from geoface.images import read_image, save_image
 
     src = Path(capture_dir)

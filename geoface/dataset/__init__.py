@@ -20,9 +20,9 @@ other options or another source (``rebuild``, ``--force``) starts the manifest a
 * Deterministic: each item runs with single-threaded BLAS, so its files are byte-identical
   whichever scheduler or worker count produced them (``meta.json`` holds no timings).
 
-Schedulers: ``workers=1`` runs in this process; ``workers=N`` a local process pool (spawned
-processes); ``scheduler="tcp://host:8786"`` a Dask distributed cluster (every worker needs
-geoface installed and the input/output folders mounted at the same paths).
+Schedulers: ``workers=1`` runs in this process; ``workers=N`` a local process pool;
+``scheduler="tcp://host:8786"`` a Dask distributed cluster (:mod:`geoface.dataset.workers`).
+The input meshes, their labels and the manifest are read by :mod:`geoface.dataset.files`.
 
 >>> build_dataset("meshes/", "dataset/", DatasetOptions(res=128, augment=8), workers=2)  # doctest: +SKIP
 """
@@ -36,14 +36,14 @@ import traceback
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-from .errors import GeofaceError
-from .progress import log
+from ..errors import GeofaceError
+from ..progress import log
+from .files import MANIFEST, MESH_SUFFIXES, find_meshes, load_labels, read_manifest
+from .workers import die_with_parent, executor
 
 __all__ = ["DatasetOptions", "build_dataset", "build_ict_dataset", "find_meshes", "load_labels", "read_manifest", "MESH_SUFFIXES",
            "die_with_parent"]
 
-MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
-MANIFEST = "manifest.jsonl"
 #: files that make an item folder complete (``texture.png`` only where the mesh has colours or a texture)
 ITEM_FILES = ("position.png", "normal.png", "mask.png", "meta.json")
 
@@ -79,71 +79,13 @@ class DatasetOptions:
         return self
 
     def convert_options(self, corner_set: int, roi):
-        from .pipeline import ConvertOptions
+        from ..pipeline import ConvertOptions
 
         return ConvertOptions(
             res=self.res, roi="none" if roi is None else roi, lam=self.lam, augment=self.augment,
             method=self.method, ot_tol=self.ot_tol, reconstruct=self.reconstruct, preview=self.preview,
             up=self.up, open=self.open, corner_set=corner_set, metrics=False,
         ).validate()
-
-
-def find_meshes(in_dir: str | os.PathLike) -> list[Path]:
-    """The mesh files directly inside ``in_dir`` (by suffix), sorted by name."""
-    d = Path(in_dir)
-    if not d.is_dir():
-        raise GeofaceError(f"input folder not found: {d}")
-    files = sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES)
-    if not files:
-        raise GeofaceError(f"no mesh files ({', '.join(MESH_SUFFIXES)}) in {d}")
-    stems: dict = {}
-    for p in files:
-        if p.stem in stems:
-            raise GeofaceError(f"two meshes share the name {p.stem!r} ({stems[p.stem].name}, {p.name}); item folders are named by stem")
-        stems[p.stem] = p
-    return files
-
-
-def load_labels(path: str | os.PathLike) -> dict:
-    """Labels per mesh stem from ``.jsonl`` (one object per line with ``name`` or ``mesh``,
-    e.g. ``{"name": "head_000", "prompt": "a smiling female", ...}``) or ``.json`` (an object
-    mapping stem → labels, or a list of such lines)."""
-    p = Path(path)
-    if not p.is_file():
-        raise GeofaceError(f"labels file not found: {p}")
-    try:
-        text = p.read_text()
-        rows = [json.loads(line) for line in text.splitlines() if line.strip()] if p.suffix == ".jsonl" else json.loads(text)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise GeofaceError(f"cannot read the labels file {p}: {e}") from None
-    if isinstance(rows, dict):
-        return {str(k): dict(v) for k, v in rows.items()}
-    out = {}
-    for i, r in enumerate(rows):
-        key = r.get("name", r.get("mesh")) if isinstance(r, dict) else None
-        if key is None:
-            raise GeofaceError(f"labels file {p}: entry {i + 1} has no 'name' (the mesh's file stem)")
-        out[Path(str(key)).stem] = dict(r)
-    return out
-
-
-def read_manifest(out_dir: str | os.PathLike) -> dict:
-    """The last manifest line of every item, keyed by item name (``stem/aug{k}``)."""
-    p = Path(out_dir) / MANIFEST
-    last: dict = {}
-    if p.is_file():
-        try:
-            text = p.read_bytes().decode("utf-8")
-        except UnicodeDecodeError:
-            raise GeofaceError(f"{p} is not a text file (not UTF-8); move it away or build into another folder") from None
-        for line in text.splitlines():
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError:
-                continue  # a line cut short by a killed run
-            if isinstance(row, dict) and isinstance(row.get("item"), str):
-                last[row["item"]] = row
-    return last
 
 
 def _complete(folder: Path) -> bool:
@@ -156,7 +98,7 @@ def _item_roi(mesh_path: Path, n_vertices: int, roi: str):
     if roi == "auto":
         side = mesh_path.with_suffix(".json")
         if side.is_file():
-            from .pipeline import load_roi
+            from ..pipeline import load_roi
 
             return load_roi(side, n_vertices)
     return "face"
@@ -183,11 +125,11 @@ def _item_mesh(source, roi: str):
     """The mesh and region of interest of one item's source: a mesh file (its face mask from
     ``<stem>.json`` beside it) or an ICT-FaceKit head spec (:func:`geoface.synth.ict_data.ict_specs`)."""
     if isinstance(source, dict):
-        from .synth.ict_data import head_from_spec
+        from ..synth.ict_data import head_from_spec
 
         head = head_from_spec(source)
         return head.mesh(), (None if roi == "none" else ("face" if roi == "face" else head.face_mask))
-    from .mesh.io import load_mesh
+    from ..mesh.io import load_mesh
 
     mesh = load_mesh(source)
     return mesh, _item_roi(Path(source), len(mesh.V), roi)
@@ -203,10 +145,10 @@ def run_item(source, out_folder: str, corner_set: int, options: DatasetOptions) 
     t0 = time.perf_counter()
     row: dict = {"status": "ok", "error": None}
     try:
-        from ._lazy import lazy_import
+        from .._lazy import lazy_import
 
         threadpool_limits = lazy_import("threadpoolctl", "dataset building").threadpool_limits
-        from .pipeline import convert
+        from ..pipeline import convert
 
         with threadpool_limits(limits=1):
             mesh, roi = _item_mesh(source, options.roi)
@@ -246,83 +188,6 @@ def _plan(sources, out_dir: Path, options: DatasetOptions, done: dict, retry_fai
     return todo, skipped
 
 
-class _Deferred:
-    """A future for the serial backend: runs its call when its result is asked for."""
-
-    def __init__(self, fn, *args):
-        self.fn, self.args = fn, args
-
-    def result(self):
-        return self.fn(*self.args)
-
-
-def _executor(workers: int, scheduler: str | None):
-    """``(submit(fn, *args) -> future, as_completed(futures), close())`` for the chosen backend."""
-    if scheduler:
-        from ._lazy import lazy_import
-
-        distributed = lazy_import("dask.distributed", "dataset building on a Dask cluster")
-        try:
-            client = distributed.Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError, ValueError) as e:
-            raise GeofaceError(f"cannot connect to the Dask scheduler {scheduler}: {e}") from None
-        return (lambda fn, *a: client.submit(fn, *a, pure=False)), distributed.as_completed, lambda interrupted=False: client.close()
-    if workers == 1:  # in this process, one item at a time as the driver asks for results
-        return _Deferred, iter, lambda interrupted=False: None
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=die_with_parent,
-                               initargs=(os.getpid(),))
-    def close(interrupted: bool = False) -> None:
-        if interrupted:  # do not wait for running items: end the workers now (the temporary
-            # folders of their unfinished items are removed by the next run that builds them)
-            procs = list((getattr(pool, "_processes", None) or {}).values())
-            for proc in procs:
-                proc.kill()
-            for proc in procs:
-                proc.join(timeout=2.0)
-            pool.shutdown(wait=False, cancel_futures=True)
-        else:
-            pool.shutdown(wait=True, cancel_futures=True)
-
-    return pool.submit, as_completed, close
-
-
-def die_with_parent(parent: int, unwind: bool = True) -> None:
-    """Worker initializer: end this worker when the driver dies (even by SIGKILL), instead
-    of writing on for minutes (Linux: PR_SET_PDEATHSIG; elsewhere a watcher thread).  ``unwind``:
-    SIGTERM raises KeyboardInterrupt, so that the item in hand cleans up (else SIGTERM ends the
-    worker as it always does, quietly: what ``multiprocessing.Pool`` sends its workers on closing)."""
-    import signal
-    import sys
-    import threading
-
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        try:
-            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
-        except (OSError, AttributeError):
-            pass
-    if os.getppid() != parent:  # the driver died before the call above
-        os._exit(1)
-
-    def on_term(signum, frame):  # unwind: the item's temporary folder is removed on the way out
-        raise KeyboardInterrupt
-
-    if unwind:
-        signal.signal(signal.SIGTERM, on_term)
-
-    def watch():
-        while True:
-            time.sleep(1.0)
-            if os.getppid() != parent:
-                os._exit(1)
-
-    threading.Thread(target=watch, daemon=True).start()
-
-
 OPTIONS_FILE = "options.json"
 
 
@@ -330,7 +195,7 @@ def _record_options(out: Path, opts: DatasetOptions, rebuild: bool, source: dict
     """Check ``out``'s recorded options against ``opts`` (all but ``augment``, which only adds
     or drops items) and ``source`` (what the items are made from, for generated datasets);
     record them.  Returns True when everything must be built again."""
-    from ._io import atomic_write_text
+    from .._io import atomic_write_text
 
     cur = {k: v for k, v in asdict(opts).items() if k != "augment"}
     if source is not None:
@@ -424,9 +289,9 @@ def build_ict_dataset(
     files are written.  The face mask of the model is the region of interest (``roi="auto"``).
     Manifest rows carry ``labels`` (``expression_name``, ``split`` by identity, traits) and
     ``prompt``; ``heads.jsonl`` in ``out_dir`` lists every head's weights and labels."""
-    from ._io import atomic_write_text
-    from .synth.ict import find_model
-    from .synth.ict_data import ict_specs
+    from .._io import atomic_write_text
+    from ..synth.ict import find_model
+    from ..synth.ict_data import ict_specs
 
     opts = (options or DatasetOptions()).validate()
     if opts.up == "auto":  # the model's heads are Y-up by construction: no need to look
@@ -460,7 +325,7 @@ def _build(sources, out_dir, opts: DatasetOptions, lab: dict | None, source: dic
     if before is not None:
         before()
     if changed and (out / MANIFEST).is_file():  # rebuilt with other options or source: the old rows are stale
-        from ._io import atomic_write_text
+        from .._io import atomic_write_text
 
         atomic_write_text(out / MANIFEST, "")
     manifest = {} if changed else read_manifest(out)
@@ -473,7 +338,7 @@ def _build(sources, out_dir, opts: DatasetOptions, lab: dict | None, source: dic
     done = failed = 0
     failures: dict = {}
     if todo:
-        submit, as_completed, close = _executor(int(workers), scheduler)
+        submit, as_completed, close = executor(int(workers), scheduler)
         try:
             futures = {}
             for item, stem, src, k, folder in todo:
@@ -505,7 +370,7 @@ def _build(sources, out_dir, opts: DatasetOptions, lab: dict | None, source: dic
                         + (f" - {row['error']}" if row["error"] else ""), quiet=quiet)
         except BaseException:
             close(interrupted=True)  # SIGINT, SIGTERM, a driver error: the workers stop now
-            from ._io import clean_tree_temporaries
+            from .._io import clean_tree_temporaries
 
             clean_tree_temporaries(out, depth=3)  # what the stopped workers were writing
             raise

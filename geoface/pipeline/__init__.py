@@ -3,7 +3,8 @@
 Stages: repair to a disk → corners → Ricci flow (conformal, rectangle) → optimal-transport
 measure-preserving map (or stay conformal) → geometry images → reconstruction → preview and
 metrics.  ``augment = K`` repeats the parameterization for the first K of the 8 corner sets
-(the paper's augmentation), writing one image set per corner set.
+(the paper's augmentation), writing one image set per corner set; each corner set's stages, from
+the flow on, are :mod:`geoface.pipeline.corner_set`.
 
 >>> convert(load_mesh("head.obj"), "out/", ConvertOptions(res=256))  # doctest: +SKIP
 """
@@ -19,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import GeofaceError, InvalidMeshError
-from .mesh.core import bbox_diagonal, check_mesh
-from .mesh.io import Mesh, first_corner_uv
-from .progress import log
+from ..errors import GeofaceError, InvalidMeshError
+from ..mesh.io import Mesh
+from ..progress import log
+from .corner_set import convert_set, corner_uvs_for, extend_split, reconstruction_error  # noqa: F401  (extend_split: public here too)
 
 __all__ = ["ConvertOptions", "convert", "face_region", "load_roi", "reconstruction_error", "corner_uvs_for", "upright_rotation"]
 
@@ -70,7 +71,7 @@ class ConvertOptions:
     metrics: bool = True
 
     def validate(self) -> "ConvertOptions":
-        from .gimage.raster import MAX_RES
+        from ..gimage.raster import MAX_RES
 
         if int(self.res) != self.res or not 4 <= self.res <= MAX_RES:
             raise GeofaceError(f"res must be an integer in [4, {MAX_RES}]; got {self.res!r}")
@@ -80,7 +81,7 @@ class ConvertOptions:
             raise GeofaceError(f"lam must be positive; got {self.lam!r}")
         if int(self.augment) != self.augment or not 1 <= self.augment <= 8:
             raise GeofaceError(f"augment must be an integer in 1..8; got {self.augment!r}")
-        from .gimage.reconstruct import MAX_SMOOTH
+        from ..gimage.reconstruct import MAX_SMOOTH
 
         if int(self.smooth) != self.smooth or not 0 <= self.smooth <= MAX_SMOOTH:
             raise GeofaceError(f"smooth must be an integer in 0..{MAX_SMOOTH}; got {self.smooth!r}")
@@ -89,7 +90,7 @@ class ConvertOptions:
         if self.corner_set is not None and (int(self.corner_set) != self.corner_set or not 0 <= self.corner_set <= 7):
             raise GeofaceError(f"corner_set must be an integer in 0..7; got {self.corner_set!r}")
         if not (isinstance(self.front, str) and self.front == "auto"):
-            from .repair.opening import as_axis
+            from ..repair.opening import as_axis
 
             try:
                 as_axis(self.front)
@@ -140,104 +141,8 @@ def load_roi(path: str | os.PathLike, n_vertices: int) -> np.ndarray:
     return m
 
 
-def extend_split(V_new, split_edges, n_old, roi, colors):
-    """Per-vertex data for vertices appended as edge midpoints (``split_edges``, in order)."""
-    k = len(V_new) - n_old
-    edges = np.asarray(split_edges)[-k:]
-    for a, b in edges.tolist():
-        if roi is not None:
-            roi = np.append(roi, roi[a] and roi[b])
-        if colors is not None:
-            colors = np.concatenate([colors, (0.5 * (colors[a].astype(np.float64) + colors[b])).astype(colors.dtype)[None]])
-    return V_new, roi, colors
-
-
-def corner_uvs_for(F_new: np.ndarray, F_old: np.ndarray, UV: np.ndarray, FUV: np.ndarray, split_edges=None):
-    """Texture coordinates for the faces ``F_new`` of a re-triangulated mesh: faces that
-    exist in ``F_old`` keep their corner UVs (seams survive); others use one UV per vertex.
-    ``split_edges (k, 2)``: vertices appended after ``F_old``'s, each the midpoint of an
-    edge (their UV is the midpoint's).  Returns ``(UV_ext, FUV_new)``."""
-    n = int(max(F_new.max(), F_old.max())) + 1
-
-    def keys(F):
-        r = np.argmin(F, axis=1)  # rotate so the smallest index is first (orientation kept)
-        G = np.stack([F[np.arange(len(F)), (r + k) % 3] for k in range(3)], 1)
-        return (G[:, 0] * n + G[:, 1]) * n + G[:, 2], r
-
-    ko, ro = keys(F_old)
-    kn, rn = keys(F_new)
-    order = np.argsort(ko)
-    pos = np.searchsorted(ko[order], kn)
-    pos = np.minimum(pos, len(ko) - 1)
-    hit = ko[order][pos] == kn
-    src = order[pos]
-    vert_uv = first_corner_uv(F_old, FUV, n)
-    UV_ext = np.concatenate([UV, np.zeros((1, 2))])
-    if split_edges is not None and len(split_edges):
-        base = n - len(split_edges)
-        for i, (a, b) in enumerate(np.asarray(split_edges).tolist()):  # in order: may chain
-            ua = UV_ext[vert_uv[a]] if vert_uv[a] >= 0 else UV_ext[-1]
-            ub = UV_ext[vert_uv[b]] if vert_uv[b] >= 0 else UV_ext[-1]
-            UV_ext = np.concatenate([UV_ext[:-1], [0.5 * (ua + ub)], UV_ext[-1:]])
-            vert_uv[base + i] = len(UV_ext) - 2
-    fallback = np.where(vert_uv[F_new] >= 0, vert_uv[F_new], len(UV_ext) - 1)
-    FUV_new = fallback.copy()
-    # matching faces: corner k of F_new[f] is corner (k + rn - ro) of F_old[src]
-    f = np.flatnonzero(hit)
-    for k in range(3):
-        FUV_new[f, k] = FUV[src[f], (k + rn[f] - ro[src[f]]) % 3]
-    return UV_ext, FUV_new
-
-
-def reconstruction_error(V_ref, F_ref, V_rec, F_rec, *, ref_mask=None, rec_mask=None) -> dict:
-    """Two-sided vertex-to-surface distances between two meshes, divided by the reference's
-    bounding-box diagonal: Hausdorff (max of both sides) and mean (of both sides).  With
-    masks, also the same restricted to masked vertices (``face_*``)."""
-    from ._lazy import lazy_import
-
-    igl = lazy_import("igl", "reconstruction error")
-    V_ref, F_ref = check_mesh(V_ref, F_ref)
-    V_rec, F_rec = check_mesh(V_rec, F_rec)
-    diag = bbox_diagonal(V_ref)
-    d_rec = np.sqrt(igl.point_mesh_squared_distance(V_rec, V_ref, F_ref)[0]) / diag
-    d_ref = np.sqrt(igl.point_mesh_squared_distance(V_ref, V_rec, F_rec)[0]) / diag
-    out = {
-        "hausdorff": float(max(d_rec.max(), d_ref.max())),
-        "mean": float(0.5 * (d_rec.mean() + d_ref.mean())),
-        "rec_to_ref_max": float(d_rec.max()),
-        "ref_to_rec_max": float(d_ref.max()),
-    }
-    if ref_mask is not None and rec_mask is not None and ref_mask.any() and rec_mask.any():
-        a, b = d_rec[rec_mask], d_ref[ref_mask]
-        out["face_hausdorff"] = float(max(a.max(), b.max()))
-        out["face_mean"] = float(0.5 * (a.mean() + b.mean()))
-    return out
-
-
-def _preview(gi, path: Path) -> None:
-    from .gimage.image import MODALITIES, import_cv2
-
-    cv2 = import_cv2()
-    N = gi.resolution
-    size = min(N, 384)
-    tiles = []
-    for name in MODALITIES:
-        if gi.has(name):
-            t = np.round(gi.modality(name).transpose(1, 2, 0) * 255).astype(np.uint8)[:, :, ::-1]
-            tiles.append(cv2.resize(t, (size, size), interpolation=cv2.INTER_AREA))
-    m = np.repeat((gi.mask.astype(np.uint8) * 255)[:, :, None], 3, 2)
-    tiles.append(cv2.resize(m, (size, size), interpolation=cv2.INTER_NEAREST))
-    gap = np.full((size, 4, 3), 255, np.uint8)
-    row = tiles[0]
-    for t in tiles[1:]:
-        row = np.concatenate([row, gap, t], 1)
-    from ._io import write_image
-
-    write_image(path, row)
-
-
 def _axis(value, default) -> np.ndarray:
-    from .repair.opening import as_axis
+    from ..repair.opening import as_axis
 
     return np.asarray(default, float) if isinstance(value, str) and value == "auto" else as_axis(value)
 
@@ -255,7 +160,7 @@ def _front(opts: ConvertOptions, V: np.ndarray, F: np.ndarray, roi, up: np.ndarr
         return _axis(opts.front, (0.0, 0.0, 1.0))
     if roi is None or isinstance(opts.roi, str) or not roi.any() or roi.all():
         if seen is None:
-            from .mesh.frame import mesh_frame
+            from ..mesh.frame import mesh_frame
 
             try:
                 seen = mesh_frame(V, F, up=up).front
@@ -264,7 +169,7 @@ def _front(opts: ConvertOptions, V: np.ndarray, F: np.ndarray, roi, up: np.ndarr
         d = np.asarray(seen, np.float64) - (np.asarray(seen, np.float64) @ up) * up
         L = np.linalg.norm(d)
         return d / L if L > 1e-6 else np.array([0.0, 0.0, 1.0])
-    from .mesh.core import vertex_areas
+    from ..mesh.core import vertex_areas
 
     a = vertex_areas(V, F)
     d = (a[roi, None] * V[roi]).sum(0) / a[roi].sum() - (a[:, None] * V).sum(0) / a.sum()
@@ -294,9 +199,9 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     not at all (files 0644 and folders 0755 under umask 022); an existing ``out_dir`` is
     replaced only with ``overwrite`` (the CLI's ``--force``).  Returns the metrics dict.
     """
-    from .param.corners import corner_sets
-    from .param.ricci import RicciFlowSolver
-    from .repair import make_disk
+    from ..param.corners import corner_sets
+    from ..param.ricci import RicciFlowSolver
+    from ..repair import make_disk
 
     opts = (options or ConvertOptions()).validate()
     if not isinstance(mesh, Mesh):
@@ -329,7 +234,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     if roi is None and isinstance(opts.roi, str) and opts.roi == "face":
         roi = None
         if frame is not None and frame.template is not None:  # a human head: the template's face
-            from .repair.upright import template_face_region
+            from ..repair.upright import template_face_region
 
             roi = template_face_region(V, frame)
         if roi is None or not roi.any():
@@ -349,7 +254,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         "frame": None if frame is None else frame.to_dict(),
         "sets": [],
     }
-    from ._io import atomic_dir
+    from .._io import atomic_dir
 
     stored = upright_rotation(up_vec, front)
     with atomic_dir(out_dir, overwrite=overwrite) as tmp_root:
@@ -360,7 +265,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             folder = tmp_root if len(sets) == 1 else tmp_root / f"aug{k}"
             folder.mkdir(exist_ok=True)
             try:
-                V, roi, colors = _convert_set(st, folder, pos, len(sets), corners, solver, V, roi, colors, dm, opts, quiet,
+                V, roi, colors = convert_set(st, folder, pos, len(sets), corners, solver, V, roi, colors, dm, opts, quiet,
                                               stored)
             except GeofaceError as e:
                 if len(sets) == 1:
@@ -396,89 +301,3 @@ def upright_rotation(up, front) -> np.ndarray:
     return np.stack([np.cross(u, f), u, f])
 
 
-def _convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opts, quiet, stored):
-    """One corner set: Ricci flow → OT → images → reconstruction, into ``folder``; fills
-    ``st`` and returns the (possibly extended) per-vertex data."""
-    from .gimage import geometry_image, reconstruct, save_reconstruction
-    from .gimage.image import write_gimage_files
-    from .gimage.raster import interpolate, rasterize_faces
-    from .param.measure import measure_preserving_map
-    from .param.metrics import distortion
-
-    t = time.perf_counter()
-    log(f"convert [{pos + 1}/{count}]: corner set {st['corner_set']}: Ricci flow, optimal transport, images", quiet=quiet)
-    r = solver.solve(corners, quiet=quiet)
-    if not r.converged:
-        raise GeofaceError(f"Ricci flow did not converge (max |K - target| {r.residual:.3g})")
-    F = r.F
-    if len(r.V) > len(V):  # boundary edges split by the flow: extend per-vertex data
-        V, roi, colors = extend_split(r.V, r.split_edges, len(V), roi, colors)
-    uv = r.unit_square()
-    st["ricci"] = {"seconds": time.perf_counter() - t, "iterations": r.iterations, "residual": r.residual, "aspect": r.aspect,
-                   "log_conformal_factor_range": float(r.u.max() - r.u.min()), "intrinsic_flips": r.intrinsic_flips}
-    st["conformal_distortion"] = distortion(V, F, uv).summary()
-    if opts.method == "ot":
-        t = time.perf_counter()
-        log(f"convert [{pos + 1}/{count}]: optimal transport (lam {opts.lam:g})", quiet=quiet, detail=True)
-        mp = measure_preserving_map(V, F, uv, roi=roi, lam=opts.lam, tol=opts.ot_tol, quiet=quiet)
-        uv = mp.uv
-        st["ot"] = {
-            "seconds": time.perf_counter() - t, "path": mp.path, "sites": mp.sites, "restarts": mp.restarts,
-            "converged": mp.converged,
-            "residual": mp.residual, "iterations": mp.ot.iterations if mp.ot else 0, "halvings": mp.ot.halvings if mp.ot else 0,
-            "stages": mp.ot.stages if mp.ot else 0, "gradient_steps": mp.ot.gradient_steps if mp.ot else 0,
-            "power_diagrams": mp.ot.backend if mp.ot else None, "attempts": mp.attempts,
-            "balanced": None if mp.balanced is None else {
-                "rounds": mp.balanced.best_round, "start_max_log_ratio": mp.balanced.start_max_log_ratio,
-                "max_log_ratio": mp.balanced.max_log_ratio},
-            "flipped_before": mp.flipped_before, "flipped_after": mp.flipped_after,
-            "area_error_before": mp.area_error_before, "area_error_after": mp.area_error_after,
-            "fitted_vertices": mp.fold_free.fitted_vertices if mp.fold_free else 0,
-            "boundary_adjusted": mp.fold_free.boundary_adjusted if mp.fold_free else 0,
-            "max_displacement": mp.fold_free.max_displacement if mp.fold_free else 0.0,
-        }
-    st["distortion"] = distortion(V, F, uv).summary()
-    t = time.perf_counter()
-    log(f"convert [{pos + 1}/{count}]: geometry images {opts.res}x{opts.res}", quiet=quiet, detail=True)
-    kw: dict = {}
-    if dm.texture is not None and dm.UV is not None:
-        UVx, FUVx = corner_uvs_for(F, dm.F, dm.UV, dm.FUV, split_edges=r.split_edges)
-        kw = {"texture": dm.texture, "tex_uv": UVx, "tex_fuv": FUVx}
-    elif colors is not None:
-        kw = {"colors": colors}
-    # statistics to 6 significant digits: floating-point noise (~1e-12, from memory
-    # alignment in vectorised sums) must not change the file's bytes between runs
-    meta = {"corners": st["corners"], "method": opts.method, "lam": opts.lam if opts.method == "ot" else None,
-            "param": {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in st["distortion"].items()},
-            # positions and normals are stored upright (x right, y up, z front); to_input turns them back
-            "frame": {"to_input": [[float(f"{x:.12g}") for x in row] for row in stored.T]}}
-    fid, bary = rasterize_faces(F, uv, opts.res, align_corners=True)
-    gi = geometry_image(V @ stored.T, F, uv, opts.res, meta=meta, raster=(fid, bary), **kw)
-    face_img = None
-    if roi is not None:
-        face_img = interpolate(fid, bary, F, roi.astype(float))[0] > 0.5
-        st["roi_pixel_share"] = float(face_img[gi.mask].mean())
-    st["coverage"] = float(gi.mask.mean())
-    write_gimage_files(folder, gi)
-    if face_img is not None:  # where the ROI (the magnified face) lies in the images
-        from ._io import write_image
-
-        write_image(folder / "roi.png", (face_img & gi.mask).astype(np.uint8) * 255)
-    st["images_seconds"] = time.perf_counter() - t
-    if opts.reconstruct:
-        t = time.perf_counter()
-        log(f"convert [{pos + 1}/{count}]: reconstruction", quiet=quiet, detail=True)
-        rec = reconstruct(gi, smooth=opts.smooth)
-        save_reconstruction(folder / "reconstruction.obj", rec, gi)
-        rec_mask = None
-        if face_img is not None:  # each reconstructed vertex sits at a pixel centre
-            N = opts.res
-            jj = np.clip(np.round(rec.UV[:, 0] * N - 0.5).astype(int), 0, N - 1)
-            ii = np.clip(np.round((1.0 - rec.UV[:, 1]) * N - 0.5).astype(int), 0, N - 1)
-            rec_mask = face_img[ii, jj]
-        st["reconstruction"] = {"vertices": int(len(rec.V)), "faces": int(len(rec.F))}
-        st["reconstruction"].update(reconstruction_error(V, F, rec.V, rec.F, ref_mask=roi, rec_mask=rec_mask))
-        st["reconstruction"]["seconds"] = time.perf_counter() - t
-    if opts.preview:
-        _preview(gi, folder / "preview.png")
-    return V, roi, colors

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from geoface.avatar.track import ibug68_from_mediapipe
+from geoface.track import ibug68_from_mediapipe
 
 
 def test_the_landmark_table_is_a_convex_combination_per_landmark():
