@@ -1,5 +1,5 @@
 """Rotations in numpy, one module for the whole library: axis-angle (Rodrigues) both ways, yaw /
-pitch / roll, quaternions from matrices, and the look-at rotation of a camera. Matrices are
+pitch / roll, quaternions from matrices, the look-at rotation of a camera and the upright frame of a head. Matrices are
 (3, 3) float64, proper (det +1), acting on column vectors (``X' = R @ X``). The differentiable
 torch twins live beside the code that trains through them: ``geoface.avatar.kinematics.
 axis_angle_to_matrix`` and the quaternion functions of ``geoface.splat.gaussians``.
@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import CameraError
 
-__all__ = ["rodrigues", "rotation_vector", "euler_rotation", "rotmat_to_quat", "look_at_rotation"]
+__all__ = ["rodrigues", "rotation_vector", "euler_rotation", "rotmat_to_quat", "look_at_rotation", "upright_rotation"]
 
 
 def rodrigues(w) -> np.ndarray:
@@ -97,3 +97,19 @@ def look_at_rotation(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
     x = x / nx
     y = np.cross(z, x)
     return np.stack([x, y, z])  # rows are camera axes in world coordinates
+
+
+def upright_rotation(up, front) -> np.ndarray:
+    """The rotation whose rows are (right, up, front) — ``right = up × front`` — of a head: it
+    takes the input's coordinates to upright ones (x right, y up, z front), so that the same head
+    in any axis convention is stored as the same pixels.  ``front`` is made orthogonal to ``up``
+    (+Z or +X when it is parallel)."""
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    f = np.asarray(front, np.float64) - (np.asarray(front, np.float64) @ u) * u
+    if np.linalg.norm(f) < 1e-9:
+        f = np.array([0.0, 0.0, 1.0]) - u[2] * u
+        if np.linalg.norm(f) < 1e-9:
+            f = np.array([1.0, 0.0, 0.0]) - u[0] * u
+    f = f / np.linalg.norm(f)
+    return np.stack([np.cross(u, f), u, f])

@@ -24,6 +24,7 @@ from ..errors import GeofaceError, InvalidMeshError
 from ..mesh.io import Mesh
 from ..progress import log
 from .corner_set import convert_set, corner_uvs_for, extend_split, reconstruction_error  # noqa: F401  (extend_split: public here too)
+from ..rotations import upright_rotation  # noqa: F401  (re-exported)
 
 __all__ = ["ConvertOptions", "convert", "face_region", "load_roi", "reconstruction_error", "corner_uvs_for", "upright_rotation"]
 
@@ -283,21 +284,5 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         if opts.metrics:
             (tmp_root / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
-
-
-def upright_rotation(up, front) -> np.ndarray:
-    """The rotation whose rows are (right, up, front) — ``right = up × front`` — of a head: it
-    takes the input's coordinates to upright ones (x right, y up, z front), so that the same head
-    in any axis convention is stored as the same pixels.  ``front`` is made orthogonal to ``up``
-    (+Z or +X when it is parallel)."""
-    u = np.asarray(up, np.float64)
-    u = u / np.linalg.norm(u)
-    f = np.asarray(front, np.float64) - (np.asarray(front, np.float64) @ u) * u
-    if np.linalg.norm(f) < 1e-9:
-        f = np.array([0.0, 0.0, 1.0]) - u[2] * u
-        if np.linalg.norm(f) < 1e-9:
-            f = np.array([1.0, 0.0, 0.0]) - u[0] * u
-    f = f / np.linalg.norm(f)
-    return np.stack([np.cross(u, f), u, f])
 
 
