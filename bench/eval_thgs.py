@@ -52,6 +52,9 @@ def main(argv=None) -> int:
     ap.add_argument("--head", choices=("procedural", "ict"), default="procedural")
     ap.add_argument("--perturb", default=None, metavar="DEG,MM",
                     help="ict: also train the full model on a copy whose tracked poses are off by this much")
+    ap.add_argument("--tracked", action="store_true",
+                    help="also train the full model on the capture's landmarks and masks from a real tracker "
+                         "(geoface track: MediaPipe) instead of the renderer's; scored on the same frames")
     ap.add_argument("--data-seed", type=int, default=0)
     ap.add_argument("--seed", type=int, default=0, help="model seed (initialisation, frame order)")
     ap.add_argument("--saam-from", type=float, default=0.1)
@@ -98,6 +101,17 @@ def main(argv=None) -> int:
 
             perturb_capture(data_dir, out / "data_perturbed", pert, seed=a.data_seed)  # the same video, other poses
         runs.append(("full_perturbed", out / "data_perturbed", {}))
+    if a.tracked:
+        if not (out / "data_tracked" / "poses.npz").is_file():
+            from geoface.track import track_capture
+
+            tr = track_capture(data_dir, out / "data_tracked", overwrite=True, quiet=True)
+            truth = np.asarray(json.loads((data_dir / "landmarks.json").read_text())["points"])
+            names = json.loads((data_dir / "landmarks.json").read_text()).get("names")
+            got = np.asarray(json.loads((out / "data_tracked" / "landmarks.json").read_text())["points"])
+            emit(stage="tracking", frames=len(tr.found), found=int(tr.found.sum()), landmarks=len(names or got[0]),
+                 landmark_error_px=round(float(np.linalg.norm(got - truth, axis=-1).mean()), 3))
+        runs.append(("full_tracked", out / "data_tracked", {}))
     emit(stage="data", seconds=round(time.perf_counter() - t, 1))
     rnd = lambda v: {k: rnd(x) for k, x in v.items()} if isinstance(v, dict) else round(v, 4)  # noqa: E731
     loaded = {}
@@ -107,9 +121,10 @@ def main(argv=None) -> int:
         cfg = THGSConfig(iters=a.iters, stage_scale=scale, seed=a.seed, **{**lam, **opts})
         info = train_thgs(ddir, out / f"model_{name}", cfg, progress=False, device=a.device)
         h = info["history"]
-        if ddir not in loaded:  # the variants on one capture share its frames in memory
-            loaded[ddir] = load_talking(ddir)
-        ev = evaluate_thgs(load_thgs(out / f"model_{name}"), loaded[ddir])
+        score_dir = data_dir if name == "full_tracked" else ddir  # scored against the true frames and masks
+        if score_dir not in loaded:  # the variants on one capture share its frames in memory
+            loaded[score_dir] = load_talking(score_dir)
+        ev = evaluate_thgs(load_thgs(out / f"model_{name}"), loaded[score_dir])
         emit(stage="heldout", variant=name, seed=a.seed, train_seconds=round(info["seconds"], 1), gaussians=info["n_gaussians"],
              loss_first=round(float(np.mean([r["loss"] for r in h[:20]])), 4),
              loss_last=round(float(np.mean([r["loss"] for r in h[-20:]])), 4), artic_prefit=rnd(info["artic_prefit"]),
