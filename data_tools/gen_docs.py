@@ -19,12 +19,13 @@ DOCS = ROOT / "docs"
 #: the API reference, by layer (docs/architecture.md): one page per package or module, showing
 #: what its ``__all__`` exports
 LAYERS = [
-    ("Foundations", ["geoface", "geoface.errors", "geoface.tol", "geoface.progress", "geoface.video"]),
+    ("Foundations", ["geoface", "geoface.errors", "geoface.tol", "geoface.progress", "geoface.video", "geoface.images",
+                     "geoface.rotations", "geoface.camera", "geoface.landmarks"]),
     ("Geometry", ["geoface.mesh", "geoface.synth", "geoface.repair", "geoface.param", "geoface.gimage", "geoface.uvmap"]),
     ("Pipelines", ["geoface.pipeline", "geoface.dataset"]),
     ("Pictures", ["geoface.viz", "geoface.webview"]),
     ("Neural consumers", ["geoface.nn", "geoface.learn", "geoface.skin", "geoface.splat"]),
-    ("Avatars", ["geoface.avatar", "geoface.hfm", "geoface.thgs", "geoface.drive"]),
+    ("Avatars", ["geoface.track", "geoface.avatar", "geoface.hfm", "geoface.thgs", "geoface.drive"]),
 ]
 
 
@@ -58,7 +59,13 @@ def api_page(name: str) -> str:
             continue
         home = getattr(obj, "__module__", None) if (inspect.isclass(obj) or inspect.isfunction(obj)) else None
         if home is None or not home.startswith("geoface"):
-            home = name  # a constant: documented where it is exported
+            # a constant: documented in the module that defines it (a lazily exported one cannot be
+            # read from the package), on this page unless another package's page owns that module
+            home = getattr(getattr(mod, "__getattr__", None), "homes", {}).get(n, name)
+            owner = max((p for p in pages if home == p or home.startswith(p + ".")), key=len, default=name)
+            if owner != name:
+                elsewhere.append(f"[`{n}`]({owner}.md#{home}.{n})")
+                continue
             out += [f"::: {home}.{n}", "    options:", "      show_root_heading: true", "      heading_level: 2", ""]
             continue
         owner = max((p for p in pages if home == p or home.startswith(p + ".")), key=len, default=name)

@@ -57,4 +57,7 @@ def lazy_exports(package: str, names: dict[str, str]):
     def __dir__():
         return sorted(names)
 
+    # where each name is defined, for tools that read modules statically (the API reference)
+    __getattr__.homes = {n: (m if "." in m else f"{package}.{m}") for n, m in names.items()}
+
     return __getattr__, __dir__, sorted(names)
