@@ -153,6 +153,23 @@ def fit_head_template(P, *, face_only: bool = False):
     return best
 
 
+def turned_fit(P, fit, *, face_only: bool = False):
+    """The template registered again from ``fit`` turned half a turn about its up axis (the face
+    where the back of the head was): ``(R, s, t, error)``. A smooth, egg-shaped head can fit
+    nearly as well either way round; how much worse this one fits says how sure ``fit`` is."""
+    from scipy.spatial import cKDTree
+    from scipy.spatial.transform import Rotation
+
+    tpl = _template()
+    R, s, t, _ = fit
+    T = tpl[1] if face_only else tpl[0]
+    c = P.mean(0)
+    half = Rotation.from_rotvec(np.pi * (R @ np.array([0.0, 1.0, 0.0]))).as_matrix()
+    rT = float(np.sqrt(((T - T.mean(0)) ** 2).sum(1).mean()))
+    R2, s2, t2, e = _icp(T, P, cKDTree(P), half @ R, s, half @ (t - c) + c, 60, not face_only, stop=1e-4)
+    return R2, s2, t2, e / (s2 * rT)
+
+
 def template_face_region(V, frame, *, reach: float = 0.08) -> np.ndarray | None:
     """The face of a human head: the vertices of ``V`` whose nearest point of the registered head
     template (``frame.template``) lies in the template's face region, within ``reach`` of the

@@ -31,12 +31,15 @@ import numpy as np
 
 from ..errors import GeofaceError
 from ..mesh.core import boundary_loops, face_areas, loop_length
-from .template import TEMPLATE_FIT, SCAN_POINTS, fit_head_template, surface_samples, template_face_region  # noqa: F401
+from .template import TEMPLATE_FIT, SCAN_POINTS, fit_head_template, surface_samples, template_face_region, turned_fit  # noqa: F401
 
 __all__ = ["UprightFrame", "upright_frame", "template_face_region", "FACE_DEPTH_RATIO"]
 
 #: a surface shallower than this over its opening (depth / the opening's width) is a face only
 FACE_DEPTH_RATIO = 0.55
+#: the head template fitted half a turn about its up axis within this factor of the best fit: which
+#: way the face looks is decided by the surface's detail (a smooth, egg-shaped head fits either way)
+TURNED_MARGIN = 1.15
 #: a standing figure's head end: the head template fits it closer than this (bodies 0.10-0.12,
 #: the ends of a car 0.3)
 FIGURE_FIT = 0.15
@@ -299,12 +302,21 @@ def _upright_frame(V, F, samples, seed, fallback_up, whole=None) -> UprightFrame
     if fit is not None:
         cues["template_fit"] = fit[3]
     if fit is not None and fit[3] <= TEMPLATE_FIT:
+        how = f"the head template (fit {fit[3]:.3f})"
+        turned = turned_fit(Ps, fit, face_only=kind == "face only")
+        cues["template_fit_turned"] = turned[3]
+        if turned[3] < TURNED_MARGIN * fit[3]:
+            # it fits nearly as well with the face at the back: where the detail is decides
+            up = _unit(fit[0] @ np.array([0.0, 1.0, 0.0]))
+            detail, by = _front_about(V, F, up)
+            if float(detail @ (turned[0] @ np.array([0.0, 0.0, 1.0]))) > float(detail @ (fit[0] @ np.array([0.0, 0.0, 1.0]))):
+                fit = turned
+            how += f"; either way round within {TURNED_MARGIN - 1:.0%}: the face by {by}"
         R = fit[0]
         up, front = _unit(R @ np.array([0.0, 1.0, 0.0])), _unit(R @ np.array([0.0, 0.0, 1.0]))
         if kind == "open at the neck" and up @ n < 0.5:  # the longest boundary is a hole, not the neck
             kind = "closed"
-        return UprightFrame(up, front, kind, f"the head template (fit {fit[3]:.3f})", cues=cues,
-                            template=(fit[0], fit[1], fit[2], fit[3], kind == "face only"))
+        return UprightFrame(up, front, kind, how, cues=cues, template=(fit[0], fit[1], fit[2], fit[3], kind == "face only"))
     fig = _standing_figure(Ps)
     if fig is not None and fig[1] <= FIGURE_FIT:
         up, fit_top, fit_bottom, sure, head_front = fig
