@@ -106,11 +106,11 @@ def main(argv=None) -> int:
             from geoface.track import track_capture
 
             tr = track_capture(data_dir, out / "data_tracked", overwrite=True, quiet=True)
-            truth = np.asarray(json.loads((data_dir / "landmarks.json").read_text())["points"])
-            names = json.loads((data_dir / "landmarks.json").read_text()).get("names")
+            truth = json.loads((data_dir / "landmarks.json").read_text())
             got = np.asarray(json.loads((out / "data_tracked" / "landmarks.json").read_text())["points"])
-            emit(stage="tracking", frames=len(tr.found), found=int(tr.found.sum()), landmarks=len(names or got[0]),
-                 landmark_error_px=round(float(np.linalg.norm(got - truth, axis=-1).mean()), 3))
+            truth_pts = np.asarray(truth["points"])
+            emit(stage="tracking", frames=len(tr.found), found=int(tr.found.sum()), landmarks=len(truth.get("names") or got[0]),
+                 landmark_error_px=round(float(np.linalg.norm(got - truth_pts, axis=-1).mean()), 3))
         runs.append(("full_tracked", out / "data_tracked", {}))
     emit(stage="data", seconds=round(time.perf_counter() - t, 1))
     rnd = lambda v: {k: rnd(x) for k, x in v.items()} if isinstance(v, dict) else round(v, 4)  # noqa: E731

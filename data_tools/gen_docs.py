@@ -15,6 +15,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 DOCS = ROOT / "docs"
+#: the pages main() writes into docs/ (git-ignored): not guides, and not for run_guides to run
+GENERATED_PAGES = ("index.md", "cli_reference.md", "changelog.md", "license.md", "citation.md")
 
 #: the API reference, by layer (docs/architecture.md): one page per package or module, showing
 #: what its ``__all__`` exports

@@ -81,8 +81,10 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", default=None, metavar="DIR", help="run in DIR/<page>/ and keep the outputs")
     ap.add_argument("--serve-seconds", type=float, default=20.0)
     a = ap.parse_args(argv)
-    generated = {"index.md", "cli_reference.md", "changelog.md", "license.md", "citation.md"}  # make docs writes these
-    pages = [Path(p) for p in a.pages] or [ROOT / "README.md", *sorted(p for p in (ROOT / "docs").glob("*.md") if p.name not in generated)]
+    from gen_docs import GENERATED_PAGES  # beside this script
+
+    pages = [Path(p) for p in a.pages] or [ROOT / "README.md", *sorted(p for p in (ROOT / "docs").glob("*.md")
+                                                                       if p.name not in GENERATED_PAGES)]
     failed = 0
     for page in pages:
         found = blocks(page)

@@ -6,9 +6,9 @@ Light on purpose: torch is imported only when a torch-backed name is first used.
 """
 from __future__ import annotations
 
-import importlib
+from geoface._lazy import lazy_exports
 
-_NAMES = {
+__getattr__, __dir__, __all__ = lazy_exports("geoface.splat", {
     "Camera": "geoface.camera", "look_at": "geoface.camera", "orbit": "geoface.camera",
     "Gaussians": "gaussians", "GaussianTensors": "gaussians", "eval_sh": "gaussians",
     "covariance": "gaussians",
@@ -18,12 +18,4 @@ _NAMES = {
     "render_mesh": "geoface.nn.mesh_render", "rasterize_mesh": "geoface.nn.mesh_render", "MeshRender": "geoface.nn.mesh_render",
     "FitConfig": "fit", "FitResult": "fit", "fit_mesh": "fit",
     "SplatError": "errors", "CameraError": "errors", "GaussianPlyError": "errors",
-}
-__all__ = sorted(_NAMES)
-
-
-def __getattr__(name):
-    if name in _NAMES:
-        mod = _NAMES[name]
-        return getattr(importlib.import_module(mod if "." in mod else f"geoface.splat.{mod}"), name)
-    raise AttributeError(f"module 'geoface.splat' has no attribute {name!r}")
+})
