@@ -87,46 +87,48 @@ def _uint8(img) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
+def _each_frame(make_graph, frames, description: str, quiet):
+    """``(frame as uint8, the graph's result)`` for each of ``frames``, with a progress bar. The
+    graph's chatter comes while it is built and first run: both happen with fd 2 held."""
+    from geoface.progress import progress
+
+    frames = [_uint8(f) for f in frames]
+    if not frames:
+        return
+    with _native_stderr_quiet():
+        graph = make_graph()
+        first = graph.process(frames[0])
+    try:
+        for k, a in enumerate(progress(frames, description, quiet=quiet, unit="frames")):
+            yield a, first if k == 0 else graph.process(a)
+    finally:
+        graph.close()
+
+
 def facemesh_points(frames, *, video: bool = True, quiet: bool | None = None) -> np.ndarray:
     """MediaPipe's 468 face-mesh points of each frame in pixels, ``(T, 468, 2)`` (NaN where no
     face is found). ``video``: track from frame to frame (MediaPipe's video mode)."""
-    from geoface.progress import progress
-
     mp = _mediapipe()
-    frames = list(frames)
+
+    def graph():
+        return mp.solutions.face_mesh.FaceMesh(static_image_mode=not video, max_num_faces=1, refine_landmarks=False,
+                                               min_detection_confidence=0.5, min_tracking_confidence=0.5)
+
     out = []
-    with _native_stderr_quiet():  # the graph's chatter comes while it is built and first run
-        fm = mp.solutions.face_mesh.FaceMesh(static_image_mode=not video, max_num_faces=1, refine_landmarks=False,
-                                             min_detection_confidence=0.5, min_tracking_confidence=0.5)
-        first = fm.process(_uint8(frames[0])) if frames else None
-    try:
-        for k, img in enumerate(progress(frames, "tracking the face", quiet=quiet, unit="frames")):
-            a = _uint8(img)
-            r = first if k == 0 else fm.process(a)
-            if not r.multi_face_landmarks:
-                out.append(np.full((468, 2), np.nan))
-                continue
-            lm = r.multi_face_landmarks[0].landmark
-            out.append(np.array([[p.x * a.shape[1], p.y * a.shape[0]] for p in lm[:468]]))
-    finally:
-        fm.close()
+    for a, r in _each_frame(graph, frames, "tracking the face", quiet):
+        if not r.multi_face_landmarks:
+            out.append(np.full((468, 2), np.nan))
+            continue
+        lm = r.multi_face_landmarks[0].landmark
+        out.append(np.array([[p.x * a.shape[1], p.y * a.shape[0]] for p in lm[:468]]))
     return np.stack(out) if out else np.zeros((0, 468, 2))
 
 
 def person_masks(frames, *, quiet: bool | None = None) -> np.ndarray:
     """MediaPipe's selfie segmentation of each frame, ``(T, H, W)`` float in [0, 1]."""
-    from geoface.progress import progress
-
     mp = _mediapipe()
-    frames = list(frames)
-    with _native_stderr_quiet():
-        ss = mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=0)
-        first = ss.process(_uint8(frames[0])).segmentation_mask
-    try:
-        return np.stack([np.asarray(first if k == 0 else ss.process(_uint8(f)).segmentation_mask, np.float32)
-                         for k, f in enumerate(progress(frames, "segmenting the person", quiet=quiet, unit="frames"))])
-    finally:
-        ss.close()
+    return np.stack([np.asarray(r.segmentation_mask, np.float32) for _, r in _each_frame(
+        lambda: mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=0), frames, "segmenting the person", quiet)])
 
 
 @dataclass(frozen=True)
