@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InvalidGeometryImageError
+from ..camera import Camera
+from ..errors import InvalidGeometryImageError, RenderError
 
-__all__ = ["rasterize_faces", "bbox_pixels", "interpolate", "interpolate_corners", "sample_texture", "uv_to_pixel",
+__all__ = ["rasterize_faces", "rasterize_mesh", "bbox_pixels", "interpolate", "interpolate_corners", "sample_texture", "uv_to_pixel",
            "pixel_grid_uv", "MAX_RES"]
 
 MAX_RES = 8192
@@ -172,3 +173,60 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     top = Tf[y0c, x0c] * (1 - fx) + Tf[y0c, x1c] * fx
     bot = Tf[y1c, x0c] * (1 - fx) + Tf[y1c, x1c] * fx
     return top * (1 - fy) + bot * fy
+
+
+def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_000_000):
+    """Nearest triangle per pixel centre.
+
+    Parameters
+    ----------
+    V : (n, 3) float64 world positions; F : (m, 3) int64 triangles
+    camera : Camera
+    near : triangles with a vertex at camera depth ``<= near`` are skipped
+
+    Returns
+    -------
+    face : (H, W) int64, −1 where no triangle covers the pixel centre
+    bary : (H, W, 3) float64 perspective-correct barycentric weights (zeros where empty)
+    depth : (H, W) float64 camera-space z (inf where empty)
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise RenderError(f"V must have shape (n, 3); got {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3:
+        raise RenderError(f"F must have shape (m, 3); got {F.shape}")
+    if len(F) and (F.min() < 0 or F.max() >= len(V)):
+        raise RenderError(f"F indexes vertices out of range [0, {len(V)})")
+    if not isinstance(camera, Camera):
+        raise RenderError(f"camera must be a geoface.camera.Camera; got {type(camera).__name__}")
+    H, W = camera.height, camera.width
+    uv, z = camera.project(V)
+    x, y, zf = uv[F, 0] - 0.5, uv[F, 1] - 0.5, z[F]  # bbox_pixels: pixel centres at integers
+    det = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
+    j0 = np.clip(np.ceil(x.min(1)), 0, W - 1).astype(np.int64)
+    j1 = np.clip(np.floor(x.max(1)), 0, W - 1).astype(np.int64)
+    i0 = np.clip(np.ceil(y.min(1)), 0, H - 1).astype(np.int64)
+    i1 = np.clip(np.floor(y.max(1)), 0, H - 1).astype(np.int64)
+    on = ((det != 0) & (zf.min(1) > near) & (x.max(1) >= 0) & (x.min(1) <= W - 1)
+          & (y.max(1) >= 0) & (y.min(1) <= H - 1))
+    nj = np.maximum(j1 - j0 + 1, 1)
+    count = np.where(on, nj * np.maximum(i1 - i0 + 1, 0), 0)
+    zbuf = np.full(H * W, np.inf)
+    face = np.full(H * W, -1, dtype=np.int64)
+    bary = np.zeros((H * W, 3))
+    for tt, ii, jj, b0, b1, b2 in bbox_pixels(x, y, det, j0, i0, nj, count, chunk):
+        inside = (b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9)
+        tt, pix = tt[inside], ii[inside] * W + jj[inside]
+        w = np.clip(np.stack([b0[inside], b1[inside], b2[inside]], 1), 0.0, None) / zf[tt]
+        zc = 1.0 / w.sum(1)  # perspective-correct depth: 1/z is linear on screen
+        order = np.lexsort((zc, pix))  # by pixel, nearest first
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = pix[order[1:]] != pix[order[:-1]]
+        k = order[first]
+        win = zc[k] < zbuf[pix[k]]  # nearer than what earlier chunks left
+        k = k[win]
+        zbuf[pix[k]] = zc[k]
+        face[pix[k]] = tt[k]
+        bary[pix[k]] = w[k] * zc[k, None]
+    return face.reshape(H, W), bary.reshape(H, W, 3), zbuf.reshape(H, W)

@@ -19,6 +19,7 @@ __getattr__, __dir__, __all__ = lazy_exports("geoface.learn", {
     # skin textures (GDE/HFDR)
     "TextureTrainConfig": "texture", "TextureModel": "texture", "train_texture": "texture",
     "reconstruct_textures": "texture_uv", "TextureReconstruction": "texture_uv",
+    "CameraSeesNothingError": "texture_uv",
     "make_texture_dataset": "skin_synth",
     "LearnError": "errors", "CheckpointError": "errors", "TextEncoderError": "errors",
 })

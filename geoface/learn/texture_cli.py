@@ -100,7 +100,7 @@ def cmd_train(args) -> int:
 
 def cmd_reconstruct(args) -> int:
     from .texture import TextureModel
-    from .texture_uv import reconstruct_textures
+    from .texture_uv import CameraSeesNothingError, reconstruct_textures
 
     if (args.mesh is None) != (args.camera is None):
         raise GeofaceError("--mesh and --camera go together (the camera that took the photo of that mesh)")
@@ -130,10 +130,8 @@ def cmd_reconstruct(args) -> int:
     try:
         rec = reconstruct_textures(model, photo, mesh=mesh, camera=cam, landmarks=L, focal=args.focal,
                                    uv_size=args.uv_size, k=args.k, refine=not args.no_refine)
-    except GeofaceError as e:
-        if "sees none" in str(e):
-            raise GeofaceError(f"the camera sees none of the mesh (check {args.camera or args.landmarks or 'the tracked face'})") from None
-        raise
+    except CameraSeesNothingError as e:
+        raise CameraSeesNothingError(f"{e} (check {args.camera or args.landmarks or 'the tracked face'})") from None
     images = {}
     for name in (*MAP_FILES, "uv", "normal"):
         img = rec.maps[name]

@@ -17,7 +17,12 @@ import numpy as np
 
 from geoface.errors import GeofaceError
 
-__all__ = ["TextureReconstruction", "reconstruct_textures", "MAP_CHANNELS"]
+__all__ = ["TextureReconstruction", "reconstruct_textures", "MAP_CHANNELS", "CameraSeesNothingError"]
+
+
+class CameraSeesNothingError(GeofaceError):
+    """The camera (given, or fitted to the landmarks) sees no texel of the mesh: the camera or
+    the landmarks belong to another photo or another frame convention."""
 
 #: the maps and their channel counts
 MAP_CHANNELS = {"albedo": 3, "micronormal": 3, "specular": 1}
@@ -89,7 +94,7 @@ def reconstruct_textures(model, photo: np.ndarray, *, mesh=None, camera=None, la
         res = project_views(mesh, [img.astype(np.float64)], [camera], size=uv_size)
         seen = res.weight > 0
         if not seen.any():
-            raise GeofaceError("the camera sees none of the mesh")
+            raise CameraSeesNothingError("the camera sees none of the mesh")
         tex = inpaint(res.texture, seen)
         uv_maps[name] = tex if c == 3 else tex[:, :, :1]
     return TextureReconstruction(maps=maps, uv_maps=uv_maps, coverage=float(seen.mean()), mesh=mesh, camera=camera, fit=fit)

@@ -26,20 +26,21 @@ from .core import (
 from .orient import solve_orientation
 from .topology import TopologyReport, topology_report
 
-_LAZY = {"Mesh": "io", "load_mesh": "io", "save_mesh": "io", "mesh_frame": "frame", "MeshFrame": "frame",
-         "parse_up": "frame"}
+from .._lazy import lazy_exports
+
+# file IO (trimesh) and the frame search are imported on first use
+__getattr__, _lazy_dir, _LAZY_NAMES = lazy_exports("geoface.mesh", {
+    "Mesh": "io", "load_mesh": "io", "save_mesh": "io",
+    "mesh_frame": "frame", "MeshFrame": "frame", "parse_up": "frame",
+})
 
 
-def __getattr__(name):
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(f"geoface.mesh.{_LAZY[name]}"), name)
-    raise AttributeError(f"module 'geoface.mesh' has no attribute {name!r}")
+def __dir__():
+    return sorted(set(__all__))
 
 
 __all__ = [
-    *_LAZY,
+    *_LAZY_NAMES,
     "EdgeTopology",
     "TopologyReport",
     "bbox_diagonal",

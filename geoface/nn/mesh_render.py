@@ -1,12 +1,9 @@
 """Ground-truth renders of coloured meshes: a small vectorised numpy z-buffer.
 
-For every pixel centre (``(j + 0.5, i + 0.5)``, the :class:`~geoface.camera.Camera`
-convention) the nearest triangle is found by enumerating the pixels of each triangle's
-bounding box (:func:`geoface.gimage.raster.bbox_pixels`, shared with the UV rasterizer and the
-projection z-buffer) and keeping, per pixel, the candidate with the smallest camera depth.
-Attributes are interpolated perspective-correctly: with screen-space barycentrics ``b_i`` and
-vertex depths ``z_i``, ``w_i = b_i / z_i``, ``z = 1 / Σ w_i`` and the attribute weights are
-``w_i z``. No Python loop runs over faces or pixels (only over chunks of candidates).
+The nearest triangle per pixel centre and its perspective-correct barycentrics come from
+:func:`geoface.gimage.raster.rasterize_mesh`, the library's one camera-space z-buffer (the photo
+projection of :mod:`geoface.uvmap` uses it for visibility); this module interpolates colours or
+a texture with those weights, supersamples and shades.
 
 Colours are albedo (unlit) by default, which is what splats fitted to the renders should
 reproduce; ``shading="headlight"`` adds a simple Lambert term for previews.
@@ -18,9 +15,9 @@ from typing import Literal
 
 import numpy as np
 
-from geoface.gimage.raster import bbox_pixels, sample_texture
+from geoface.gimage.raster import rasterize_mesh, sample_texture
 from geoface.camera import Camera
-from geoface.nn.errors import RenderError
+from geoface.errors import RenderError
 
 __all__ = ["MeshRender", "rasterize_mesh", "render_mesh"]
 
@@ -38,63 +35,6 @@ class MeshRender:
     alpha: np.ndarray
     depth: np.ndarray
     face: np.ndarray
-
-
-def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_000_000):
-    """Nearest triangle per pixel centre.
-
-    Parameters
-    ----------
-    V : (n, 3) float64 world positions; F : (m, 3) int64 triangles
-    camera : Camera
-    near : triangles with a vertex at camera depth ``<= near`` are skipped
-
-    Returns
-    -------
-    face : (H, W) int64, −1 where no triangle covers the pixel centre
-    bary : (H, W, 3) float64 perspective-correct barycentric weights (zeros where empty)
-    depth : (H, W) float64 camera-space z (inf where empty)
-    """
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise RenderError(f"V must have shape (n, 3); got {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3:
-        raise RenderError(f"F must have shape (m, 3); got {F.shape}")
-    if len(F) and (F.min() < 0 or F.max() >= len(V)):
-        raise RenderError(f"F indexes vertices out of range [0, {len(V)})")
-    if not isinstance(camera, Camera):
-        raise RenderError(f"camera must be a geoface.camera.Camera; got {type(camera).__name__}")
-    H, W = camera.height, camera.width
-    uv, z = camera.project(V)
-    x, y, zf = uv[F, 0] - 0.5, uv[F, 1] - 0.5, z[F]  # bbox_pixels: pixel centres at integers
-    det = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
-    j0 = np.clip(np.ceil(x.min(1)), 0, W - 1).astype(np.int64)
-    j1 = np.clip(np.floor(x.max(1)), 0, W - 1).astype(np.int64)
-    i0 = np.clip(np.ceil(y.min(1)), 0, H - 1).astype(np.int64)
-    i1 = np.clip(np.floor(y.max(1)), 0, H - 1).astype(np.int64)
-    on = ((det != 0) & (zf.min(1) > near) & (x.max(1) >= 0) & (x.min(1) <= W - 1)
-          & (y.max(1) >= 0) & (y.min(1) <= H - 1))
-    nj = np.maximum(j1 - j0 + 1, 1)
-    count = np.where(on, nj * np.maximum(i1 - i0 + 1, 0), 0)
-    zbuf = np.full(H * W, np.inf)
-    face = np.full(H * W, -1, dtype=np.int64)
-    bary = np.zeros((H * W, 3))
-    for tt, ii, jj, b0, b1, b2 in bbox_pixels(x, y, det, j0, i0, nj, count, chunk):
-        inside = (b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9)
-        tt, pix = tt[inside], ii[inside] * W + jj[inside]
-        w = np.clip(np.stack([b0[inside], b1[inside], b2[inside]], 1), 0.0, None) / zf[tt]
-        zc = 1.0 / w.sum(1)  # perspective-correct depth: 1/z is linear on screen
-        order = np.lexsort((zc, pix))  # by pixel, nearest first
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = pix[order[1:]] != pix[order[:-1]]
-        k = order[first]
-        win = zc[k] < zbuf[pix[k]]  # nearer than what earlier chunks left
-        k = k[win]
-        zbuf[pix[k]] = zc[k]
-        face[pix[k]] = tt[k]
-        bary[pix[k]] = w[k] * zc[k, None]
-    return face.reshape(H, W), bary.reshape(H, W, 3), zbuf.reshape(H, W)
 
 
 def _scaled(camera: Camera, s: int) -> Camera:

@@ -16,16 +16,17 @@ from .surfaces import (
 )
 
 
-def __getattr__(name):  # the head modules are large; import them on first use
-    if name in {"procedural_head", "HeadModel", "HeadIdentity", "HeadExpression", "SynthHead"}:
-        from . import head
+from .._lazy import lazy_exports
 
-        return getattr(head, name)
-    if name in {"load_ict_model", "ict_head", "ICTFaceModel", "ICTHead"}:
-        from . import ict
+# the head modules are large; they are imported on first use
+__getattr__, _lazy_dir, _LAZY_NAMES = lazy_exports("geoface.synth", {
+    **dict.fromkeys(["procedural_head", "HeadModel", "HeadIdentity", "HeadExpression", "SynthHead"], "head"),
+    **dict.fromkeys(["load_ict_model", "ict_head", "ICTFaceModel", "ICTHead"], "ict"),
+})
 
-        return getattr(ict, name)
-    raise AttributeError(f"module 'geoface.synth' has no attribute {name!r}")
+
+def __dir__():
+    return sorted(set(__all__))
 
 
 __all__ = [

@@ -2,25 +2,27 @@
 
 Camera convention (OpenCV): a world point ``X`` maps to camera coordinates ``Xc = R X + t``
 (``R`` 3×3 rotation, ``t`` 3-vector, or one 4×4 world→camera matrix), the camera looks down
-``+z``, ``x`` points right and ``y`` down; the pixel is ``(u, v) = (K Xc)[:2] / z``, with pixel
-``(row v, column u)`` centres at integer coordinates (``u = 0`` is the centre of column 0).
+``+z``, ``x`` points right and ``y`` down; the pixel is ``(u, v) = (K Xc)[:2] / z``, and pixel
+``(row i, column j)`` has its centre at ``(u, v) = (j + 0.5, i + 0.5)`` — the convention of
+:class:`geoface.camera.Camera`, of :func:`geoface.nn.render_mesh` and of the face tracker's
+landmarks, so a photo rendered or tracked by geoface projects back without a half-pixel shift.
 
 For every texel of the target's UV layout (``T × T``) the 3D point and interpolated normal are
 rasterized; each view projects the point, tests visibility against a depth buffer of the mesh
-rendered from that camera (vectorised numpy z-buffer, tolerance ``depth_tol``), weights it by
+rendered from that camera (:func:`geoface.gimage.raster.rasterize_mesh`, tolerance ``depth_tol``), weights it by
 ``max(0, cos θ)^power`` (θ between normal and the direction to the camera), and samples the
 photo bilinearly.  Views are blended by weight; texels no view sees keep the default texture.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..camera import Camera
 from ..errors import GeofaceError
-from ..gimage.raster import bbox_pixels
+from ..gimage.raster import rasterize_mesh
 from ..mesh.core import bbox_diagonal
 from ..mesh.io import Mesh
 from .bake import texel_geometry
@@ -28,34 +30,20 @@ from .bake import texel_geometry
 __all__ = ["Camera", "depth_buffer", "project_views", "ProjectionResult"]
 
 
-def depth_buffer(V, F, camera: Camera, shape: tuple[int, int], *, chunk: int = 2_000_000) -> np.ndarray:
-    """Camera-space depth ``z`` of the nearest surface at every pixel centre, ``(H, W)`` (inf where
-    empty).  Triangles with a vertex behind the near plane are skipped.  Depth is interpolated
-    perspective-correctly (1/z is linear in the image)."""
+def depth_buffer(V, F, camera: Camera, shape: tuple[int, int]) -> np.ndarray:
+    """Camera-space depth ``z`` of the nearest surface at every pixel centre of an ``(H, W)``
+    image (inf where empty): :func:`geoface.gimage.raster.rasterize_mesh` for ``camera`` with its
+    image size set to ``shape``.  Triangles with a vertex behind the near plane are skipped;
+    depth is perspective-correct (1/z is linear in the image)."""
     H, W = int(shape[0]), int(shape[1])
-    uv, z = camera.project(np.asarray(V, np.float64))
-    F = np.asarray(F, np.int64)
+    if (camera.height, camera.width) != (H, W):
+        camera = replace(camera, width=W, height=H)
     near = 1e-9 * bbox_diagonal(np.asarray(V))
-    x, y, zf = uv[F, 0], uv[F, 1], z[F]
-    det = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
-    j0 = np.clip(np.ceil(x.min(1)), 0, W - 1).astype(np.int64)
-    j1 = np.clip(np.floor(x.max(1)), 0, W - 1).astype(np.int64)
-    i0 = np.clip(np.ceil(y.min(1)), 0, H - 1).astype(np.int64)
-    i1 = np.clip(np.floor(y.max(1)), 0, H - 1).astype(np.int64)
-    on = (det != 0) & (zf.min(1) > near) & (x.max(1) >= 0) & (x.min(1) <= W - 1) & (y.max(1) >= 0) & (y.min(1) <= H - 1)
-    count = np.where(on, np.maximum(j1 - j0 + 1, 0) * np.maximum(i1 - i0 + 1, 0), 0)
-    nj = np.maximum(j1 - j0 + 1, 1)
-    zbuf = np.full(H * W, np.inf)
-    for tt, ii, jj, b0, b1, b2 in bbox_pixels(x, y, det, j0, i0, nj, count, chunk):
-        inside = (b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9)
-        za = zf[tt[inside]]
-        inv = b0[inside] / za[:, 0] + b1[inside] / za[:, 1] + b2[inside] / za[:, 2]
-        np.minimum.at(zbuf, ii[inside] * W + jj[inside], 1.0 / inv)
-    return zbuf.reshape(H, W)
+    return rasterize_mesh(V, F, camera, near=near)[2]
 
 
 def _bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Sample ``img (H, W, C)`` at pixel coordinates ``uv (k, 2)`` (centres at integers, clamped)."""
+    """Sample ``img (H, W, C)`` at continuous coordinates ``uv (k, 2)`` whose integers are pixel centres (the camera's ``uv − 0.5``; clamped)."""
     H, W = img.shape[:2]
     u = np.clip(uv[:, 0], 0, W - 1)
     v = np.clip(uv[:, 1], 0, H - 1)
@@ -145,17 +133,17 @@ def project_views(mesh: Mesh, images, cameras, size: int = 1024, *, power: float
         H, W = img.shape[:2]
         zbuf = depth_buffer(mesh.V, mesh.F, cam, (H, W))
         uv, z = cam.project(X)
-        inside = (z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= W - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] <= H - 0.5)
-        # nearest depth sample and its neighbours: visible when no pixel around it is much nearer
-        col = np.clip(np.round(uv[:, 0]).astype(np.int64), 0, W - 1)
-        row = np.clip(np.round(uv[:, 1]).astype(np.int64), 0, H - 1)
+        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= W) & (uv[:, 1] >= 0) & (uv[:, 1] <= H)
+        # the depth of the pixel the point falls in: visible when the surface there is not nearer
+        col = np.clip(np.floor(uv[:, 0]).astype(np.int64), 0, W - 1)
+        row = np.clip(np.floor(uv[:, 1]).astype(np.int64), 0, H - 1)
         zref = zbuf[row, col]
         visible = inside & np.isfinite(zref) & (z <= zref + tol)
         view = cam.center - X
         cos = (n * view).sum(1) / np.maximum(np.linalg.norm(view, axis=1), 1e-300)
         w = np.where(visible, np.maximum(cos, 0.0) ** power, 0.0) * (cos > 0)
         sel = w > 0
-        acc[sel] += w[sel, None] * _bilinear(img, uv[sel])
+        acc[sel] += w[sel, None] * _bilinear(img, uv[sel] - 0.5)
         wsum += w
         per_view[k, idx] = w
     tex = np.array(dflt, np.float64, copy=True).reshape(-1, 3)
