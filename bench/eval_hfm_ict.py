@@ -2,6 +2,7 @@
 """HFM-GS on ICT-FaceKit people without the head-pose file: held-out identities, paired variants.
 
     python bench/eval_hfm_ict.py data --out DIR [--val 10 --test 11,12,13] [--frames 200 --usage 50] [--rom 3]
+    python bench/eval_hfm_ict.py track --out DIR [--splits test]       # then --variants tracked
     python bench/eval_hfm_ict.py run --out DIR [--splits test] [--seeds 0,1] [--jobs 4] [--device cuda]
     python bench/eval_hfm_ict.py run --out DIR --group test/0/oracle,full --group val/0,1/full,map_theta/10 ...
     python bench/eval_hfm_ict.py poses --out DIR [--splits val,test]
@@ -13,6 +14,9 @@ talking, emoting, lit ICT person, registration and usage videos of different seq
 ``DIR/data/<split>_<seed>``.  ``run`` trains, for each capture and model seed, the variants
 
 * ``oracle``   — Full, registered and used with the true head poses (``head_poses.npz``);
+* ``tracked``  — Full with no pose file on the copy of the capture that the ``track`` stage wrote:
+  landmarks and person masks detected by MediaPipe on the frames (:mod:`geoface.track`) instead of
+  the renderer's, registration and usage; scored against the same true frames (``gt/``, ``hmd_masks/``);
 * ``full``     — Full with no pose file: registration poses fitted to the landmarks (PnP), the
   usage pose read from the lower-face crop (the pose MLP trained during registration);
 * ``no_gaussian_feature_mapping``, ``no_global_pose`` — the paper's ablations, no pose file;
@@ -68,6 +72,7 @@ OURS = {"pose_residual": {"pose_residual": True}, "no_pose_residual": {"pose_res
         "pose_head_detach": {"image_pose_detach": True}, "oracle_pose_head_detach": {"image_pose_detach": True}}
 VARIANTS.update({k: ("full", "landmarks") for k in {**PAPER, **OURS}})
 VARIANTS["oracle_pose_head_detach"] = ("full", "file")  # registered and used with the true poses
+VARIANTS["tracked"] = ("full", "landmarks")  # Full on the capture's copy tracked by geoface.track (DIR/data_tracked)
 MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]
 
 
@@ -82,6 +87,47 @@ def _data(a) -> None:
             t0 = time.time()
             make_ict_hmd(d, frames=a.frames, usage_frames=a.usage, res=a.res, seed=s, rom=a.rom, quiet=True)
             print(json.dumps({"stage": "data", "split": split, "seed": s, "seconds": round(time.time() - t0, 1)}), flush=True)
+
+
+def _track(a) -> None:
+    """Each capture's copy in ``DIR/data_tracked/<split>_<seed>`` whose landmarks and person masks
+    come from the face tracker (MediaPipe; :func:`geoface.track.track_capture`) run on its frames,
+    registration and usage alike (the usage frames wear the headset); one row per video with the
+    tracker's error against the capture's true points (its own landmarks.json)."""
+    from geoface.track import track_capture
+
+    data = Path(a.data) if a.data else Path(a.out) / "data"
+    for split, seeds in (("val", a.val), ("test", a.test)):
+        if split not in a.splits:
+            continue
+        for s in seeds:
+            for which in ("registration", "usage"):
+                src = data / f"{split}_{s}" / which
+                dst = Path(a.out) / "data_tracked" / f"{split}_{s}" / which
+                if not (src / "meta.json").is_file():
+                    raise SystemExit(f"{src}: no capture; run the data stage first")
+                if (dst / "landmarks.json").is_file():
+                    continue
+                t0 = time.time()
+                tr = track_capture(src, dst, quiet=True)
+                truth = np.asarray(json.loads((src / "landmarks.json").read_text())["points"], np.float64)
+                got = np.asarray(json.loads((dst / "landmarks.json").read_text())["points"], np.float64)
+                err = np.linalg.norm(got - truth, axis=-1)
+                true_masks = np.stack([_read_mask(f) for f in sorted((src / "masks").glob("*.png"))])
+                got_masks = np.stack([_read_mask(f) for f in sorted((dst / "masks").glob("*.png"))])
+                iou = (true_masks & got_masks).sum((1, 2)) / np.maximum((true_masks | got_masks).sum((1, 2)), 1)
+                print(json.dumps({"stage": "tracking", "split": split, "data_seed": s, "video": which, "frames": len(tr.found),
+                                  "found": int(tr.found.sum()), "landmarks": int(got.shape[1]),
+                                  "landmark_error_px": round(float(err.mean()), 3),
+                                  "landmark_error_p95_px": round(float(np.percentile(err, 95)), 3),
+                                  "mask_iou": round(float(iou.mean()), 4), "seconds": round(time.time() - t0, 1)}), flush=True)
+
+
+def _read_mask(path) -> np.ndarray:
+    from geoface.images import read_image
+
+    m = read_image(path)
+    return (m if m.ndim == 2 else m[..., 0]) > 127
 
 
 def _job(job) -> list:
@@ -158,10 +204,11 @@ def _run(a) -> None:
         default = a.val if split == "val" else a.test
         for seed in (int(x) for x in seeds.split(",")):
             for s in ([int(x) for x in people[0].split(",")] if people else default):
-                d = data / f"{split}_{s}"
-                if not (d / "usage" / "meta.json").is_file():
-                    raise SystemExit(f"{d}: no capture; run the data stage first")
                 for v in variants.split(","):
+                    d = (Path(a.out) / "data_tracked" if v == "tracked" else data) / f"{split}_{s}"
+                    if not (d / "usage" / "meta.json").is_file():
+                        raise SystemExit(f"{d}: no capture; run the data stage first"
+                                         + (" and then the track stage" if v == "tracked" else ""))
                     jobs.append((str(d), split, s, seed, v, a.iters, a.threads, a.device, models))
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
@@ -396,7 +443,7 @@ def _table(a) -> None:
 def main(argv=None) -> int:
     ints = lambda s: [int(x) for x in s.split(",") if x]  # noqa: E731
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("stage", choices=("data", "run", "poses", "calibration", "table"))
+    ap.add_argument("stage", choices=("data", "track", "run", "poses", "calibration", "table"))
     ap.add_argument("--out", required=True)
     ap.add_argument("--val", type=ints, default=[10])
     ap.add_argument("--test", type=ints, default=[11, 12, 13])
@@ -432,7 +479,7 @@ def main(argv=None) -> int:
     if bad:
         ap.error(f"unknown variants {bad}; choose from {list(VARIANTS)}")
     os.makedirs(a.out, exist_ok=True)
-    {"data": _data, "run": _run, "poses": _poses, "calibration": _calibration, "table": _table}[a.stage](a)
+    {"data": _data, "track": _track, "run": _run, "poses": _poses, "calibration": _calibration, "table": _table}[a.stage](a)
     return 0
 
 
