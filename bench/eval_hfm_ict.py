@@ -93,7 +93,8 @@ def _track(a) -> None:
     """Each capture's copy in ``DIR/data_tracked/<split>_<seed>`` whose landmarks and person masks
     come from the face tracker (MediaPipe; :func:`geoface.track.track_capture`) run on its frames,
     registration and usage alike (the usage frames wear the headset); one row per video with the
-    tracker's error against the capture's true points (its own landmarks.json)."""
+    tracker's error against the capture's true points (its own landmarks.json) and the masks'
+    IoU with the renderer's; a capture tracked before is not tracked again (its row is)."""
     from geoface.track import track_capture
 
     data = Path(a.data) if a.data else Path(a.out) / "data"
@@ -106,28 +107,31 @@ def _track(a) -> None:
                 dst = Path(a.out) / "data_tracked" / f"{split}_{s}" / which
                 if not (src / "meta.json").is_file():
                     raise SystemExit(f"{src}: no capture; run the data stage first")
-                if (dst / "landmarks.json").is_file():
-                    continue
                 t0 = time.time()
-                tr = track_capture(src, dst, quiet=True)
+                if (dst / "landmarks.json").is_file():  # tracked before: its row again, from the files
+                    found = np.asarray(json.loads((dst / "landmarks.json").read_text()).get("found") or [], bool)
+                    seconds = None
+                else:
+                    found = track_capture(src, dst, quiet=True).found
+                    seconds = round(time.time() - t0, 1)
                 truth = np.asarray(json.loads((src / "landmarks.json").read_text())["points"], np.float64)
                 got = np.asarray(json.loads((dst / "landmarks.json").read_text())["points"], np.float64)
                 err = np.linalg.norm(got - truth, axis=-1)
                 true_masks = np.stack([_read_mask(f) for f in sorted((src / "masks").glob("*.png"))])
                 got_masks = np.stack([_read_mask(f) for f in sorted((dst / "masks").glob("*.png"))])
                 iou = (true_masks & got_masks).sum((1, 2)) / np.maximum((true_masks | got_masks).sum((1, 2)), 1)
-                print(json.dumps({"stage": "tracking", "split": split, "data_seed": s, "video": which, "frames": len(tr.found),
-                                  "found": int(tr.found.sum()), "landmarks": int(got.shape[1]),
+                print(json.dumps({"stage": "tracking", "split": split, "data_seed": s, "video": which, "frames": len(truth),
+                                  "found": int(found.sum()), "landmarks": int(got.shape[1]),
                                   "landmark_error_px": round(float(err.mean()), 3),
                                   "landmark_error_p95_px": round(float(np.percentile(err, 95)), 3),
-                                  "mask_iou": round(float(iou.mean()), 4), "seconds": round(time.time() - t0, 1)}), flush=True)
+                                  "mask_iou": round(float(iou.mean()), 4), "seconds": seconds}), flush=True)
 
 
 def _read_mask(path) -> np.ndarray:
     from geoface.images import read_image
 
-    m = read_image(path)
-    return (m if m.ndim == 2 else m[..., 0]) > 127
+    m = read_image(path)  # float in [0, 1]
+    return (m if m.ndim == 2 else m[..., 0]) > 0.5
 
 
 def _job(job) -> list:
