@@ -108,11 +108,12 @@ def _track(a) -> None:
                 if not (src / "meta.json").is_file():
                     raise SystemExit(f"{src}: no capture; run the data stage first")
                 t0 = time.time()
-                if (dst / "landmarks.json").is_file():  # tracked before: its row again, from the files
+                stale = (src / "hmd_masks").is_dir() and not (dst / "hmd_masks_true").is_dir()  # before headset masks
+                if (dst / "landmarks.json").is_file() and not stale:  # tracked before: its row again, from the files
                     found = np.asarray(json.loads((dst / "landmarks.json").read_text()).get("found") or [], bool)
                     seconds = None
                 else:
-                    found = track_capture(src, dst, quiet=True).found
+                    found = track_capture(src, dst, quiet=True, overwrite=dst.exists()).found
                     seconds = round(time.time() - t0, 1)
                 truth = np.asarray(json.loads((src / "landmarks.json").read_text())["points"], np.float64)
                 got = np.asarray(json.loads((dst / "landmarks.json").read_text())["points"], np.float64)
@@ -120,11 +121,17 @@ def _track(a) -> None:
                 true_masks = np.stack([_read_mask(f) for f in sorted((src / "masks").glob("*.png"))])
                 got_masks = np.stack([_read_mask(f) for f in sorted((dst / "masks").glob("*.png"))])
                 iou = (true_masks & got_masks).sum((1, 2)) / np.maximum((true_masks | got_masks).sum((1, 2)), 1)
+                headset = {}
+                if (dst / "hmd_masks_true").is_dir():  # the headset segmented from the frames vs the renderer's
+                    hm_true = np.stack([_read_mask(f) for f in sorted((dst / "hmd_masks_true").glob("*.png"))])
+                    hm = np.stack([_read_mask(f) for f in sorted((dst / "hmd_masks").glob("*.png"))])
+                    hi = (hm_true & hm).sum((1, 2)) / np.maximum((hm_true | hm).sum((1, 2)), 1)
+                    headset = {"headset_iou": round(float(hi.mean()), 4), "headset_iou_min": round(float(hi.min()), 4)}
                 print(json.dumps({"stage": "tracking", "split": split, "data_seed": s, "video": which, "frames": len(truth),
                                   "found": int(found.sum()), "landmarks": int(got.shape[1]),
                                   "landmark_error_px": round(float(err.mean()), 3),
                                   "landmark_error_p95_px": round(float(np.percentile(err, 95)), 3),
-                                  "mask_iou": round(float(iou.mean()), 4), "seconds": seconds}), flush=True)
+                                  "mask_iou": round(float(iou.mean()), 4), **headset, "seconds": seconds}), flush=True)
 
 
 def _read_mask(path) -> np.ndarray:
@@ -351,9 +358,10 @@ def _calibration(a) -> None:
         for seed in (int(x) for x in seeds.split(",")):
             for s in ([int(x) for x in people[0].split(",")] if people else default):
                 for v in variants.split(","):
+                    d = (Path(a.out) / "data_tracked" if v == "tracked" else data) / f"{split}_{s}"
                     model = load_hfm(models / f"{split}_{s}_{v}_s{seed}")
-                    reg = _registration(data / f"{split}_{s}" / "registration", model, models / f"{split}_{s}_{v}_s{seed}")
-                    use = load_video(data / f"{split}_{s}" / "usage")
+                    reg = _registration(d / "registration", model, models / f"{split}_{s}_{v}_s{seed}")
+                    use = load_video(d / "usage")
                     for g in a.grid:
                         k, ridge, *flags = g.split(":")
                         draws = int(next((f[1:] for f in flags if f.startswith("e")), 0))

@@ -24,7 +24,8 @@ import numpy as np
 
 from geoface.errors import GeofaceError, MissingDependencyError
 
-__all__ = ["Tracking", "track_frames", "track_capture", "ibug68_from_mediapipe", "TRACKER", "facemesh_points"]
+__all__ = ["Tracking", "track_frames", "track_capture", "ibug68_from_mediapipe", "TRACKER", "facemesh_points",
+           "headset_masks"]
 
 #: the tracker named in the landmarks files it writes
 TRACKER = "mediapipe-facemesh"
@@ -131,6 +132,41 @@ def person_masks(frames, *, quiet: bool | None = None) -> np.ndarray:
         lambda: mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=0), frames, "segmenting the person", quiet)])
 
 
+def headset_masks(frames, *, max_saturation: float = 0.15, min_value: float = 0.06, close_px: int = 1) -> np.ndarray:
+    """Where a headset of a known neutral colour (grey or black plastic, as most are) hides the
+    face in each frame, from the pixels alone: ``(T, H, W)`` bool.
+
+    A pixel is the headset's when its colour is unsaturated (chroma over value, the value counted
+    as at least 0.25 so that sensor noise on dark plastic does not read as colour, below
+    ``max_saturation``; skin is 0.25 and more) and not the
+    background (value above ``min_value``); each frame keeps the largest such connected region,
+    closed by ``close_px`` pixels and with its holes filled (the headset is one solid piece). A
+    frame without such a region gets an empty mask."""
+    from scipy import ndimage
+
+    if not (0 < max_saturation < 1) or not (0 <= min_value < 1) or close_px < 0:
+        raise GeofaceError(f"headset colour: 0 < max_saturation < 1, 0 <= min_value < 1, close_px >= 0; got "
+                           f"{max_saturation}, {min_value}, {close_px}")
+    out = []
+    for img in frames:
+        a = np.asarray(img)
+        if a.ndim != 3 or a.shape[2] < 3:
+            raise GeofaceError(f"headset masks need RGB frames; got shape {a.shape}")
+        a = a[..., :3].astype(np.float32) / (255.0 if a.dtype == np.uint8 else 1.0)
+        value = a.max(-1)
+        sat = (value - a.min(-1)) / np.maximum(value, 0.25)
+        cand = (sat < max_saturation) & (value > min_value)
+        lab, n = ndimage.label(cand)
+        if n == 0:
+            out.append(np.zeros(a.shape[:2], bool))
+            continue
+        big = lab == 1 + int(np.argmax(ndimage.sum(cand, lab, range(1, n + 1))))
+        if close_px:
+            big = ndimage.binary_closing(big, iterations=close_px, border_value=0) | big
+        out.append(ndimage.binary_fill_holes(big))
+    return np.stack(out) if out else np.zeros((0, 0, 0), bool)
+
+
 @dataclass(frozen=True)
 class Tracking:
     """``landmarks (T, 68, 2)`` iBUG points in pixels (interpolated where no face was found);
@@ -170,12 +206,14 @@ def track_frames(frames, *, masks: bool = True, video: bool = True, quiet: bool 
     return Tracking(landmarks=lm, found=found, mesh=mesh, masks=person_masks(frames, quiet=quiet) if masks else None)
 
 
-def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, overwrite: bool = False,
-                  quiet: bool | None = None) -> Tracking:
+def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, headset: bool | None = None,
+                  overwrite: bool = False, quiet: bool | None = None) -> Tracking:
     """A copy of the capture folder ``capture_dir`` (frames, camera, head mesh, ...) in
     ``out_dir`` whose ``landmarks.json`` and ``masks/`` come from the tracker instead of the
     originals (which are not copied). ``names``: the landmark names to write (default: those of
-    the capture's own ``landmarks.json`` when it has one, else all 68)."""
+    the capture's own ``landmarks.json`` when it has one, else all 68). ``headset`` (None: when
+    the capture has ``hmd_masks/``): its ``hmd_masks/`` segmented from the frames
+    (:func:`headset_masks`), the capture's own kept as ``hmd_masks_true/`` for evaluation."""
     from geoface._io import output_folder
     from geoface.landmarks import IBUG68_NAMES
     from geoface.images import read_image, save_image
@@ -196,11 +234,19 @@ def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, overw
     cols = [IBUG68_NAMES.index(n) for n in names]
     frames = [read_image(f) for f in files]
     tr = track_frames(frames, masks=masks, quiet=quiet)
+    if headset is None:
+        headset = (src / "hmd_masks").is_dir()
+    hmd = headset_masks(frames) if headset else None
     with output_folder(Path(out_dir), overwrite) as tmp:
         for p in src.iterdir():
-            if p.name in ("landmarks.json",) or (masks and p.name == "masks"):
+            if p.name in ("landmarks.json",) or (masks and p.name == "masks") or (headset and p.name == "hmd_masks_true"):
                 continue
-            (shutil.copytree if p.is_dir() else shutil.copy2)(p, tmp / p.name)
+            dst = tmp / ("hmd_masks_true" if headset and p.name == "hmd_masks" else p.name)
+            (shutil.copytree if p.is_dir() else shutil.copy2)(p, dst)
+        if hmd is not None:
+            (tmp / "hmd_masks").mkdir()
+            for f, m in zip(files, hmd):
+                save_image(tmp / "hmd_masks" / f.name, m.astype(np.uint8) * 255, atomic=False)
         doc = {"names": names, "points": np.round(tr.landmarks[:, cols], 3).tolist(), "tracker": TRACKER,
                "found": [bool(x) for x in tr.found]}
         (tmp / "landmarks.json").write_text(json.dumps(doc))

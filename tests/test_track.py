@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from geoface.track import ibug68_from_mediapipe
+from geoface.errors import GeofaceError
+from geoface.track import headset_masks, ibug68_from_mediapipe
 
 
 def test_the_landmark_table_is_a_convex_combination_per_landmark():
@@ -23,6 +24,51 @@ def capture(tmp_path_factory):
 
     reg, _ = make_ict_hmd(tmp_path_factory.mktemp("cap") / "c", frames=6, usage_frames=2, res=256, seed=11, quiet=True)
     return reg
+
+
+def test_headset_masks_find_a_grey_box_on_a_face_and_nothing_on_skin():
+    rng = np.random.default_rng(0)
+    img = np.zeros((3, 96, 96, 3), np.uint8)                      # black background
+    yy, xx = np.mgrid[:96, :96]
+    face = (yy - 50) ** 2 / 40 ** 2 + (xx - 48) ** 2 / 30 ** 2 < 1  # a skin-coloured ellipse
+    img[:, face] = (205, 150, 120)
+    box = (yy >= 25) & (yy < 48) & (xx >= 16) & (xx < 80)          # a grey headset over the eyes
+    img[0, box], img[1, box] = (70, 72, 75), (30, 30, 32)          # grey, then near-black plastic
+    img[:2, 30:34, 30:40] = (205, 150, 120)                        # a hole in it (a reflection) is filled
+    img[:2] = np.clip(img[:2].astype(int) + rng.integers(-4, 5, img[:2].shape), 0, 255).astype(np.uint8)
+    img[0, 5:8, 5:8] = (90, 90, 90)                                # a grey speck elsewhere is not the headset
+    m = headset_masks(img)
+    assert m.shape == (3, 96, 96) and m.dtype == bool
+    for t in (0, 1):
+        iou = (m[t] & box).sum() / (m[t] | box).sum()
+        assert iou > 0.95, (t, iou)
+    assert not m[0, 5:8, 5:8].any()
+    assert not m[2].any()                                         # no headset: an empty mask
+    with pytest.raises(GeofaceError, match="RGB"):
+        headset_masks(np.zeros((1, 8, 8)))
+    with pytest.raises(GeofaceError, match="max_saturation"):
+        headset_masks(img, max_saturation=1.5)
+
+
+def test_tracked_usage_has_segmented_headset_masks_and_scores_with_the_true_ones(capture, tmp_path):
+    from dataclasses import replace
+
+    from geoface.hfm.data import load_video
+    from geoface.hfm.usage import hmd_metrics
+    from geoface.track import track_capture
+
+    out = tmp_path / "usage"
+    track_capture(capture.parent / "usage", out, quiet=True)
+    v = load_video(out)
+    assert v.hmd_masks is not None and v.hmd_masks_true is not None
+    for seg, true in zip(v.hmd_masks, v.hmd_masks_true):
+        assert (seg & true).sum() / (seg | true).sum() > 0.9  # the grey headset, found from the pixels
+    # the evaluation scores where the headset truly hides: wrong renders there only, none in the segmented masks
+    v = replace(v, hmd_masks=np.zeros_like(v.hmd_masks))
+    R = np.where(v.hmd_masks_true[..., None], 1.0 - v.gt, v.gt)
+    r = hmd_metrics(R, v)
+    assert r["psnr_occluded"] < 10 and r["psnr_face"] < 30
+    assert hmd_metrics(v.gt, v)["psnr_occluded"] == float("inf")
 
 
 def test_tracked_landmarks_and_masks_match_the_truth(capture, tmp_path, capsys):

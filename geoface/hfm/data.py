@@ -11,7 +11,10 @@ A video folder (registration or usage) holds::
     meta.json               {"y_split": y_t in world metres, "up": [0, 1, 0]}: the upper/lower split
     head.ply | head.obj     a head mesh with vertex colours, in the canonical (first-frame) pose:
                             initialises the canonical Gaussians (registration folders)
-    hmd_masks/000000.png    usage folders: pixels hidden by the headset (evaluation)
+    hmd_masks/000000.png    usage folders: pixels hidden by the headset (what the user has:
+                            segmented from the frames, ``geoface.track.headset_masks``)
+    hmd_masks_true/000000.png  optional: the true ones (a renderer's), which the evaluation
+                            scores with instead when present
     gt/000000.png           usage folders: the unoccluded frames, when known (evaluation)
     gt_static_upper/000000.png  optional, synthetic usage folders: the same frames with the
                             upper-face expression switched off (brows and lids at rest): where
@@ -67,6 +70,7 @@ class HMDVideo:
     mesh_path: Path | None = None
     poses: tuple | None = None            # (R [T, 3, 3], t [T, 3], pivot [3]) or None
     gt_static_upper: np.ndarray | None = None  # [T, H, W, 3]: gt with the upper expression at rest
+    hmd_masks_true: np.ndarray | None = None  # [T, H, W] bool: the true headset masks (evaluation), when known
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -144,6 +148,7 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
     masks = optional("masks", False)
     masks = (masks > 0.5) if masks is not None else imgs.max(-1) > 0
     hmd = optional("hmd_masks", False)
+    hmd_true = optional("hmd_masks_true", False)
     mesh = next((folder / n for n in ("head.ply", "head.obj") if (folder / n).is_file()), None)
     if need_mesh and mesh is None:
         raise SplatError(f"{folder}: a registration folder needs head.ply or head.obj (the canonical head)")
@@ -160,7 +165,8 @@ def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) 
                              f"do not fit {n_all} frames")
         poses = (R, t, piv) if frames is None else (R[frames], t[frames], piv)
     return HMDVideo(imgs, masks, pts, names, cam, y_split, None if hmd is None else hmd > 0.5,
-                    optional("gt", True), mesh, poses, optional("gt_static_upper", True))
+                    optional("gt", True), mesh, poses, optional("gt_static_upper", True),
+                    None if hmd_true is None else hmd_true > 0.5)
 
 
 def lower_face_box(pts) -> tuple[float, float, float]:

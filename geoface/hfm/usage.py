@@ -231,7 +231,8 @@ OUTLINE_PX = 1            # the occluded region's outline: face pixels this clos
 
 def evaluate_hmd(model: HFMModel, video, poses: str = "auto") -> dict:
     """PSNR/SSIM of the renders against ``video.gt`` on the whole face (foreground) and in the
-    region the headset hides; FPS of the whole per-frame path (crop, encode, deform, render).
+    region the headset hides (``video.hmd_masks_true`` when known, else ``video.hmd_masks``); FPS
+    of the whole per-frame path (crop, encode, deform, render).
 
     Where the usage folder has ``gt_static_upper/`` (the synthetic videos: the same frames with
     brows and lids at rest), also the *expression region* of each frame: the occluded face pixels
@@ -273,12 +274,13 @@ def hmd_metrics(R: np.ndarray, video) -> dict:
         raise SplatError(f"renders {R.shape} do not match the usage frames {video.gt.shape}")
     face = video.gt.max(-1) > 0
     rest = video.gt_static_upper
+    hidden = video.hmd_masks if video.hmd_masks_true is None else video.hmd_masks_true  # score where it truly hides
     rows = {"psnr_face": [], "ssim_face": [], "psnr_occluded": [], "ssim_occluded": [], "psnr_occluded_interior": [],
             "psnr_occluded_outline": []}
     if rest is not None:
         rows.update(psnr_expression=[], ssim_expression=[], psnr_expression_rest=[], expression_pixels=[])
     for t in range(len(video)):
-        m, o = face[t], video.hmd_masks[t] & face[t]
+        m, o = face[t], hidden[t] & face[t]
         rows["psnr_face"].append(psnr(R[t], video.gt[t], m))
         rows["psnr_occluded"].append(psnr(R[t], video.gt[t], o))
         rows["ssim_face"].append(ssim_masked(R[t], video.gt[t], m))
