@@ -113,3 +113,13 @@ def renamed(parser, old: str, new: str) -> None:
             p.error(f"{old} is now {new}")
 
     parser.add_argument(old, nargs="?", action=_Renamed, help=argparse.SUPPRESS)
+
+
+def synth_landmarks_option(p) -> None:
+    """``--landmarks tracked|oracle`` of the avatars' ``synth`` verbs (see :func:`track_synthetic`)."""
+    p.add_argument("--landmarks", choices=("tracked", "oracle"), default=None,
+                   help="tracked: the landmarks, person masks (and headset masks) found on the frames by geoface track, "
+                        "as a user's would be, the renderer's kept as landmarks_true.json, masks_true/ (and "
+                        "hmd_masks_true/); oracle: the renderer's own (default: tracked for --head ict, oracle for "
+                        "the procedural head, which is no face to the tracker)")
+

@@ -207,13 +207,16 @@ def track_frames(frames, *, masks: bool = True, video: bool = True, quiet: bool 
 
 
 def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, headset: bool | None = None,
-                  overwrite: bool = False, quiet: bool | None = None) -> Tracking:
+                  keep_originals: bool = False, overwrite: bool = False, quiet: bool | None = None) -> Tracking:
     """A copy of the capture folder ``capture_dir`` (frames, camera, head mesh, ...) in
     ``out_dir`` whose ``landmarks.json`` and ``masks/`` come from the tracker instead of the
     originals (which are not copied). ``names``: the landmark names to write (default: those of
     the capture's own ``landmarks.json`` when it has one, else all 68). ``headset`` (None: when
     the capture has ``hmd_masks/``): its ``hmd_masks/`` segmented from the frames
-    (:func:`headset_masks`), the capture's own kept as ``hmd_masks_true/`` for evaluation."""
+    (:func:`headset_masks`), the capture's own kept as ``hmd_masks_true/`` for evaluation.
+    ``keep_originals``: keep the replaced ``landmarks.json`` and ``masks/`` too, as
+    ``landmarks_true.json`` and ``masks_true/`` (a renderer's truth, for evaluation). ``out_dir``
+    may be ``capture_dir`` itself (with ``overwrite``): the folder is replaced when complete."""
     from geoface._io import output_folder
     from geoface.landmarks import IBUG68_NAMES
     from geoface.images import read_image, save_image
@@ -239,9 +242,12 @@ def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, heads
     hmd = headset_masks(frames) if headset else None
     with output_folder(Path(out_dir), overwrite) as tmp:
         for p in src.iterdir():
-            if p.name in ("landmarks.json",) or (masks and p.name == "masks") or (headset and p.name == "hmd_masks_true"):
+            if {"landmarks.json": True, "masks": masks, "hmd_masks": headset}.get(p.name):  # replaced below
+                true = p.name.replace(".json", "_true.json") if p.suffix else p.name + "_true"
+                if not ((src / true).exists() or (p.name != "hmd_masks" and not keep_originals)):
+                    (shutil.copytree if p.is_dir() else shutil.copy2)(p, tmp / true)  # the truth, kept once
                 continue
-            dst = tmp / ("hmd_masks_true" if headset and p.name == "hmd_masks" else p.name)
+            dst = tmp / p.name
             (shutil.copytree if p.is_dir() else shutil.copy2)(p, dst)
         if hmd is not None:
             (tmp / "hmd_masks").mkdir()

@@ -20,13 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
+from geoface.errors import GeofaceError
 from geoface.camera import Camera
 from geoface.splat.errors import SplatError
 from geoface.images import read_image, save_image
 from geoface.landmarks import IBUG68_LOWER, IBUG68_NAMES, IBUG68_RIGID  # noqa: F401  (re-exported)
 from geoface.rotations import euler_rotation  # noqa: F401  (re-exported)
 
-__all__ = ["IBUG68_NAMES", "IBUG68_LOWER", "IBUG68_RIGID", "write_frame", "stack_frames",
+__all__ = ["track_synthetic", "IBUG68_NAMES", "IBUG68_LOWER", "IBUG68_RIGID", "write_frame", "stack_frames",
            "camera_from_json", "camera_to_json", "read_landmarks", "euler_rotation", "headset_mesh"]
 
 
@@ -123,3 +124,20 @@ def headset_mesh(y_split: float, front_z: float, width: float = 0.19, height: fl
     quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (1, 5, 7, 3), (0, 2, 6, 4)]
     F = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
     return V, F
+
+
+def track_synthetic(folders, landmarks: str | None, head: str, *, quiet: bool | None = None) -> str:
+    """The avatars' ``synth --landmarks``: with ``tracked`` (the default for ``head`` ``"ict"``),
+    each synthetic capture folder's landmarks and masks replaced in place by the tracker's
+    (:func:`geoface.track.track_capture`), the renderer's kept as ``*_true``; ``oracle`` leaves
+    the renderer's. Returns the tail of the verb's summary line saying which the folders hold."""
+    if (landmarks or ("tracked" if head == "ict" else "oracle")) == "oracle":
+        return "; landmarks and masks: the renderer's (oracle)"
+    from geoface.track import track_capture
+
+    try:
+        found = [track_capture(d, d, keep_originals=True, overwrite=True, quiet=quiet).found for d in folders]
+    except GeofaceError as e:
+        raise GeofaceError(f"{e} (--landmarks oracle keeps the renderer's)") from e
+    return (f"; landmarks and masks tracked by MediaPipe (a face on {sum(int(f.sum()) for f in found)} of "
+            f"{sum(len(f) for f in found)} frames; the renderer's kept as *_true)")

@@ -10,7 +10,7 @@ from pathlib import Path
 from geoface.errors import GeofaceError
 from geoface.nn.device import train_device
 from geoface.progress import args_quiet
-from geoface._args import SEED, add_json, json_to_stdout, number, write_json, output_option
+from geoface._args import SEED, add_json, json_to_stdout, number, write_json, output_option, synth_landmarks_option
 
 __all__ = ["register"]
 
@@ -22,6 +22,7 @@ def cmd_hmd_synth(args) -> int:
     if out.exists() and any(out.iterdir()):
         raise GeofaceError(f"{out} exists and is not empty; choose a new folder")
     from geoface._io import atomic_dir
+    from geoface.avatar.capture import track_synthetic
 
     with atomic_dir(out, overwrite=True) as tmp:  # complete or absent: a failure leaves nothing
         if args.head == "ict":
@@ -34,8 +35,9 @@ def cmd_hmd_synth(args) -> int:
             reg, use = make_synthetic_hmd(tmp, frames=args.frames, heldout=args.heldout, res=args.res,
                                           n_vertices=args.vertices, seed=args.seed, motion=args.motion,
                                           quiet=args_quiet(args))
+        tracked = track_synthetic((reg, use), args.landmarks, args.head, quiet=args_quiet(args))
         reg, use = out / Path(reg).relative_to(tmp), out / Path(use).relative_to(tmp)
-    print(f"{reg}: registration video; {use}: usage video with a headset (+ gt/, hmd_masks/)")
+    print(f"{reg}: registration video; {use}: usage video with a headset (+ gt/, hmd_masks/){tracked}")
     return 0
 
 
@@ -199,6 +201,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     s.add_argument("--rom", type=number(float, 0, 3600), default=0.0, metavar="SECONDS",
                    help="--head ict: the registration video opens with a range of motion of this length: surprise, "
                         "smile and anger in turn at full weight (0: none)")
+    synth_landmarks_option(s)
     s.add_argument("--seed", type=SEED, default=0)
     s.set_defaults(func=cmd_hmd_synth)
     t = hs.add_parser("train", parents=[common], help="register a person from an unoccluded video folder")

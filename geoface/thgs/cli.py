@@ -14,7 +14,7 @@ __all__ = ["register"]
 from geoface.nn.device import train_device  # noqa: E402  (argparse only, no torch)
 from geoface.progress import args_quiet  # noqa: E402
 from geoface._io import output_folder  # noqa: E402
-from geoface._args import SEED, add_json, json_to_stdout, number, write_json, output_option
+from geoface._args import SEED, add_json, json_to_stdout, number, write_json, output_option, synth_landmarks_option
 
 #: THGSConfig.lambda_landmarks's default (kept here so that building the parser imports no torch)
 THGS_LANDMARK_WEIGHT = 3.0
@@ -41,6 +41,7 @@ def cmd_talk_synth(args) -> int:
     if out.exists() and any(out.iterdir()):
         raise GeofaceError(f"{out} exists and is not empty; choose a new folder")
     from geoface._io import atomic_dir
+    from geoface.avatar.capture import track_synthetic
 
     with atomic_dir(out, overwrite=True) as tmp:  # complete or absent: a failure leaves nothing
         if args.head == "ict":
@@ -51,9 +52,10 @@ def cmd_talk_synth(args) -> int:
         else:
             make_synthetic_talking(tmp, seconds=args.seconds, fps=args.fps, res=args.res, n_vertices=args.vertices,
                                    seed=args.seed, quiet=args_quiet(args))
+        tracked = track_synthetic((tmp,), args.landmarks, args.head, quiet=args_quiet(args))
     what = "ICT-FaceKit person" if args.head == "ict" else "synthetic talking head"
     extra = f", tracking off by {perturb[0]:g}° / {perturb[1]:g} mm per frame" if any(perturb) else ""
-    print(f"{out}: {what}, {args.seconds:g} s at {args.fps:g} fps, {args.res}² (audio.wav, poses.npz){extra}")
+    print(f"{out}: {what}, {args.seconds:g} s at {args.fps:g} fps, {args.res}² (audio.wav, poses.npz){extra}{tracked}")
     return 0
 
 
@@ -136,6 +138,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="procedural head, or an ICT-FaceKit person (lit skin, eyes, teeth; ARKit blendshapes)")
     s.add_argument("--perturb", default=None, metavar="DEG,MM",
                    help="ict: each frame's tracked head pose off by DEG degrees and MM millimetres (true poses kept)")
+    synth_landmarks_option(s)
     s.add_argument("--seed", type=SEED, default=0)
     s.set_defaults(func=cmd_talk_synth)
     t = hs.add_parser("train", parents=[common], help="fit a talking avatar to a data folder")

@@ -155,7 +155,7 @@ def test_cli_talk_synth_ict_with_perturbed_tracking_trains_and_reports_pose_erro
     from geoface.cli import main
 
     d = tmp_path / "t"
-    assert main(["talk", "synth", "-o", str(d), "--head", "ict", "--seconds", "0.4", "--res", "32", "--vertices", "1000",
+    assert main(["talk", "synth", "-o", str(d), "--head", "ict", "--seconds", "0.4", "--res", "32", "--vertices", "1000", "--landmarks", "oracle",
                  "--perturb", "3,5", "-q"]) == 0
     assert "off by 3° / 5 mm" in capsys.readouterr().out
     assert main(["talk", "train", str(d), "-o", str(tmp_path / "m"), "--iters", "3", "--heldout", "0.2", "-q"]) == 0
