@@ -20,7 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..camera import Camera
-from ..errors import InvalidGeometryImageError, RenderError
+from ..errors import InvalidGeometryImageError, InvalidMeshError, RenderError
+from ..mesh.core import check_mesh
 
 __all__ = ["rasterize_faces", "rasterize_mesh", "bbox_pixels", "interpolate", "interpolate_corners", "sample_texture", "uv_to_pixel",
            "pixel_grid_uv", "MAX_RES"]
@@ -190,14 +191,10 @@ def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_0
     bary : (H, W, 3) float64 perspective-correct barycentric weights (zeros where empty)
     depth : (H, W) float64 camera-space z (inf where empty)
     """
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise RenderError(f"V must have shape (n, 3); got {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3:
-        raise RenderError(f"F must have shape (m, 3); got {F.shape}")
-    if len(F) and (F.min() < 0 or F.max() >= len(V)):
-        raise RenderError(f"F indexes vertices out of range [0, {len(V)})")
+    try:
+        V, F = check_mesh(V, F, allow_empty=True)
+    except InvalidMeshError as e:
+        raise RenderError(str(e)) from None
     if not isinstance(camera, Camera):
         raise RenderError(f"camera must be a geoface.camera.Camera; got {type(camera).__name__}")
     H, W = camera.height, camera.width
