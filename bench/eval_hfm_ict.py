@@ -16,7 +16,9 @@ talking, emoting, lit ICT person, registration and usage videos of different seq
 * ``oracle``   — Full, registered and used with the true head poses (``head_poses.npz``);
 * ``tracked``  — Full with no pose file on the copy of the capture that the ``track`` stage wrote:
   landmarks and person masks detected by MediaPipe on the frames (:mod:`geoface.track`) instead of
-  the renderer's, registration and usage; scored against the same true frames (``gt/``, ``hmd_masks/``);
+  the renderer's, headset masks segmented from the usage frames, registration and usage; scored
+  against the same true frames (``gt/``, ``hmd_masks_true/``); ``tracked_pose_refine``: the same with
+  the registration poses corrected per frame by the image loss;
 * ``full``     — Full with no pose file: registration poses fitted to the landmarks (PnP), the
   usage pose read from the lower-face crop (the pose MLP trained during registration);
 * ``no_gaussian_feature_mapping``, ``no_global_pose`` — the paper's ablations, no pose file;
@@ -73,6 +75,8 @@ OURS = {"pose_residual": {"pose_residual": True}, "no_pose_residual": {"pose_res
 VARIANTS.update({k: ("full", "landmarks") for k in {**PAPER, **OURS}})
 VARIANTS["oracle_pose_head_detach"] = ("full", "file")  # registered and used with the true poses
 VARIANTS["tracked"] = ("full", "landmarks")  # Full on the capture's copy tracked by geoface.track (DIR/data_tracked)
+OURS["tracked_pose_refine"] = {"pose_refine": True}  # the same, registration poses corrected by the image loss
+VARIANTS["tracked_pose_refine"] = ("full", "landmarks")
 MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]
 
 
@@ -216,10 +220,10 @@ def _run(a) -> None:
         for seed in (int(x) for x in seeds.split(",")):
             for s in ([int(x) for x in people[0].split(",")] if people else default):
                 for v in variants.split(","):
-                    d = (Path(a.out) / "data_tracked" if v == "tracked" else data) / f"{split}_{s}"
+                    d = (Path(a.out) / "data_tracked" if v.startswith("tracked") else data) / f"{split}_{s}"
                     if not (d / "usage" / "meta.json").is_file():
                         raise SystemExit(f"{d}: no capture; run the data stage first"
-                                         + (" and then the track stage" if v == "tracked" else ""))
+                                         + (" and then the track stage" if v.startswith("tracked") else ""))
                     jobs.append((str(d), split, s, seed, v, a.iters, a.threads, a.device, models))
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
@@ -358,7 +362,7 @@ def _calibration(a) -> None:
         for seed in (int(x) for x in seeds.split(",")):
             for s in ([int(x) for x in people[0].split(",")] if people else default):
                 for v in variants.split(","):
-                    d = (Path(a.out) / "data_tracked" if v == "tracked" else data) / f"{split}_{s}"
+                    d = (Path(a.out) / "data_tracked" if v.startswith("tracked") else data) / f"{split}_{s}"
                     model = load_hfm(models / f"{split}_{s}_{v}_s{seed}")
                     reg = _registration(d / "registration", model, models / f"{split}_{s}_{v}_s{seed}")
                     use = load_video(d / "usage")
