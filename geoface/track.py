@@ -210,7 +210,7 @@ def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, heads
                   keep_originals: bool = False, overwrite: bool = False, quiet: bool | None = None) -> Tracking:
     """A copy of the capture folder ``capture_dir`` (frames, camera, head mesh, ...) in
     ``out_dir`` whose ``landmarks.json`` and ``masks/`` come from the tracker instead of the
-    originals (which are not copied). ``names``: the landmark names to write (default: those of
+    originals (not copied unless ``keep_originals``). ``names``: the landmark names to write (default: those of
     the capture's own ``landmarks.json`` when it has one, else all 68). ``headset`` (None: when
     the capture has ``hmd_masks/``): its ``hmd_masks/`` segmented from the frames
     (:func:`headset_masks`), the capture's own kept as ``hmd_masks_true/`` for evaluation.
@@ -247,17 +247,13 @@ def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, heads
                 if not ((src / true).exists() or (p.name != "hmd_masks" and not keep_originals)):
                     (shutil.copytree if p.is_dir() else shutil.copy2)(p, tmp / true)  # the truth, kept once
                 continue
-            dst = tmp / p.name
-            (shutil.copytree if p.is_dir() else shutil.copy2)(p, dst)
-        if hmd is not None:
-            (tmp / "hmd_masks").mkdir()
-            for f, m in zip(files, hmd):
-                save_image(tmp / "hmd_masks" / f.name, m.astype(np.uint8) * 255, atomic=False)
+            (shutil.copytree if p.is_dir() else shutil.copy2)(p, tmp / p.name)
+        for sub, ms in (("hmd_masks", hmd), ("masks", tr.masks if masks else None)):
+            if ms is not None:
+                (tmp / sub).mkdir()
+                for f, m in zip(files, ms):
+                    save_image(tmp / sub / f.name, (m > 0.5).astype(np.uint8) * 255, atomic=False)
         doc = {"names": names, "points": np.round(tr.landmarks[:, cols], 3).tolist(), "tracker": TRACKER,
                "found": [bool(x) for x in tr.found]}
         (tmp / "landmarks.json").write_text(json.dumps(doc))
-        if masks:
-            (tmp / "masks").mkdir()
-            for f, m in zip(files, tr.masks):
-                save_image(tmp / "masks" / f.name, (m > 0.5).astype(np.uint8) * 255, atomic=False)
     return tr
