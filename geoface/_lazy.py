@@ -12,6 +12,7 @@ _EXTRA_OF = {
     "manifold3d": "repair",
     "igl": "repair",
     "networkx": "repair",
+    "fast_simplification": "repair",
     "rich": "extra",
     "PIL": "extra",
     "skimage": "extra",

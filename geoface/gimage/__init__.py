@@ -9,11 +9,11 @@
 ((6, 8, 8), True)
 """
 
-from .image import FORMAT_VERSION, MODALITIES, GeometryImage, geometry_image, load_gimage, save_gimage
+from .image import FORMAT_VERSION, MODALITIES, GeometryImage, geometry_image, gimage_from_samples, load_gimage, save_gimage
 from .raster import interpolate, rasterize_faces, sample_texture
 from .reconstruct import pixel_uv, reconstruct, save_reconstruction
 
 __all__ = [
-    "FORMAT_VERSION", "MODALITIES", "GeometryImage", "geometry_image", "load_gimage", "save_gimage",
+    "FORMAT_VERSION", "MODALITIES", "GeometryImage", "geometry_image", "gimage_from_samples", "load_gimage", "save_gimage",
     "interpolate", "rasterize_faces", "sample_texture", "pixel_uv", "reconstruct", "save_reconstruction",
 ]

@@ -28,7 +28,7 @@ from ..errors import GeofaceError, InvalidGeometryImageError
 from ..mesh.core import check_mesh, signed_uv_areas, vertex_normals
 from .raster import interpolate, interpolate_corners, rasterize_faces, sample_texture
 
-__all__ = ["GeometryImage", "geometry_image", "save_gimage", "load_gimage", "MODALITIES", "FORMAT_VERSION"]
+__all__ = ["GeometryImage", "geometry_image", "gimage_from_samples", "save_gimage", "load_gimage", "MODALITIES", "FORMAT_VERSION"]
 
 FORMAT_VERSION = 2
 MODALITIES = {"position": ("px", "py", "pz"), "normal": ("nx", "ny", "nz"), "texture": ("r", "g", "b")}
@@ -170,10 +170,6 @@ def geometry_image(
     if nrm.shape != V.shape:
         raise InvalidGeometryImageError(f"normals must have shape {V.shape}")
     nimg = interpolate(face, bary, F, nrm)
-    L = np.linalg.norm(nimg, axis=0, keepdims=True)
-    nimg = np.where(L > 0, nimg / np.maximum(L, 1e-300), 0.0)
-    chans = [pos, (nimg + 1.0) * 0.5 * mask]
-    names = [*MODALITIES["position"], *MODALITIES["normal"]]
     tex = None
     if texture is not None:
         if tex_uv is None or tex_fuv is None:
@@ -192,18 +188,57 @@ def geometry_image(
         if C.ndim != 2 or C.shape[0] != len(V) or C.shape[1] not in (3, 4):
             raise InvalidGeometryImageError(f"colors must have shape ({len(V)}, 3|4)")
         tex = interpolate(face, bary, F, C[:, :3])
+    orient = 1 if signed_uv_areas(F, uv).sum() >= 0 else -1
+    return _assemble(pos, nimg, tex, mask, lo, hi, orient, meta)
+
+
+def gimage_from_samples(positions: np.ndarray, normals: np.ndarray, mask: np.ndarray, colors: np.ndarray | None = None, *,
+                        uv_orientation: int = 1, bbox=None, meta: dict | None = None) -> GeometryImage:
+    """A geometry image from per-pixel samples: ``positions (N, N, 3)`` and ``normals (N, N, 3)``
+    (object space, any length; normalised here) and optionally ``colors (N, N, 3)`` in [0, 1],
+    valid where ``mask (N, N)``.  What :func:`geometry_image` makes from a mesh's vertices, for
+    samples taken elsewhere (the full-resolution surface under a decimated proxy, in
+    ``geoface convert``).  ``bbox`` defaults to the valid positions' bounding box."""
+    mask = np.asarray(mask, bool)
+    P = np.asarray(positions, np.float64)
+    if mask.ndim != 2 or mask.shape[0] != mask.shape[1] or P.shape != (*mask.shape, 3):
+        raise InvalidGeometryImageError(f"positions must be (N, N, 3) over an (N, N) mask; got {P.shape} and {mask.shape}")
+    if not mask.any() or not np.isfinite(P[mask]).all():
+        raise InvalidGeometryImageError("positions must be finite on a non-empty mask")
+    Nn = np.asarray(normals, np.float64)
+    if Nn.shape != P.shape:
+        raise InvalidGeometryImageError(f"normals must have the shape of positions {P.shape}; got {Nn.shape}")
+    lo, hi = _bbox(P[mask], bbox)
+    m3 = mask[None]
+    pos = np.where(m3, (P.transpose(2, 0, 1) - lo[:, None, None]) / (hi - lo)[:, None, None], 0.0)
+    tex = None
+    if colors is not None:
+        C = np.asarray(colors, np.float64)
+        if C.shape != P.shape:
+            raise InvalidGeometryImageError(f"colors must have the shape of positions {P.shape}; got {C.shape}")
+        tex = np.where(m3, C.transpose(2, 0, 1), 0.0)
+    return _assemble(pos, np.where(m3, Nn.transpose(2, 0, 1), 0.0), tex, mask, lo, hi, int(uv_orientation), meta)
+
+
+def _assemble(pos, nimg, tex, mask, lo, hi, orient, meta) -> GeometryImage:
+    """The image from channel-first normalised positions, normals (unit-normalised here) and
+    optional colours over ``mask``."""
+    L = np.linalg.norm(nimg, axis=0, keepdims=True)
+    nimg = np.where(L > 0, nimg / np.maximum(L, 1e-300), 0.0)
+    chans = [pos, (nimg + 1.0) * 0.5 * mask]
+    names = [*MODALITIES["position"], *MODALITIES["normal"]]
     if tex is not None:
         chans.append(tex)
         names += list(MODALITIES["texture"])
     img = np.clip(np.concatenate(chans, 0), 0.0, 1.0).astype(np.float32)
-    orient = 1 if signed_uv_areas(F, uv).sum() >= 0 else -1
+    N = mask.shape[0]
     m = {
         "version": FORMAT_VERSION,
         "resolution": int(N),
         "align_corners": True,
         "channels": names,
-        "bbox_min": lo.tolist(),
-        "bbox_max": hi.tolist(),
+        "bbox_min": np.asarray(lo, float).tolist(),
+        "bbox_max": np.asarray(hi, float).tolist(),
         "uv_orientation": orient,
         "coverage": float(mask.mean()),
     }

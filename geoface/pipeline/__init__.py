@@ -29,6 +29,8 @@ from ..rotations import upright_rotation  # noqa: F401  (re-exported)
 __all__ = ["ConvertOptions", "convert", "face_region", "load_roi", "reconstruction_error", "corner_uvs_for", "upright_rotation"]
 
 METHODS = ("ot", "conformal")
+#: a scan with more than this many times ``ConvertOptions.proxy`` vertices goes through a proxy
+PROXY_FACTOR = 1.5
 
 
 @dataclass(frozen=True)
@@ -53,7 +55,10 @@ class ConvertOptions:
     corner_set : convert only corner set ``k`` (0..7) of the 8, written directly in the
     output folder (used by the dataset builder: one item per mesh × corner set); ``augment``
     is then ignored; metrics : write ``metrics.json`` (it holds timings, so a folder without
-    it is byte-identical across runs).
+    it is byte-identical across runs); proxy : a scan with more than 1.5 × ``proxy`` vertices
+    (default 40000) is decimated to ``proxy`` vertices for the repair and the maps, and the
+    images take positions, normals and colours from the full surface
+    (:mod:`geoface.pipeline.proxy`); 0: never.
     """
 
     res: int = 512
@@ -70,6 +75,7 @@ class ConvertOptions:
     preview: bool = True
     corner_set: int | None = None
     metrics: bool = True
+    proxy: int = 40000
 
     def validate(self) -> "ConvertOptions":
         from ..gimage.raster import MAX_RES
@@ -80,6 +86,8 @@ class ConvertOptions:
             raise GeofaceError(f"method must be one of {', '.join(METHODS)}; got {self.method!r}")
         if not (np.isfinite(self.lam) and self.lam > 0):
             raise GeofaceError(f"lam must be positive; got {self.lam!r}")
+        if isinstance(self.proxy, bool) or int(self.proxy) != self.proxy or not (self.proxy == 0 or self.proxy >= 1000):
+            raise GeofaceError(f"proxy must be 0 (off) or a vertex count >= 1000; got {self.proxy!r}")
         if int(self.augment) != self.augment or not 1 <= self.augment <= 8:
             raise GeofaceError(f"augment must be an integer in 1..8; got {self.augment!r}")
         from ..gimage.reconstruct import MAX_SMOOTH
@@ -212,6 +220,22 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     t_all = time.perf_counter()
     roi0 = _explicit_roi(opts, mesh.V)
 
+    scan = None
+    if opts.proxy and len(mesh.V) > PROXY_FACTOR * opts.proxy:
+        from ..repair.proxy import decimate
+
+        t = time.perf_counter()
+        log(f"convert: {len(mesh.V):,} vertices: the maps are solved on a {opts.proxy:,}-vertex proxy, the images sample "
+            "the full surface", quiet=quiet)
+        px = decimate(mesh.V, mesh.F, opts.proxy)
+        scan = mesh
+        if roi0 is not None:  # the user's mask: each proxy vertex takes its nearest scan vertex's
+            from scipy.spatial import cKDTree
+
+            roi0 = roi0[cKDTree(mesh.V).query(px.V)[1]]
+        mesh = Mesh(px.V, px.F)
+        times["proxy"] = time.perf_counter() - t
+
     t = time.perf_counter()
     log(f"convert: repairing {len(mesh.V)} vertices to a disk", quiet=quiet)
     disk = make_disk(mesh.V, mesh.F, up=opts.up, open=opts.open, quiet=quiet)
@@ -244,6 +268,15 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     all_sets = corner_sets(V, dm.F, n=8, front=front, up=up_vec, count=max(indices) + 1)
     sets = [all_sets[i] for i in indices]
     times["corners"] = time.perf_counter() - t
+    full = None
+    if scan is not None:
+        from .proxy import full_surface
+
+        t = time.perf_counter()
+        full = full_surface(scan, V, dm.F, roi)
+        times["full_surface"] = time.perf_counter() - t
+        if full is None:
+            log("convert: no part of the scan lies on the repaired proxy; the images keep the proxy's positions", quiet=quiet)
 
     metrics: dict = {
         "input_vertices": int(len(mesh.V)), "input_faces": int(len(mesh.F)), "up": [float(x) for x in up_vec],
@@ -255,6 +288,11 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         "frame": None if frame is None else frame.to_dict(),
         "sets": [],
     }
+    if scan is not None:
+        metrics["proxy"] = {"scan_vertices": int(len(scan.V)), "scan_faces": int(len(scan.F)), "proxy_vertices": int(len(mesh.V)),
+                            "seconds": times["proxy"], "full_surface_seconds": times["full_surface"],
+                            "full_faces": 0 if full is None else int(len(full.F)),
+                            "snap_tolerance": None if full is None else full.tol / full.diag}
     from .._io import atomic_dir
 
     stored = upright_rotation(up_vec, front)
@@ -267,7 +305,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             folder.mkdir(exist_ok=True)
             try:
                 V, roi, colors = convert_set(st, folder, pos, len(sets), corners, solver, V, roi, colors, dm, opts, quiet,
-                                              stored)
+                                              stored, full=full)
             except GeofaceError as e:
                 if len(sets) == 1:
                     raise
@@ -281,6 +319,9 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             raise GeofaceError(f"every corner set failed; the first: {failures[0]['error']}")
         metrics["failed_sets"] = failures
         metrics["seconds"] = {"repair": times["repair"], "corners": times["corners"], "total": time.perf_counter() - t_all}
+        for k in ("proxy", "full_surface"):
+            if k in times:
+                metrics["seconds"][k] = times[k]
         if opts.metrics:
             (tmp_root / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics

@@ -16,9 +16,11 @@ from ..mesh.io import first_corner_uv
 from ..progress import log
 
 
-def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opts, quiet, stored):
+def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opts, quiet, stored, full=None):
     """One corner set: Ricci flow → OT → images → reconstruction, into ``folder``; fills
-    ``st`` and returns the (possibly extended) per-vertex data."""
+    ``st`` and returns the (possibly extended) per-vertex data.  ``full``: the scan under a
+    proxy (:class:`geoface.pipeline.proxy.FullSurface`), which the images sample and the error
+    report measures against."""
     from ..gimage import geometry_image, reconstruct, save_reconstruction
     from ..gimage.image import write_gimage_files
     from ..gimage.raster import interpolate, rasterize_faces
@@ -73,7 +75,10 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
             # positions and normals are stored upright (x right, y up, z front); to_input turns them back
             "frame": {"to_input": [[float(f"{x:.12g}") for x in row] for row in stored.T]}}
     fid, bary = rasterize_faces(F, uv, opts.res, align_corners=True)
-    gi = geometry_image(V @ stored.T, F, uv, opts.res, meta=meta, raster=(fid, bary), **kw)
+    if full is None:
+        gi = geometry_image(V @ stored.T, F, uv, opts.res, meta=meta, raster=(fid, bary), **kw)
+    else:
+        gi, st["scan_pixel_share"] = _scan_gimage(full, V, F, uv, fid, bary, stored, meta)
     face_img = None
     if roi is not None:
         face_img = interpolate(fid, bary, F, roi.astype(float))[0] > 0.5
@@ -97,11 +102,36 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
             ii = np.clip(np.round((1.0 - rec.UV[:, 1]) * N - 0.5).astype(int), 0, N - 1)
             rec_mask = face_img[ii, jj]
         st["reconstruction"] = {"vertices": int(len(rec.V)), "faces": int(len(rec.F))}
-        st["reconstruction"].update(reconstruction_error(V, F, rec.V, rec.F, ref_mask=roi, rec_mask=rec_mask))
+        if full is None:
+            st["reconstruction"].update(reconstruction_error(V, F, rec.V, rec.F, ref_mask=roi, rec_mask=rec_mask))
+        else:
+            st["reconstruction"].update(full.error(rec.V, rec.F, rec_mask=rec_mask))
         st["reconstruction"]["seconds"] = time.perf_counter() - t
     if opts.preview:
         _preview(gi, folder / "preview.png")
     return V, roi, colors
+
+
+def _scan_gimage(full, V, F, uv, fid, bary, stored, meta):
+    """The geometry image of a proxy's map with every pixel's position, normal and colour taken
+    from the scan (``full``); and the share of pixels that moved onto it."""
+    from ..gimage import gimage_from_samples
+    from ..gimage.raster import interpolate
+    from ..mesh.core import signed_uv_areas, vertex_normals
+
+    mask = fid >= 0
+    P = interpolate(fid, bary, F, V).transpose(1, 2, 0)[mask]
+    Np = interpolate(fid, bary, F, vertex_normals(V, F)).transpose(1, 2, 0)[mask]
+    Q, Nn, C, share = full.sample(P, Np)
+
+    def image(a):
+        out = np.zeros((*mask.shape, 3))
+        out[mask] = a
+        return out
+
+    gi = gimage_from_samples(image(Q @ stored.T), image(Nn @ stored.T), mask, None if C is None else image(C),
+                             uv_orientation=1 if signed_uv_areas(F, uv).sum() >= 0 else -1, meta=meta)
+    return gi, share
 
 
 def extend_split(V_new, split_edges, n_old, roi, colors):

@@ -14,13 +14,16 @@ from .remesh import remesh
 from .step import StepResult
 
 from .points import PointSurface, load_points, surface_from_points
+from .proxy import ProxyResult, decimate
 
 __all__ = [
     "DiskResult",
     "OPEN_MODES",
+    "ProxyResult",
     "RepairOptions",
     "StepResult",
     "clean",
+    "decimate",
     "fill_holes",
     "fill_loops",
     "keep_components",

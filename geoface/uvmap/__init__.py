@@ -15,12 +15,12 @@
 True
 """
 
-from .bake import BakeResult, bake_gimage, bake_texture, closest_points, sample_source, texel_geometry
+from .bake import BakeResult, SurfaceQuery, bake_gimage, bake_texture, closest_points, sample_source, texel_geometry
 from .inpaint import dilate_valid, inpaint, push_pull
 from .project import Camera, ProjectionResult, depth_buffer, project_views
 
 __all__ = [
-    "BakeResult", "bake_gimage", "bake_texture", "closest_points", "sample_source", "texel_geometry",
+    "BakeResult", "SurfaceQuery", "bake_gimage", "bake_texture", "closest_points", "sample_source", "texel_geometry",
     "dilate_valid", "inpaint", "push_pull",
     "Camera", "ProjectionResult", "depth_buffer", "project_views",
 ]

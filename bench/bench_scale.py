@@ -1,0 +1,102 @@
+"""``geoface convert`` from 10K to 2M vertices: seconds per stage, peak memory, accuracy, and the
+log-log slope of time against size.  One JSON line per mesh and setting; each conversion runs in
+a fresh process, so its peak resident memory is its own.
+
+The meshes are the Max Planck bust Loop-subdivided, decimated to the size and displaced by scan
+noise (``data_tools/make_dense_head.py``), written once as binary PLY into ``--cache``.  Every
+conversion is one corner set at ``--res`` with the defaults (meshes above 60K vertices through the
+40K-vertex proxy), reconstruction and error report included; ``--no-proxy`` sizes are also run with
+``--proxy 0`` (the whole scan through every stage) to compare at equal settings.
+
+    python bench/bench_scale.py [--sizes 10000 50000 200000 500000 1000000 2000000] [--no-proxy 200000]
+        [--res 512] [--cache /tmp/geoface_scale] [--out bench/results/convert/scale_512.jsonl]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+
+CHILD = r"""
+import json, resource, sys, time
+t = time.perf_counter()
+from geoface.mesh.io import load_mesh
+from geoface.pipeline import ConvertOptions, convert
+mesh = load_mesh(sys.argv[1])
+load = time.perf_counter() - t
+m = convert(mesh, sys.argv[2], ConvertOptions(res=int(sys.argv[3]), proxy=int(sys.argv[4])), quiet=True)
+total = time.perf_counter() - t
+st = m["sets"][0]
+out = {"vertices": len(mesh.V), "faces": len(mesh.F), "proxy_vertices": m.get("proxy", {}).get("proxy_vertices"),
+       "seconds": {"load": load, "proxy": m["seconds"].get("proxy", 0.0), "repair": m["seconds"]["repair"],
+                   "full_surface": m["seconds"].get("full_surface", 0.0), "ricci": st["ricci"]["seconds"],
+                   "ot": st["ot"]["seconds"], "images": st["images_seconds"],
+                   "reconstruction": st["reconstruction"]["seconds"], "total": total},
+       "ot_iterations": st["ot"]["iterations"], "flipped": st["distortion"]["flipped"],
+       "hausdorff": st["reconstruction"]["hausdorff"], "face_hausdorff": st["reconstruction"].get("face_hausdorff"),
+       "roi_pixel_share": st.get("roi_pixel_share"),
+       "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+print(json.dumps(out))
+"""
+
+
+def mesh_file(cache: Path, n: int) -> Path:
+    f = cache / f"max_{n}.ply"
+    if not f.is_file():
+        cache.mkdir(parents=True, exist_ok=True)
+        subprocess.run([sys.executable, str(REPO / "data_tools" / "make_dense_head.py"), str(f), "--vertices", str(n)],
+                       check=True, stdout=subprocess.DEVNULL)
+    return f
+
+
+def run(file: Path, res: int, proxy: int) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        p = subprocess.run([sys.executable, "-c", CHILD, str(file), str(Path(tmp) / "out"), str(res), str(proxy)],
+                           capture_output=True, text=True, cwd=REPO, env={**os.environ, "GEOFACE_QUIET": "1"})
+    if p.returncode:
+        return {"error": p.stderr.strip().splitlines()[-1] if p.stderr.strip() else f"exit {p.returncode}"}
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", nargs="+", type=int, default=[10000, 50000, 200000, 500000, 1000000, 2000000])
+    ap.add_argument("--no-proxy", nargs="*", type=int, default=[200000], help="sizes also run with --proxy 0")
+    ap.add_argument("--res", type=int, default=512)
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "geoface_scale")
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+    rows = []
+    jobs = [(n, 40000) for n in args.sizes] + [(n, 0) for n in args.no_proxy]
+    for n, proxy in jobs:
+        r = {"case": "scale", "target_vertices": n, "res": args.res, "proxy": proxy, **run(mesh_file(args.cache, n), args.res, proxy)}
+        rows.append(r)
+        line = json.dumps(r)
+        print(line, flush=True)
+        if args.out:
+            with open(args.out, "a") as fh:
+                fh.write(line + "\n")
+    ok = [r for r in rows if r["proxy"] and "error" not in r]
+    if len(ok) >= 2:
+        x = np.log([r["vertices"] for r in ok])
+        for key in ("total", "total_without_report"):
+            y = np.log([r["seconds"]["total"] - (r["seconds"]["reconstruction"] if key != "total" else 0.0) for r in ok])
+            slope = float(np.polyfit(x, y, 1)[0])
+            line = json.dumps({"case": "scale_slope", "of": key, "sizes": [r["vertices"] for r in ok], "loglog_slope": slope})
+            print(line, flush=True)
+            if args.out:
+                with open(args.out, "a") as fh:
+                    fh.write(line + "\n")
+
+
+if __name__ == "__main__":
+    main()

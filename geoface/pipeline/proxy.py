@@ -1,0 +1,115 @@
+"""Large scans through a decimated proxy (:func:`geoface.pipeline.convert` with ``proxy``): the
+repair, Ricci flow and optimal transport run on the proxy; every pixel of the images then takes
+its position, normal and colour from the closest point of the full-resolution surface, so no
+detail of the scan is lost, and the error report measures against the full surface.
+
+The full surface here is the part of the scan the repaired proxy stands for: the scan's faces
+whose vertices all lie within ``tol`` (the proxy's mean edge length) of the proxy disk.  Debris
+the repair removed, what lies below a neck cut, and faces far from a filled hole are not part of
+it; a pixel whose closest full-surface point is further than ``tol`` (inside a hole the repair
+filled) keeps the proxy's position.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..mesh.core import bbox_diagonal, vertex_normals
+from ..mesh.mesh_data import Mesh
+
+__all__ = ["FullSurface", "full_surface"]
+
+
+@dataclass
+class FullSurface:
+    """The full-resolution surface under a proxy (see module docs)."""
+
+    mesh: Mesh
+    F: np.ndarray                 # the scan's faces the proxy disk stands for
+    query: object                 # geoface.uvmap.SurfaceQuery over (mesh.V, F)
+    normals: np.ndarray           # the scan's vertex normals (over those faces)
+    tol: float
+    diag: float
+    roi: np.ndarray | None        # the ROI carried onto the scan's vertices
+    kept: np.ndarray              # scan vertices in F
+    colour_source: Mesh | None    # the scan's colours over F (vertex colours or UV + texture)
+    seconds: dict = field(default_factory=dict)
+
+    def sample(self, P: np.ndarray, N_proxy: np.ndarray):
+        """Positions, normals and colours (or None) for proxy surface points ``P (k, 3)`` (with
+        the proxy's normals there), and the share of points that moved onto the scan."""
+        dist, face, bary = self.query(P)
+        snap = dist <= self.tol
+        Q = np.where(snap[:, None], self.query.points(face, bary), P)
+        n = (self.normals[self.F[face]] * bary[:, :, None]).sum(1)
+        Nn = np.where(snap[:, None], n, N_proxy)
+        C = None
+        if self.colour_source is not None:
+            from ..uvmap.bake import sample_source
+
+            C = sample_source(self.colour_source, face, bary, "color")
+        return Q, Nn, C, float(snap.mean()) if len(snap) else 1.0
+
+    def error(self, V_rec, F_rec, rec_mask=None) -> dict:
+        """Two-sided distances between a reconstruction and this surface, over its diagonal (the
+        keys of :func:`geoface.pipeline.corner_set.reconstruction_error`)."""
+        from ..uvmap.bake import SurfaceQuery
+
+        d_rec = self.query(V_rec)[0] / self.diag
+        d_ref = SurfaceQuery(V_rec, F_rec)(self.mesh.V[self.kept])[0] / self.diag
+        out = {"hausdorff": float(max(d_rec.max(), d_ref.max())), "mean": float(0.5 * (d_rec.mean() + d_ref.mean())),
+               "rec_to_ref_max": float(d_rec.max()), "ref_to_rec_max": float(d_ref.max()), "reference": "full scan"}
+        if self.roi is not None and rec_mask is not None and rec_mask.any() and self.roi[self.kept].any():
+            a, b = d_rec[rec_mask], d_ref[self.roi[self.kept]]
+            out["face_hausdorff"] = float(max(a.max(), b.max()))
+            out["face_mean"] = float(0.5 * (a.mean() + b.mean()))
+        return out
+
+
+def _near_boundary(F: np.ndarray, face: np.ndarray) -> np.ndarray:
+    """Whether each face index ``face`` of the mesh ``F`` has a vertex on the boundary."""
+    from ..mesh.core import boundary_loops
+
+    on = np.zeros(int(F.max()) + 1, bool)
+    for lp in boundary_loops(F):
+        on[lp] = True
+    return on[F[face]].any(1)
+
+
+def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: np.ndarray | None) -> FullSurface | None:
+    """The scan ``mesh`` as the full surface under the proxy disk ``(V_disk, F_disk)`` (see
+    module docs); ``roi_disk`` (over the proxy disk's vertices) is carried onto the scan.  None
+    when no face of the scan lies within ``tol`` of the proxy."""
+    from ..uvmap.bake import SurfaceQuery
+
+    t0 = time.perf_counter()
+    E = np.concatenate([F_disk[:, [0, 1]], F_disk[:, [1, 2]], F_disk[:, [2, 0]]])
+    tol = float(np.linalg.norm(V_disk[E[:, 0]] - V_disk[E[:, 1]], axis=1).mean())
+    d, face, bary = SurfaceQuery(V_disk, F_disk)(mesh.V)
+    # beyond the proxy's boundary (below a neck cut) the closest proxy point is in a triangle at
+    # the boundary: there only what lies on the proxy counts (a tenth of tol: the decimation's own
+    # deviation), not a strip of the scan a whole edge wide
+    near = d <= np.where(_near_boundary(F_disk, face), 0.1 * tol, tol)
+    keep_f = np.flatnonzero(near[mesh.F].all(1))
+    if not len(keep_f):
+        return None
+    F = mesh.F[keep_f]
+    kept = np.zeros(len(mesh.V), bool)
+    kept[F.ravel()] = True
+    t1 = time.perf_counter()
+    q = SurfaceQuery(mesh.V, F)
+    roi = None
+    if roi_disk is not None:
+        roi = (roi_disk[F_disk[face]].astype(np.float64) * bary).sum(1) > 0.5
+        roi &= kept
+    colours = None
+    if mesh.colors is not None or (mesh.texture is not None and mesh.UV is not None):
+        colours = Mesh(mesh.V, F, UV=mesh.UV, FUV=None if mesh.FUV is None else mesh.FUV[keep_f], colors=mesh.colors,
+                       texture=mesh.texture)
+    return FullSurface(mesh=mesh, F=F, query=q, normals=vertex_normals(mesh.V, F), tol=tol,
+                       diag=bbox_diagonal(mesh.V[kept]) if kept.any() else bbox_diagonal(mesh.V), roi=roi,
+                       kept=np.flatnonzero(kept), colour_source=colours,
+                       seconds={"restrict": t1 - t0, "tree": time.perf_counter() - t1})

@@ -1,0 +1,107 @@
+"""Large scans through a decimated proxy (geoface.pipeline.proxy), at small sizes: the maps are
+solved on the proxy, but every pixel's position, normal and colour comes from the full scan —
+the decoded positions lie on the scan (closer than the proxy itself does), colours the proxy
+never had appear at the right places, and the error report measures against the scan."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from geoface.errors import GeofaceError
+from geoface.gimage import load_gimage
+from geoface.mesh.core import bbox_diagonal
+from geoface.mesh.io import Mesh, save_mesh
+from geoface.pipeline import ConvertOptions, convert
+from geoface.repair.proxy import decimate
+from geoface.uvmap import SurfaceQuery
+from tests.helpers import REPO
+
+sys.path.insert(0, str(REPO / "data_tools"))
+import make_stress_cases as S  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def scan():
+    """An ICT-FaceKit head (11K vertices, open at the neck) with colours that are a function of
+    the position, far from the origin in millimetres, as a scan arrives."""
+    b = S.ict_base(0)
+    V = b.V * 10.0 + np.array([5000.0, -3000.0, 12000.0])
+    lo, hi = V.min(0), V.max(0)
+    C = (V - lo) / (hi - lo)
+    return Mesh(V, b.F, colors=C), lo, hi
+
+
+def test_decimate_keeps_the_opening_and_the_precision_far_from_the_origin(scan):
+    m, lo, hi = scan
+    r = decimate(m.V, m.F, 3000)
+    assert 2700 <= len(r.V) <= 3300
+    # the openings (neck, eyes, mouth of the ICT skin) survive, each as long as it was
+    from geoface.mesh.topology import topology_report
+
+    a, b = topology_report(m.V, m.F), topology_report(r.V, r.F)
+    assert b.boundary_loops == a.boundary_loops == 4 and b.genus == 0
+    assert np.allclose(sorted(b.boundary_loop_lengths), sorted(a.boundary_loop_lengths), rtol=0.03)
+    d = SurfaceQuery(m.V, m.F)(r.V)[0] / bbox_diagonal(m.V)
+    assert d.max() < 5e-3  # on the scan, 12 m from the origin, in float32 inside the simplifier
+    assert decimate(m.V, m.F, 20000).V is m.V or len(decimate(m.V, m.F, 20000).V) == len(m.V)
+    with pytest.raises(GeofaceError):
+        decimate(m.V, m.F, 3)
+
+
+def test_proxy_images_sample_the_full_scan(scan, tmp_path):
+    m, lo, hi = scan
+    out = tmp_path / "out"
+    met = convert(m, out, ConvertOptions(res=96, proxy=2500, preview=False), quiet=True)
+    px = met["proxy"]
+    assert px["scan_vertices"] == len(m.V) and 2200 <= px["proxy_vertices"] <= 2800
+    assert px["full_faces"] > 0.95 * len(m.F)  # the whole head is the full surface (nothing was cut away)
+    st = met["sets"][0]
+    assert st["distortion"]["flipped"] == 0 and st["scan_pixel_share"] > 0.95
+    gi = load_gimage(out)
+    P = gi.positions()[gi.mask]
+    diag = bbox_diagonal(m.V)
+    d_scan = SurfaceQuery(m.V, m.F)(P)[0] / diag
+    prox = decimate(m.V, m.F, 2500)
+    d_proxy = SurfaceQuery(prox.V, prox.F)(P)[0] / diag
+    # on the scan up to the 16-bit quantisation (1/65535 of the bbox per axis), and off the proxy;
+    # all but the pixels in the eyes and mouth, which the repair filled (they keep the proxy's)
+    on = d_scan < 2e-5
+    assert abs(on.mean() - st["scan_pixel_share"]) < 0.01, (on.mean(), st["scan_pixel_share"])
+    assert np.median(d_proxy[on]) > 5 * np.median(d_scan[on])
+    # the colours the proxy never had, sampled from the scan where each pixel is
+    # (in the filled eyes and mouth: the colour of the nearest scan point, the rim)
+    rgb = gi.modality("texture").transpose(1, 2, 0)[gi.mask]
+    assert np.abs(rgb - (P - lo) / (hi - lo))[on].max() < 0.01
+    # the report measures against the scan
+    rec = st["reconstruction"]
+    # (96² of a whole head: the back of the head and the neck get few pixels)
+    assert rec["reference"] == "full scan" and rec["hausdorff"] < 0.04 and rec["face_hausdorff"] < 0.02, rec
+
+
+def test_small_meshes_and_proxy_zero_take_the_direct_path(scan, tmp_path):
+    m, _, _ = scan
+    met = convert(m, tmp_path / "a", ConvertOptions(res=32, proxy=0, preview=False, reconstruct=False), quiet=True)
+    assert "proxy" not in met and "scan_pixel_share" not in met["sets"][0]
+    met = convert(m, tmp_path / "b", ConvertOptions(res=32, proxy=8000, preview=False, reconstruct=False), quiet=True)
+    assert "proxy" not in met  # 11K vertices is not more than 1.5 x 8000
+    for bad in (500, -1, 2.5, True):
+        with pytest.raises(GeofaceError, match="proxy"):
+            ConvertOptions(proxy=bad).validate()
+
+
+def test_cli_proxy(scan, tmp_path):
+    m, _, _ = scan
+    f = tmp_path / "scan.ply"
+    save_mesh(f, Mesh(m.V, m.F))
+    run = [sys.executable, "-m", "geoface", "convert", str(f), "-o", str(tmp_path / "o"), "--res", "32", "--no-reconstruct"]
+    p = subprocess.run(run + ["--proxy", "2500"], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert "-vertex proxy of the 11,248)" in p.stdout, p.stdout
+    assert json.loads((tmp_path / "o" / "metrics.json").read_text())["proxy"]["proxy_vertices"] > 0
+    p = subprocess.run(run + ["--proxy", "-3", "--force"], capture_output=True, text=True)
+    assert p.returncode == 2 and "Traceback" not in p.stderr and "--proxy" in p.stderr
