@@ -79,10 +79,8 @@ def closest_points(P, V, F) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     face : (k,) int64 index of the source face holding the closest point
     bary : (k, 3) float64 barycentric coordinates of the closest point in that face
     """
-    P = np.ascontiguousarray(np.asarray(P, np.float64).reshape(-1, 3))
-    if not np.isfinite(P).all():
-        raise GeofaceError("query points P contain NaN or infinite values")
-    if len(P) == 0:
+    P = np.asarray(P, np.float64).reshape(-1, 3)
+    if len(P) == 0:  # no tree to build; SurfaceQuery checks the points
         return np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 3))
     return SurfaceQuery(V, F)(P)
 
