@@ -6,6 +6,9 @@
   points and masses in the same run — the vertices of a head's conformal map with the
   face weighted 2.5×, and 100K clustered points.  Both report the final
   max |w_i - ν_i| / ν_i, measured by our own power diagram at the returned weights.
+* ``ot_equal``: the same problems (and set 0's problem of each ``--files`` mesh) solved by both
+  to the *same* max relative cell-mass error (``--targets``, default 1e-3 and 1e-6), measured by
+  our power diagram for both; pysdot's Newton run is stopped at its first iterate that reaches it.
 * ``real``: ``geoface convert`` with all 8 corner sets on the real meshes of
   ``../shared/data/meshes`` and on random heads of the ICT-FaceKit model (identities
   ~ N(0, 1), three random expressions each) — per mesh: vertices, log range of the conformal
@@ -17,6 +20,7 @@
   of face pixels, for conformal vs area-preserving (λ = 1) vs measure-preserving (λ = 2.5).
 
     python bench/bench_convert.py [--cases convert ot claim real] [--sizes 10000 50000 200000]
+    python bench/bench_convert.py --cases ot_equal --files bust134k.obj
     python bench/bench_convert.py --cases real --res 256 512 [--meshes face.obj lion.off] [--ict 10]
 """
 
@@ -100,23 +104,94 @@ def _pysdot(P, nu, budget):
     return sec, _residual(P, np.asarray(ot.get_weights()), nu), len(ot.delta_w)
 
 
-def case_ot(budget):
-    from geoface.mesh.core import vertex_areas
+class _Reached(Exception):
+    pass
+
+
+def _pysdot_to(P, nu, target):
+    """pysdot's Newton run until the first iterate whose max relative cell-mass error, by *our*
+    power diagram, is <= ``target``; the check runs before each of pysdot's assemblies, outside the
+    clock.  Returns (seconds, error reached, Newton steps) or None when pysdot is missing."""
+    try:
+        from pysdot import ConvexPolyhedraAssembly, OptimalTransport
+    except ImportError:
+        return None
+    dom = ConvexPolyhedraAssembly()
+    dom.add_box([0.0, 0.0], [1.0, 1.0], 1.0, 2**64 - 1)
+    ot = OptimalTransport(positions=P.copy(), masses=nu.copy(), domain=dom, linear_solver="Scipy", obj_max_dw=1e-14)
+    ot.max_iter = 200
+    pd = ot.pd
+    assemble = pd.der_integrals_wrt_weights
+    state = {"paused": 0.0, "calls": 0, "err": np.inf}
+
+    def checked(*a, **k):
+        t0 = time.perf_counter()
+        state["err"] = _residual(P, np.asarray(pd.get_weights()), nu)
+        state["paused"] += time.perf_counter() - t0
+        if state["err"] <= target:
+            raise _Reached
+        state["calls"] += 1
+        return assemble(*a, **k)
+
+    pd.der_integrals_wrt_weights = checked
+    t = time.perf_counter()
+    try:
+        ot.adjust_weights(initial_weights=np.zeros(len(P)))
+        state["err"] = _residual(P, np.asarray(pd.get_weights()), nu)
+    except _Reached:
+        pass
+    sec = time.perf_counter() - t - state["paused"]
+    return sec, state["err"], max(state["calls"] - 1, 0)
+
+
+def case_ot_equal(targets, files=()):
+    """Ours and pysdot to the *same* max relative cell-mass error, measured by the same code
+    (our power diagram) for both: the 43K head, 100K clustered points and set 0's problem of
+    each mesh in ``files`` (e.g. the 134K bust)."""
+    from geoface.mesh.io import load_mesh
     from geoface.param.ot import semi_discrete_ot
+
+    problems = list(_ot_problems())
+    for f in files:
+        P, nu = _ot_problem(load_mesh(f), "face")
+        problems.append((Path(f).stem, P, nu))
+    for name, P, nu in problems:
+        nu = nu / nu.sum()
+        for target in targets:
+            t = time.perf_counter()
+            o = semi_discrete_ot(P, nu, tol=target, quiet=True)
+            sec = time.perf_counter() - t
+            ours = _residual(P, o.h, nu)
+            emit(case="ot_equal", points=name, n=len(P), target=target, solver="geoface", seconds=sec,
+                 iterations=o.iterations, max_rel_error=ours, mass_range=float(nu.max() / nu.min()))
+            ps = _pysdot_to(P, nu, target)
+            if ps is None:
+                emit(case="ot_equal", points=name, target=target, solver="pysdot",
+                     skipped="pysdot not installed (pip install pysdot==0.2.16)")
+                continue
+            emit(case="ot_equal", points=name, n=len(P), target=target, solver="pysdot", seconds=ps[0],
+                 iterations=ps[2], max_rel_error=ps[1], speedup=ps[0] / sec)
+
+
+def _ot_problems():
+    from geoface.mesh.core import vertex_areas
     from geoface.param.ricci import ricci_flow_rectangle
 
     h, _ = head_mesh(43000)
     r = ricci_flow_rectangle(h.V, h.F)
-    P1 = r.unit_square()
-    nu1 = vertex_areas(h.V, r.F) * np.where(h.face_mask, 2.5, 1.0)
+    yield "head43k_conformal_lam2.5", r.unit_square(), vertex_areas(h.V, r.F) * np.where(h.face_mask, 2.5, 1.0)
     rng = np.random.default_rng(0)
     n = 100_000
     centres = rng.random((10, 2)) * 0.8 + 0.1
     k = n // 2
     cl = centres[rng.integers(0, 10, k)] + rng.normal(0, 0.01, (k, 2))
-    P2 = np.clip(np.concatenate([rng.random((n - k, 2)), cl]), 0.0, 1.0)
-    nu2 = np.ones(n)
-    for name, P, nu in (("head43k_conformal_lam2.5", P1, nu1), ("clustered100k", P2, nu2)):
+    yield "clustered100k", np.clip(np.concatenate([rng.random((n - k, 2)), cl]), 0.0, 1.0), np.ones(n)
+
+
+def case_ot(budget):
+    from geoface.param.ot import semi_discrete_ot
+
+    for name, P, nu in _ot_problems():
         nu = nu / nu.sum()
         t = time.perf_counter()
         o = semi_discrete_ot(P, nu, quiet=True)
@@ -240,6 +315,8 @@ def main():
     ap.add_argument("--augment", type=int, default=8)
     ap.add_argument("--files", nargs="*", default=[], help="meshes to time in the convert case besides the procedural heads "
                     "(e.g. the ~134K bust of data_tools/make_dense_bust.py)")
+    ap.add_argument("--targets", type=float, nargs="+", default=[1e-3, 1e-6],
+                    help="max relative cell-mass errors of the ot_equal case")
     ap.add_argument("--claim-vertices", type=int, default=50000)
     args = ap.parse_args()
     if "convert" in args.cases:
@@ -249,6 +326,8 @@ def main():
         case_real(args.meshes, args.ict, args.res, args.augment, 600)
     if "ot" in args.cases:
         case_ot(600)
+    if "ot_equal" in args.cases:
+        case_ot_equal(args.targets, args.files)
     if "claim" in args.cases:
         case_claim(args.claim_vertices, [256, 512])
 

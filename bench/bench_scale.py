@@ -9,7 +9,7 @@ conversion is one corner set at ``--res`` with the defaults (meshes above 60K ve
 ``--proxy 0`` (the whole scan through every stage) to compare at equal settings.
 
     python bench/bench_scale.py [--sizes 10000 50000 200000 500000 1000000 2000000] [--no-proxy 200000]
-        [--res 512] [--cache /tmp/geoface_scale] [--out bench/results/convert/scale_512.jsonl]
+        [--files bust134k.obj] [--res 512] [--cache /tmp/geoface_scale] [--out bench/results/convert/scale_512.jsonl]
 """
 
 from __future__ import annotations
@@ -74,28 +74,33 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "geoface_scale")
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--files", nargs="*", type=Path, default=[],
+                    help="more meshes to time with the defaults, outside the slope (e.g. the 134K bust of "
+                         "data_tools/make_dense_bust.py)")
     args = ap.parse_args()
+
+    def emit(row: dict) -> None:
+        line = json.dumps(row)
+        print(line, flush=True)
+        if args.out:
+            with open(args.out, "a") as fh:
+                fh.write(line + "\n")
+
     rows = []
     jobs = [(n, 40000) for n in args.sizes] + [(n, 0) for n in args.no_proxy]
     for n, proxy in jobs:
         r = {"case": "scale", "target_vertices": n, "res": args.res, "proxy": proxy, **run(mesh_file(args.cache, n), args.res, proxy)}
         rows.append(r)
-        line = json.dumps(r)
-        print(line, flush=True)
-        if args.out:
-            with open(args.out, "a") as fh:
-                fh.write(line + "\n")
+        emit(r)
+    for f in args.files:
+        emit({"case": "scale_file", "mesh": f.name, "res": args.res, "proxy": 40000, **run(f, args.res, 40000)})
     ok = [r for r in rows if r["proxy"] and "error" not in r]
     if len(ok) >= 2:
         x = np.log([r["vertices"] for r in ok])
         for key in ("total", "total_without_report"):
             y = np.log([r["seconds"]["total"] - (r["seconds"]["reconstruction"] if key != "total" else 0.0) for r in ok])
             slope = float(np.polyfit(x, y, 1)[0])
-            line = json.dumps({"case": "scale_slope", "of": key, "sizes": [r["vertices"] for r in ok], "loglog_slope": slope})
-            print(line, flush=True)
-            if args.out:
-                with open(args.out, "a") as fh:
-                    fh.write(line + "\n")
+            emit({"case": "scale_slope", "of": key, "sizes": [r["vertices"] for r in ok], "loglog_slope": slope})
 
 
 if __name__ == "__main__":

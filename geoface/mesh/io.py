@@ -167,17 +167,25 @@ def _material_image(material) -> np.ndarray | None:
     return arr.astype(np.uint8) if arr.dtype != np.uint8 else arr
 
 
+def _split_at_seams(F: np.ndarray, FUV: np.ndarray, n_uv: int):
+    """One output vertex per distinct (vertex, UV) corner pair, in the order of the pairs:
+    (vertex index, UV index, faces over the new vertices).  The pairs are one int64 key each,
+    so the sort is a plain 1-D one (``np.unique(axis=0)`` sorts structured rows, ~15x slower)."""
+    key = F.astype(np.int64).ravel() * max(int(n_uv), 1) + FUV.astype(np.int64).ravel()
+    uniq, inv = np.unique(key, return_inverse=True)
+    vi, ti = np.divmod(uniq, max(int(n_uv), 1))
+    return vi, ti, inv.reshape(-1, 3)
+
+
 def _to_trimesh(mesh: Mesh, ext: str):
     """Build a trimesh object, splitting vertices at UV seams when UVs are present."""
     import trimesh
 
     dropped = []
     if mesh.UV is not None and ext in ("obj", "ply", "glb", "gltf"):
-        pairs = np.stack([mesh.F.ravel(), mesh.FUV.ravel()], 1)
-        uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
-        V = mesh.V[uniq[:, 0]]
-        F = inv.reshape(-1, 3)
-        uv = mesh.UV[uniq[:, 1]]
+        vi, ti, F = _split_at_seams(mesh.F, mesh.FUV, len(mesh.UV))
+        V = mesh.V[vi]
+        uv = mesh.UV[ti]
         image = None
         if mesh.texture is not None:
             from PIL import Image
