@@ -4,8 +4,8 @@ a fresh process, so its peak resident memory is its own.
 
 The meshes are the Max Planck bust Loop-subdivided, decimated to the size and displaced by scan
 noise (``data_tools/make_dense_head.py``), written once as binary PLY into ``--cache``.  Every
-conversion is one corner set at ``--res`` with the defaults (meshes above 60K vertices through the
-40K-vertex proxy), reconstruction and error report included; ``--no-proxy`` sizes are also run with
+conversion is one corner set at ``--res`` with the defaults (meshes above 45K vertices through the
+30K-vertex proxy), reconstruction and error report included; ``--no-proxy`` sizes are also run with
 ``--proxy 0`` (the whole scan through every stage) to compare at equal settings.
 
     python bench/bench_scale.py [--sizes 10000 50000 200000 500000 1000000 2000000] [--no-proxy 200000]
@@ -25,6 +25,9 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from geoface.pipeline import DEFAULT_PROXY  # noqa: E402
 
 CHILD = r"""
 import json, resource, sys, time
@@ -87,13 +90,13 @@ def main() -> None:
                 fh.write(line + "\n")
 
     rows = []
-    jobs = [(n, 40000) for n in args.sizes] + [(n, 0) for n in args.no_proxy]
+    jobs = [(n, DEFAULT_PROXY) for n in args.sizes] + [(n, 0) for n in args.no_proxy]
     for n, proxy in jobs:
         r = {"case": "scale", "target_vertices": n, "res": args.res, "proxy": proxy, **run(mesh_file(args.cache, n), args.res, proxy)}
         rows.append(r)
         emit(r)
     for f in args.files:
-        emit({"case": "scale_file", "mesh": f.name, "res": args.res, "proxy": 40000, **run(f, args.res, 40000)})
+        emit({"case": "scale_file", "mesh": f.name, "res": args.res, "proxy": DEFAULT_PROXY, **run(f, args.res, DEFAULT_PROXY)})
     ok = [r for r in rows if r["proxy"] and "error" not in r]
     if len(ok) >= 2:
         x = np.log([r["vertices"] for r in ok])

@@ -105,3 +105,11 @@ def test_cli_proxy(scan, tmp_path):
     assert json.loads((tmp_path / "o" / "metrics.json").read_text())["proxy"]["proxy_vertices"] > 0
     p = subprocess.run(run + ["--proxy", "-3", "--force"], capture_output=True, text=True)
     assert p.returncode == 2 and "Traceback" not in p.stderr and "--proxy" in p.stderr
+
+
+def test_the_cli_default_proxy_is_the_library_default():
+    from geoface.cli import build_parser
+    from geoface.pipeline import DEFAULT_PROXY
+
+    args = build_parser().parse_args(["convert", "in.obj", "-o", "out"])
+    assert args.proxy == DEFAULT_PROXY == ConvertOptions().proxy

@@ -68,9 +68,9 @@ def register(sub, common) -> None:
                    "file; without one, the front found with --up auto, or where the mesh faces about a given --up: symmetry "
                    "and detail, as `view` finds it) or an axis (z, -x, ...)")
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto", help="how to open a closed surface")
-    s.add_argument("--proxy", type=number(int, 0, 10**8), default=40000, metavar="N",
+    s.add_argument("--proxy", type=number(int, 0, 10**8), default=30000, metavar="N",  # = pipeline.DEFAULT_PROXY (kept light: no pipeline import here)
                    help="a scan with more than 1.5 N vertices is decimated to N vertices for the repair and the maps, and the "
-                        "images sample the full surface (default 40000; 0: never)")
+                        "images sample the full surface (default %(default)s; 0: never)")
     s.set_defaults(func=cmd_convert)
 
     s = sub.add_parser("reconstruct", help="geometry-image folder -> textured mesh")

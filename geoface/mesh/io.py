@@ -27,6 +27,7 @@ import numpy as np
 from .._io import atomic_path
 from ..errors import GeofaceWarning, InvalidMeshError, MeshFormatError, PointCloudError
 from .companions import atomic_group, companion_names, name_companions, refuse_existing, without_maps
+from . import objtext
 from .core import check_mesh
 from .formats import referenced_files  # noqa: F401  (re-exported: the files a mesh file refers to)
 from .mesh_data import Mesh, first_corner_uv, mesh_with  # noqa: F401  (re-exported: the mesh a file loads into)
@@ -177,6 +178,26 @@ def _split_at_seams(F: np.ndarray, FUV: np.ndarray, n_uv: int):
     return vi, ti, inv.reshape(-1, 3)
 
 
+def _fast_obj(tm, mtl: str, digits: int):
+    """OBJ text of a mesh without vertex colours by :mod:`.objtext`, and its companion files
+    (MTL, texture) as trimesh writes them, taken from a one-triangle stand-in with the same
+    material."""
+    import trimesh
+    from trimesh.exchange.obj import export_obj
+
+    uv = getattr(tm.visual, "uv", None)
+    head = "# geoface\n"
+    files = {}
+    if uv is not None:
+        stand_in = trimesh.Trimesh(tm.vertices[:3], [[0, 1, 2]], process=False,
+                                   visual=trimesh.visual.TextureVisuals(uv=uv[:3], material=tm.visual.material))
+        result = export_obj(stand_in, include_texture=True, include_normals=False, mtl_name=mtl, return_texture=True)
+        stand_text, files = result if isinstance(result, tuple) else (result, {})
+        head += "".join(ln + "\n" for ln in stand_text.splitlines() if ln.startswith(("mtllib", "usemtl")))
+    body = objtext.obj_body(np.asarray(tm.vertices), np.asarray(tm.faces), None if uv is None else np.asarray(uv), digits)
+    return head.encode() + body, files
+
+
 def _to_trimesh(mesh: Mesh, ext: str):
     """Build a trimesh object, splitting vertices at UV seams when UVs are present."""
     import trimesh
@@ -267,15 +288,19 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh | None = None, *, V=None, F=No
         from trimesh.exchange.obj import export_obj
 
         mtl = f"{path.stem}.mtl"
-        result = export_obj(tm, include_texture=True, include_normals=False, mtl_name=mtl, return_texture=True,
-                            digits=_obj_digits(mesh.V))
-        text, files = result if isinstance(result, tuple) else (result, {})
+        digits = _obj_digits(mesh.V)
+        if mesh.colors is None and digits <= objtext.MAX_DIGITS:
+            text, files = _fast_obj(tm, mtl, digits)
+        else:
+            result = export_obj(tm, include_texture=True, include_normals=False, mtl_name=mtl, return_texture=True,
+                                digits=digits)
+            text, files = result if isinstance(result, tuple) else (result, {})
         if mesh.texture is None:  # UVs without an image: no placeholder picture (trimesh writes a 2x2 grey one)
             files = {k: without_maps(v) for k, v in files.items() if k.endswith(".mtl")}
         files = name_companions(path, files)
         refuse_existing([path, *(path.parent / n for n in files)], overwrite, OutputError)
         with atomic_group(path, files) as (tmp_main, tmp_files):
-            Path(tmp_main).write_text(text)
+            Path(tmp_main).write_bytes(text if isinstance(text, bytes) else text.encode())
             for name, data in files.items():
                 Path(tmp_files[name]).write_bytes(data)
         return

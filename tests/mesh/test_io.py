@@ -177,3 +177,39 @@ def test_uvs_without_an_image_write_no_placeholder_texture(tmp_path):
     assert "map_" not in (tmp_path / "g.mtl").read_text()
     m = load_mesh(tmp_path / "g.obj")
     assert m.texture is None and m.UV is not None and len(m.UV) == len(UV)
+
+
+def test_obj_numbers_are_written_as_printf_would():
+    """The array formatter of OBJ text matches ``%.*f`` (away from exact ties), drops the sign of
+    a negative number that rounds to zero, and writes 1-based ``a/a`` faces with UVs."""
+    from geoface.mesh import objtext
+
+    rng = np.random.default_rng(3)
+    for scale, d in [(1.0, 8), (1e3, 8), (1e-6, 15)]:
+        x = rng.standard_normal(5000) * scale
+        x[0] = -0.1 * 10.0**-d
+        ours = objtext._lines("v ", [objtext.fixed_columns(x, d)]).decode().splitlines()
+        ref = [f"v {v:.{d}f}".replace("v -0." + "0" * d, "v 0." + "0" * d) for v in x]
+        assert ours == ref
+    V = rng.random((4, 3))
+    body = objtext.obj_body(V, np.array([[0, 1, 2], [0, 2, 3]]), rng.random((4, 2)), 8).decode().splitlines()
+    assert body[-2:] == ["f 1/1 2/2 3/3", "f 1/1 3/3 4/4"] and len(body) == 10
+
+
+def test_obj_with_uv_seams_and_texture_round_trips(tmp_path):
+    """A textured mesh with a UV seam: the OBJ splits the seam's vertices, keeps the texture, and
+    reads back with the same positions per corner and the same UVs."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.5]], float) * 1e3
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    UV = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5]])
+    FUV = np.array([[0, 1, 2], [4, 2, 3]])  # vertex 0 has two UVs: a seam
+    tex = np.zeros((8, 8, 3), np.uint8)
+    tex[..., 0] = 200
+    save_mesh(tmp_path / "m.obj", Mesh(V, F, UV=UV, FUV=FUV, texture=tex))
+    lines = (tmp_path / "m.obj").read_text().splitlines()
+    assert sum(ln.startswith("v ") for ln in lines) == 5 and sum(ln.startswith("vt ") for ln in lines) == 5
+    back = load_mesh(tmp_path / "m.obj")
+    np.testing.assert_allclose(back.V[back.F], V[F], atol=1e-6)
+    np.testing.assert_allclose(back.UV[back.FUV], UV[FUV], atol=1e-8)
+    assert back.texture is not None and back.texture[0, 0, 0] == 200
+    assert (tmp_path / "m.mtl").read_text().count("map_Kd m_texture.png") == 1
