@@ -31,8 +31,8 @@ __all__ = ["ConvertOptions", "convert", "face_region", "load_roi", "reconstructi
 METHODS = ("ot", "conformal")
 #: a scan with more than this many times ``ConvertOptions.proxy`` vertices goes through a proxy
 PROXY_FACTOR = 1.5
-#: default proxy size: the 134K bust converts at 512² in 18 s with it (40K: 25 s), Hausdorff
-#: 0.33% / face 0.09% (bench/bench_scale.py)
+#: default proxy size: with it the 134K bust converts at 512² in 22 s, Hausdorff 0.33% / face
+#: 0.09% of the diagonal, and a 2M-vertex scan in 58 s (bench/bench_scale.py)
 DEFAULT_PROXY = 30000
 
 
