@@ -80,7 +80,10 @@ def shortest_nontrivial_loop(V: np.ndarray, F: np.ndarray, roots: list[int], avo
         dual_w = (dw.max() + 1.0) - dw  # positive; minimising it maximises loop length
         D = sp.coo_matrix((dual_w, (f1[nt], f2[nt])), shape=(m, m)).tocsr()
         T = minimum_spanning_tree(D).tocoo()
-        dkey = np.minimum(T.row, T.col) * m + np.maximum(T.row, T.col)
+        # int64 keys: SciPy's int32 rows and columns overflow ``row * m`` above 46,340 faces,
+        # which marked the wrong cotree and gave loops around single faces
+        tr, tc = T.row.astype(np.int64), T.col.astype(np.int64)
+        dkey = np.minimum(tr, tc) * m + np.maximum(tr, tc)
         pkey = np.minimum(f1, f2) * m + np.maximum(f1, f2)
         in_cotree = np.zeros(len(E), bool)
         # an edge is in the cotree if its pair of faces was linked by the dual MST

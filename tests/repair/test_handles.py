@@ -20,6 +20,18 @@ def test_torus_cut_along_its_meridian():
     assert res.changes[0]["area_added"] == pytest.approx(2 * np.pi * r * r, rel=0.35)
 
 
+def test_a_torus_of_more_than_46k_faces_is_cut_along_a_meridian():
+    """Above 46,340 faces the dual tree's face pairs no longer fit int32 keys: the cotree came out
+    wrong and every loop went round a single face (which cut off a triangle, never a handle)."""
+    R, r = 1.0, 0.3
+    V, F = torus(R, r, 250, 96)
+    assert len(F) > 46_340
+    res = remove_handles(V, F)
+    rep = topology_report(res.V, res.F)
+    assert rep.closed and rep.genus == 0 and rep.components == 1
+    assert res.changes[0]["loop_length"] == pytest.approx(96 * 2 * r * np.sin(np.pi / 96), rel=1e-9)
+
+
 def test_genus_two_needs_two_cuts():
     V, F = genus2(48)
     res = remove_handles(V, F)
