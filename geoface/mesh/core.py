@@ -381,16 +381,28 @@ def degenerate_faces(V: np.ndarray, F: np.ndarray, diag: float | None = None) ->
     return rep | (face_areas(V, F) <= tol.area_eps * diag * diag)
 
 
+#: below this many vertices ``(a n + b) n + c`` fits int64 (2^21 = 2,097,152; n³ < 2^63)
+TRIPLE_KEY_LIMIT = 2_097_151
+
+
+def triple_keys(*rows: np.ndarray, n: int) -> list[np.ndarray]:
+    """int64 keys of ``(k, 3)`` index rows (entries below ``n``), equal exactly where two rows
+    are, across all the arrays given: ``(a n + b) n + c`` up to :data:`TRIPLE_KEY_LIMIT`
+    vertices, which would overflow above it; row ids of one joint ``np.unique`` beyond."""
+    rows = [np.asarray(r, np.int64).reshape(-1, 3) for r in rows]
+    if n <= TRIPLE_KEY_LIMIT:
+        n = np.int64(n)
+        return [(r[:, 0] * n + r[:, 1]) * n + r[:, 2] for r in rows]
+    _, inv = np.unique(np.concatenate(rows), axis=0, return_inverse=True)
+    return np.split(inv.ravel().astype(np.int64), np.cumsum([len(r) for r in rows])[:-1])
+
+
 def duplicate_faces(F: np.ndarray) -> np.ndarray:
     """Boolean mask of faces whose vertex set repeats an earlier face (first one kept)."""
     if len(F) == 0:
         return np.zeros(0, bool)
-    key = np.sort(F, axis=1).astype(np.int64)
-    n = np.int64(key.max()) + 1
-    if n < 2_000_000:  # (a*n + b)*n + c fits in int64
-        _, first = np.unique((key[:, 0] * n + key[:, 1]) * n + key[:, 2], return_index=True)
-    else:
-        _, first = np.unique(key, axis=0, return_index=True)
+    key = np.sort(F, axis=1)
+    _, first = np.unique(triple_keys(key, n=int(key.max()) + 1)[0], return_index=True)
     dup = np.ones(len(F), bool)
     dup[first] = False
     return dup

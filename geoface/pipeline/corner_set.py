@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import GeofaceError
-from ..mesh.core import bbox_diagonal, check_mesh
+from ..mesh.core import bbox_diagonal, check_mesh, triple_keys
 from ..mesh.io import first_corner_uv
 from ..progress import log
 
@@ -156,10 +156,10 @@ def corner_uvs_for(F_new: np.ndarray, F_old: np.ndarray, UV: np.ndarray, FUV: np
     def keys(F):
         r = np.argmin(F, axis=1)  # rotate so the smallest index is first (orientation kept)
         G = np.stack([F[np.arange(len(F)), (r + k) % 3] for k in range(3)], 1)
-        return (G[:, 0] * n + G[:, 1]) * n + G[:, 2], r
+        return G, r
 
-    ko, ro = keys(F_old)
-    kn, rn = keys(F_new)
+    (Go, ro), (Gn, rn) = keys(F_old), keys(F_new)
+    ko, kn = triple_keys(Go, Gn, n=n)
     order = np.argsort(ko)
     pos = np.searchsorted(ko[order], kn)
     pos = np.minimum(pos, len(ko) - 1)

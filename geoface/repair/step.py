@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..mesh.core import triple_keys
+
 
 @dataclass(frozen=True)
 class StepResult:
@@ -60,12 +62,8 @@ def match_provenance(V0: np.ndarray, F0: np.ndarray, V1: np.ndarray, F1: np.ndar
     mapped = vmap[F1]
     ok = (mapped >= 0).all(1)
     if ok.any() and len(F0):
-        n = np.int64(len(V0))
-        k0 = np.sort(F0, 1)
-        key0 = (k0[:, 0] * n + k0[:, 1]) * n + k0[:, 2]
+        key0, key1 = triple_keys(np.sort(F0, 1), np.sort(mapped[ok], 1), n=len(V0))
         order = np.argsort(key0)
-        k1 = np.sort(mapped[ok], 1)
-        key1 = (k1[:, 0] * n + k1[:, 1]) * n + k1[:, 2]
         pos = np.clip(np.searchsorted(key0[order], key1), 0, len(order) - 1)
         hit = key0[order][pos] == key1
         fmap[np.flatnonzero(ok)[hit]] = order[pos[hit]]

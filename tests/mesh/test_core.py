@@ -92,3 +92,20 @@ def test_degenerate_and_duplicate_faces():
     assert core.duplicate_faces(F2).sum() == 2
     assert core.degenerate_faces(V, F2)[-1]
     assert core.degenerate_faces(V, F2).sum() == 1
+
+
+def test_triple_keys_stay_exact_above_two_million_vertices():
+    """(a n + b) n + c wraps around int64 above 2^21 vertices: these two faces of a 3M-vertex
+    mesh share that key modulo 2^64 (the repair steps matched faces by it unguarded)."""
+    from geoface.mesh.core import TRIPLE_KEY_LIMIT, duplicate_faces, triple_keys
+
+    n = 3_000_000
+    r1, r2 = (2088113, 2109853, 2981209), (38475, 1418617, 1429593)
+    assert ((r1[0] * n + r1[1]) * n + r1[2]) % 2**64 == (r2[0] * n + r2[1]) * n + r2[2]  # the collision
+    assert n > TRIPLE_KEY_LIMIT
+    F = np.array([r1, r2, r1[::-1]])
+    assert duplicate_faces(F).tolist() == [False, False, True]
+    ka, kb = triple_keys(np.array([r1, r2]), np.array([r2]), n=n)
+    assert ka[0] != ka[1] and kb[0] == ka[1]
+    small = triple_keys(np.array([[1, 2, 3], [3, 2, 1], [1, 2, 3]]), n=10)[0]
+    assert small[0] == small[2] != small[1]
