@@ -418,7 +418,7 @@ def double_sided_faces(F: np.ndarray) -> np.ndarray:
     key = np.take_along_axis(F, order, 1)
     # the orientation: whether sorting the corners is an even permutation (a rotation) or odd
     even = ((order[:, 0] < order[:, 1]) ^ (order[:, 1] < order[:, 2]) ^ (order[:, 0] < order[:, 2])).astype(np.int8)
-    _, inv = np.unique(key, axis=0, return_inverse=True)
+    _, inv = np.unique(triple_keys(key, n=int(key.max()) + 1)[0], return_inverse=True)
     inv = inv.ravel()
     both = np.zeros(inv.max() + 1, np.int8)
     np.bitwise_or.at(both, inv, np.where(even == 1, 1, 2).astype(np.int8))
