@@ -72,7 +72,7 @@ def run(file: Path, res: int, proxy: int) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sizes", nargs="+", type=int, default=[10000, 50000, 200000, 500000, 1000000, 2000000])
+    ap.add_argument("--sizes", nargs="*", type=int, default=[10000, 50000, 200000, 500000, 1000000, 2000000])
     ap.add_argument("--no-proxy", nargs="*", type=int, default=[200000], help="sizes also run with --proxy 0")
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "geoface_scale")

@@ -106,6 +106,51 @@ def _icp(T, P, tree, R, s, t, iterations, template_to_scan, stop: float = 0.0):
     return R, s, t, float(d[_trimmed(d)].mean())
 
 
+def _similarity_many(A, B):
+    """:func:`_similarity` for stacks ``A, B (k, m, 3)``: ``(s (k,), R (k, 3, 3), t (k, 3))``."""
+    ma, mb = A.mean(1), B.mean(1)
+    A0, B0 = A - ma[:, None], B - mb[:, None]
+    U, D, Vt = np.linalg.svd(np.einsum("kmi,kmj->kij", B0, A0) / A.shape[1])
+    sign = np.sign(np.linalg.det(U @ Vt))
+    S = np.tile(np.eye(3), (len(A), 1, 1))
+    S[:, 2, 2] = np.where(sign == 0, 1.0, sign)
+    R = U @ S @ Vt
+    s = (D * S[:, [0, 1, 2], [0, 1, 2]]).sum(1) / np.maximum((A0 ** 2).sum(2).mean(1), 1e-300)
+    return s, R, mb - s[:, None] * np.einsum("kij,kj->ki", R, ma)
+
+
+def _icp_many(T, P, tree, starts, iterations, stop: float = 0.0):
+    """:func:`_icp` (template to scan) from many starts ``[(R, s, t), ...]`` at once: one query
+    of the scan's tree per iteration for all of them (each start stops on its own)."""
+    n = len(T)
+    m = int(_KEEP * n)
+    R = np.array([st[0] for st in starts], np.float64)
+    s = np.array([st[1] for st in starts], np.float64)
+    t = np.array([st[2] for st in starts], np.float64)
+    active = np.ones(len(starts), bool)
+    last = np.full(len(starts), np.inf)
+
+    def query(idx):
+        X = s[idx, None, None] * np.einsum("nj,kij->kni", T, R[idx]) + t[idx, None]
+        d, j = tree.query(X.reshape(-1, 3), workers=-1)
+        return d.reshape(len(idx), n), j.reshape(len(idx), n)
+
+    for _ in range(iterations):
+        idx = np.flatnonzero(active)
+        if not len(idx):
+            break
+        d, j = query(idx)
+        k = np.argpartition(d, m - 1, axis=1)[:, :m]
+        s[idx], R[idx], t[idx] = _similarity_many(T[k], P[np.take_along_axis(j, k, 1)])
+        e = np.take_along_axis(d, k, 1).mean(1)
+        if stop:
+            active[idx[np.abs(last[idx] - e) <= stop * e]] = False
+        last[idx] = e
+    d = query(np.arange(len(starts)))[0]
+    e = np.take_along_axis(d, np.argpartition(d, m - 1, axis=1)[:, :m], 1).mean(1)
+    return [(R[i], float(s[i]), t[i], float(e[i])) for i in range(len(starts))]
+
+
 def _candidate_rotations(P):
     """Starting rotations in the samples' own principal frame (so that the search does not
     depend on the file's axes): the 24 rotations of the cube and 24 fixed others."""
@@ -136,17 +181,22 @@ def fit_head_template(P, *, face_only: bool = False):
     rP = float(np.sqrt(((P - cP) ** 2).sum(1).mean()))
     rT = float(np.sqrt(((T - cT) ** 2).sum(1).mean()))
     s0 = rP / rT
-    starts = []
     Tc = T[::3]  # the coarse search on a third of the template's points
-    for R0 in _candidate_rotations(P):
-        R, s, t, e = _icp(Tc, P, tree, R0, s0, cP - s0 * R0 @ cT, 8, not face_only)
-        starts.append((e / (s * rT), R, s, t))
-    starts.sort(key=lambda x: x[0])
-    best = None
+    init = [(R0, s0, cP - s0 * R0 @ cT) for R0 in _candidate_rotations(P)]
+    if face_only:
+        fits = [_icp(Tc, P, tree, R0, s, t, 8, False) for R0, s, t in init]
+    else:
+        fits = _icp_many(Tc, P, tree, init, 8)
+    starts = sorted(((e / (s * rT), R, s, t) for R, s, t, e in fits), key=lambda x: x[0])
     # a shape far from any head after the coarse search (a sphere, a car: 0.1 and more, heads
     # below 0.06) is not refined further
-    for _, R, s, t in starts[: 6 if starts[0][0] < COARSE_FIT else 1]:
-        R, s, t, e = _icp(T, P, tree, R, s, t, 60, not face_only, stop=1e-4)
+    top = [(R, s, t) for _, R, s, t in starts[: 6 if starts[0][0] < COARSE_FIT else 1]]
+    if face_only:
+        fits = [_icp(T, P, tree, R, s, t, 60, False, stop=1e-4) for R, s, t in top]
+    else:
+        fits = _icp_many(T, P, tree, top, 60, stop=1e-4)
+    best = None
+    for R, s, t, e in fits:
         e = e / (s * rT)
         if best is None or e < best[3]:
             best = (R, s, t, e)
