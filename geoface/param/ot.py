@@ -198,6 +198,9 @@ def semi_discrete_ot(
         raise ParameterizationError(f"{int((pd.area <= 0).sum())} sites have empty cells at the start even after merging "
                                     f"coincident sites ({built} triangulation)")
     solver = SPDSolver(linear_solver, ordering="amd")
+    # diagrams are updated by flips from the last one until CGAL has to build one anew (a stuck
+    # update: cells vanish or appear, as they then keep doing; or a problem too small for flips)
+    flips = [True]
     # gauge: pin the site with the largest starting cell (re-centred after every step)
     free = np.ones(len(Pr), bool)
     free[int(np.argmax(pd.area))] = False
@@ -233,11 +236,11 @@ def semi_discrete_ot(
                 d[free] += solver.resolve(r[free])
             d -= d.mean()
             gn = float(np.linalg.norm(g / target))
-            step = _damped_step(Pr, hr, d, pd, target, eps0, gn, min_step, backend)
+            step = _damped_step(Pr, hr, d, pd, target, eps0, gn, min_step, backend, flips)
             if step is None:  # no damping accepted: the diagonally scaled gradient, same rule
                 dg = -g / np.maximum(H.diagonal(), 1e-300)
                 dg -= dg.mean()
-                step = _damped_step(Pr, hr, dg, pd, target, eps0, gn, min_step, backend)
+                step = _damped_step(Pr, hr, dg, pd, target, eps0, gn, min_step, backend, flips)
                 if step is None:
                     empty = int((power_diagram(Pr, hr + min_step * d, previous=pd, backend=backend).area <= 0).sum())
                     why = (f"{empty} sites lose their cells even for tiny steps ({pd.source} triangulation)"
@@ -287,15 +290,21 @@ def semi_discrete_ot(
     )
 
 
-def _damped_step(P, h, d, pd, target, eps0, gn, min_step, backend):
+def _damped_step(P, h, d, pd, target, eps0, gn, min_step, backend, flips=None):
     """The damping rule of Kitagawa, Mérigot & Thibert along ``d``: the largest ``τ = 2^-k``
     (down to ``min_step``) whose cells are all at least ``eps0`` and whose residual falls by
-    ``1 - τ/2``; ``(h, diagram, gradient, τ, k)`` or None."""
+    ``1 - τ/2``; ``(h, diagram, gradient, τ, k)`` or None.  ``flips``: a one-item list, whether
+    diagrams may be updated from ``pd`` by flips (set False once an update falls back)."""
     tau = 1.0
     k = 0
     while tau >= min_step:
         hn = h + tau * d
-        pdn = power_diagram(P, hn, previous=pd, backend=backend)
+        if flips is None or flips[0]:
+            pdn = power_diagram(P, hn, previous=pd, backend=backend)
+            if flips is not None and pdn.source == "cgal":  # built anew (with Qhull flips stay cheaper)
+                flips[0] = False
+        else:
+            pdn = power_diagram(P, hn, backend=backend)
         gnew = pdn.area - target
         if pdn.area.min() >= eps0 and np.linalg.norm(gnew / target) <= (1 - tau / 2) * gn:
             return hn, pdn, gnew, tau, k

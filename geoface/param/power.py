@@ -156,13 +156,20 @@ def _lower_envelope(slope, icept):
     return owners, np.concatenate([lo[keep], hi[keep][-1:]])
 
 
+#: flip updates of a previous triangulation (``power_diagram(previous=...)``) with CGAL from this
+#: many sites; below, and whenever flips get stuck, CGAL triangulates anew (see docs/benchmarks.md)
+FLIP_MIN_SITES = 20000
+
+
 def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = None, backend: str = "auto") -> PowerDiagram:
     """Power diagram of ``points (n, 2)`` with ``weights (n,)`` clipped to ``[0, 1]^2``.
 
     Sites may lie on the square's edges or slightly outside it; coincident sites get
     empty cells.  ``previous``: a diagram of the same points with other weights (a Newton
-    step's last iterate); its regular triangulation is updated by edge flips, several times
-    faster than a new triangulation, which is built when flips cannot get there.
+    step's last iterate); from :data:`FLIP_MIN_SITES` sites (or without CGAL) its regular
+    triangulation is updated by edge flips, and a new one is built when flips cannot get
+    there.  Below that size CGAL's new triangulation is the cheaper (on a 1.2K-site OT problem
+    a whole solve took 0.38 s instead of 1.19 s; on 43K sites flips were 6% faster).
     ``backend``: how a triangulation is built anew: ``"cgal"`` (exact predicates),
     ``"qhull"`` (SciPy; merges sites closer than ~1e-7) or ``"auto"`` (CGAL when built).
     The result's ``source`` says which built it.  Raises :class:`ParameterizationError` for
@@ -188,11 +195,14 @@ def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = Non
     Xa = np.concatenate([X, G])
     wa = np.concatenate([w, np.full(4, w_guard)])
     tri = None
+    exact = backend == "cgal" or (backend == "auto" and regular.available())
     prev = previous._tri if previous is not None else None
-    if prev is not None and prev.updatable and prev.X.shape == X.shape and np.array_equal(prev.X, X):
+    # with CGAL a new triangulation is cheaper than flipping to it below FLIP_MIN_SITES sites
+    # (flips that get stuck cost both); the result is the same regular triangulation
+    if (prev is not None and prev.updatable and prev.X.shape == X.shape and np.array_equal(prev.X, X)
+            and (not exact or n >= FLIP_MIN_SITES)):
         tri = flip_to_regular(prev, Xa, wa)
     if tri is None:
-        exact = backend == "cgal" or (backend == "auto" and regular.available())
         tri = (cgal_triangulation if exact else qhull_triangulation)(X, Xa, wa, n)
     return _cells(X, w, Xa, n, tri)
 

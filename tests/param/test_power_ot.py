@@ -60,10 +60,13 @@ def test_power_cells_match_brute_force():
 
 
 @pytest.mark.parametrize("layout", ["random", "grid", "clustered"])
-def test_flip_update_equals_fresh_hull(layout):
+def test_flip_update_equals_fresh_hull(layout, monkeypatch):
     """A diagram updated by edge flips from the previous weights' triangulation is the
     diagram built from scratch (CGAL's exact regular triangulation): same cells, same shared
     edges."""
+    from geoface.param import power
+
+    monkeypatch.setattr(power, "FLIP_MIN_SITES", 0)  # flips at any size (by default from 20K sites)
     rng = np.random.default_rng(7)
     if layout == "random":
         P = rng.random((2000, 2))
@@ -94,9 +97,35 @@ def test_flip_update_equals_fresh_hull(layout):
     assert updated >= 2
 
 
-def test_flip_update_falls_back_when_a_cell_vanishes():
+def test_small_problems_triangulate_anew_instead_of_flipping():
+    """Below ``FLIP_MIN_SITES`` sites CGAL builds every diagram anew (cheaper than flips there):
+    the same cells as the flip update, and OT takes the same steps either way."""
+    from geoface.param import power
+
+    rng = np.random.default_rng(3)
+    P = rng.random((1500, 2))
+    pd0 = power_diagram(P)
+    w = 0.2 * cKDTree(P).query(P, 2)[0][:, 1] ** 2 * rng.normal(0, 1, len(P))
+    a = power_diagram(P, w, previous=pd0)
+    assert a.source == "cgal" and len(P) < power.FLIP_MIN_SITES
+    nu = rng.random(len(P)) + 0.5
+    r_new = semi_discrete_ot(P, nu, tol=1e-8)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(power, "FLIP_MIN_SITES", 0)
+        b = power_diagram(P, w, previous=pd0)
+        r_flip = semi_discrete_ot(P, nu, tol=1e-8)
+    assert b.source == "flips"
+    assert np.abs(a.area - b.area).max() < 1e-14
+    assert r_new.iterations == r_flip.iterations and r_new.residual <= 1e-8
+    assert np.abs(r_new.h - r_flip.h).max() < 1e-12
+
+
+def test_flip_update_falls_back_when_a_cell_vanishes(monkeypatch):
     """A site whose weight drops until its cell is empty cannot be reached by flips: the
     update gives up and the diagram is built anew (exactly)."""
+    from geoface.param import power
+
+    monkeypatch.setattr(power, "FLIP_MIN_SITES", 0)
     P = grid_points(6)
     pd0 = power_diagram(P)
     w = np.zeros(len(P))
@@ -107,7 +136,10 @@ def test_flip_update_falls_back_when_a_cell_vanishes():
     assert np.allclose(a.area, b.area, atol=1e-15)
 
 
-def test_flip_update_needs_the_same_points():
+def test_flip_update_needs_the_same_points(monkeypatch):
+    from geoface.param import power
+
+    monkeypatch.setattr(power, "FLIP_MIN_SITES", 0)
     rng = np.random.default_rng(0)
     P = rng.random((200, 2))
     pd0 = power_diagram(P)
