@@ -215,34 +215,34 @@ def test_obj_with_uv_seams_and_texture_round_trips(tmp_path):
     assert (tmp_path / "m.mtl").read_text().count("map_Kd m_texture.png") == 1
 
 
+def _fast_path_matches_trimesh(path, monkeypatch):
+    """The NumPy reader takes ``path``, and reads what trimesh reads from it."""
+    from geoface.mesh import io
+
+    assert io._plain_obj(path.read_text()) is not None
+    fast = load_mesh(path)
+    with monkeypatch.context() as mp:
+        mp.setattr(io, "_plain_obj", lambda text: None)
+        slow = load_mesh(path)
+    np.testing.assert_array_equal(fast.V, slow.V)
+    np.testing.assert_array_equal(fast.F, slow.F)
+
+
 @pytest.mark.parametrize("text", [
     "# a comment\no head\nv 0 0 0\nv 1 0 0\n\nv 0 1 0\ng part\ns off\nv 0 0 1\nf 1 2 3\nf 1 3 4\n",
     "v 0 0 0\r\nv 1e-3 0 0\r\nv 0 1 0\r\nv 9 9 9\r\nv 0 0 1\r\nf 1 2 3\r\nf 1 3 5\r\n",  # CRLF, unused vertex
     "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 0\nv 0 0 1\nf 1 2 3\nf 4 3 5\n",  # a duplicate to weld
 ])
 def test_plain_obj_fast_path_reads_what_trimesh_reads(tmp_path, monkeypatch, text):
-    from geoface.mesh import io
-
     p = tmp_path / "m.obj"
     p.write_text(text, newline="")
-    assert io._plain_obj(p.read_text()) is not None
-    fast = load_mesh(p)
-    monkeypatch.setattr(io, "_plain_obj", lambda text: None)
-    slow = load_mesh(p)
-    np.testing.assert_array_equal(fast.V, slow.V)
-    np.testing.assert_array_equal(fast.F, slow.F)
+    _fast_path_matches_trimesh(p, monkeypatch)
 
 
 def test_plain_obj_fast_path_on_a_real_scan_and_what_it_leaves_to_trimesh(monkeypatch):
     from geoface.mesh import io
 
-    path = shared_mesh("face.obj")
-    assert io._plain_obj(path.read_text()) is not None
-    fast = load_mesh(path)
-    monkeypatch.setattr(io, "_plain_obj", lambda text: None)
-    slow = load_mesh(path)
-    np.testing.assert_array_equal(fast.V, slow.V)
-    np.testing.assert_array_equal(fast.F, slow.F)
+    _fast_path_matches_trimesh(shared_mesh("face.obj"), monkeypatch)
     # normals, UVs, quads, relative indices, colours: trimesh's reader
     for text in ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\n", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 4 3\n",
                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n", "v 0 0 0 1 0 0\nv 1 0 0 1 0 0\nv 0 1 0 1 0 0\nf 1 2 3\n",
