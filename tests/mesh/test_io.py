@@ -101,6 +101,7 @@ def test_real_meshes_keep_uvs():
         (b"v 0 0 0\nv 1 0 0\nv 0 1 0\n", "point cloud"),
         (b"v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
         (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "cannot read|indexes"),
+        (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "line 4: face index 0"),
     ],
 )
 def test_bad_obj_files(tmp_path, content, match):
