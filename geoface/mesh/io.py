@@ -72,13 +72,7 @@ def load_mesh(path: str | os.PathLike, *, weld: bool = True) -> Mesh:
     if ext == "off":
         from .formats import read_off
 
-        V, F, colors = read_off(path)
-        V, F = check_mesh(V, F)
-        if weld:
-            V, F, first = _weld_exact(V, F)
-            if colors is not None:
-                colors = colors[first]
-        return Mesh(V, F, colors=colors)
+        return _checked_mesh(*read_off(path), weld)
     source = str(path)
     if ext == "obj":
         try:
@@ -87,10 +81,7 @@ def load_mesh(path: str | os.PathLike, *, weld: bool = True) -> Mesh:
             raise MeshFormatError(f"cannot read {path.name}: {exc}") from None
         plain = _plain_obj(text)
         if plain is not None:  # v / f lines only: parsed here, ~10x faster than trimesh
-            V, F = check_mesh(*plain)
-            if weld:
-                V, F, _ = _weld_exact(V, F)
-            return Mesh(V, F)
+            return _checked_mesh(*plain, None, weld)
         _check_obj_indices(path, text)
         from .formats import absolute_obj_indices
 
@@ -144,6 +135,16 @@ def load_mesh(path: str | os.PathLike, *, weld: bool = True) -> Mesh:
         if colors is not None:
             colors = colors[first]
     return Mesh(V, F, UV=UV, FUV=FUV, colors=colors, texture=texture)
+
+
+def _checked_mesh(V, F, colors, weld: bool) -> Mesh:
+    """The :class:`Mesh` of a reader's arrays: checked, and welded when asked."""
+    V, F = check_mesh(V, F)
+    if weld:
+        V, F, first = _weld_exact(V, F)
+        if colors is not None:
+            colors = colors[first]
+    return Mesh(V, F, colors=colors)
 
 
 def _weld_exact(V: np.ndarray, F: np.ndarray):

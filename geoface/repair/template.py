@@ -62,14 +62,8 @@ def _template():
 
 def _similarity(A, B):
     """``(s, R, t)`` minimising ``|s R A + t - B|`` (Umeyama)."""
-    ma, mb = A.mean(0), B.mean(0)
-    A0, B0 = A - ma, B - mb
-    U, D, Vt = np.linalg.svd(B0.T @ A0 / len(A))
-    S = np.eye(3)
-    S[2, 2] = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    R = U @ S @ Vt
-    s = float(np.trace(np.diag(D) @ S) / max((A0 ** 2).sum(1).mean(), 1e-300))
-    return s, R, mb - s * R @ ma
+    s, R, t = _similarity_many(A[None], B[None])
+    return float(s[0]), R[0], t[0]
 
 
 def _trimmed(d):
@@ -107,7 +101,8 @@ def _icp(T, P, tree, R, s, t, iterations, template_to_scan, stop: float = 0.0):
 
 
 def _similarity_many(A, B):
-    """:func:`_similarity` for stacks ``A, B (k, m, 3)``: ``(s (k,), R (k, 3, 3), t (k, 3))``."""
+    """:func:`_similarity` for stacks ``A, B (k, m, 3)``: ``(s (k,), R (k, 3, 3), t (k, 3))``
+    minimising each ``|s R A + t - B|`` (Umeyama)."""
     ma, mb = A.mean(1), B.mean(1)
     A0, B0 = A - ma[:, None], B - mb[:, None]
     U, D, Vt = np.linalg.svd(np.einsum("kmi,kmj->kij", B0, A0) / A.shape[1])
@@ -182,21 +177,19 @@ def fit_head_template(P, *, face_only: bool = False):
     rT = float(np.sqrt(((T - cT) ** 2).sum(1).mean()))
     s0 = rP / rT
     Tc = T[::3]  # the coarse search on a third of the template's points
-    init = [(R0, s0, cP - s0 * R0 @ cT) for R0 in _candidate_rotations(P)]
-    if face_only:
-        fits = [_icp(Tc, P, tree, R0, s, t, 8, False) for R0, s, t in init]
-    else:
-        fits = _icp_many(Tc, P, tree, init, 8)
+
+    def icp(X, starts, iterations, stop=0.0):
+        if face_only:  # scan to template: a tree of each start's template points
+            return [_icp(X, P, tree, R, s, t, iterations, False, stop=stop) for R, s, t in starts]
+        return _icp_many(X, P, tree, starts, iterations, stop=stop)
+
+    fits = icp(Tc, [(R0, s0, cP - s0 * R0 @ cT) for R0 in _candidate_rotations(P)], 8)
     starts = sorted(((e / (s * rT), R, s, t) for R, s, t, e in fits), key=lambda x: x[0])
     # a shape far from any head after the coarse search (a sphere, a car: 0.1 and more, heads
     # below 0.06) is not refined further
     top = [(R, s, t) for _, R, s, t in starts[: 6 if starts[0][0] < COARSE_FIT else 1]]
-    if face_only:
-        fits = [_icp(T, P, tree, R, s, t, 60, False, stop=1e-4) for R, s, t in top]
-    else:
-        fits = _icp_many(T, P, tree, top, 60, stop=1e-4)
     best = None
-    for R, s, t, e in fits:
+    for R, s, t, e in icp(T, top, 60, stop=1e-4):
         e = e / (s * rT)
         if best is None or e < best[3]:
             best = (R, s, t, e)
