@@ -55,6 +55,9 @@ def main(argv=None) -> int:
     ap.add_argument("--tracked", action="store_true",
                     help="also train the full model on the capture's landmarks and masks from a real tracker "
                          "(geoface track: MediaPipe) instead of the renderer's; scored on the same frames")
+    ap.add_argument("--tracked-poses", action="store_true",
+                    help="also train the full model on the tracked capture with its head poses fitted to the tracked "
+                         "landmarks (geoface.thgs.data.fit_head_poses) instead of the capture's own")
     ap.add_argument("--data-seed", type=int, default=0)
     ap.add_argument("--seed", type=int, default=0, help="model seed (initialisation, frame order)")
     ap.add_argument("--saam-from", type=float, default=0.1)
@@ -101,7 +104,7 @@ def main(argv=None) -> int:
 
             perturb_capture(data_dir, out / "data_perturbed", pert, seed=a.data_seed)  # the same video, other poses
         runs.append(("full_perturbed", out / "data_perturbed", {}))
-    if a.tracked:
+    if a.tracked or a.tracked_poses:
         if not (out / "data_tracked" / "poses.npz").is_file():
             from geoface.track import track_capture
 
@@ -111,7 +114,27 @@ def main(argv=None) -> int:
             truth_pts = np.asarray(truth["points"])
             emit(stage="tracking", frames=len(tr.found), found=int(tr.found.sum()), landmarks=len(truth.get("names") or got[0]),
                  landmark_error_px=round(float(np.linalg.norm(got - truth_pts, axis=-1).mean()), 3))
-        runs.append(("full_tracked", out / "data_tracked", {}))
+        if a.tracked:
+            runs.append(("full_tracked", out / "data_tracked", {}))
+    if a.tracked_poses:
+        tp = out / "data_tracked_poses"
+        if not (tp / "poses_true.npz").is_file() or not (tp / "fit.json").is_file():
+            import shutil
+
+            from geoface.avatar.template import Template
+            from geoface.thgs.data import fit_head_poses
+            from geoface.thgs.eval import head_pose_errors
+
+            if tp.exists():
+                shutil.rmtree(tp)
+            shutil.copytree(out / "data_tracked", tp)
+            fit = fit_head_poses(tp)
+            with np.load(tp / "poses.npz") as z, np.load(data_dir / "poses_true.npz") as zt:
+                err = head_pose_errors(Template.load(tp / "template.npz"), z["rot"], z["transl"], zt["rot"], zt["transl"])
+            (tp / "fit.json").write_text(json.dumps({**fit, **err}))
+        fit = json.loads((tp / "fit.json").read_text())
+        emit(stage="tracked_poses", **{k: (round(v, 3) if isinstance(v, float) else v) for k, v in fit.items()})
+        runs.append(("full_tracked_poses", tp, {}))
     emit(stage="data", seconds=round(time.perf_counter() - t, 1))
     rnd = lambda v: {k: rnd(x) for k, x in v.items()} if isinstance(v, dict) else round(v, 4)  # noqa: E731
     loaded = {}

@@ -9,7 +9,16 @@ folder (``frames/``, ``camera.json``, ...; :mod:`geoface.avatar.capture`) whose 
 tracker: ``geoface track``.
 
 Frames where no face is found get the landmarks of the nearest frames (linearly interpolated)
-and are counted (:attr:`Tracking.found`).
+and are counted (:attr:`Tracking.found`); each frame also gets the face detector's confidence
+(:attr:`Tracking.confidence`, MediaPipe's BlazeFace score, 0 where it finds no face). Video is
+smoothed by a One Euro filter (:func:`one_euro`; Casiez, Roussel and Vogel 2012): a low-pass
+whose cut-off rises with the landmarks' speed, so that a still head stops jittering while a fast
+turn is followed without lag. :func:`track_input` tracks an image, a folder of images or a video
+file and writes the ``landmarks.json`` that capture folders read.
+
+The 68 points are the Multi-PIE (iBUG) 68 that dlib and face-alignment write; the ICT-FaceKit
+model's landmarks (:attr:`geoface.synth.ICTFaceModel.landmarks`) are the same 68, in the same
+order, so a tracked frame fits the ICT head directly (:mod:`geoface.synth.ict_fit`).
 """
 from __future__ import annotations
 
@@ -24,8 +33,8 @@ import numpy as np
 
 from geoface.errors import GeofaceError, MissingDependencyError
 
-__all__ = ["Tracking", "track_frames", "track_capture", "ibug68_from_mediapipe", "TRACKER", "facemesh_points",
-           "headset_masks"]
+__all__ = ["Tracking", "track_frames", "track_capture", "track_input", "read_frames", "ibug68_from_mediapipe", "TRACKER",
+           "facemesh_points", "face_confidence", "headset_masks", "one_euro", "SMOOTHING"]
 
 #: the tracker named in the landmarks files it writes
 TRACKER = "mediapipe-facemesh"
@@ -106,23 +115,82 @@ def _each_frame(make_graph, frames, description: str, quiet):
         graph.close()
 
 
-def facemesh_points(frames, *, video: bool = True, quiet: bool | None = None) -> np.ndarray:
+def facemesh_points(frames, *, video: bool = True, irises: bool = False, quiet: bool | None = None) -> np.ndarray:
     """MediaPipe's 468 face-mesh points of each frame in pixels, ``(T, 468, 2)`` (NaN where no
-    face is found). ``video``: track from frame to frame (MediaPipe's video mode)."""
+    face is found); with ``irises`` its attention model's 478 (the last ten: the irises' centres and
+    rims), ``(T, 478, 2)``. ``video``: track from frame to frame (MediaPipe's video mode). The
+    68-point table was fitted on the 468-point model (``irises=False``)."""
     mp = _mediapipe()
+    n = 478 if irises else 468
 
     def graph():
-        return mp.solutions.face_mesh.FaceMesh(static_image_mode=not video, max_num_faces=1, refine_landmarks=False,
+        return mp.solutions.face_mesh.FaceMesh(static_image_mode=not video, max_num_faces=1, refine_landmarks=irises,
                                                min_detection_confidence=0.5, min_tracking_confidence=0.5)
 
     out = []
     for a, r in _each_frame(graph, frames, "tracking the face", quiet):
         if not r.multi_face_landmarks:
-            out.append(np.full((468, 2), np.nan))
+            out.append(np.full((n, 2), np.nan))
             continue
         lm = r.multi_face_landmarks[0].landmark
-        out.append(np.array([[p.x * a.shape[1], p.y * a.shape[0]] for p in lm[:468]]))
-    return np.stack(out) if out else np.zeros((0, 468, 2))
+        out.append(np.array([[p.x * a.shape[1], p.y * a.shape[0]] for p in lm[:n]]))
+    return np.stack(out) if out else np.zeros((0, n, 2))
+
+
+def face_confidence(frames, *, quiet: bool | None = None) -> np.ndarray:
+    """The face detector's confidence in each frame, ``(T,)`` in [0, 1]: MediaPipe's BlazeFace
+    score of its best face (the full-range model, which also finds small and distant faces), 0
+    where it finds none."""
+    mp = _mediapipe()
+    out = []
+    for _, r in _each_frame(lambda: mp.solutions.face_detection.FaceDetection(model_selection=1, min_detection_confidence=0.05),
+                            frames, "detecting the face", quiet):
+        out.append(max((float(d.score[0]) for d in (r.detections or []) if d.score), default=0.0))
+    return np.asarray(out, np.float64)
+
+
+#: the One Euro filter's settings for tracked landmarks (:func:`one_euro`), chosen on the
+#: validation person's talking capture (``bench/bench_track_smoothing.py``)
+SMOOTHING = {"min_cutoff": 1.0, "beta": 1.0, "d_cutoff": 1.0}
+
+
+def one_euro(points, fps: float, *, scale=None, min_cutoff: float = SMOOTHING["min_cutoff"],
+             beta: float = SMOOTHING["beta"], d_cutoff: float = SMOOTHING["d_cutoff"]) -> np.ndarray:
+    """Landmark tracks ``points (T, K, 2)`` smoothed by the One Euro filter (Casiez, Roussel and
+    Vogel, CHI 2012): each point is low-passed with a cut-off frequency ``min_cutoff + beta ×
+    speed`` (Hz), its speed itself low-passed at ``d_cutoff``. A still point is smoothed hard
+    (jitter goes), a moving one lightly (no lag). The speed is in ``scale`` units per second
+    (``scale`` (T,) or a number: the face's size in pixels, e.g. the outer eye corners' distance,
+    so that the settings hold at any resolution; default 1: pixels). Causal (frame t uses frames
+    ≤ t), so it runs on a live stream too; NaN rows (no face) restart the filter."""
+    P = np.asarray(points, np.float64)
+    if P.ndim != 3 or P.shape[2] != 2:
+        raise GeofaceError(f"one_euro: points must be (T, K, 2); got {P.shape}")
+    if not (fps > 0 and min_cutoff > 0 and beta >= 0 and d_cutoff > 0):
+        raise GeofaceError(f"one_euro: fps, min_cutoff, d_cutoff > 0 and beta >= 0; got {fps}, {min_cutoff}, {d_cutoff}, {beta}")
+    T = len(P)
+    s = np.broadcast_to(np.asarray(1.0 if scale is None else scale, np.float64), (T,))
+    te = 1.0 / fps
+
+    def alpha(fc):
+        return 1.0 / (1.0 + 1.0 / (2 * np.pi * fc * te))
+
+    out = P.copy()
+    prev, dprev = None, None
+    for t in range(T):
+        x = P[t]
+        if not np.isfinite(x).all() or not (np.isfinite(s[t]) and s[t] > 0):
+            prev, dprev = None, None
+            continue
+        if prev is None:
+            prev, dprev = x, np.zeros(len(x))
+            continue
+        speed = np.linalg.norm(x - prev, axis=1) / te / s[t]
+        dprev = dprev + alpha(d_cutoff) * (speed - dprev)
+        a = alpha(min_cutoff + beta * dprev)[:, None]
+        prev = prev + a * (x - prev)
+        out[t] = prev
+    return out
 
 
 def person_masks(frames, *, quiet: bool | None = None) -> np.ndarray:
@@ -171,12 +239,16 @@ def headset_masks(frames, *, max_saturation: float = 0.15, min_value: float = 0.
 class Tracking:
     """``landmarks (T, 68, 2)`` iBUG points in pixels (interpolated where no face was found);
     ``found (T,)`` bool; ``mesh (T, 468, 2)`` the face-mesh points (NaN where not found);
-    ``masks (T, H, W)`` the person's segmentation, or None."""
+    ``masks (T, H, W)`` the person's segmentation, or None; ``confidence (T,)`` the face
+    detector's score (None unless asked for); ``smoothed``: whether the landmarks went through
+    :func:`one_euro`."""
 
     landmarks: np.ndarray
     found: np.ndarray
     mesh: np.ndarray
     masks: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+    smoothed: bool = False
 
 
 def _fill(P: np.ndarray, found: np.ndarray) -> np.ndarray:
@@ -190,9 +262,12 @@ def _fill(P: np.ndarray, found: np.ndarray) -> np.ndarray:
     return flat.reshape(P.shape)
 
 
-def track_frames(frames, *, masks: bool = True, video: bool = True, quiet: bool | None = None) -> Tracking:
+def track_frames(frames, *, masks: bool = True, video: bool = True, fps: float | None = None, confidence: bool = False,
+                 quiet: bool | None = None) -> Tracking:
     """Track ``frames`` ((T, H, W, 3) RGB, float in [0, 1] or uint8): the 68 iBUG landmarks from
-    MediaPipe's face mesh and (``masks``) the person's segmentation."""
+    MediaPipe's face mesh and (``masks``) the person's segmentation. ``fps``: the frames are a
+    video at that rate, and the landmarks are smoothed by :func:`one_euro` (None: not smoothed).
+    ``confidence``: also the face detector's score per frame (:func:`face_confidence`)."""
     frames = list(frames)
     if not frames:
         raise GeofaceError("no frames to track")
@@ -202,8 +277,76 @@ def track_frames(frames, *, masks: bool = True, video: bool = True, quiet: bool 
         raise GeofaceError(f"no face found in any of the {len(frames)} frames")
     idx, w = ibug68_from_mediapipe()
     lm = np.einsum("tkjd,kj->tkd", mesh[:, idx], w)
+    if fps is not None and len(frames) > 1:
+        lm = one_euro(lm, fps, scale=np.linalg.norm(lm[:, 36] - lm[:, 45], axis=-1))
     lm = _fill(lm, found)
-    return Tracking(landmarks=lm, found=found, mesh=mesh, masks=person_masks(frames, quiet=quiet) if masks else None)
+    return Tracking(landmarks=lm, found=found, mesh=mesh, masks=person_masks(frames, quiet=quiet) if masks else None,
+                    confidence=face_confidence(frames, quiet=quiet) if confidence else None,
+                    smoothed=fps is not None and len(frames) > 1)
+
+
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+_VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v")
+
+
+def read_frames(path) -> tuple[list, list, float | None]:
+    """(frames as (H, W, 3) uint8 RGB, their names, the frame rate or None) of an image file, a
+    folder of images (sorted by name) or a video file (decoded by imageio-ffmpeg's ffmpeg)."""
+    from geoface.images import read_image
+
+    p = Path(path)
+    if p.is_dir():
+        files = sorted(f for f in p.iterdir() if f.suffix.lower() in _IMAGE_SUFFIXES and f.is_file())
+        if not files:
+            raise GeofaceError(f"{p}: no images ({', '.join(_IMAGE_SUFFIXES)}) in the folder")
+        frames = [_uint8(read_image(f)) for f in files]
+        if len({f.shape for f in frames}) > 1:
+            raise GeofaceError(f"{p}: the images are not all the same size")
+        return frames, [f.name for f in files], None
+    if not p.is_file():
+        raise GeofaceError(f"{p}: no such file or folder")
+    if p.suffix.lower() in _VIDEO_SUFFIXES:
+        from geoface.video import read_video
+
+        frames, fps = read_video(p)
+        return list(frames), [f"{k:06d}" for k in range(len(frames))], fps
+    if p.suffix.lower() in _IMAGE_SUFFIXES:
+        return [_uint8(read_image(p))], [p.name], None
+    raise GeofaceError(f"{p}: not an image ({', '.join(_IMAGE_SUFFIXES)}), a video ({', '.join(_VIDEO_SUFFIXES)}) "
+                       "or a folder of images")
+
+
+def track_input(path, out_json, *, masks_dir=None, smooth: bool = True, fps: float | None = None,
+                overwrite: bool = False, quiet: bool | None = None) -> Tracking:
+    """Track an image, a folder of images (a video's frames) or a video file, and write
+    ``out_json``: ``{"names": the 68 iBUG names, "points": [T, 68, 2] pixels, "found": [T],
+    "confidence": [T], "frames": [T] names, "image_size": [W, H], "fps", "smoothed", "tracker"}``,
+    the ``landmarks.json`` that capture folders read. ``masks_dir``: also the person's masks there,
+    one PNG per frame. ``smooth``: a video or folder (more than one frame) is smoothed by
+    :func:`one_euro` at ``fps`` (default: the video's, else 25)."""
+    from geoface._io import atomic_write_text, check_outputs, output_folder
+    from geoface.images import save_image
+    from geoface.landmarks import IBUG68_NAMES
+
+    out_json = Path(out_json)
+    if out_json.suffix.lower() != ".json":
+        raise GeofaceError(f"{out_json}: the landmarks are written as JSON (name it .json)")
+    check_outputs([path], [out_json] + ([masks_dir] if masks_dir else []), force=overwrite)
+    frames, names, rate = read_frames(path)
+    rate = fps or rate or 25.0
+    video = len(frames) > 1
+    tr = track_frames(frames, masks=masks_dir is not None, video=video, fps=rate if smooth and video else None,
+                      confidence=True, quiet=quiet)
+    H, W = frames[0].shape[:2]
+    if masks_dir is not None:
+        with output_folder(Path(masks_dir), overwrite) as tmp:
+            for n, m in zip(names, tr.masks):
+                save_image(tmp / (Path(n).stem + ".png"), (m > 0.5).astype(np.uint8) * 255, atomic=False)
+    doc = {"names": list(IBUG68_NAMES), "points": np.round(tr.landmarks, 3).tolist(), "tracker": TRACKER,
+           "found": [bool(x) for x in tr.found], "confidence": [round(float(c), 4) for c in tr.confidence],
+           "frames": names, "image_size": [W, H], "fps": rate if video else None, "smoothed": tr.smoothed}
+    atomic_write_text(out_json, json.dumps(doc))
+    return tr
 
 
 def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, headset: bool | None = None,

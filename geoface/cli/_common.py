@@ -124,7 +124,7 @@ def guard_outputs(args, inputs, outputs, resumable=()) -> None:
 #: the geometry commands apply it in their own functions (they know their companion files)
 _PATHS = {
     ("ddpm", "train"): (("data_dir",), ("output",)),
-    ("track", None): (("capture",), ("output",)),
+    ("track", None): (("input",), ("output", "masks")),
     ("ddpm", "sample"): (("run_dir",), ("output",)),
     ("texture", "synth"): ((), ("output",)),
     ("texture", "train"): (("data_dir", "init"), ("output",)),

@@ -12,7 +12,7 @@ from __future__ import annotations
 from geoface._lazy import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports("geoface.thgs", {
-    "TalkingData": "data", "landmark_loss": "data", "load_talking": "data", "load_tracked": "data",
+    "TalkingData": "data", "landmark_loss": "data", "load_talking": "data", "load_tracked": "data", "fit_head_poses": "data",
     "make_synthetic_talking": "data", "mouth_landmark_targets": "data", "speech_like": "data",
     "corrected_poses": "eval", "evaluate_thgs": "eval", "head_pose_errors": "eval", "lip_gaps": "eval",
     "lip_points": "eval", "mouth_openness": "eval", "true_lip_gaps_px": "eval", "JOINT_NAMES": "ict",

@@ -45,7 +45,7 @@ from geoface.avatar.capture import IBUG68_NAMES, camera_from_json, stack_frames,
 from geoface.avatar.template import Template
 
 __all__ = ["TalkingData", "load_talking", "load_tracked", "make_synthetic_talking", "speech_like",
-           "mouth_landmark_targets", "landmark_loss"]
+           "mouth_landmark_targets", "landmark_loss", "fit_head_poses"]
 
 
 @dataclass
@@ -126,6 +126,45 @@ def load_talking(folder) -> TalkingData:
     meta["_folder"] = str(folder)
     lm = read_landmarks(folder / "landmarks.json", len(paths)) if (folder / "landmarks.json").is_file() else (None, None)
     return TalkingData(imgs, cam, tpl, rot, transl, expr, A, fps, meta, *tracked, *lm)
+
+
+def fit_head_poses(folder, *, names=None) -> dict:
+    """Replace the head poses of the talking capture ``folder`` by poses fitted to its
+    ``landmarks.json`` (a tracker's): each frame's rigid motion of the template (its rest shape,
+    at the vertices the template names for the landmarks) that projects through ``camera.json``
+    onto the landmarks ``names`` (default: :data:`geoface.avatar.head_pose.STABLE_NAMES`, those
+    that expressions move least), by :func:`geoface.avatar.head_pose.solve_poses` (robust
+    perspective-n-point from the previous frame's pose). The motion goes to the root joint
+    (rotation about it and translation); the other joints and the expressions stay the
+    capture's. The replaced poses are kept as ``poses_true.npz`` unless that exists (a renderer's
+    truth). Returns ``{"frames", "names", "rms_px" (median reprojection error), "inliers" (median)}``."""
+    from scipy.spatial.transform import Rotation
+
+    from geoface.avatar.head_pose import STABLE_NAMES, solve_poses
+
+    folder = Path(folder)
+    for name in ("camera.json", "template.npz", "poses.npz", "landmarks.json"):
+        if not (folder / name).is_file():
+            raise SplatError(f"{folder}: missing {name} (head poses are fitted to a tracker's landmarks.json)")
+    tpl = Template.load(folder / "template.npz")
+    cam = camera_from_json(folder / "camera.json")
+    with np.load(folder / "poses.npz", allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    rot, transl = np.array(arrays["rot"], np.float64), np.array(arrays["transl"], np.float64)
+    lm, lm_names = read_landmarks(folder / "landmarks.json", len(rot))
+    names = [n for n in (STABLE_NAMES if names is None else names) if n in lm_names and n in tpl.landmark_names]
+    if len(names) < 4:
+        raise SplatError(f"{folder}: only {len(names)} landmarks both in landmarks.json and on the template "
+                         "(template landmark_names): cannot fit head poses (need 4)")
+    P = tpl.V[[int(tpl.landmark_vertices[tpl.landmark_names.index(n)]) for n in names]]
+    sol = solve_poses(cam, P, lm[:, [lm_names.index(n) for n in names]], tpl.joints[0])  # from the rest pose
+    if not (folder / "poses_true.npz").is_file():
+        np.savez(folder / "poses_true.npz", **arrays)
+    rot[:, 0] = Rotation.from_matrix(sol["R"]).as_rotvec()
+    arrays.update(rot=rot, transl=sol["t"])
+    np.savez(folder / "poses.npz", **arrays)
+    return {"frames": len(rot), "names": names, "rms_px": float(np.median(sol["rms_px"])),
+            "inliers": float(np.median(sol["inliers"]))}
 
 
 #: iBUG-68 names of the mouth's landmarks (points 48–67): what the landmark loss supervises
