@@ -11,9 +11,10 @@ tracker: ``geoface track``.
 Frames where no face is found get the landmarks of the nearest frames (linearly interpolated)
 and are counted (:attr:`Tracking.found`); each frame also gets the face detector's confidence
 (:attr:`Tracking.confidence`, MediaPipe's BlazeFace score, 0 where it finds no face). Video is
-smoothed by a One Euro filter (:func:`one_euro`; Casiez, Roussel and Vogel 2012): a low-pass
-whose cut-off rises with the landmarks' speed, so that a still head stops jittering while a fast
-turn is followed without lag. :func:`track_input` tracks an image, a folder of images or a video
+tracked from frame to frame (MediaPipe's video mode, which filters its landmarks itself); a One
+Euro filter (:func:`one_euro`; Casiez, Roussel and Vogel 2012: a low-pass whose cut-off rises
+with the landmarks' speed, so that a still head stops jittering while a fast turn is followed
+without lag) can smooth them further. :func:`track_input` tracks an image, a folder of images or a video
 file and writes the ``landmarks.json`` that capture folders read.
 
 The 68 points are the Multi-PIE (iBUG) 68 that dlib and face-alignment write; the ICT-FaceKit
@@ -149,9 +150,11 @@ def face_confidence(frames, *, quiet: bool | None = None) -> np.ndarray:
     return np.asarray(out, np.float64)
 
 
-#: the One Euro filter's settings for tracked landmarks (:func:`one_euro`), chosen on the
-#: validation person's talking capture (``bench/bench_track_smoothing.py``)
-SMOOTHING = {"min_cutoff": 1.0, "beta": 1.0, "d_cutoff": 1.0}
+#: the One Euro filter's settings for tracked landmarks (:func:`one_euro`): of the settings that
+#: leave less jitter than MediaPipe's video mode alone on the validation person's talking capture,
+#: the one with the least error still and in fast motion (``bench/bench_track.py``). The
+#: video mode already filters its landmarks, so the gain is small and smoothing is off by default.
+SMOOTHING = {"min_cutoff": 4.0, "beta": 30.0, "d_cutoff": 1.0}
 
 
 def one_euro(points, fps: float, *, scale=None, min_cutoff: float = SMOOTHING["min_cutoff"],
@@ -316,14 +319,16 @@ def read_frames(path) -> tuple[list, list, float | None]:
                        "or a folder of images")
 
 
-def track_input(path, out_json, *, masks_dir=None, smooth: bool = True, fps: float | None = None,
+def track_input(path, out_json, *, masks_dir=None, smooth: bool = False, fps: float | None = None,
                 overwrite: bool = False, quiet: bool | None = None) -> Tracking:
     """Track an image, a folder of images (a video's frames) or a video file, and write
     ``out_json``: ``{"names": the 68 iBUG names, "points": [T, 68, 2] pixels, "found": [T],
     "confidence": [T], "frames": [T] names, "image_size": [W, H], "fps", "smoothed", "tracker"}``,
     the ``landmarks.json`` that capture folders read. ``masks_dir``: also the person's masks there,
-    one PNG per frame. ``smooth``: a video or folder (more than one frame) is smoothed by
-    :func:`one_euro` at ``fps`` (default: the video's, else 25)."""
+    one PNG per frame. ``smooth``: a video or folder (more than one frame) is also smoothed by
+    :func:`one_euro` at ``fps`` (default: the video's, else 25); MediaPipe's video mode already
+    filters its landmarks, and on rendered talking people the extra filter takes off 4 % of the
+    jitter at no cost in accuracy (``bench/bench_track.py``), so it is off by default."""
     from geoface._io import atomic_write_text, check_outputs, output_folder
     from geoface.images import save_image
     from geoface.landmarks import IBUG68_NAMES

@@ -21,7 +21,7 @@ def cmd_track(args) -> int:
     else:
         if args.no_masks:
             raise GeofaceError("--no-masks is for capture folders; an image or video gets masks only with --masks DIR")
-        tr = track_input(src, args.output, masks_dir=args.masks, smooth=not args.no_smooth, fps=args.fps,
+        tr = track_input(src, args.output, masks_dir=args.masks, smooth=args.smooth, fps=args.fps,
                          overwrite=args.force, quiet=args_quiet(args))
         what = (f"; confidence {tr.confidence.min():.2f}-{tr.confidence.max():.2f}"
                 + ("; smoothed (One Euro)" if tr.smoothed else "") + (f"; masks in {args.masks}" if args.masks else ""))
@@ -45,9 +45,9 @@ def register(sub, common) -> None:
                         "with the tracker's landmarks and masks (the originals are not copied)")
     s.add_argument("--masks", default=None, metavar="DIR",
                    help="images and videos: also the person's masks (selfie segmentation), one PNG per frame in DIR")
-    s.add_argument("--no-smooth", action="store_true",
-                   help="videos and folders: keep the per-frame landmarks (default: One Euro filtered, no lag on "
-                        "fast motion)")
+    s.add_argument("--smooth", action="store_true",
+                   help="videos and folders: also smooth the landmarks with a One Euro filter (no lag on fast motion; "
+                        "MediaPipe's video mode already filters them, so the gain is small)")
     s.add_argument("--fps", type=float, default=None, metavar="FPS",
                    help="frame rate of a folder of frames, for the smoothing (default: the video's, else 25)")
     s.add_argument("--no-masks", action="store_true", help="capture folders: keep the capture's own masks/ "

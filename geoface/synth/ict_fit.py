@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import GeofaceError
 
-__all__ = ["LandmarkFit", "fit_landmarks", "load_landmarks", "project", "JAW"]
+__all__ = ["LandmarkFit", "fit_landmarks", "heldout_errors", "load_landmarks", "project", "JAW"]
 
 #: the jaw-contour landmarks of the 68-point layout (weighted 0.5 in the fit)
 JAW = np.arange(17)
@@ -118,9 +118,11 @@ def _rodrigues(r):
 
 def fit_landmarks(model, landmarks, image_size, *, n_identity: int = 100, focal=None, iterations: int = 200,
                   jaw_weight: float = 0.5, identity_prior: float = 1.0, expression_prior: float = 0.5,
-                  focal_prior: float = 0.5) -> LandmarkFit:
+                  focal_prior: float = 0.5, holdout=None) -> LandmarkFit:
     """Fit ``model`` (an :class:`~geoface.synth.ict.ICTFaceModel`) to 68 pixel ``landmarks`` in an
     image of ``image_size`` (W, H). ``focal``: a known focal length in pixels (else fitted).
+    ``holdout``: a (68,) bool mask of landmarks left out of the fit (their ``residual_px`` is
+    then a held-out error; :func:`heldout_errors` does it fold by fold).
     ``identity_prior`` / ``expression_prior``: weights of the priors (in units of one pixel of
     residual per standard deviation / per unit weight)."""
     import cv2
@@ -144,12 +146,19 @@ def fit_landmarks(model, landmarks, image_size, *, n_identity: int = 100, focal=
     c = np.array([W / 2.0, H / 2.0])
     w = np.ones(68)
     w[JAW] = jaw_weight
+    keep = np.ones(68, bool)
+    if holdout is not None:
+        keep = ~np.asarray(holdout, bool).reshape(68)
+        if keep.sum() < 12:
+            raise GeofaceError(f"holdout leaves {int(keep.sum())} landmarks to fit; need at least 12")
+        w[~keep] = 0.0
     f0 = float(focal) if focal is not None else 1.2 * max(W, H)
     K0 = np.array([[f0, 0, c[0]], [0, f0, c[1]], [0, 0, 1.0]])
-    ok, rvec, tvec = cv2.solvePnP(mean, L, K0, None, flags=cv2.SOLVEPNP_EPNP)
+    ok, rvec, tvec = cv2.solvePnP(mean[keep], L[keep], K0, None, flags=cv2.SOLVEPNP_EPNP)
     if not ok:
         raise GeofaceError("the landmarks do not fit a face (PnP found no pose); check their order (Multi-PIE 68)")
-    ok, rvec, tvec = cv2.solvePnP(mean, L, K0, None, rvec, tvec, useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
+    ok, rvec, tvec = cv2.solvePnP(mean[keep], L[keep], K0, None, rvec, tvec, useExtrinsicGuess=True,
+                                  flags=cv2.SOLVEPNP_ITERATIVE)
     if tvec[2, 0] <= 0:
         raise GeofaceError("the landmarks put the face behind the camera; check their order (Multi-PIE 68)")
     fit_f = focal is None
@@ -217,3 +226,18 @@ def fit_landmarks(model, landmarks, image_size, *, n_identity: int = 100, focal=
                        centre=(float(c[0]), float(c[1])), residual_px=np.linalg.norm(P - L, axis=1),
                        image_size=(W, H), info={"evaluations": int(res.nfev), "status": int(res.status),
                                                 "cost": float(res.cost)})
+
+
+def heldout_errors(model, landmarks, image_size, *, folds: int = 4, **kw) -> np.ndarray:
+    """Each of the 68 ``landmarks``' distance (pixels) to the head fitted without it: the
+    landmarks are split into ``folds`` interleaved folds (every ``folds``-th point, so each fold
+    has points of every part of the face), and each fold is predicted by a fit to the others
+    (:func:`fit_landmarks` with ``holdout``; ``kw`` passed on). A landmark tracker's points that
+    the fitted head predicts from the rest agree with the face's shape, not only with themselves."""
+    if not 2 <= int(folds) <= 17:
+        raise GeofaceError(f"folds must be in 2..17; got {folds}")
+    out = np.zeros(68)
+    for k in range(int(folds)):
+        hold = np.arange(68) % int(folds) == k
+        out[hold] = fit_landmarks(model, landmarks, image_size, holdout=hold, **kw).residual_px[hold]
+    return out
