@@ -136,8 +136,111 @@ def test_synth_verbs_track_their_ict_captures_by_default_and_keep_the_truth(tmp_
     talk = tmp_path / "talk"
     assert main(["talk", "synth", "-o", str(talk), "--head", "ict", "--seconds", "0.2", "--res", "128",
                  "--vertices", "1000", "-q"]) == 0
-    assert "tracked by MediaPipe" in capsys.readouterr().out and (talk / "landmarks_true.json").is_file()
+    said = capsys.readouterr().out
+    assert "tracked by MediaPipe" in said and (talk / "landmarks_true.json").is_file()
+    assert "head poses fitted to them" in said and (talk / "poses_true.npz").is_file()  # what a user has: tracked poses
     # the procedural head's landmarks are not the tracker's 68: a one-line error naming the way out, nothing written
     toy = tmp_path / "toy"
     assert main(["hmd", "synth", "-o", str(toy), "--frames", "6", "--res", "64", "--landmarks", "tracked", "-q"]) == 2
     assert "--landmarks oracle" in capsys.readouterr().err and not toy.exists()
+
+
+def test_one_euro_stills_jitter_and_follows_fast_motion_without_lag():
+    from geoface.track import one_euro
+
+    rng = np.random.default_rng(0)
+    T, fps = 200, 25.0
+    still = 100 + rng.normal(0, 1.0, (T, 1, 2))
+    sm = one_euro(still, fps, min_cutoff=1.0, beta=0.02)
+    assert sm[20:].std(0).max() < 0.5 * still[20:].std(0).min()  # jitter of a still point halved and more
+    t = np.arange(T) / fps
+    ramp = np.zeros((T, 1, 2))
+    ramp[:, 0, 0] = 300.0 * t                                     # 300 px/s: a fast turn
+    moving = ramp + rng.normal(0, 1.0, ramp.shape)
+    lag = np.abs(one_euro(moving, fps, min_cutoff=1.0, beta=0.02) - ramp)[50:, 0, 0].mean()
+    fixed = np.abs(one_euro(moving, fps, min_cutoff=1.0, beta=0.0) - ramp)[50:, 0, 0].mean()
+    assert lag < 8.0 < 40.0 < fixed, (lag, fixed)                # a fixed low-pass trails by ~50 px
+    # causal: frame t does not see later frames; a frame without a face restarts the filter
+    assert np.allclose(one_euro(moving[:80], fps, beta=0.05), one_euro(moving, fps, beta=0.05)[:80])
+    gap = moving.copy()
+    gap[100] = np.nan
+    out = one_euro(gap, fps, beta=0.05)
+    assert np.isnan(out[100]).all() and np.allclose(out[101], gap[101])
+    with pytest.raises(GeofaceError):
+        one_euro(still[:, 0], fps)
+
+
+@pytest.fixture(scope="module")
+def astronaut(tmp_path_factory):
+    pytest.importorskip("mediapipe")
+    import cv2
+    from skimage import data
+
+    from geoface.images import save_image
+
+    img = cv2.resize(data.astronaut(), (256, 256), interpolation=cv2.INTER_AREA)
+    d = tmp_path_factory.mktemp("astro")
+    save_image(d / "astronaut.png", img)
+    return d / "astronaut.png", img
+
+
+def test_track_a_real_photo_and_a_video_of_it(astronaut, tmp_path, capsys):
+    """A real photograph (scikit-image's astronaut, public domain): the landmarks sit on her face;
+    a video panning over it: the landmarks follow the pan, in the format capture folders read."""
+    from geoface.avatar.capture import read_landmarks
+    from geoface.cli import main
+    from geoface.images import read_image
+    from geoface.video import write_video
+
+    photo, img = astronaut
+    assert main(["track", str(photo), "-o", str(tmp_path / "lm.json"), "--masks", str(tmp_path / "m"), "-q"]) == 0
+    assert "landmarks on 1 of 1 frames; confidence 0.9" in capsys.readouterr().out
+    doc = json.loads((tmp_path / "lm.json").read_text())
+    pts, names = read_landmarks(tmp_path / "lm.json", 1)
+    assert names[36] == "eye_right_0" and doc["found"] == [True] and doc["image_size"] == [256, 256]
+    assert doc["confidence"][0] > 0.7 and doc["smoothed"] is False
+    # her outer eye corners and nose tip (measured by hand on the 512² photo, halved)
+    for k, xy in ((36, (98, 51)), (45, (128, 52)), (30, (113, 64))):
+        assert np.linalg.norm(pts[0, k] - xy) < 4.0, (k, pts[0, k])
+    m = read_image(tmp_path / "m" / "astronaut.png", "gray") > 0.5
+    assert m[60, 113] and not m[10, 250]  # her face is the person's; the sky (top right) is not
+    # a video: the photo shifted right by 2 px a frame
+    frames = [np.roll(img, 2 * k, axis=1) for k in range(6)]
+    write_video(frames, tmp_path / "pan.mp4", fps=10)
+    assert main(["track", str(tmp_path / "pan.mp4"), "-o", str(tmp_path / "pan.json"), "--smooth", "-q"]) == 0
+    assert "smoothed (One Euro)" in capsys.readouterr().out
+    pan, _ = read_landmarks(tmp_path / "pan.json", 6)
+    d = json.loads((tmp_path / "pan.json").read_text())
+    assert d["fps"] == 10.0 and d["smoothed"] and len(d["frames"]) == 6
+    moved = (pan[:, [30, 36, 45], 0] - pan[0, [30, 36, 45], 0]).mean(1)
+    assert np.abs(moved - 2 * np.arange(6)).max() < 1.5, moved  # follows the pan, no lag
+    # bad inputs: one line, exit 2
+    assert main(["track", str(tmp_path / "none.png"), "-o", str(tmp_path / "x.json"), "-q"]) == 2
+    assert main(["track", str(photo), "-o", str(tmp_path / "x.txt"), "-q"]) == 2
+    assert main(["track", str(photo), "-o", str(tmp_path / "y.json"), "--no-masks", "-q"]) == 2
+    assert main(["track", str(photo), "-o", str(tmp_path / "lm.json"), "-q"]) == 2  # exists: not replaced
+    (tmp_path / "notes.txt").write_text("hello")
+    assert main(["track", str(tmp_path / "notes.txt"), "-o", str(tmp_path / "z.json"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "not an image" in err
+
+
+def test_head_poses_fitted_to_landmarks_recover_the_true_poses(tmp_path):
+    """The renderer's own landmarks (0.5 px of noise) give the head poses back to about a degree;
+    the capture's poses are kept as the truth, the expressions untouched."""
+    from geoface.avatar.template import Template
+    from geoface.thgs.data import fit_head_poses
+    from geoface.thgs.eval import head_pose_errors
+    from geoface.thgs.ict import make_ict_talking
+
+    d = make_ict_talking(tmp_path / "talk", seconds=0.4, res=128, n_vertices=1500, map_res=128, seed=3, quiet=True)
+    with np.load(d / "poses.npz") as z:
+        before = {k: z[k] for k in z.files}
+    (d / "poses_true.npz").rename(tmp_path / "truth.npz")  # as a user's capture: no truth beside it
+    fit = fit_head_poses(d)
+    assert fit["frames"] == 10 and fit["rms_px"] < 1.5 and "nose_tip" in fit["names"]
+    with np.load(d / "poses.npz") as z, np.load(d / "poses_true.npz") as kept, np.load(tmp_path / "truth.npz") as t:
+        assert np.array_equal(kept["rot"], before["rot"]) and np.array_equal(z["expr"], before["expr"])
+        assert not np.allclose(z["transl"], before["transl"])  # fitted, not copied
+        err = head_pose_errors(Template.load(d / "template.npz"), z["rot"], z["transl"], t["rot"], t["transl"])
+    assert err["rot_deg_mean"] < 1.5 and err["mm_mean"] < 6.0, err

@@ -53,6 +53,11 @@ def cmd_talk_synth(args) -> int:
             make_synthetic_talking(tmp, seconds=args.seconds, fps=args.fps, res=args.res, n_vertices=args.vertices,
                                    seed=args.seed, quiet=args_quiet(args))
         tracked = track_synthetic((tmp,), args.landmarks, args.head, quiet=args_quiet(args))
+        if (tmp / "landmarks_true.json").is_file() and not any(perturb):  # tracked: the head poses too, from them
+            from geoface.thgs.data import fit_head_poses
+
+            fit = fit_head_poses(tmp)
+            tracked += f"; head poses fitted to them ({fit['rms_px']:.2f} px median), the capture's kept as poses_true.npz"
     what = "ICT-FaceKit person" if args.head == "ict" else "synthetic talking head"
     extra = f", tracking off by {perturb[0]:g}° / {perturb[1]:g} mm per frame" if any(perturb) else ""
     print(f"{out}: {what}, {args.seconds:g} s at {args.fps:g} fps, {args.res}² (audio.wav, poses.npz){extra}{tracked}")

@@ -65,3 +65,22 @@ def test_landmark_files(tmp_path):
         load_landmarks(tmp_path / "bad.json")
     with pytest.raises(GeofaceError, match="no such"):
         load_landmarks(tmp_path / "none.json")
+
+
+def test_heldout_landmarks_are_predicted_by_the_rest(model):
+    from geoface.synth.ict_fit import heldout_errors
+
+    truth, R, f, rng = _photo(model, 3)
+    noisy = truth + rng.normal(0, 0.5, truth.shape)
+    held = heldout_errors(model, noisy, (W, H), focal=f)
+    fit = fit_landmarks(model, noisy, (W, H), focal=f)
+    # each landmark predicted from the others lands near it (the face's shape holds), but further
+    # than when it is fitted itself
+    assert held.shape == (68,) and held.mean() < 2.0 and np.quantile(held, 0.95) < 4.0, (held.mean(), held.max())
+    assert held.mean() > fit.residual_px.mean()
+    # a landmark moved 40 px off the face is not predicted: its held-out error shows it
+    bad = noisy.copy()
+    bad[30] += 40.0
+    assert heldout_errors(model, bad, (W, H), focal=f, folds=2)[30] > 30.0
+    with pytest.raises(GeofaceError, match="at least 12"):
+        fit_landmarks(model, noisy, (W, H), holdout=np.arange(68) > 5)
