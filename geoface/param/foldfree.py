@@ -57,7 +57,7 @@ import scipy.sparse.linalg as spla
 from ..errors import ParameterizationError
 from ..mesh.core import boundary_loops, signed_uv_areas
 
-__all__ = ["FoldFreeResult", "convex_combination_map", "mean_value_weights", "square_sides"]
+__all__ = ["FoldFreeResult", "convex_combination_map", "mean_value_weights", "square_sides", "untangle"]
 
 #: a target angle at a vertex must exceed this (radians) for the vertex to keep its own MVC
 MIN_ANGLE = 1e-9
@@ -75,8 +75,9 @@ class FoldFreeResult:
     max_displacement : max |uv - target|; rounds : global solves (0 when the local solve
     sufficed; more than 1 if rounding flipped a triangle and the weights there were made
     uniform); solve : ``"local"`` (only the vertices near the folds moved: the map had no
-    fold, so it was kept) or ``"global"`` (the whole system (1): fold-free by Tutte's
-    theorem); solved_vertices : how many vertices the kept solve placed."""
+    fold, so it was kept), ``"untangled"`` (the local solve folded; the folds were undone
+    vertex by vertex, :func:`untangle`) or ``"global"`` (the whole system (1): fold-free by
+    Tutte's theorem); solved_vertices : how many vertices the kept solve placed."""
 
     uv: np.ndarray
     flipped: int
@@ -336,6 +337,13 @@ def convex_combination_map(F, target, reference, *, max_rounds: int = 4) -> Fold
             x, solve, region = xl, "local", r_in
             break
     if solve == "global":
+        # before moving every vertex: untangle the folds vertex by vertex, each moved the least
+        # that makes its triangles positive (a global convex-combination solve is fold-free but
+        # may move far from the target where the folds are many: a limb squeezed into a strip)
+        xu, ok = untangle(F, x, inner, orient)
+        if ok:
+            x, solve, region = xu, "untangled", np.any(xu != x, axis=1)
+    if solve == "global":
         uniform = np.zeros(n, bool)
         for rounds in range(1, max_rounds + 2):
             L_r = Lam if not uniform.any() else _normalised(W, inner, A_graph, uniform)
@@ -355,8 +363,78 @@ def convex_combination_map(F, target, reference, *, max_rounds: int = 4) -> Fold
     return FoldFreeResult(
         uv=x, flipped=0, target_flipped=target_flipped, fitted_vertices=int(use_ref.sum()),
         boundary_adjusted=moved, max_displacement=float(np.abs(x - target).max()), rounds=rounds, solve=solve,
-        solved_vertices=int(region.sum() if solve == "local" else inner.sum()),
+        solved_vertices=int(region.sum() if solve != "global" else inner.sum()),
     )
+
+
+def untangle(F: np.ndarray, x: np.ndarray, movable: np.ndarray, orient: float = 1.0, *,
+             rings=(2, 8, 32, None), max_iterations: int = 3000) -> tuple[np.ndarray, bool]:
+    """Untangle a folded map near its folds: the ``movable`` vertices within a few rings of the
+    non-positive triangles (``None``: all of them) move together, the rest stay put, to minimise
+
+        Σ_t (max(0, ε − A_t) / ε)² + w Σ_i |x_i − x_i⁰|² / ε
+
+    (A_t the triangles' signed areas, ε a tenth of their median area, w = 1e-3), by L-BFGS; the
+    region grows until no triangle is non-positive (checked exactly). A whole flipped patch
+    untangles (the penalty moves its vertices together) and every triangle keeps about its
+    area, where a convex-combination solve with a conformal reference can squeeze a region that
+    the conformal map shrank (a limb) back into a strip. Returns ``(uv, fold-free?)``."""
+    from scipy.optimize import minimize
+
+    x0 = np.array(x, np.float64, copy=True)
+    F = np.asarray(F, np.int64)
+    n = len(x0)
+    A0 = orient * signed_uv_areas(F, x0)
+    bad = A0 <= 0
+    if not bad.any():
+        return x0, True
+    eps = 0.1 * float(np.median(np.abs(A0)))
+    if not eps > 0:
+        return x0, False
+    nbr = sp.csr_matrix((np.ones(6 * len(F)), (F[:, [0, 1, 2, 1, 2, 0]].ravel(), F[:, [1, 2, 0, 0, 1, 2]].ravel())),
+                        shape=(n, n))
+    region = np.zeros(n, bool)
+    region[F[bad].ravel()] = True
+    grown, w, last = 0, 1e-3, -1
+    for k in rings:
+        if k is None:
+            region = movable.copy()
+        else:
+            for _ in range(k - grown):
+                region |= np.asarray(nbr @ region.astype(float)).ravel() > 0
+            grown = k
+        free = np.flatnonzero(region & movable)
+        if len(free) == 0 or len(free) == last:
+            continue
+        last = len(free)
+        Ft = F[np.isin(F, free).any(1)]
+        where = np.full(n, len(free))  # fixed vertices: a dummy row, dropped
+        where[free] = np.arange(len(free))
+        idx = where[Ft]
+
+        def energy(z, Ft=Ft, idx=idx, free=free):
+            y = x0.copy()
+            y[free] = z.reshape(-1, 2)
+            a, b, c = y[Ft[:, 0]], y[Ft[:, 1]], y[Ft[:, 2]]
+            A = 0.5 * orient * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+            h = np.maximum(0.0, eps - A) / eps
+            d = y[free] - x0[free]
+            gA = -h / eps * orient  # dE/d(area2) = dE/dA · ½ · orient
+            # d area2 / d p for (p, q, r) in cyclic order: (q_y − r_y, r_x − q_x)
+            gx = np.concatenate([(b[:, 1] - c[:, 1]), (c[:, 1] - a[:, 1]), (a[:, 1] - b[:, 1])]) * np.tile(gA, 3)
+            gy = np.concatenate([(c[:, 0] - b[:, 0]), (a[:, 0] - c[:, 0]), (b[:, 0] - a[:, 0])]) * np.tile(gA, 3)
+            rows = idx.T.ravel()
+            g = np.stack([np.bincount(rows, gx, len(free) + 1)[:-1], np.bincount(rows, gy, len(free) + 1)[:-1]], 1)
+            grad = g + 2.0 * w * d / eps
+            return float((h * h).sum() + w * (d * d).sum() / eps), grad.ravel()
+
+        z = minimize(energy, x0[free].ravel(), jac=True, method="L-BFGS-B",
+                     options={"maxiter": int(max_iterations), "gtol": 1e-12, "ftol": 1e-15}).x
+        y = x0.copy()
+        y[free] = z.reshape(-1, 2)
+        if not (orient * signed_uv_areas(F, y) <= 0).any():
+            return y, True
+    return x0, False
 
 
 def _normalised(W: sp.csr_matrix, inner: np.ndarray, A_graph: sp.csr_matrix, uniform: np.ndarray | None = None) -> sp.csr_matrix:
