@@ -61,6 +61,11 @@ __all__ = ["FoldFreeResult", "convex_combination_map", "mean_value_weights", "sq
 
 #: a target angle at a vertex must exceed this (radians) for the vertex to keep its own MVC
 MIN_ANGLE = 1e-9
+#: the untangled map replaces the whole system's solve when that loses this many times more of
+#: the target's areas (mean |log| of the vertex-area ratios): chosen on male02 and the decimated
+#: Max Planck bust at 512² (``bench/bench_stress.py``), where the two solves lose 0.42 vs 0.55–6.3
+#: (the whole solve squeezes limbs) and 0.15 vs 0.18 (the whole solve's smoother triangles win)
+UNTANGLE_GAIN = 1.5
 #: the local solve: rings of vertices around the folds, and the largest share of the interior
 LOCAL_RINGS = (8, 32)
 LOCAL_SHARE = 0.3
@@ -336,13 +341,16 @@ def convex_combination_map(F, target, reference, *, max_rounds: int = 4) -> Fold
         if not (orient * signed_uv_areas(F, xl) <= 0).any():
             x, solve, region = xl, "local", r_in
             break
+    untangled = None
     if solve == "global":
-        # before moving every vertex: untangle the folds vertex by vertex, each moved the least
-        # that makes its triangles positive (a global convex-combination solve is fold-free but
-        # may move far from the target where the folds are many: a limb squeezed into a strip)
-        xu, ok = untangle(F, x, inner, orient)
-        if ok:
-            x, solve, region = xu, "untangled", np.any(xu != x, axis=1)
+        if not (orient * signed_uv_areas(F, x) <= 0).any():  # nothing to solve: the target is fold-free
+            solve, region = "local", np.zeros(n, bool)
+        else:
+            # the folds untangled near where they are: kept below when the whole system's solve
+            # loses much more of the target's areas (where the folds are many it can squeeze a
+            # region that the reference map shrank, a limb, back into a strip)
+            xu, ok = untangle(F, x, inner, orient)
+            untangled = xu if ok else None
     if solve == "global":
         uniform = np.zeros(n, bool)
         for rounds in range(1, max_rounds + 2):
@@ -356,6 +364,8 @@ def convex_combination_map(F, target, reference, *, max_rounds: int = 4) -> Fold
             ring[F[bad].ravel()] = True
             ring |= np.asarray(A_graph @ ring.astype(float)).ravel() > 0
             uniform |= ring & inner
+    if untangled is not None and _area_loss(F, x, target) > UNTANGLE_GAIN * _area_loss(F, untangled, target):
+        x, solve, region = untangled, "untangled", np.any(untangled != target, axis=1)
     flipped = int((orient * signed_uv_areas(F, x) <= 0).sum())
     if flipped:
         raise ParameterizationError(f"internal: {flipped} triangles of a convex-combination map are not positive "
@@ -365,6 +375,19 @@ def convex_combination_map(F, target, reference, *, max_rounds: int = 4) -> Fold
         boundary_adjusted=moved, max_displacement=float(np.abs(x - target).max()), rounds=rounds, solve=solve,
         solved_vertices=int(region.sum() if solve != "global" else inner.sum()),
     )
+
+
+def _area_loss(F: np.ndarray, uv: np.ndarray, target: np.ndarray) -> float:
+    """Mean |log(a_i / t_i)| of the vertices' areas (⅓ of the adjacent triangles' absolute
+    areas, normalised) in ``uv`` against those in ``target``."""
+    def va(p):
+        A = np.abs(signed_uv_areas(F, p))
+        v = np.bincount(F.ravel(), np.repeat(A / 3.0, 3), len(p))
+        return v / max(v.sum(), 1e-300)
+
+    a, t = va(uv), va(target)
+    ok = t > 0
+    return float(np.mean(np.abs(np.log(np.maximum(a[ok], 1e-300) / t[ok]))))
 
 
 def untangle(F: np.ndarray, x: np.ndarray, movable: np.ndarray, orient: float = 1.0, *,

@@ -58,6 +58,7 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
             "fitted_vertices": mp.fold_free.fitted_vertices if mp.fold_free else 0,
             "boundary_adjusted": mp.fold_free.boundary_adjusted if mp.fold_free else 0,
             "max_displacement": mp.fold_free.max_displacement if mp.fold_free else 0.0,
+            "fold_free_solve": mp.fold_free.solve if mp.fold_free else None,
         }
     st["distortion"] = distortion(V, F, uv).summary()
     t = time.perf_counter()
