@@ -48,6 +48,7 @@ exactly, triangle by triangle), and otherwise the whole system is solved, which 
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,10 +63,12 @@ __all__ = ["FoldFreeResult", "convex_combination_map", "mean_value_weights", "sq
 #: a target angle at a vertex must exceed this (radians) for the vertex to keep its own MVC
 MIN_ANGLE = 1e-9
 #: the untangled map replaces the whole system's solve when that loses this many times more of
-#: the target's areas (mean |log| of the vertex-area ratios): chosen on male02 and the decimated
-#: Max Planck bust at 512² (``bench/bench_stress.py``), where the two solves lose 0.42 vs 0.55–6.3
-#: (the whole solve squeezes limbs) and 0.15 vs 0.18 (the whole solve's smoother triangles win)
-UNTANGLE_GAIN = 1.5
+#: the target's areas (mean |log| of the vertex-area ratios): only where the whole solve
+#: collapses a region. On male02 at 512² one corner set's whole solve loses 10.7× the untangled
+#: map's (a limb squeezed into a strip: 15.4% Hausdorff against 0.65%); below about 2× the whole
+#: solve's smoother triangles reconstruct better (spot with sliver strips: 0.2–0.5% against
+#: 0.5–1.1% untangled at ratios 1.5–2.1), and one male02 set at 1.9× goes the other way
+UNTANGLE_GAIN = 3.0
 #: the local solve: rings of vertices around the folds, and the largest share of the interior
 LOCAL_RINGS = (8, 32)
 LOCAL_SHARE = 0.3
@@ -364,8 +367,12 @@ def convex_combination_map(F, target, reference, *, max_rounds: int = 4) -> Fold
             ring[F[bad].ravel()] = True
             ring |= np.asarray(A_graph @ ring.astype(float)).ravel() > 0
             uniform |= ring & inner
-    if untangled is not None and _area_loss(F, x, target) > UNTANGLE_GAIN * _area_loss(F, untangled, target):
-        x, solve, region = untangled, "untangled", np.any(untangled != target, axis=1)
+    if untangled is not None:
+        whole, local = _area_loss(F, x, target), _area_loss(F, untangled, target)
+        logging.getLogger("geoface").debug("fold-free step: the whole solve loses %.3g of the target's areas, the "
+                                           "untangled map %.3g", whole, local)
+        if whole > UNTANGLE_GAIN * local:
+            x, solve, region = untangled, "untangled", np.any(untangled != target, axis=1)
     flipped = int((orient * signed_uv_areas(F, x) <= 0).sum())
     if flipped:
         raise ParameterizationError(f"internal: {flipped} triangles of a convex-combination map are not positive "
