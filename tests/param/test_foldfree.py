@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from geoface.mesh.core import boundary_loops, signed_uv_areas
-from geoface.param.foldfree import UNTANGLE_GAIN, _area_loss, convex_combination_map, untangle
+from geoface.param.foldfree import UNTANGLE_GAIN, convex_combination_map
+from geoface.param.untangle import area_loss as _area_loss, untangle
 from geoface.synth import square_grid
 
 
