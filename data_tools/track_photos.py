@@ -63,7 +63,7 @@ def main() -> int:
     from geoface.mesh.io import Mesh
     from geoface.nn.mesh_render import render_mesh
     from geoface.synth.ict import load_ict_model
-    from geoface.synth.ict_fit import fit_landmarks, heldout_errors
+    from geoface.synth.ict_fit import fit_landmarks, heldout_errors, project
     from geoface.track import track_frames
     from geoface.uvmap.inpaint import inpaint
     from geoface.uvmap.project import project_views
@@ -111,7 +111,7 @@ def main() -> int:
         s = max(1, round(W / 256))
         for p in L:
             cv2.circle(over, (int(round(p[0])), int(round(p[1]))), s + 1, (0, 200, 0), -1)
-        for p in _head_landmarks(ict, fit):
+        for p in project(head.V[head.landmarks], fit.R, fit.t, fit.focal, fit.centre):  # the head's own landmarks
             cv2.circle(over, (int(round(p[0])), int(round(p[1]))), s, (0, 0, 255), -1)
         T = a.tile
         x0, y0 = L.min(0)
@@ -141,14 +141,6 @@ def main() -> int:
         cv2.imwrite(str(a.picture), pic, [cv2.IMWRITE_JPEG_QUALITY, 88])
         print(f"picture: {a.picture}", file=sys.stderr)
     return 0
-
-
-def _head_landmarks(ict, fit) -> np.ndarray:
-    """The fitted head's 68 landmarks in the photo (pixels)."""
-    from geoface.synth.ict_fit import project
-
-    head = fit.head(ict)
-    return project(head.V[head.landmarks], fit.R, fit.t, fit.focal, fit.centre)
 
 
 if __name__ == "__main__":

@@ -7,9 +7,8 @@ convex-combination system would collapse a region."""
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
-from ..mesh.core import signed_uv_areas
+from ..mesh.core import signed_uv_areas, vertex_adjacency, vertex_areas
 
 __all__ = ["untangle", "area_loss"]
 
@@ -18,8 +17,7 @@ def area_loss(F: np.ndarray, uv: np.ndarray, target: np.ndarray) -> float:
     """Mean |log(a_i / t_i)| of the vertices' areas (⅓ of the adjacent triangles' absolute
     areas, normalised) in ``uv`` against those in ``target``."""
     def va(p):
-        A = np.abs(signed_uv_areas(F, p))
-        v = np.bincount(F.ravel(), np.repeat(A / 3.0, 3), len(p))
+        v = vertex_areas(np.column_stack([p, np.zeros(len(p))]), F)
         return v / max(v.sum(), 1e-300)
 
     a, t = va(uv), va(target)
@@ -51,8 +49,7 @@ def untangle(F: np.ndarray, x: np.ndarray, movable: np.ndarray, orient: float = 
     eps = 0.1 * float(np.median(np.abs(A0)))
     if not eps > 0:
         return x0, False
-    nbr = sp.csr_matrix((np.ones(6 * len(F)), (F[:, [0, 1, 2, 1, 2, 0]].ravel(), F[:, [1, 2, 0, 0, 1, 2]].ravel())),
-                        shape=(n, n))
+    nbr = vertex_adjacency(F, n)
     region = np.zeros(n, bool)
     region[F[bad].ravel()] = True
     grown, w, last = 0, 1e-3, -1
@@ -76,7 +73,7 @@ def untangle(F: np.ndarray, x: np.ndarray, movable: np.ndarray, orient: float = 
             y = x0.copy()
             y[free] = z.reshape(-1, 2)
             a, b, c = y[Ft[:, 0]], y[Ft[:, 1]], y[Ft[:, 2]]
-            A = 0.5 * orient * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+            A = orient * signed_uv_areas(Ft, y)
             h = np.maximum(0.0, eps - A) / eps
             d = y[free] - x0[free]
             gA = -h / eps * orient  # dE/d(area2) = dE/dA · ½ · orient
