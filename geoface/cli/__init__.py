@@ -82,33 +82,44 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args) -> int:
-    import signal
+    from .interrupt import deferred_interrupts
 
-    terminated = []
+    with deferred_interrupts() as got:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("always", GeofaceWarning)
+                warnings.showwarning = _show_warning
+                guard_by_table(args)
+                return int(args.func(args) or 0)
+        except GeofaceError as exc:
+            print(f"geoface: error: {one_line(exc)}", file=sys.stderr)
+            return 2
+        except OSError as exc:
+            print(one_line(f"geoface: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": ")), file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:  # SIGTERM unwinds like Ctrl-C, so temporary outputs are removed
+            import signal
 
-    def _on_sigterm(signum, frame):  # like SIGINT: unwind, so temporary outputs are removed
-        terminated.append(signum)
-        raise KeyboardInterrupt
+            terminated = bool(got) and got[0] == signal.SIGTERM
+            print("geoface: terminated" if terminated else "geoface: interrupted", file=sys.stderr)
+            return 143 if terminated else 130
 
-    try:
-        signal.signal(signal.SIGTERM, _on_sigterm)
-    except ValueError:  # not in the main thread (an embedding application)
-        pass
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("always", GeofaceWarning)
-            warnings.showwarning = _show_warning
-            guard_by_table(args)
-            return int(args.func(args) or 0)
-    except GeofaceError as exc:
-        print(f"geoface: error: {one_line(exc)}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(one_line(f"geoface: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": ")), file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("geoface: terminated" if terminated else "geoface: interrupted", file=sys.stderr)
-        return 143 if terminated else 130
+
+def entry() -> None:
+    """The ``geoface`` program: :func:`main`, then exit with its code.
+
+    After SIGTERM or Ctrl-C the stack has unwound (temporary outputs removed); if the
+    interrupt had to be raised under a library's worker threads after all (they ran past
+    ``interrupt.MAX_DEFER_S``), interpreter shutdown under them could crash, so an
+    interrupted run leaves with ``os._exit`` once its output is flushed."""
+    import os
+
+    code = main()
+    if code in (130, 143):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
@@ -116,4 +127,4 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    entry()
