@@ -205,7 +205,9 @@ def test_killed_convert_leaves_nothing_behind(tmp_path, sig):
     p = subprocess.Popen([sys.executable, "-m", "geoface", "--quiet", "convert", str(src), "-o", str(out), "--res", "512"])
     time.sleep(4.0)  # inside the pipeline by now
     p.send_signal(sig)
-    p.wait(timeout=5)
+    # a native call in progress (a decimation, an AABB tree) finishes before Python sees the
+    # signal: seconds on a loaded 2-core machine
+    p.wait(timeout=20)
     assert p.returncode == (143 if sig == signal.SIGTERM else -9)
     leftovers = [x for x in tmp_path.iterdir() if x.name.startswith(".killed_out")]
     if sig == signal.SIGTERM:
@@ -471,4 +473,4 @@ def test_sigterm_under_native_worker_threads_exits_cleanly(tmp_path):
         p = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
         assert p.returncode == 143, (p.returncode, p.stderr[-2000:])
         assert p.stderr.strip() == "geoface: terminated"
-        assert time.monotonic() - t0 < 15.0
+        assert time.monotonic() - t0 < 30.0

@@ -20,7 +20,7 @@ import threading
 import time
 from contextlib import contextmanager
 
-MAX_DEFER_S = 10.0
+MAX_DEFER_S = 5.0
 _RECHECK_S = 0.02
 
 
