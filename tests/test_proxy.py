@@ -113,3 +113,18 @@ def test_the_cli_default_proxy_is_the_library_default():
 
     args = build_parser().parse_args(["convert", "in.obj", "-o", "out"])
     assert args.proxy == DEFAULT_PROXY == ConvertOptions().proxy
+
+
+def test_the_cli_default_blend_is_the_library_default(tmp_path):
+    from geoface.cli import build_parser
+    from geoface.dataset import DatasetOptions
+    from geoface.pipeline import DEFAULT_BLEND
+
+    args = build_parser().parse_args(["convert", "in.obj", "-o", "out"])
+    ds = build_parser().parse_args(["dataset", "build", "in", "-o", "out"])
+    assert args.blend == ds.blend == DEFAULT_BLEND == ConvertOptions().blend == DatasetOptions().blend
+    for bad in ("-0.1", "1", "nan"):
+        with pytest.raises(SystemExit):
+            build_parser().parse_args(["convert", "in.obj", "-o", "out", "--blend", bad])
+    with pytest.raises(GeofaceError, match="blend"):
+        ConvertOptions(blend=1.5).validate()

@@ -247,8 +247,8 @@ def cmd_convert(args) -> int:
     roi = args.roi
     if roi not in ("face", "none"):
         roi = load_roi(roi, len(mesh.V))
-    opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, augment=args.augment, method=args.method,
-                          ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
+    opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, blend=args.blend, augment=args.augment,
+                          method=args.method, ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
                           corner_set=args.corner_set, reconstruct=args.reconstruct, proxy=args.proxy)
     m = convert(mesh, out, opts, overwrite=args.force)
     print(_convert_summary(args, out, m))

@@ -56,6 +56,7 @@ class DatasetOptions:
     roi : ``"auto"`` (the face mask in ``<stem>.json`` beside the mesh, as written by
     ``geoface synth head --meta`` or ``data_tools/make_synthetic_heads.py``, else the frontal
     face cone), ``"face"`` (always the cone) or ``"none"``; lam : mass factor on the ROI (2.5);
+    blend : share of the conformal map's area in OT's target measure (0.1, as ``convert``);
     method : ``"ot"`` or ``"conformal"``; ot_tol : OT tolerance; reconstruct : also write
     ``reconstruction.obj`` and its error; preview : write ``preview.png``; up / open : how
     closed meshes are cut open (see :func:`geoface.repair.make_disk`).
@@ -65,6 +66,7 @@ class DatasetOptions:
     augment: int = 8
     roi: str = "auto"
     lam: float = 2.5
+    blend: float = 0.1
     method: str = "ot"
     ot_tol: float = 1e-3
     reconstruct: bool = False
@@ -82,7 +84,7 @@ class DatasetOptions:
         from ..pipeline import ConvertOptions
 
         return ConvertOptions(
-            res=self.res, roi="none" if roi is None else roi, lam=self.lam, augment=self.augment,
+            res=self.res, roi="none" if roi is None else roi, lam=self.lam, blend=self.blend, augment=self.augment,
             method=self.method, ot_tol=self.ot_tol, reconstruct=self.reconstruct, preview=self.preview,
             up=self.up, open=self.open, corner_set=corner_set, metrics=False,
         ).validate()

@@ -7,6 +7,13 @@ elsewhere; semi-discrete OT gives each vertex a power cell of area ``ν_i`` and 
 the cell's centroid.  So a region of interest of area share ``a`` gets ``λa / (1 + (λ-1)a)``
 of the square (the face is magnified).
 
+``blend`` (β) mixes in the starting map's own area: ``ν_i ∝ (λ_i · area_i)^(1-β) ·
+(uv area_i)^β``.  β = 0 is the paper's measure.  An area-preserving map squeezes the band
+next to the cut (a head's neck, mapped onto the whole square's perimeter) into a few rows of
+long thin pixels, and the reconstruction cuts the corners of the jaw there; a conformal start
+keeps that band wide, so a small β trades a little of the face's share for far smaller
+worst errors (docs/benchmarks.md, "The target measure").
+
 Two details make the result usable as a parameterization:
 
 * Boundary vertices stay on their side of the square (a centroid lies inside its cell, a
@@ -161,20 +168,33 @@ class MeasurePreservingSolver:
         self._warm: tuple | None = None  # (uv, heights) of the last solve from the starting map
         self.warm_started = False  # whether the last solve started from the previous heights
 
-    def masses(self, roi=None, lam: float = 2.5) -> np.ndarray:
-        """The target masses ``ν_i = λ_i · (vertex area)``: ``lam`` on ``roi``, 1 elsewhere."""
+    def masses(self, roi=None, lam: float = 2.5, *, uv=None, blend: float = 0.0) -> np.ndarray:
+        """The target masses ``ν_i = λ_i · (vertex area)``: ``lam`` on ``roi``, 1 elsewhere;
+        with ``blend`` β > 0, ``ν_i^(1-β) · (uv area_i)^β`` (same total), ``uv`` the starting map."""
         n = len(self.V)
         if not (np.isfinite(lam) and lam > 0):
             raise ParameterizationError(f"lam must be positive; got {lam}")
+        if not (np.isfinite(blend) and 0.0 <= blend < 1.0):
+            raise ParameterizationError(f"blend must be in [0, 1); got {blend}")
         weight = np.ones(n)
         if roi is not None:
             roi = np.asarray(roi)
             if roi.shape != (n,):
                 raise ParameterizationError(f"roi must be a ({n},) vertex mask; got shape {roi.shape}")
             weight = np.where(roi.astype(bool), float(lam), 1.0)
-        return weight * self.vertex_areas
+        nu = weight * self.vertex_areas
+        if blend == 0.0:
+            return nu
+        if uv is None:
+            raise ParameterizationError("blend > 0 needs the starting map uv")
+        ua = np.abs(vertex_areas(np.column_stack([np.asarray(uv, np.float64), np.zeros(n)]), self.F))
+        pos = ua > 0
+        # a vertex whose starting cells all collapsed: the smallest positive area, not zero
+        ua = np.where(pos, ua, ua[pos].min() if pos.any() else 1.0)
+        mixed = np.exp((1.0 - blend) * np.log(nu / nu.sum()) + blend * np.log(ua / ua.sum()))
+        return mixed * (nu.sum() / mixed.sum())
 
-    def solve(self, uv, *, roi=None, lam: float = 2.5, h0=None) -> "MeasureMapResult":
+    def solve(self, uv, *, roi=None, lam: float = 2.5, blend: float = 0.0, h0=None) -> "MeasureMapResult":
         """The measure-preserving map from ``uv`` (see :func:`measure_preserving_map`)."""
         V, F, quiet, tol = self.V, self.F, self.quiet, self.tol
         fold_free, linear_solver, backend = self.fold_free, self.linear_solver, self.backend
@@ -185,7 +205,7 @@ class MeasurePreservingSolver:
             raise ParameterizationError(f"uv must be a finite ({n}, 2) array")
         if uv.min() < -1e-9 or uv.max() > 1 + 1e-9:
             raise ParameterizationError("uv must lie in the unit square (use RicciFlowResult.unit_square())")
-        nu = self.masses(roi, lam)
+        nu = self.masses(roi, lam, uv=uv, blend=blend)
         roi = None if roi is None else np.asarray(roi)
         self.warm_started = False
         if h0 is None and self._warm is not None and np.array_equal(self._warm[0], uv):
@@ -276,6 +296,7 @@ def measure_preserving_map(
     *,
     roi=None,
     lam: float = 2.5,
+    blend: float = 0.0,
     tol: float = 1e-3,
     fold_free: bool = True,
     h0=None,
@@ -291,13 +312,14 @@ def measure_preserving_map(
         ``RicciFlowResult.unit_square()``)
     roi : (n,) bool vertex mask of the region of interest (e.g. the face) or None
     lam : mass factor on the region of interest (the paper: 2.5); 1 = area-preserving
+    blend : share β of the starting map's own area in the masses (module docs); 0 = the paper's
     tol : OT tolerance, max |w_i - ν_i| / ν_i
     fold_free : replace the centroid map by the fold-free convex-combination map (default);
         False returns the centroids (snapped to the sides), which may fold
     backend : power-diagram construction (``"auto"``, ``"cgal"``, ``"qhull"``)
     """
     return MeasurePreservingSolver(V, F, tol=tol, fold_free=fold_free, linear_solver=linear_solver, backend=backend,
-                                   quiet=quiet).solve(uv, roi=roi, lam=lam, h0=h0)
+                                   quiet=quiet).solve(uv, roi=roi, lam=lam, blend=blend, h0=h0)
 
 
 def _max_rel_area_error(F, uv, nu) -> float:

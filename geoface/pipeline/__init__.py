@@ -34,6 +34,9 @@ PROXY_FACTOR = 1.5
 #: default proxy size: with it the 134K bust converts at 512² in 22 s, Hausdorff 0.33% / face
 #: 0.09% of the diagonal, and a 2M-vertex scan in 58 s (bench/bench_scale.py)
 DEFAULT_PROXY = 30000
+#: default share of the conformal map's own area in OT's target measure (chosen on validation
+#: heads: docs/benchmarks.md, "The target measure")
+DEFAULT_BLEND = 0.1
 
 
 @dataclass(frozen=True)
@@ -43,7 +46,9 @@ class ConvertOptions:
     res : image resolution N; roi : "face" (on a human head, the face region of the head
     template registered to it; otherwise a frontal cone, see :func:`face_region`),
     "none", or a per-input-vertex boolean mask; lam : mass factor on the ROI (2.5 in the
-    paper; 1 = area-preserving); augment : number of corner sets (1..8); method : "ot" or
+    paper; 1 = area-preserving); blend : share of the conformal map's own area in OT's
+    target measure (:data:`DEFAULT_BLEND`; 0 = the paper's measure, see
+    :mod:`geoface.param.measure`); augment : number of corner sets (1..8); method : "ot" or
     "conformal"; ot_tol : OT tolerance; smooth : Laplacian smoothing iterations of the
     reconstruction; up / open : how :func:`geoface.repair.make_disk` cuts closed heads, and
     which way is up in the image; ``up="auto"`` (default): found from the shape in any axis
@@ -67,6 +72,7 @@ class ConvertOptions:
     res: int = 512
     roi: object = "face"
     lam: float = 2.5
+    blend: float = DEFAULT_BLEND
     augment: int = 1
     method: str = "ot"
     ot_tol: float = 1e-3
@@ -89,6 +95,8 @@ class ConvertOptions:
             raise GeofaceError(f"method must be one of {', '.join(METHODS)}; got {self.method!r}")
         if not (np.isfinite(self.lam) and self.lam > 0):
             raise GeofaceError(f"lam must be positive; got {self.lam!r}")
+        if not (np.isfinite(self.blend) and 0 <= self.blend < 1):
+            raise GeofaceError(f"blend must be in [0, 1); got {self.blend!r}")
         if isinstance(self.proxy, bool) or int(self.proxy) != self.proxy or not (self.proxy == 0 or self.proxy >= 1000):
             raise GeofaceError(f"proxy must be 0 (off) or a vertex count >= 1000; got {self.proxy!r}")
         if int(self.augment) != self.augment or not 1 <= self.augment <= 8:
