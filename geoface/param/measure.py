@@ -5,14 +5,15 @@ sides (the Ricci-flow rectangle, stretched).  Each vertex carries the mass
 ``ν_i = λ_i · ⅓ · (areas of its faces)``, with ``λ_i = lam`` on the region of interest and 1
 elsewhere; semi-discrete OT gives each vertex a power cell of area ``ν_i`` and its new UV is
 the cell's centroid.  So a region of interest of area share ``a`` gets ``λa / (1 + (λ-1)a)``
-of the square (the face is magnified).
+of the square at β = 0 (the face is magnified; ``blend`` below).
 
 ``blend`` (β) mixes in the starting map's own area: ``ν_i ∝ (λ_i · area_i)^(1-β) ·
 (uv area_i)^β``.  β = 0 is the paper's measure.  An area-preserving map squeezes the band
 next to the cut (a head's neck, mapped onto the whole square's perimeter) into a few rows of
 long thin pixels, and the reconstruction cuts the corners of the jaw there; a conformal start
-keeps that band wide, so a small β trades a little of the face's share for far smaller
-worst errors (docs/benchmarks.md, "The target measure").
+keeps that band wide.  A small β trades some of the face's share for smaller errors along the
+cut; it also gives less to what the conformal map shrinks (a body's limbs): measured in
+docs/benchmarks.md, "The target measure".
 
 Two details make the result usable as a parameterization:
 
