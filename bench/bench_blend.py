@@ -86,6 +86,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="also append the JSON lines to this file")
     ap.add_argument("--table", nargs="+", default=None, help="print the summary table of these result files and stop")
     args = ap.parse_args()
+    import bench_stress
+
     if args.table:
         print(table(args.table))
         return
@@ -96,11 +98,7 @@ def main() -> None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         for r in pool.map(_one, jobs):
-            line = json.dumps(r, default=float)
-            print(line, flush=True)
-            if args.out:
-                with open(args.out, "a") as fh:
-                    fh.write(line + "\n")
+            bench_stress.emit(r, args.out)
 
 
 if __name__ == "__main__":

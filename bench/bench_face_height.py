@@ -17,7 +17,6 @@ corners.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -27,6 +26,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "data_tools"))
+sys.path.insert(0, str(REPO / "bench"))
 
 
 def measure_head(case, bottoms=(0.25, 0.3125, 0.375, 0.4375), lams=(1.0, 2.5, 5.0, 10.0)):
@@ -70,6 +70,7 @@ def measure_head(case, bottoms=(0.25, 0.3125, 0.375, 0.4375), lams=(1.0, 2.5, 5.
 
 def main() -> None:
     import make_stress_cases as S
+    from bench_stress import emit
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ict", type=int, default=3)
@@ -79,11 +80,7 @@ def main() -> None:
     cases = [S.real_base(m) for m in args.meshes] + [S.ict_base(s) for s in range(args.ict)]
     for case in cases:
         for row in measure_head(case):
-            line = json.dumps(row)
-            print(line, flush=True)
-            if args.out:
-                with open(args.out, "a") as fh:
-                    fh.write(line + "\n")
+            emit(row, args.out)
 
 
 if __name__ == "__main__":

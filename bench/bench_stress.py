@@ -94,6 +94,15 @@ def run_case(case, res: int, augment: int, tmp: Path, blend: float | None = None
     return out
 
 
+def emit(row: dict, out: Path | None) -> None:
+    """Print one JSON line, and append it to ``out`` when given."""
+    line = json.dumps(row, default=float)
+    print(line, flush=True)
+    if out:
+        with open(out, "a") as fh:
+            fh.write(line + "\n")
+
+
 def main() -> None:
     import make_stress_cases as S
 
@@ -118,11 +127,7 @@ def main() -> None:
         for res in args.res:
             with tempfile.TemporaryDirectory() as tmp:
                 r = run_case(case, res, args.augment, Path(tmp))
-            line = json.dumps(r, default=float)
-            print(line, flush=True)
-            if args.out:
-                with open(args.out, "a") as fh:
-                    fh.write(line + "\n")
+            emit(r, args.out)
 
 
 if __name__ == "__main__":
