@@ -110,6 +110,13 @@ def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.bincount(F.ravel(), weights=np.repeat(A, 3), minlength=len(V))
 
 
+def uv_vertex_areas(F: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """:func:`vertex_areas` of a planar map ``uv`` ``(n, 2)``: one third of the adjacent
+    triangles' absolute areas in the plane."""
+    uv = np.asarray(uv, np.float64)
+    return vertex_areas(np.column_stack([uv, np.zeros(len(uv))]), F)
+
+
 def vertex_adjacency(F: np.ndarray, n_vertices: int) -> sp.csr_matrix:
     """Symmetric 0/1 vertex adjacency ``(n, n)`` float64 (vertices sharing an edge)."""
     i = np.concatenate([F[:, 0], F[:, 1], F[:, 2], F[:, 1], F[:, 2], F[:, 0]])

@@ -32,7 +32,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import ParameterizationError
-from ..mesh.core import boundary_loops, signed_uv_areas, vertex_areas
+from ..mesh.core import boundary_loops, signed_uv_areas, uv_vertex_areas
 from .foldfree import along_side, loop_area, on_side, boundary_sides, mean_value_weights
 
 __all__ = ["BalancedMap", "area_balanced_map", "log_area_ratio"]
@@ -63,7 +63,7 @@ class BalancedMap:
 def log_area_ratio(F: np.ndarray, uv: np.ndarray, nu: np.ndarray) -> np.ndarray:
     """``log(a_i / ν_i)`` per vertex: its share of the map's area (⅓ of its triangles) over its
     share of the target masses."""
-    a = vertex_areas(np.column_stack([uv, np.zeros(len(uv))]), F)
+    a = uv_vertex_areas(F, uv)
     a = a / a.sum()
     return np.log(np.maximum(a, 1e-300) / (nu / nu.sum()))
 

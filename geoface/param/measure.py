@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterizationError
-from ..mesh.core import boundary_loops, check_mesh, signed_uv_areas, vertex_areas
+from ..mesh.core import boundary_loops, check_mesh, signed_uv_areas, uv_vertex_areas, vertex_areas
 from .balance import BalancedMap, area_balanced_map, log_area_ratio
 from .foldfree import FoldFreeResult, convex_combination_map, square_sides
 from ..progress import log
@@ -127,7 +127,7 @@ def _snap(uv_new: np.ndarray, bnd: np.ndarray, sides: np.ndarray) -> np.ndarray:
 def area_error(F: np.ndarray, uv: np.ndarray, nu: np.ndarray) -> float:
     """Mean |log(a_i / ν_i)| of per-vertex UV areas (⅓ of adjacent triangles, normalised)
     against target masses ``nu`` (normalised)."""
-    va = vertex_areas(np.column_stack([uv, np.zeros(len(uv))]), F)
+    va = uv_vertex_areas(F, uv)
     va = va / va.sum()
     nu = nu / nu.sum()
     return float(np.mean(np.abs(np.log(np.maximum(va, 1e-300) / nu))))
@@ -188,7 +188,7 @@ class MeasurePreservingSolver:
             return nu
         if uv is None:
             raise ParameterizationError("blend > 0 needs the starting map uv")
-        ua = np.abs(vertex_areas(np.column_stack([np.asarray(uv, np.float64), np.zeros(n)]), self.F))
+        ua = uv_vertex_areas(self.F, uv)
         pos = ua > 0
         # a vertex whose starting cells all collapsed: the smallest positive area, not zero
         ua = np.where(pos, ua, ua[pos].min() if pos.any() else 1.0)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..mesh.core import signed_uv_areas, vertex_adjacency, vertex_areas
+from ..mesh.core import signed_uv_areas, uv_vertex_areas, vertex_adjacency
 
 __all__ = ["untangle", "area_loss"]
 
@@ -17,7 +17,7 @@ def area_loss(F: np.ndarray, uv: np.ndarray, target: np.ndarray) -> float:
     """Mean |log(a_i / t_i)| of the vertices' areas (⅓ of the adjacent triangles' absolute
     areas, normalised) in ``uv`` against those in ``target``."""
     def va(p):
-        v = vertex_areas(np.column_stack([p, np.zeros(len(p))]), F)
+        v = uv_vertex_areas(F, p)
         return v / max(v.sum(), 1e-300)
 
     a, t = va(uv), va(target)
