@@ -35,3 +35,18 @@ def angle_defects(V: np.ndarray, F: np.ndarray) -> np.ndarray:
         ang[:, k] = np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), (u * w).sum(1))
     s = np.bincount(F.ravel(), weights=ang.ravel(), minlength=len(V))
     return 2 * np.pi - s
+
+
+def planar_grid(n: int = 21):
+    """``(F, uv, inner)``: an n×n grid of the unit square, counter-clockwise triangles, and the
+    mask of its interior vertices."""
+    from geoface.mesh.core import boundary_loops, signed_uv_areas
+    from geoface.synth import square_grid
+
+    V, F = square_grid(n)
+    uv = V[:, :2].copy()
+    if signed_uv_areas(F, uv).sum() < 0:
+        F = F[:, ::-1].copy()
+    inner = np.ones(len(uv), bool)
+    inner[boundary_loops(F)[0]] = False
+    return F, uv, inner

@@ -4,24 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from geoface.mesh.core import boundary_loops, signed_uv_areas
+from geoface.mesh.core import signed_uv_areas
 from geoface.param.foldfree import UNTANGLE_GAIN, convex_combination_map
 from geoface.param.untangle import area_loss as _area_loss, untangle
-from geoface.synth import square_grid
-
-
-def _grid(n=21):
-    V, F = square_grid(n)
-    uv = V[:, :2].copy()
-    if signed_uv_areas(F, uv).sum() < 0:
-        F = F[:, ::-1].copy()
-    inner = np.ones(len(uv), bool)
-    inner[boundary_loops(F)[0]] = False
-    return F, uv, inner
+from tests.helpers import planar_grid
 
 
 def test_a_map_without_folds_is_kept_as_it_is():
-    F, uv, inner = _grid()
+    F, uv, inner = planar_grid()
     out, ok = untangle(F, uv, inner)
     assert ok and np.array_equal(out, uv)
     r = convex_combination_map(F, uv, uv)
@@ -32,7 +22,7 @@ def test_a_mirrored_patch_untangles_locally_and_keeps_its_area():
     """A patch of the grid mirrored in place (every triangle of it flipped, its rim folded): the
     untangled map is fold-free, vertices far from the patch do not move, and no triangle is
     squeezed (each keeps a good share of the grid's own area)."""
-    F, uv, inner = _grid()
+    F, uv, inner = planar_grid()
     h = 1.0 / 20
     patch = (np.abs(uv[:, 0] - 0.5) < 3.5 * h) & (np.abs(uv[:, 1] - 0.5) < 3.5 * h)
     target = uv.copy()

@@ -5,19 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from geoface.mesh.core import boundary_loops, signed_uv_areas, vertex_areas
+from geoface.mesh.core import signed_uv_areas, vertex_areas
 from geoface.param.relax import _max_step, relax_map, triangle_targets
-from geoface.synth import square_grid
-
-
-def _grid(n=21):
-    V, F = square_grid(n)
-    uv = V[:, :2].copy()
-    if signed_uv_areas(F, uv).sum() < 0:
-        F = F[:, ::-1].copy()
-    inner = np.ones(len(uv), bool)
-    inner[boundary_loops(F)[0]] = False
-    return F, uv, inner
+from tests.helpers import planar_grid
 
 
 def _log_area_error(F, x, T):
@@ -41,11 +31,11 @@ def test_the_step_limit_is_where_a_triangle_first_reaches_zero_area():
     assert abs(signed_uv_areas(F, y)[0]) < 1e-12 and a > 0
 
 
-def test_a_squeezed_column_relaxes_back_to_the_grid():
+def test_a_squeezed_column_relaxes_back_to_theplanar_grid():
     """The target is the uniform grid; the start pulls the middle of the square together (along
     rays from the centre, r -> 0.45 (r / 0.45)^1.6: fold-free, the centre's triangles a tenth
     of their area). The relaxed map is back on the grid."""
-    F, uv, inner = _grid()
+    F, uv, inner = planar_grid()
     V3 = np.column_stack([uv, np.zeros(len(uv))])
     T = triangle_targets(V3, F, vertex_areas(V3, F))
     d = uv - 0.5
@@ -63,7 +53,7 @@ def test_a_squeezed_column_relaxes_back_to_the_grid():
 def test_a_folded_target_is_approached_without_a_fold():
     """The target mirrors a patch (60+ triangles folded). From a fold-free start the relaxed map
     never folds, keeps every triangle open, and gets far closer to the target areas than the start."""
-    F, uv, inner = _grid()
+    F, uv, inner = planar_grid()
     V3 = np.column_stack([uv, np.zeros(len(uv))])
     T = triangle_targets(V3, F, vertex_areas(V3, F))
     h = 1.0 / 20
@@ -83,7 +73,7 @@ def test_a_folded_target_is_approached_without_a_fold():
 
 
 def test_a_folded_start_is_returned_unchanged():
-    F, uv, inner = _grid(6)
+    F, uv, inner = planar_grid(6)
     V3 = np.column_stack([uv, np.zeros(len(uv))])
     x0 = uv.copy()
     x0[inner.nonzero()[0][0]] += [0.6, 0.6]  # folds its triangles
