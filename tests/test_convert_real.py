@@ -36,12 +36,10 @@ def test_real_mesh_converts_with_ot_and_no_fold(tmp_path, name):
     m = convert(mesh, tmp_path / "out", ConvertOptions(res=64, augment=2, roi="face"), quiet=True)
     _check_sets(m, 2)
     assert m["sets"][0]["corners"] != m["sets"][1]["corners"]
-    # 64x64 samples of a whole scan: coarse, but every part of the surface is reached
-    # (a whole body: its limbs squeeze into thin strips of the square, far from the face, by an
-    # amount that depends on where the corners fall)
-    bound = 0.2 if name == "male02.obj" else 0.08
+    # 64x64 samples of a whole scan: coarse, but every part of the surface is reached (the full
+    # body male02 too, its limbs no longer squeezed into strips: 1.9-2.0% at 64^2)
     for st in m["sets"]:
-        assert st["reconstruction"]["hausdorff"] < bound, (name, st["reconstruction"])
+        assert st["reconstruction"]["hausdorff"] < 0.08, (name, st["reconstruction"])
     meta = json.loads((tmp_path / "out" / "aug0" / "meta.json").read_text())
     assert meta["version"] == 2 and meta["align_corners"] is True
     # the face cone and the upright corners look where the scan faces, whichever way that is

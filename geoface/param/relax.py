@@ -33,6 +33,9 @@ __all__ = ["relax_map", "triangle_targets"]
 KAPPA = 0.1
 #: the fraction of the step to a zero area that a step may take
 MAX_FRACTION = 0.9
+#: stop once the last STALL_WINDOW steps took off less than STALL_GAIN of the energy
+STALL_WINDOW = 10
+STALL_GAIN = 0.01
 
 
 def triangle_targets(V: np.ndarray, F: np.ndarray, nu: np.ndarray) -> np.ndarray:
@@ -91,7 +94,7 @@ def _area_jacobian(F, x, orient, col):
 
 
 def relax_map(F, x0, target, T, *, movable=None, orient: float = 1.0, kappa: float = KAPPA,
-              max_iterations: int = 200, rel_tol: float = 1e-6, linear_solver: str = "auto") -> tuple[np.ndarray, dict]:
+              max_iterations: int = 150, rel_tol: float = 1e-6, linear_solver: str = "auto") -> tuple[np.ndarray, dict]:
     """Relax the fold-free map ``x0`` towards the centroid map ``target`` (module docs).
 
     Parameters
@@ -134,6 +137,7 @@ def relax_map(F, x0, target, T, *, movable=None, orient: float = 1.0, kappa: flo
 
     e = energy(x, A)
     info["energy_before"] = e
+    history = [e]
     for it in range(1, max_iterations + 1):
         J = _area_jacobian(F, x, orient, col)
         g = J.T @ (1.0 - T / A) + kappa * (x[idx] - c[idx]).ravel()
@@ -165,9 +169,12 @@ def relax_map(F, x0, target, T, *, movable=None, orient: float = 1.0, kappa: flo
             break
         de = e - en
         x, A, e = xn, An, en
+        history.append(e)
         info["iterations"] = it
         if de <= rel_tol * max(abs(e), 1e-300):
             break
+        if len(history) > STALL_WINDOW and history[-STALL_WINDOW - 1] - e < STALL_GAIN * history[-STALL_WINDOW - 1]:
+            break  # crawling: steps held short by triangles about to close gain little more
     info["energy_after"] = e
     if not (orient * signed_uv_areas(F, x) > 0).all():  # cannot happen with the step limit; checked anyway
         return np.array(x0, np.float64, copy=True), info
