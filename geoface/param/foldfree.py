@@ -79,7 +79,7 @@ LOCAL_SHARE = 0.3
 #: with ``refine`` (the untangled map's slivers relaxed towards the masses, as the OT step does),
 #: the untangled map is tried once the whole solve loses more than this of the wanted areas and
 #: kept whenever it loses less. The 134K bust's whole solve loses 0.12 (kept: its Hausdorff is
-#: 0.11% against 0.34% relaxed); male02's sets lose 0.43–1.04 (relaxed: 0.28–0.54% against 0.59–3.3%)
+#: 0.11% against 0.34% relaxed); male02's sets lose 0.43–1.04 (relaxed: 0.28–0.60% against 0.59–3.3%)
 REFINED_GAIN = 1.0
 REFINED_MIN_LOSS = 0.3
 
