@@ -61,9 +61,6 @@ from .ot import OTResult, semi_discrete_ot
 DIRECT_STALL = 4
 #: solves started again from the centroids the last one reached, when it stopped short
 MAX_RESTARTS = 4
-#: relax an untangled fold-free map towards the masses (geoface.param.relax); False: the
-#: fold-free step as it was (untangled maps kept only when the whole solve loses 3x more)
-RELAX = True
 
 __all__ = ["MeasureMapResult", "MeasurePreservingSolver", "measure_preserving_map", "signed_uv_areas", "area_error"]
 
@@ -269,7 +266,7 @@ class MeasurePreservingSolver:
                           "the fold-free step separates them)", GeofaceWarning, stacklevel=2)
         result = None
         if ot is not None:
-            result = _from_centroids(F, ot, bnd, sides, orient, sites_uv, fold_free, quiet, V)
+            result = _from_centroids(F, V, ot, bnd, sides, orient, sites_uv, fold_free, quiet)
         if bal is not None and (result is None or not ot.converged):
             # OT did not reach tol from any sites: the balanced embedding if it is closer
             bal_res = _max_rel_area_error(F, bal.uv, nu)
@@ -332,7 +329,7 @@ def _max_rel_area_error(F, uv, nu) -> float:
     return float(np.max(np.abs(np.expm1(log_area_ratio(F, uv, nu)))))
 
 
-def _from_centroids(F, ot, bnd, sides, orient, reference, fold_free, quiet, V=None):
+def _from_centroids(F, V, ot, bnd, sides, orient, reference, fold_free, quiet):
     """The centroid map snapped to the sides, its folds replaced by the fold-free step (whose
     reference, around the folds, is the sites' own fold-free map); an untangled map is relaxed
     towards the centroids' areas (:mod:`geoface.param.relax`)."""
@@ -341,19 +338,17 @@ def _from_centroids(F, ot, bnd, sides, orient, reference, fold_free, quiet, V=No
     err_before = area_error(F, new, ot.nu)
     ff = None
     if fold_free and flipped_before:
-        refine = None
-        if RELAX and V is not None:
-            from .relax import relax_map, triangle_targets
+        from .relax import relax_map, triangle_targets
 
-            inner = np.ones(len(new), bool)
-            inner[bnd] = False
-            T = triangle_targets(V, F, ot.nu)
+        inner = np.ones(len(new), bool)
+        inner[bnd] = False
+        T = triangle_targets(V, F, ot.nu)
 
-            def refine(x):
-                xr, info = relax_map(F, x, new, T, movable=inner, orient=orient)
-                logging.getLogger("geoface").debug("relax: %d iterations, energy %.3g -> %.3g", info["iterations"],
-                                                   info["energy_before"] or 0.0, info["energy_after"] or 0.0)
-                return xr
+        def refine(x):
+            xr, info = relax_map(F, x, new, T, movable=inner, orient=orient)
+            logging.getLogger("geoface").debug("relax: %d iterations, energy %.3g -> %.3g", info["iterations"],
+                                               info["energy_before"] or 0.0, info["energy_after"] or 0.0)
+            return xr
         try:
             ff = convex_combination_map(F, new, reference, refine=refine, score=lambda x: area_error(F, x, ot.nu))
         except ParameterizationError:  # rounding on near-degenerate triangles: the sites' map, which cannot fold
