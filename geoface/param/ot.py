@@ -51,6 +51,15 @@ STAGE_LOG_STEP = 1.0
 STAGE_TOL = 1.0
 #: steps of iterative refinement of each Newton direction
 REFINEMENT_STEPS = 2
+#: inexact Newton: conjugate gradients preconditioned by the last factorisation, from this many
+#: sites (below, a factorisation costs little more than a few preconditioner applications); they
+#: stop when the relative linear residual is PCG_RTOL of the Newton residual, or give up after
+#: PCG_MAX_ITERATIONS (then the Hessian is factorised anew)
+REUSE_FACTOR = True
+REUSE_MIN_SITES = 20000
+PCG_RTOL = 1e-3
+PCG_MAX_ITERATIONS = 20
+PCG_REFACTOR_AFTER = 12
 
 
 @dataclass(frozen=True)
@@ -78,6 +87,8 @@ class OTResult:
     history: list = field(default_factory=list)
     backend: str = "cgal"
     gradient_steps: int = 0
+    factorizations: int = 0
+    pcg_iterations: int = 0
     failure: str = ""
     stage_reached: int = 0
 
@@ -106,6 +117,39 @@ def transport_hessian(points: np.ndarray, pd: PowerDiagram, weights: np.ndarray 
     H = sp.coo_matrix((np.concatenate([-c, -c]), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))), shape=(n, n)).tocsr()
     H = H + sp.diags(np.asarray(-H.sum(1)).ravel())
     return H.tocsr()
+
+
+def _pcg(solver, e, c, free, g, target):
+    """``(d, iterations)``: the Newton direction (``H d = -g`` on the free sites, ``d = 0`` at the
+    pinned one) by conjugate gradients preconditioned with ``solver``'s last factorisation, or
+    None when they do not converge in :data:`PCG_MAX_ITERATIONS`.  Residuals are measured
+    relative to the target masses, as the damping rule measures them; ``H`` is applied to
+    differences (:func:`_apply_hessian`), which keeps clustered sites' precision."""
+    n = len(g)
+    x = np.zeros(n)
+    r = -g[free]
+    tf = target[free]
+    stop = PCG_RTOL * float(np.linalg.norm(g / target))
+    z = solver.resolve(r)
+    p = z.copy()
+    rz = float(r @ z)
+    for it in range(PCG_MAX_ITERATIONS):
+        q = np.zeros(n)
+        q[free] = p
+        Ap = _apply_hessian(e, c, q)[free]
+        pAp = float(p @ Ap)
+        if not (pAp > 0) or not np.isfinite(pAp):
+            return None, it + 1
+        alpha = rz / pAp
+        x[free] += alpha * p
+        r -= alpha * Ap
+        if float(np.linalg.norm(r / tf)) <= stop:
+            return x, it + 1
+        z = solver.resolve(r)
+        rz_new = float(r @ z)
+        p = z + (rz_new / rz) * p
+        rz = rz_new
+    return None, PCG_MAX_ITERATIONS
 
 
 def _rel_residual(area, nu):
@@ -197,7 +241,13 @@ def semi_discrete_ot(
     if (pd.area <= 0).any():
         raise ParameterizationError(f"{int((pd.area <= 0).sum())} sites have empty cells at the start even after merging "
                                     f"coincident sites ({built} triangulation)")
-    solver = SPDSolver(linear_solver, ordering="amd")
+    solver = SPDSolver(linear_solver, ordering="amd", mode="simplicial")
+    # from REUSE_MIN_SITES sites a Newton direction is first sought by conjugate gradients
+    # preconditioned with the last factorisation (far cheaper than a new one when the
+    # Hessian has changed little); a new factorisation when they do not converge
+    reuse = REUSE_FACTOR and len(Pr) >= REUSE_MIN_SITES
+    factorizations = pcg_iterations = 0
+    refactor = False
     # diagrams are updated by flips from the last one until CGAL has to build one anew (a stuck
     # update: cells vanish or appear, as they then keep doing; or a problem too small for flips)
     flips = [True]
@@ -226,14 +276,22 @@ def semi_discrete_ot(
         while res > stol and iterations < max_iterations:
             c_e = _hessian_weights(Pr, pd)
             H = transport_hessian(Pr, pd, c_e)
-            d = np.zeros(len(Pr))
-            Hf = H[free][:, free]
-            d[free] = solver.solve(Hf, -g[free])
-            # iterative refinement: sites 1e-10 apart need the differences of d to ~1e-20
-            # while d itself is ~1e-9 (a weakly coupled cluster moves as one)
-            for _ in range(REFINEMENT_STEPS):
-                r = -g - _apply_hessian(pd.edges, c_e, d)
-                d[free] += solver.resolve(r[free])
+            d = None
+            if reuse and factorizations and not refactor:
+                d, its = _pcg(solver, pd.edges, c_e, free, g, target)
+                pcg_iterations += its
+                # a slow convergence says the Hessian has drifted: factorise at the next step
+                refactor = d is None or its > PCG_REFACTOR_AFTER
+            if d is None:
+                refactor = False
+                d = np.zeros(len(Pr))
+                d[free] = solver.solve(H[free][:, free], -g[free])
+                # iterative refinement: sites 1e-10 apart need the differences of d to ~1e-20
+                # while d itself is ~1e-9 (a weakly coupled cluster moves as one)
+                for _ in range(REFINEMENT_STEPS):
+                    r = -g - _apply_hessian(pd.edges, c_e, d)
+                    d[free] += solver.resolve(r[free])
+                factorizations += 1
             d -= d.mean()
             gn = float(np.linalg.norm(g / target))
             step = _damped_step(Pr, hr, d, pd, target, eps0, gn, min_step, backend, flips)
@@ -285,6 +343,8 @@ def semi_discrete_ot(
         history=history,
         backend=built,
         gradient_steps=gradient_steps,
+        factorizations=factorizations,
+        pcg_iterations=pcg_iterations,
         failure=failure,
         stage_reached=stage_reached,
     )

@@ -160,6 +160,10 @@ def _lower_envelope(slope, icept):
 #: many sites; below, and whenever flips get stuck, CGAL triangulates anew (see docs/benchmarks.md)
 FLIP_MIN_SITES = 20000
 
+#: sum the cells' interior pieces with the compiled extension when it has them (same arithmetic
+#: as the NumPy path, 10-20x faster; False forces NumPy, for tests)
+COMPILED_CELLS = True
+
 
 def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = None, backend: str = "auto") -> PowerDiagram:
     """Power diagram of ``points (n, 2)`` with ``weights (n,)`` clipped to ``[0, 1]^2``.
@@ -207,7 +211,10 @@ def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = Non
     return _cells(X, w, Xa, n, tri)
 
 
-def _cells(X, w, Xa, n, tri: Triangulation) -> PowerDiagram:
+def _interior(X, Xa, n, tri: Triangulation):
+    """Area and first moment (relative to each site) of the cells' interior boundary pieces,
+    and the shared edges with their lengths: the dual edges clipped to the square.  NumPy;
+    :func:`geoface.param.regular.power_cells` is the same arithmetic compiled."""
     simp, nb, cen = tri.T, tri.N, tri.cen
     # dual edges: triangle t and its neighbour s opposite vertex k
     t_idx = np.repeat(np.arange(len(simp)), 3)
@@ -233,23 +240,35 @@ def _cells(X, w, Xa, n, tri: Triangulation) -> PowerDiagram:
     qa2 = np.where(flip[:, None], qb, qa)
     qb2 = np.where(flip[:, None], qa, qb)
     seg_len = np.linalg.norm(qb2 - qa2, axis=1)
-
     area = np.zeros(n)
     mom = np.zeros((n, 2))
+    _shoelace(X, area, mom, vi, qa2, qb2)
+    _shoelace(X, area, mom, vj, qb2, qa2)
+    # (dual edges of cocircular quads have round-off length: no neighbours)
+    both = (vi < n) & (vj < n) & (seg_len > 1e-15)
+    e = np.sort(np.column_stack([vi[both], vj[both]]), axis=1)
+    return area, mom, e, seg_len[both]
 
-    def add(cell, pa, pb):
-        keep = cell < n
-        cell, pa, pb = cell[keep], pa[keep], pb[keep]
-        r = X[cell]
-        ra, rb = pa - r, pb - r
-        cr = ra[:, 0] * rb[:, 1] - ra[:, 1] * rb[:, 0]
-        area[:] += np.bincount(cell, 0.5 * cr, minlength=n)
-        s = cr / 6.0
-        mom[:, 0] += np.bincount(cell, s * (ra[:, 0] + rb[:, 0]), minlength=n)
-        mom[:, 1] += np.bincount(cell, s * (ra[:, 1] + rb[:, 1]), minlength=n)
 
-    add(vi, qa2, qb2)
-    add(vj, qb2, qa2)
+def _shoelace(X, area, mom, cell, pa, pb):
+    """Add the directed pieces ``pa -> pb`` of cells ``cell`` (guards skipped) to ``area`` and
+    ``mom``, relative to the sites ``X``."""
+    n = len(area)
+    keep = cell < n
+    cell, pa, pb = cell[keep], pa[keep], pb[keep]
+    r = X[cell]
+    ra, rb = pa - r, pb - r
+    cr = ra[:, 0] * rb[:, 1] - ra[:, 1] * rb[:, 0]
+    area += np.bincount(cell, 0.5 * cr, minlength=n)
+    s = cr / 6.0
+    mom[:, 0] += np.bincount(cell, s * (ra[:, 0] + rb[:, 0]), minlength=n)
+    mom[:, 1] += np.bincount(cell, s * (ra[:, 1] + rb[:, 1]), minlength=n)
+
+
+def _cells(X, w, Xa, n, tri: Triangulation) -> PowerDiagram:
+    simp, cen = tri.T, tri.cen
+    native = regular.power_cells(n, Xa, tri.T, tri.N, cen) if COMPILED_CELLS else None
+    area, mom, e, L = native if native is not None else _interior(X, Xa, n, tri)
     # the square's sides: sites with a power centre on or outside the square can reach them
     near = ~(np.abs(cen) < 0.5 - 1e-12).all(1)
     cand = np.unique(simp[near].ravel())
@@ -266,17 +285,13 @@ def _cells(X, w, Xa, n, tri: Triangulation) -> PowerDiagram:
         pieces_cell.append(cand[owners])
         pieces_a.append(A0 + br[:-1, None] * dvec)
         pieces_b.append(A0 + br[1:, None] * dvec)
-    add(np.concatenate(pieces_cell), np.concatenate(pieces_a), np.concatenate(pieces_b))
+    _shoelace(X, area, mom, np.concatenate(pieces_cell), np.concatenate(pieces_a), np.concatenate(pieces_b))
 
     area = np.maximum(area, 0.0)
     cent = X.copy()
     ok = area > 0
     cent[ok] = X[ok] + mom[ok] / area[ok, None]
     # shared edges between real sites (merge duplicates from triangulated coplanar facets)
-    # (dual edges of cocircular quads have round-off length: no neighbours)
-    both = (vi < n) & (vj < n) & (seg_len > 1e-15)
-    e = np.sort(np.column_stack([vi[both], vj[both]]), axis=1)
-    L = seg_len[both]
     if len(e):
         key = e[:, 0] * np.int64(n) + e[:, 1]
         uk, inv = np.unique(key, return_inverse=True)

@@ -120,14 +120,16 @@ def cgal_triangulation(X, Xa, wa, n) -> Triangulation:
     counter-clockwise and non-degenerate, hidden sites are simply absent."""
     T, N = regular.regular_triangulation(Xa, wa)
     with np.errstate(divide="ignore", invalid="ignore"):
-        cen = _power_centres(Xa, wa, T)
+        compiled = regular.power_centres(Xa, wa, T)
+        cen, n_flat = compiled if compiled is not None else (_power_centres(Xa, wa, T), None)
     flat = ~np.isfinite(cen).all(1)
     if flat.any():  # a triangle too thin for double precision: extended precision
         cen[flat] = _power_centres(Xa.astype(np.longdouble), wa.astype(np.longdouble), T[flat]).astype(np.float64)
         cen[~np.isfinite(cen).all(1)] = Xa[T[~np.isfinite(cen).all(1), 0]]
-    o = _orient(Xa, T[:, 0], T[:, 1], T[:, 2])
+    if n_flat is None:
+        n_flat = int((_orient(Xa, T[:, 0], T[:, 1], T[:, 2]) <= 0).sum())
     present = np.bincount(T.ravel(), minlength=n + 4)[:n] > 0
-    updatable = bool(present.all() and (o > 0).all())
+    updatable = bool(present.all() and n_flat == 0)
     return Triangulation(X, T, N, cen, updatable, "cgal")
 
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import GeofaceError, ParameterizationError
 
-__all__ = ["available", "require", "regular_triangulation", "INSTALL_HINT"]
+__all__ = ["available", "require", "regular_triangulation", "power_cells", "power_centres", "INSTALL_HINT"]
 
 INSTALL_HINT = ("install CGAL's headers (Debian/Ubuntu: apt-get install libcgal-dev; conda: cgal-cpp) and rebuild "
                 "geoface (make install, or pip install -e .)")
@@ -52,6 +52,12 @@ def _lib():
             lib.geoface_rt2.restype = ctypes.c_int64
             lib.geoface_rt2.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64,
                                         ctypes.c_void_p, ctypes.c_void_p]
+            if hasattr(lib, "geoface_power_cells"):  # absent from extensions built before it
+                lib.geoface_power_cells.restype = ctypes.c_int64
+                lib.geoface_power_cells.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64] + [ctypes.c_void_p] * 7
+            if hasattr(lib, "geoface_power_centres"):
+                lib.geoface_power_centres.restype = ctypes.c_int64
+                lib.geoface_power_centres.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 4
             return lib
     return None
 
@@ -95,3 +101,50 @@ def regular_triangulation(X, w) -> tuple[np.ndarray, np.ndarray]:
     if m < 0:  # cannot happen (a planar triangulation has at most 2n - 5 triangles); be safe
         raise ParameterizationError(f"regular triangulation has {-m} triangles, more than {cap}")
     return T[:m].copy(), N[:m].copy()
+
+
+def power_cells(n: int, Xa, T, N, cen):
+    """The interior part of power cells clipped to ``[-0.5, 0.5]^2``, compiled: the dual edges of
+    the regular triangulation ``T``, ``N`` (power centres ``cen``) of ``Xa`` (the ``n`` real
+    sites, then guards), clipped and summed by the shoelace formula relative to each site.
+
+    Returns ``(area (n,), moment (n, 2), edges (k, 2), lengths (k,))`` (the square's sides
+    not yet added; moments relative to the sites), or None when the extension lacks it; the
+    same arithmetic as :func:`geoface.param.power._cells`' NumPy path.
+    """
+    lib = _lib()
+    if lib is None or not hasattr(lib, "geoface_power_cells"):
+        return None
+    Xa = np.ascontiguousarray(Xa, np.float64)
+    T = np.ascontiguousarray(T, np.int64)
+    N = np.ascontiguousarray(N, np.int64)
+    cen = np.ascontiguousarray(cen, np.float64)
+    m = len(T)
+    if T.shape != (m, 3) or N.shape != (m, 3) or cen.shape != (m, 2) or Xa.ndim != 2 or Xa.shape[1] != 2 or len(Xa) < n:
+        raise ParameterizationError("power_cells needs Xa (>= n, 2), T and N (m, 3), cen (m, 2)")
+    area = np.zeros(n)
+    mom = np.zeros((n, 2))
+    cap = (3 * m) // 2 + 3
+    E = np.empty((cap, 2), np.int64)
+    L = np.empty(cap)
+    k = lib.geoface_power_cells(n, Xa.ctypes.data, m, T.ctypes.data, N.ctypes.data, cen.ctypes.data,
+                                area.ctypes.data, mom.ctypes.data, E.ctypes.data, L.ctypes.data)
+    return area, mom, E[:k], L[:k]
+
+
+def power_centres(Xa, wa, T):
+    """Power centres of the triangles ``T (m, 3)`` of weighted points ``Xa``, ``wa``, compiled
+    (:func:`geoface.param.power_triangulation._power_centres`' arithmetic: NaN or infinity
+    for a triangle too flat for double precision), and how many triangles have a
+    floating-point signed area <= 0; None when the extension lacks it."""
+    lib = _lib()
+    if lib is None or not hasattr(lib, "geoface_power_centres"):
+        return None
+    Xa = np.ascontiguousarray(Xa, np.float64)
+    wa = np.ascontiguousarray(wa, np.float64)
+    T = np.ascontiguousarray(T, np.int64)
+    if Xa.ndim != 2 or Xa.shape[1] != 2 or wa.shape != (len(Xa),) or T.ndim != 2 or T.shape[1] != 3:
+        raise ParameterizationError("power_centres needs Xa (n, 2), wa (n,), T (m, 3)")
+    cen = np.empty((len(T), 2))
+    flat = lib.geoface_power_centres(len(T), Xa.ctypes.data, wa.ctypes.data, T.ctypes.data, cen.ctypes.data)
+    return cen, int(flat)

@@ -97,6 +97,50 @@ def test_flip_update_equals_fresh_hull(layout, monkeypatch):
     assert updated >= 2
 
 
+@pytest.mark.parametrize("layout", ["random", "grid", "clustered", "outside"])
+def test_compiled_cells_are_the_numpy_cells(layout, monkeypatch):
+    """The compiled cell sums and power centres (CGAL extension) give the NumPy path's
+    areas, centroids and shared edges to round-off, on sites inside, on and outside the square."""
+    from geoface.param import power, regular
+    from geoface.param.power_triangulation import _orient, _power_centres
+
+    if not regular.available() or regular.power_cells(1, np.zeros((1, 2)), np.zeros((0, 3)), np.zeros((0, 3)),
+                                                      np.zeros((0, 2))) is None:
+        pytest.skip("geoface's CGAL extension is not built")
+    rng = np.random.default_rng(11)
+    if layout == "random":
+        P = rng.random((3000, 2))
+    elif layout == "grid":
+        P = grid_points(30)
+    elif layout == "clustered":
+        P = np.concatenate([rng.random((1000, 2)), 0.3 + 1e-6 * rng.random((300, 2))])
+    else:
+        P = rng.random((500, 2)) * 1.4 - 0.2
+    nn = cKDTree(P).query(P, 2)[0][:, 1]
+    w = 0.3 * nn**2 * rng.normal(0, 1, len(P))
+    a = power_diagram(P, w, backend="cgal")
+    monkeypatch.setattr(power, "COMPILED_CELLS", False)
+    b = power_diagram(P, w, backend="cgal")
+    assert abs(a.area.sum() - 1) < 1e-12
+    assert np.abs(a.area - b.area).max() < 1e-15
+    assert np.abs(a.centroid - b.centroid).max() < 1e-12
+    assert np.array_equal(a.edges, b.edges) and np.abs(a.edge_length - b.edge_length).max() < 1e-14
+    # power centres of arbitrary triangles, flat and clockwise ones included
+    X = rng.random((200, 2))
+    X[7] = X[3]  # a repeated vertex: a flat triangle
+    wa = rng.normal(0, 1e-3, 200)
+    T = rng.integers(0, 200, (1000, 3))
+    T[0] = [3, 7, 9]
+    cen, flat = regular.power_centres(X, wa, T)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ref = _power_centres(X, wa, T)
+        o = _orient(X, T[:, 0], T[:, 1], T[:, 2])
+    ok = np.isfinite(ref).all(1)
+    assert np.array_equal(np.isfinite(cen).all(1), ok) and not ok[0]
+    assert np.abs(cen[ok] - ref[ok]).max() < 1e-12 * max(1.0, np.abs(ref[ok]).max())
+    assert flat == int((o <= 0).sum()) > 400
+
+
 def test_small_problems_triangulate_anew_instead_of_flipping():
     """Below ``FLIP_MIN_SITES`` sites CGAL builds every diagram anew (cheaper than flips there):
     the same cells as the flip update, and OT takes the same steps either way."""
@@ -207,6 +251,31 @@ def test_nonuniform_target_met():
     a, _ = brute_force_cells(P, ot.h, res=600)
     assert np.abs(a - nu).sum() < 0.02
     assert abs(ot.h.sum()) < 1e-9
+
+
+@pytest.mark.parametrize("layout", ["random", "crowded"])
+def test_inexact_newton_reuses_factorisations(layout, monkeypatch):
+    """Newton directions by conjugate gradients preconditioned with an earlier factorisation
+    (from 20K sites by default) meet the same tolerance as exact Newton, with fewer
+    factorisations than steps, also where sites crowd 1e-6 apart (their differences need the
+    Hessian applied to differences)."""
+    from geoface.param import ot as ot_mod
+
+    rng = np.random.default_rng(5)
+    if layout == "random":
+        P = rng.random((3000, 2))
+        nu = rng.uniform(0.2, 5.0, 3000)
+    else:
+        P = np.concatenate([rng.random((1500, 2)), 0.5 + 1e-6 * rng.random((100, 2))])
+        nu = np.r_[np.ones(1500), np.full(100, 4.0)]
+    exact = semi_discrete_ot(P, nu, tol=1e-6)
+    assert exact.factorizations == exact.iterations and exact.pcg_iterations == 0
+    monkeypatch.setattr(ot_mod, "REUSE_MIN_SITES", 0)
+    inexact = semi_discrete_ot(P, nu, tol=1e-6)
+    assert inexact.converged and inexact.residual <= 1e-6
+    assert inexact.pcg_iterations > 0 and inexact.factorizations < inexact.iterations
+    assert np.abs(inexact.area - exact.area).max() <= 2e-6 * exact.nu.max()
+    assert np.abs(inexact.centroid - exact.centroid).max() < 1e-6
 
 
 def test_clustered_points_with_huge_mass_ratio():

@@ -8,8 +8,11 @@
 #include <CGAL/Triangulation_face_base_with_info_2.h>
 #include <CGAL/Triangulation_vertex_base_with_info_2.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <exception>
+#include <limits>
 #include <utility>
 #include <vector>
 
@@ -59,5 +62,96 @@ int64_t geoface_rt2(int64_t n, const double* xy, const double* w, int64_t cap, i
   } catch (...) {
     return -1;
   }
+}
+
+// The interior part of a power diagram's cells clipped to the square [-0.5, 0.5]^2, from its
+// regular triangulation (T, N: m x 3 as geoface_rt2 writes them; cen: m x 2 power centres;
+// xy: the n real sites, re-centred, followed by the guard sites).  Each dual edge (the segment
+// between the power centres of two adjacent triangles) is clipped to the square (Liang-Barsky)
+// and oriented counter-clockwise around each of its two cells; the shoelace formula, taken
+// relative to the site, adds its part of the cell's area and first moment.  Edges between two
+// real sites with a clipped length above 1e-15 are written to E (k x 2, i < j) and L (k).
+// area (n) and mom (n x 2) are accumulated into (the caller zeroes them).  Returns k.
+// Same arithmetic as geoface.param.power._cells (its NumPy fallback).
+int64_t geoface_power_cells(int64_t n, const double* xy, int64_t m, const int64_t* T, const int64_t* N,
+                            const double* cen, double* area, double* mom, int64_t* E, double* L) {
+  const double lo = -0.5, hi = 0.5;
+  const double inf = std::numeric_limits<double>::infinity();
+  int64_t k_out = 0;
+  auto add = [&](int64_t c, double ax, double ay, double bx, double by) {
+    if (c >= n) return;
+    const double rx = xy[2 * c], ry = xy[2 * c + 1];
+    const double rax = ax - rx, ray = ay - ry, rbx = bx - rx, rby = by - ry;
+    const double cr = rax * rby - ray * rbx;
+    area[c] += 0.5 * cr;
+    const double s = cr / 6.0;
+    mom[2 * c] += s * (rax + rbx);
+    mom[2 * c + 1] += s * (ray + rby);
+  };
+  for (int64_t t = 0; t < m; ++t) {
+    for (int k = 0; k < 3; ++k) {
+      const int64_t s = N[3 * t + k];
+      if (!(t < s)) continue;
+      const int64_t vi = T[3 * t + (k + 1) % 3], vj = T[3 * t + (k + 2) % 3];
+      if (vi >= n && vj >= n) continue;
+      const double a[2] = {cen[2 * t], cen[2 * t + 1]};
+      const double d[2] = {cen[2 * s] - a[0], cen[2 * s + 1] - a[1]};
+      double t0 = 0.0, t1 = 1.0;
+      for (int c = 0; c < 2; ++c) {
+        double tmin, tmax;
+        if (d[c] == 0.0) {
+          const bool inside = a[c] >= lo && a[c] <= hi;
+          tmin = inside ? -inf : inf;
+          tmax = inside ? inf : -inf;
+        } else {
+          const double ta = (lo - a[c]) / d[c], tb = (hi - a[c]) / d[c];
+          tmin = std::min(ta, tb);
+          tmax = std::max(ta, tb);
+        }
+        t0 = std::max(t0, tmin);
+        t1 = std::min(t1, tmax);
+      }
+      if (!(t1 > t0)) continue;
+      double qax = a[0] + t0 * d[0], qay = a[1] + t0 * d[1];
+      double qbx = a[0] + t1 * d[0], qby = a[1] + t1 * d[1];
+      const double px = xy[2 * vj] - xy[2 * vi], py = xy[2 * vj + 1] - xy[2 * vi + 1];
+      if ((qbx - qax) * py - (qby - qay) * px > 0) {
+        std::swap(qax, qbx);
+        std::swap(qay, qby);
+      }
+      add(vi, qax, qay, qbx, qby);
+      add(vj, qbx, qby, qax, qay);
+      const double len = std::hypot(qbx - qax, qby - qay);
+      if (vi < n && vj < n && len > 1e-15) {
+        E[2 * k_out] = std::min(vi, vj);
+        E[2 * k_out + 1] = std::max(vi, vj);
+        L[k_out] = len;
+        ++k_out;
+      }
+    }
+  }
+  return k_out;
+}
+
+// Power centres of m triangles T (m x 3) of weighted points (xy, w), relative to each
+// triangle's first vertex (the arithmetic of geoface.param.power_triangulation._power_centres:
+// NaN or infinity for a triangle too flat for double precision).  Returns how many triangles
+// are not counter-clockwise with a positive floating-point area (twice the signed area,
+// relative to the first vertex, <= 0).
+int64_t geoface_power_centres(int64_t m, const double* xy, const double* w, const int64_t* T, double* cen) {
+  int64_t flat = 0;
+  for (int64_t t = 0; t < m; ++t) {
+    const int64_t a = T[3 * t], b = T[3 * t + 1], c = T[3 * t + 2];
+    const double bx = xy[2 * b] - xy[2 * a], by = xy[2 * b + 1] - xy[2 * a + 1];
+    const double cx = xy[2 * c] - xy[2 * a], cy = xy[2 * c + 1] - xy[2 * a + 1];
+    const double rb = (bx * bx + by * by) - w[b] + w[a];
+    const double rc = (cx * cx + cy * cy) - w[c] + w[a];
+    const double o = bx * cy - by * cx;
+    const double det = 2.0 * o;
+    cen[2 * t] = xy[2 * a] + (rb * cy - rc * by) / det;
+    cen[2 * t + 1] = xy[2 * a + 1] + (bx * rc - cx * rb) / det;
+    if (!(o > 0)) ++flat;
+  }
+  return flat;
 }
 }
