@@ -180,7 +180,8 @@ def _convert_summary(args, out, m) -> str:
     n = len(sets)
     line = f"{args.input} -> {out}/: {n} image set{'s' if n != 1 else ''} at {args.res}x{args.res} in {m['seconds']['total']:.1f} s"
     if "proxy" in m:
-        line += f" (maps on a {m['proxy']['proxy_vertices']:,}-vertex proxy of the {m['proxy']['scan_vertices']:,})"
+        line += (f" (maps on a {m['proxy']['proxy_vertices']:,}-vertex proxy of the {m['proxy']['scan_vertices']:,}"
+                 + (", needles merged)" if m["proxy"].get("kind") == "needles merged" else ")"))
     fr = m.get("frame")
     if fr is not None:
         import re
@@ -249,7 +250,8 @@ def cmd_convert(args) -> int:
         roi = load_roi(roi, len(mesh.V))
     opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, blend=args.blend, augment=args.augment,
                           method=args.method, ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
-                          corner_set=args.corner_set, reconstruct=args.reconstruct, proxy=args.proxy)
+                          corner_set=args.corner_set, reconstruct=args.reconstruct, proxy=args.proxy,
+                          needles=args.needles)
     m = convert(mesh, out, opts, overwrite=args.force)
     print(_convert_summary(args, out, m))
     from .. import progress as _progress

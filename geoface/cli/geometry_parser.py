@@ -73,6 +73,10 @@ def register(sub, common) -> None:
     s.add_argument("--proxy", type=number(int, 0, 10**8), default=30000, metavar="N",  # = pipeline.DEFAULT_PROXY (kept light: no pipeline import here)
                    help="a scan with more than 1.5 N vertices is decimated to N vertices for the repair and the maps, and the "
                         "images sample the full surface (default %(default)s; 0: never)")
+    s.add_argument("--needles", type=number(float, 0, 0.5, hi_open=True), default=0.01, metavar="RATIO",  # = repair.proxy.NEEDLE_RATIO
+                   help="needle triangles: edges shorter than RATIO x their face's longest edge are collapsed for the maps "
+                        "(when that merges at least 0.1%% of the vertices) and the images sample the full surface "
+                        "(default %(default)s; 0: never)")
     s.set_defaults(func=cmd_convert)
 
     s = sub.add_parser("reconstruct", help="geometry-image folder -> textured mesh")

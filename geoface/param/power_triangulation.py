@@ -5,7 +5,7 @@ Newton's method for OT asks for many diagrams of the same sites with slowly chan
 ``power_diagram(P, w, previous=pd)`` starts from ``pd``'s regular triangulation and restores
 regularity by Lawson flips (vectorised rounds over independent sets of non-regular edges, the
 power in-circle test taken relative to the fourth site), faster than a new Qhull hull; against
-CGAL's exact triangulation they win only on large problems (``power.FLIP_MIN_SITES``).
+CGAL's exact triangulation (with compiled cell sums) they no longer win (``power.FLIP_MIN_SITES``).
 Flips cannot delete a site: when one must vanish the update gets stuck on a non-convex quad and
 the diagram is built anew.  Power centres come from each triangle's three sites (relative
 to one of them), far more precise than Qhull's plane equations for cells 1e-6 wide.

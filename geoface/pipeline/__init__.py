@@ -23,6 +23,7 @@ import numpy as np
 from ..errors import GeofaceError, InvalidMeshError
 from ..mesh.io import Mesh
 from ..progress import log
+from ..repair.proxy import NEEDLE_RATIO
 from .corner_set import convert_set, corner_uvs_for, extend_split, reconstruction_error  # noqa: F401  (extend_split: public here too)
 from ..rotations import upright_rotation  # noqa: F401  (re-exported)
 
@@ -34,6 +35,9 @@ PROXY_FACTOR = 1.5
 #: default proxy size: with it the 134K bust converts at 512² in 22 s, Hausdorff 0.33% / face
 #: 0.09% of the diagonal, and a 2M-vertex scan in 58 s (bench/bench_scale.py)
 DEFAULT_PROXY = 30000
+#: a scan whose needle triangles' short edges (``ConvertOptions.needles``) would merge at least this
+#: share of its vertices is parameterized through a proxy with them merged
+NEEDLE_MIN_SHARE = 1e-3
 #: default share of the conformal map's own area in OT's target measure (chosen on validation
 #: heads: docs/benchmarks.md, "The target measure")
 DEFAULT_BLEND = 0.1
@@ -66,7 +70,11 @@ class ConvertOptions:
     it is byte-identical across runs); proxy : a scan with more than 1.5 × ``proxy`` vertices
     (default :data:`DEFAULT_PROXY`, 30000) is decimated to ``proxy`` vertices for the repair and the maps, and the
     images take positions, normals and colours from the full surface
-    (:mod:`geoface.pipeline.proxy`); 0: never.
+    (:mod:`geoface.pipeline.proxy`); 0: never; needles : when edges shorter than ``needles``
+    times the longest edge of their face (needle triangles: marching-cubes output, edges split
+    next to their ends) would merge at least 0.1% of the vertices, the maps are solved on a proxy
+    with those edges collapsed (:func:`geoface.repair.proxy.merge_needles`) and the images sample
+    the full surface, as for a decimated proxy; 0: never.
     """
 
     res: int = 512
@@ -85,6 +93,7 @@ class ConvertOptions:
     corner_set: int | None = None
     metrics: bool = True
     proxy: int = DEFAULT_PROXY
+    needles: float = NEEDLE_RATIO
 
     def validate(self) -> "ConvertOptions":
         from ..gimage.raster import MAX_RES
@@ -99,6 +108,9 @@ class ConvertOptions:
             raise GeofaceError(f"blend must be in [0, 1); got {self.blend!r}")
         if isinstance(self.proxy, bool) or int(self.proxy) != self.proxy or not (self.proxy == 0 or self.proxy >= 1000):
             raise GeofaceError(f"proxy must be 0 (off) or a vertex count >= 1000; got {self.proxy!r}")
+        if not (isinstance(self.needles, (int, float)) and not isinstance(self.needles, bool)
+                and (self.needles == 0 or 0 < self.needles < 0.5)):
+            raise GeofaceError(f"needles must be 0 (off) or a ratio in (0, 0.5); got {self.needles!r}")
         if int(self.augment) != self.augment or not 1 <= self.augment <= 8:
             raise GeofaceError(f"augment must be an integer in 1..8; got {self.augment!r}")
         from ..gimage.reconstruct import MAX_SMOOTH
@@ -231,7 +243,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     t_all = time.perf_counter()
     roi0 = _explicit_roi(opts, mesh.V)
 
-    scan = None
+    scan, proxy_kind = None, None
     if opts.proxy and len(mesh.V) > PROXY_FACTOR * opts.proxy:
         from ..repair.proxy import decimate
 
@@ -239,13 +251,27 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         log(f"convert: {len(mesh.V):,} vertices: the maps are solved on a {opts.proxy:,}-vertex proxy, the images sample "
             "the full surface", quiet=quiet)
         px = decimate(mesh.V, mesh.F, opts.proxy)
-        scan = mesh
+        scan, proxy_kind = mesh, "decimated"
         if roi0 is not None:  # the user's mask: each proxy vertex takes its nearest scan vertex's
             from scipy.spatial import cKDTree
 
             roi0 = roi0[cKDTree(mesh.V).query(px.V)[1]]
         mesh = Mesh(px.V, px.F)
         times["proxy"] = time.perf_counter() - t
+    elif opts.needles and len(mesh.F):
+        from ..repair.proxy import merge_needles
+
+        px = merge_needles(mesh.V, mesh.F, opts.needles)
+        if px is not None and px.merged >= NEEDLE_MIN_SHARE * len(mesh.V):
+            log(f"convert: needle triangles: the maps are solved with their short edges collapsed ({px.merged:,} of "
+                f"{len(mesh.V):,} vertices merged), the images sample the full surface", quiet=quiet)
+            scan, proxy_kind = mesh, "needles merged"
+            if roi0 is not None:
+                from scipy.spatial import cKDTree
+
+                roi0 = roi0[cKDTree(mesh.V).query(px.V)[1]]
+            mesh = Mesh(px.V, px.F)
+            times["proxy"] = px.seconds
 
     t = time.perf_counter()
     log(f"convert: repairing {len(mesh.V)} vertices to a disk", quiet=quiet)
@@ -284,7 +310,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         from .proxy import full_surface
 
         t = time.perf_counter()
-        full = full_surface(scan, V, dm.F, roi)
+        full = full_surface(scan, V, dm.F, roi, fill=disk.face_map < 0)
         times["full_surface"] = time.perf_counter() - t
         if full is None:
             log("convert: no part of the scan lies on the repaired proxy; the images keep the proxy's positions", quiet=quiet)
@@ -300,7 +326,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         "sets": [],
     }
     if scan is not None:
-        metrics["proxy"] = {"scan_vertices": int(len(scan.V)), "scan_faces": int(len(scan.F)), "proxy_vertices": int(len(mesh.V)),
+        metrics["proxy"] = {"kind": proxy_kind, "scan_vertices": int(len(scan.V)), "scan_faces": int(len(scan.F)), "proxy_vertices": int(len(mesh.V)),
                             "seconds": times["proxy"], "full_surface_seconds": times["full_surface"],
                             "full_faces": 0 if full is None else int(len(full.F)),
                             "snap_tolerance": None if full is None else full.tol / full.diag}

@@ -7,7 +7,9 @@ The full surface here is the part of the scan the repaired proxy stands for: the
 whose vertices all lie within ``tol`` (the proxy's mean edge length) of the proxy disk.  Debris
 the repair removed, what lies below a neck cut, and faces far from a filled hole are not part of
 it; a pixel whose closest full-surface point is further than ``tol`` (inside a hole the repair
-filled) keeps the proxy's position.
+filled) keeps the proxy's position, as does every point on a face the repair created (a filled
+hole, a neck cap) that is not on the scan itself.  The error report measures against the full
+surface and those faces, as it measures against the repaired disk without a proxy.
 """
 
 from __future__ import annotations
@@ -37,12 +39,20 @@ class FullSurface:
     kept: np.ndarray              # scan vertices in F
     colour_source: Mesh | None    # the scan's colours over F (vertex colours or UV + texture)
     seconds: dict = field(default_factory=dict)
+    # the faces the repair created on the proxy disk (filled holes, a neck cap): a query over them,
+    # one over them and the scan's faces (the error report's reference), and their vertices
+    fill_query: object = None
+    reference: object = None
+    fill_vertices: np.ndarray | None = None
 
     def sample(self, P: np.ndarray, N_proxy: np.ndarray):
         """Positions, normals and colours (or None) for proxy surface points ``P (k, 3)`` (with
         the proxy's normals there), and the share of points that moved onto the scan."""
         dist, face, bary = self.query(P)
         snap = dist <= self.tol
+        if self.fill_query is not None:  # a point on a fill keeps its place unless it is on the scan too (the rim)
+            eps = 1e-7 * self.diag
+            snap &= ~((self.fill_query(P)[0] <= eps) & (dist > eps))
         Q = np.where(snap[:, None], self.query.points(face, bary), P)
         n = (self.normals[self.F[face]] * bary[:, :, None]).sum(1)
         Nn = np.where(snap[:, None], n, N_proxy)
@@ -54,14 +64,18 @@ class FullSurface:
         return Q, Nn, C, float(snap.mean()) if len(snap) else 1.0
 
     def error(self, V_rec, F_rec, rec_mask=None) -> dict:
-        """Two-sided distances between a reconstruction and this surface, over its diagonal (the
+        """Two-sided distances between a reconstruction and this surface, with the faces the
+        repair created (filled holes, a neck cap) from the proxy disk, over its diagonal (the
         keys of :func:`geoface.pipeline.corner_set.reconstruction_error`)."""
         from ..uvmap.bake import SurfaceQuery
 
-        d_rec = self.query(V_rec)[0] / self.diag
-        d_ref = SurfaceQuery(V_rec, F_rec)(self.mesh.V[self.kept])[0] / self.diag
-        out = {"hausdorff": float(max(d_rec.max(), d_ref.max())), "mean": float(0.5 * (d_rec.mean() + d_ref.mean())),
-               "rec_to_ref_max": float(d_rec.max()), "ref_to_rec_max": float(d_ref.max()), "reference": "full scan"}
+        d_rec = (self.query if self.reference is None else self.reference)(V_rec)[0] / self.diag
+        rec = SurfaceQuery(V_rec, F_rec)
+        d_ref = rec(self.mesh.V[self.kept])[0] / self.diag
+        d_fill = rec(self.fill_vertices)[0] / self.diag if self.fill_vertices is not None else np.zeros(0)
+        d_all = np.concatenate([d_ref, d_fill])
+        out = {"hausdorff": float(max(d_rec.max(), d_all.max())), "mean": float(0.5 * (d_rec.mean() + d_all.mean())),
+               "rec_to_ref_max": float(d_rec.max()), "ref_to_rec_max": float(d_all.max()), "reference": "full scan"}
         if self.roi is not None and rec_mask is not None and rec_mask.any() and self.roi[self.kept].any():
             a, b = d_rec[rec_mask], d_ref[self.roi[self.kept]]
             out["face_hausdorff"] = float(max(a.max(), b.max()))
@@ -79,10 +93,13 @@ def _near_boundary(F: np.ndarray, face: np.ndarray) -> np.ndarray:
     return on[F[face]].any(1)
 
 
-def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: np.ndarray | None) -> FullSurface | None:
+def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: np.ndarray | None,
+                 fill: np.ndarray | None = None) -> FullSurface | None:
     """The scan ``mesh`` as the full surface under the proxy disk ``(V_disk, F_disk)`` (see
-    module docs); ``roi_disk`` (over the proxy disk's vertices) is carried onto the scan.  None
-    when no face of the scan lies within ``tol`` of the proxy."""
+    module docs); ``roi_disk`` (over the proxy disk's vertices) is carried onto the scan.
+    ``fill``: which faces of the disk the repair created (they have no scan under them; the
+    error report measures against them, as it does without a proxy).  None when no face of the
+    scan lies within ``tol`` of the proxy."""
     from ..uvmap.bake import SurfaceQuery
 
     t0 = time.perf_counter()
@@ -92,7 +109,12 @@ def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: n
     # beyond the proxy's boundary (below a neck cut) the closest proxy point is in a triangle at
     # the boundary: there only what lies on the proxy counts (a tenth of tol: the decimation's own
     # deviation), not a strip of the scan a whole edge wide
-    near = d <= np.where(_near_boundary(F_disk, face), 0.1 * tol, tol)
+    # so too next to a face the repair created: what a neck cap or a filled hole closes off
+    # (the bottom of a leg cut by the opening plane) is not part of it
+    strict = _near_boundary(F_disk, face)
+    if fill is not None:
+        strict |= fill[face]
+    near = d <= np.where(strict, 0.1 * tol, tol)
     keep_f = np.flatnonzero(near[mesh.F].all(1))
     if not len(keep_f):
         return None
@@ -109,7 +131,12 @@ def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: n
     if mesh.colors is not None or (mesh.texture is not None and mesh.UV is not None):
         colours = Mesh(mesh.V, F, UV=mesh.UV, FUV=None if mesh.FUV is None else mesh.FUV[keep_f], colors=mesh.colors,
                        texture=mesh.texture)
-    return FullSurface(mesh=mesh, F=F, query=q, normals=vertex_normals(mesh.V, F), tol=tol,
+    fills = {}
+    if fill is not None and fill.any():
+        Ff = F_disk[fill]
+        fills = {"fill_query": SurfaceQuery(V_disk, Ff), "fill_vertices": V_disk[np.unique(Ff)],
+                 "reference": SurfaceQuery(np.concatenate([mesh.V, V_disk]), np.concatenate([F, Ff + len(mesh.V)]))}
+    return FullSurface(mesh=mesh, F=F, query=q, normals=vertex_normals(mesh.V, F), tol=tol, **fills,
                        diag=bbox_diagonal(mesh.V[kept]) if kept.any() else bbox_diagonal(mesh.V), roi=roi,
                        kept=np.flatnonzero(kept), colour_source=colours,
                        seconds={"restrict": t1 - t0, "tree": time.perf_counter() - t1})

@@ -66,7 +66,7 @@ def test_flip_update_equals_fresh_hull(layout, monkeypatch):
     edges."""
     from geoface.param import power
 
-    monkeypatch.setattr(power, "FLIP_MIN_SITES", 0)  # flips at any size (by default from 20K sites)
+    monkeypatch.setattr(power, "FLIP_MIN_SITES", 0)  # flips at any size (by default never with CGAL)
     rng = np.random.default_rng(7)
     if layout == "random":
         P = rng.random((2000, 2))
@@ -142,7 +142,7 @@ def test_compiled_cells_are_the_numpy_cells(layout, monkeypatch):
 
 
 def test_small_problems_triangulate_anew_instead_of_flipping():
-    """Below ``FLIP_MIN_SITES`` sites CGAL builds every diagram anew (cheaper than flips there):
+    """With CGAL every diagram is built anew (``FLIP_MIN_SITES``: None, as cheap as flips):
     the same cells as the flip update, and OT takes the same steps either way."""
     from geoface.param import power
 
@@ -151,7 +151,7 @@ def test_small_problems_triangulate_anew_instead_of_flipping():
     pd0 = power_diagram(P)
     w = 0.2 * cKDTree(P).query(P, 2)[0][:, 1] ** 2 * rng.normal(0, 1, len(P))
     a = power_diagram(P, w, previous=pd0)
-    assert a.source == "cgal" and len(P) < power.FLIP_MIN_SITES
+    assert a.source == "cgal" and power.FLIP_MIN_SITES is None
     nu = rng.random(len(P)) + 0.5
     r_new = semi_discrete_ot(P, nu, tol=1e-8)
     with pytest.MonkeyPatch.context() as mp:
@@ -256,7 +256,7 @@ def test_nonuniform_target_met():
 @pytest.mark.parametrize("layout", ["random", "crowded"])
 def test_inexact_newton_reuses_factorisations(layout, monkeypatch):
     """Newton directions by conjugate gradients preconditioned with an earlier factorisation
-    (from 20K sites by default) meet the same tolerance as exact Newton, with fewer
+    meet the same tolerance as exact Newton (a factorisation every step), with fewer
     factorisations than steps, also where sites crowd 1e-6 apart (their differences need the
     Hessian applied to differences)."""
     from geoface.param import ot as ot_mod
@@ -268,10 +268,10 @@ def test_inexact_newton_reuses_factorisations(layout, monkeypatch):
     else:
         P = np.concatenate([rng.random((1500, 2)), 0.5 + 1e-6 * rng.random((100, 2))])
         nu = np.r_[np.ones(1500), np.full(100, 4.0)]
+    inexact = semi_discrete_ot(P, nu, tol=1e-6)
+    monkeypatch.setattr(ot_mod, "REUSE_FACTOR", False)
     exact = semi_discrete_ot(P, nu, tol=1e-6)
     assert exact.factorizations == exact.iterations and exact.pcg_iterations == 0
-    monkeypatch.setattr(ot_mod, "REUSE_MIN_SITES", 0)
-    inexact = semi_discrete_ot(P, nu, tol=1e-6)
     assert inexact.converged and inexact.residual <= 1e-6
     assert inexact.pcg_iterations > 0 and inexact.factorizations < inexact.iterations
     assert np.abs(inexact.area - exact.area).max() <= 2e-6 * exact.nu.max()
