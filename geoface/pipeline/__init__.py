@@ -210,6 +210,18 @@ def _front(opts: ConvertOptions, V: np.ndarray, F: np.ndarray, roi, up: np.ndarr
     return d / L if L > 0 else np.array([0.0, 0.0, 1.0])
 
 
+def _scan_faces(px, disk, F_scan: np.ndarray) -> np.ndarray:
+    """The scan faces a needle proxy's disk stands for: those whose proxy face is in the disk,
+    and those that collapsed (the needles) onto proxy vertices that all are in the disk."""
+    in_disk = np.zeros(len(px.F), bool)
+    in_disk[disk.face_map[disk.face_map >= 0]] = True
+    v_in = np.zeros(len(px.V) + 1, bool)  # the last entry: "no proxy vertex" (-1)
+    v_in[disk.vertex_map[disk.vertex_map >= 0]] = True
+    f = px.face_of
+    keep = np.where(f >= 0, in_disk[f], v_in[px.vertex_of[F_scan]].all(1))
+    return np.flatnonzero(keep)
+
+
 def _explicit_roi(opts: ConvertOptions, V0: np.ndarray) -> np.ndarray | None:
     """A vertex mask given by the user (over the input's vertices), checked; None otherwise."""
     if isinstance(opts.roi, str):
@@ -243,7 +255,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     t_all = time.perf_counter()
     roi0 = _explicit_roi(opts, mesh.V)
 
-    scan, proxy_kind = None, None
+    scan, proxy_kind, needle_px = None, None, None
     if opts.proxy and len(mesh.V) > PROXY_FACTOR * opts.proxy:
         from ..repair.proxy import decimate
 
@@ -272,6 +284,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
                 roi0 = roi0[cKDTree(mesh.V).query(px.V)[1]]
             mesh = Mesh(px.V, px.F)
             times["proxy"] = px.seconds
+            needle_px = px
 
     t = time.perf_counter()
     log(f"convert: repairing {len(mesh.V)} vertices to a disk", quiet=quiet)
@@ -310,7 +323,8 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         from .proxy import full_surface
 
         t = time.perf_counter()
-        full = full_surface(scan, V, dm.F, roi, fill=disk.face_map < 0)
+        full = full_surface(scan, V, dm.F, roi, fill=disk.face_map < 0,
+                            faces=None if needle_px is None else _scan_faces(needle_px, disk, scan.F))
         times["full_surface"] = time.perf_counter() - t
         if full is None:
             log("convert: no part of the scan lies on the repaired proxy; the images keep the proxy's positions", quiet=quiet)

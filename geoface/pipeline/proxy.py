@@ -94,12 +94,13 @@ def _near_boundary(F: np.ndarray, face: np.ndarray) -> np.ndarray:
 
 
 def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: np.ndarray | None,
-                 fill: np.ndarray | None = None) -> FullSurface | None:
+                 fill: np.ndarray | None = None, faces: np.ndarray | None = None) -> FullSurface | None:
     """The scan ``mesh`` as the full surface under the proxy disk ``(V_disk, F_disk)`` (see
     module docs); ``roi_disk`` (over the proxy disk's vertices) is carried onto the scan.
     ``fill``: which faces of the disk the repair created (they have no scan under them; the
     error report measures against them, as it does without a proxy).  None when no face of the
-    scan lies within ``tol`` of the proxy."""
+    scan lies within ``tol`` of the proxy.  ``faces``: the scan's faces the disk stands for, when
+    the caller knows them (a proxy that only merged vertices), instead of those within ``tol``."""
     from ..uvmap.bake import SurfaceQuery
 
     t0 = time.perf_counter()
@@ -115,7 +116,7 @@ def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: n
     if fill is not None:
         strict |= fill[face]
     near = d <= np.where(strict, 0.1 * tol, tol)
-    keep_f = np.flatnonzero(near[mesh.F].all(1))
+    keep_f = np.flatnonzero(near[mesh.F].all(1)) if faces is None else np.asarray(faces, np.int64)
     if not len(keep_f):
         return None
     F = mesh.F[keep_f]

@@ -44,6 +44,10 @@ class ProxyResult:
     F: np.ndarray
     seconds: float
     merged: int = 0
+    #: (:func:`merge_needles`) each input vertex's proxy vertex, and each input face's proxy face
+    #: (-1: it collapsed)
+    vertex_of: np.ndarray | None = None
+    face_of: np.ndarray | None = None
 
 
 def decimate(V, F, vertices: int) -> ProxyResult:
@@ -116,12 +120,20 @@ def merge_needles(V, F, ratio: float = NEEDLE_RATIO) -> ProxyResult | None:
     first[1:] = label[order][1:] != label[order][:-1]
     rep_of_label = np.empty(label.max() + 1, np.int64)
     rep_of_label[label[order][first]] = order[first]
-    F2 = rep_of_label[label][F]
-    F2 = F2[(F2[:, 0] != F2[:, 1]) & (F2[:, 1] != F2[:, 2]) & (F2[:, 2] != F2[:, 0])]
-    if len(F2) == 0:
+    rep = rep_of_label[label]
+    F2 = rep[F]
+    alive = np.flatnonzero((F2[:, 0] != F2[:, 1]) & (F2[:, 1] != F2[:, 2]) & (F2[:, 2] != F2[:, 0]))
+    if len(alive) == 0:
         raise InvalidMeshError("merging the needles' short edges left no faces")
-    _, first_face = np.unique(np.sort(F2, axis=1), axis=0, return_index=True)
-    F2 = F2[np.sort(first_face)]
+    _, first, inv = np.unique(np.sort(F2[alive], axis=1), axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)  # proxy faces in the order of their first input face
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    face_of = np.full(len(F), -1, np.int64)
+    face_of[alive] = rank[inv.ravel()]
+    F2 = F2[alive[first[order]]]
     merged = int(len(np.unique(F.ravel())) - len(np.unique(F2.ravel())))
-    V2, F2, _ = remove_unreferenced(V, F2)
-    return ProxyResult(V2, F2, time.perf_counter() - t, merged)
+    V2, F2, kept = remove_unreferenced(V, F2)
+    index = np.full(n, -1, np.int64)
+    index[kept] = np.arange(len(kept))
+    return ProxyResult(V2, F2, time.perf_counter() - t, merged, vertex_of=index[rep], face_of=face_of)
