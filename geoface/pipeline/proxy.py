@@ -7,8 +7,8 @@ The full surface here is the part of the scan the repaired proxy stands for: the
 whose vertices all lie within ``tol`` (the proxy's mean edge length) of the proxy disk.  Debris
 the repair removed, what lies below a neck cut, and faces far from a filled hole are not part of
 it; a pixel whose closest full-surface point is further than ``tol`` (inside a hole the repair
-filled) keeps the proxy's position, as does every point on a face the repair created (a filled
-hole, a neck cap) that is not on the scan itself.  The error report measures against the full
+filled) keeps the proxy's position; a pixel closer to a face the repair created (a filled hole,
+a neck cap) than to the scan moves onto that face instead.  The error report measures against the full
 surface and those faces, as it measures against the repaired disk without a proxy.
 """
 
@@ -39,9 +39,9 @@ class FullSurface:
     kept: np.ndarray              # scan vertices in F
     colour_source: Mesh | None    # the scan's colours over F (vertex colours or UV + texture)
     seconds: dict = field(default_factory=dict)
-    # the faces the repair created on the proxy disk (filled holes, a neck cap): a query over them,
-    # one over them and the scan's faces (the error report's reference), and their vertices
-    fill_query: object = None
+    # the faces the repair created on the proxy disk (filled holes, a neck cap): a query over the
+    # scan's faces (F, first) and them, the surface pixels move onto and the error report's
+    # reference; and their vertices
     reference: object = None
     fill_vertices: np.ndarray | None = None
 
@@ -49,13 +49,19 @@ class FullSurface:
         """Positions, normals and colours (or None) for proxy surface points ``P (k, 3)`` (with
         the proxy's normals there), and the share of points that moved onto the scan."""
         dist, face, bary = self.query(P)
-        snap = dist <= self.tol
-        if self.fill_query is not None:  # a point on a fill keeps its place unless it is on the scan too (the rim)
-            eps = 1e-7 * self.diag
-            snap &= ~((self.fill_query(P)[0] <= eps) & (dist > eps))
-        Q = np.where(snap[:, None], self.query.points(face, bary), P)
+        if self.reference is None:
+            snap = on_scan = dist <= self.tol
+            Q = np.where(snap[:, None], self.query.points(face, bary), P)
+        else:  # onto the scan or a fill, whichever is closer: a fill keeps its place
+            d_ref, f_ref, b_ref = self.reference(P)
+            snap = d_ref <= self.tol
+            on_scan = snap & (f_ref < len(self.F))
+            Q = np.where(snap[:, None], self.reference.points(f_ref, b_ref), P)
+            face = np.where(on_scan, f_ref, face)
+            bary = np.where(on_scan[:, None], b_ref, bary)
         n = (self.normals[self.F[face]] * bary[:, :, None]).sum(1)
-        Nn = np.where(snap[:, None], n, N_proxy)
+        Nn = np.where(on_scan[:, None], n, N_proxy)
+        snap = on_scan
         C = None
         if self.colour_source is not None:
             from ..uvmap.bake import sample_source
@@ -94,18 +100,23 @@ def _near_boundary(F: np.ndarray, face: np.ndarray) -> np.ndarray:
 
 
 def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: np.ndarray | None,
-                 fill: np.ndarray | None = None, faces: np.ndarray | None = None) -> FullSurface | None:
+                 fill: np.ndarray | None = None, faces: np.ndarray | None = None,
+                 tol: float | None = None) -> FullSurface | None:
     """The scan ``mesh`` as the full surface under the proxy disk ``(V_disk, F_disk)`` (see
     module docs); ``roi_disk`` (over the proxy disk's vertices) is carried onto the scan.
     ``fill``: which faces of the disk the repair created (they have no scan under them; the
     error report measures against them, as it does without a proxy).  None when no face of the
     scan lies within ``tol`` of the proxy.  ``faces``: the scan's faces the disk stands for, when
-    the caller knows them (a proxy that only merged vertices), instead of those within ``tol``."""
+    the caller knows them (a proxy that only merged vertices), instead of those within ``tol``;
+    ``tol``: how far a pixel may move onto the scan (default the proxy's mean edge length; a
+    proxy that only moved vertices by ``δ`` lies within ``δ`` of the scan, except where the repair
+    changed it)."""
     from ..uvmap.bake import SurfaceQuery
 
     t0 = time.perf_counter()
     E = np.concatenate([F_disk[:, [0, 1]], F_disk[:, [1, 2]], F_disk[:, [2, 0]]])
-    tol = float(np.linalg.norm(V_disk[E[:, 0]] - V_disk[E[:, 1]], axis=1).mean())
+    mean_edge = float(np.linalg.norm(V_disk[E[:, 0]] - V_disk[E[:, 1]], axis=1).mean())
+    tol = mean_edge if tol is None else float(tol)
     d, face, bary = SurfaceQuery(V_disk, F_disk)(mesh.V)
     # beyond the proxy's boundary (below a neck cut) the closest proxy point is in a triangle at
     # the boundary: there only what lies on the proxy counts (a tenth of tol: the decimation's own
@@ -115,7 +126,7 @@ def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: n
     strict = _near_boundary(F_disk, face)
     if fill is not None:
         strict |= fill[face]
-    near = d <= np.where(strict, 0.1 * tol, tol)
+    near = d <= np.where(strict, 0.1 * mean_edge, mean_edge)
     keep_f = np.flatnonzero(near[mesh.F].all(1)) if faces is None else np.asarray(faces, np.int64)
     if not len(keep_f):
         return None
@@ -135,7 +146,7 @@ def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: n
     fills = {}
     if fill is not None and fill.any():
         Ff = F_disk[fill]
-        fills = {"fill_query": SurfaceQuery(V_disk, Ff), "fill_vertices": V_disk[np.unique(Ff)],
+        fills = {"fill_vertices": V_disk[np.unique(Ff)],
                  "reference": SurfaceQuery(np.concatenate([mesh.V, V_disk]), np.concatenate([F, Ff + len(mesh.V)]))}
     return FullSurface(mesh=mesh, F=F, query=q, normals=vertex_normals(mesh.V, F), tol=tol, **fills,
                        diag=bbox_diagonal(mesh.V[kept]) if kept.any() else bbox_diagonal(mesh.V), roi=roi,
