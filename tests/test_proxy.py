@@ -158,21 +158,23 @@ def test_merge_needles_turns_sliver_strips_back_into_the_mesh():
         merge_needles(base.V, base.F, 0.7)
 
 
-def test_a_scan_with_needles_converts_like_its_clean_mesh(tmp_path):
-    """The cow with sliver strips goes through the needle proxy and comes out as the cow does
-    (the same Hausdorff error to 10%; measured against the scan plus the repair's hoof fills);
-    with ``needles=0`` it takes the direct path, where the needles cost accuracy."""
-    base = S.real_base("spot.obj")
+@pytest.mark.parametrize("name", ["spot.obj", "male02.obj"])
+def test_a_scan_with_needles_converts_like_its_clean_mesh(tmp_path, name):
+    """The cow and the male body with sliver strips go through the needle proxy and come out as
+    they do without (Hausdorff error at most 10% above; measured against the scan plus the
+    repair's fills: the cow's hooves, the body's holes, where its other parts are dropped); with
+    ``needles=0`` they take the direct path."""
+    base = S.real_base(name)
     case = S.with_slivers(base)
     opts = dict(res=64, preview=False, corner_set=0)
     clean = convert(Mesh(base.V, base.F), tmp_path / "clean", ConvertOptions(**opts), quiet=True)
     met = convert(Mesh(case.V, case.F), tmp_path / "needles", ConvertOptions(**opts), quiet=True)
-    assert met["proxy"]["kind"] == "needles merged" and met["proxy"]["proxy_vertices"] == len(base.V)
+    assert met["proxy"]["kind"] == "needles merged" and abs(met["proxy"]["proxy_vertices"] - len(base.V)) <= 2
     assert "proxy" not in clean
     h_clean = clean["sets"][0]["reconstruction"]["hausdorff"]
     h = met["sets"][0]["reconstruction"]["hausdorff"]
     assert met["sets"][0]["reconstruction"]["reference"] == "full scan"
-    assert abs(h - h_clean) < 0.1 * h_clean, (h, h_clean)
+    assert h < 1.1 * h_clean, (h, h_clean)
     direct = convert(Mesh(case.V, case.F), tmp_path / "direct", ConvertOptions(needles=0, **opts), quiet=True)
     assert "proxy" not in direct and direct["sets"][0]["distortion"]["flipped"] == 0
     for bad in (-0.1, 0.5, True, "x"):
