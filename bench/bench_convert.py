@@ -22,6 +22,7 @@
     python bench/bench_convert.py [--cases convert ot claim real] [--sizes 10000 50000 200000]
     python bench/bench_convert.py --cases ot_equal --files bust134k.obj
     python bench/bench_convert.py --cases ot_equal --with-real
+    python bench/bench_convert.py --cases ot_equal --files bust134k.obj --only-files --no-pysdot
     python bench/bench_convert.py --cases real --res 256 512 [--meshes face.obj lion.off] [--ict 10]
 """
 
@@ -145,7 +146,7 @@ def _pysdot_to(P, nu, target):
     return sec, state["err"], max(state["calls"] - 1, 0)
 
 
-def case_ot_equal(targets, files=(), real=None):
+def case_ot_equal(targets, files=(), real=None, pysdot=True, builtin=True):
     """Ours and pysdot to the *same* max relative cell-mass error, measured by the same code
     (our power diagram) for both: the 43K head, 100K clustered points, set 0's problem of
     each mesh in ``files`` (e.g. the 134K bust) and, with ``real = (names, n_ict)``, of the real
@@ -154,7 +155,7 @@ def case_ot_equal(targets, files=(), real=None):
     from geoface.param.ot import semi_discrete_ot
 
     def problems():
-        if real is None:
+        if real is None and builtin:
             yield from _ot_problems()
         for f in files:
             yield (Path(f).stem, *_ot_problem(load_mesh(f), "face"))
@@ -171,6 +172,8 @@ def case_ot_equal(targets, files=(), real=None):
             ours = _residual(P, o.h, nu)
             emit(case="ot_equal", points=name, n=len(P), target=target, solver="geoface", seconds=sec,
                  iterations=o.iterations, max_rel_error=ours, mass_range=float(nu.max() / nu.min()))
+            if not pysdot:
+                continue
             ps = _pysdot_to(P, nu, target)
             if ps is None:
                 emit(case="ot_equal", points=name, target=target, solver="pysdot",
@@ -327,6 +330,8 @@ def main():
                     help="max relative cell-mass errors of the ot_equal case")
     ap.add_argument("--with-real", action="store_true",
                     help="ot_equal: the real meshes' and ICT heads' problems instead of the head and clustered points")
+    ap.add_argument("--no-pysdot", action="store_true", help="ot_equal: time geoface only (pysdot on the 134K bust takes ~10 min a target)")
+    ap.add_argument("--only-files", action="store_true", help="ot_equal: only the --files problems (not the head and clustered points)")
     ap.add_argument("--claim-vertices", type=int, default=50000)
     args = ap.parse_args()
     if "convert" in args.cases:
@@ -337,7 +342,8 @@ def main():
     if "ot" in args.cases:
         case_ot(600)
     if "ot_equal" in args.cases:
-        case_ot_equal(args.targets, args.files, (args.meshes, args.ict) if args.with_real else None)
+        case_ot_equal(args.targets, args.files, (args.meshes, args.ict) if args.with_real else None,
+                      pysdot=not args.no_pysdot, builtin=not args.only_files)
     if "claim" in args.cases:
         case_claim(args.claim_vertices, [256, 512])
 
