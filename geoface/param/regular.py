@@ -103,6 +103,20 @@ def regular_triangulation(X, w) -> tuple[np.ndarray, np.ndarray]:
     return T[:m].copy(), N[:m].copy()
 
 
+def _compiled(name: str):
+    """The extension's function ``name``, or None (not built, or built before it existed)."""
+    lib = _lib()
+    return None if lib is None or not hasattr(lib, name) else getattr(lib, name)
+
+
+def _f64(*arrays):
+    return [np.ascontiguousarray(a, np.float64) for a in arrays]
+
+
+def _i64(*arrays):
+    return [np.ascontiguousarray(a, np.int64) for a in arrays]
+
+
 def power_cells(n: int, Xa, T, N, cen):
     """The interior part of power cells clipped to ``[-0.5, 0.5]^2``, compiled: the dual edges of
     the regular triangulation ``T``, ``N`` (power centres ``cen``) of ``Xa`` (the ``n`` real
@@ -112,13 +126,11 @@ def power_cells(n: int, Xa, T, N, cen):
     not yet added; moments relative to the sites), or None when the extension lacks it; the
     same arithmetic as :func:`geoface.param.power._cells`' NumPy path.
     """
-    lib = _lib()
-    if lib is None or not hasattr(lib, "geoface_power_cells"):
+    fn = _compiled("geoface_power_cells")
+    if fn is None:
         return None
-    Xa = np.ascontiguousarray(Xa, np.float64)
-    T = np.ascontiguousarray(T, np.int64)
-    N = np.ascontiguousarray(N, np.int64)
-    cen = np.ascontiguousarray(cen, np.float64)
+    Xa, cen = _f64(Xa, cen)
+    T, N = _i64(T, N)
     m = len(T)
     if T.shape != (m, 3) or N.shape != (m, 3) or cen.shape != (m, 2) or Xa.ndim != 2 or Xa.shape[1] != 2 or len(Xa) < n:
         raise ParameterizationError("power_cells needs Xa (>= n, 2), T and N (m, 3), cen (m, 2)")
@@ -127,7 +139,7 @@ def power_cells(n: int, Xa, T, N, cen):
     cap = (3 * m) // 2 + 3
     E = np.empty((cap, 2), np.int64)
     L = np.empty(cap)
-    k = lib.geoface_power_cells(n, Xa.ctypes.data, m, T.ctypes.data, N.ctypes.data, cen.ctypes.data,
+    k = fn(n, Xa.ctypes.data, m, T.ctypes.data, N.ctypes.data, cen.ctypes.data,
                                 area.ctypes.data, mom.ctypes.data, E.ctypes.data, L.ctypes.data)
     return area, mom, E[:k], L[:k]
 
@@ -137,14 +149,13 @@ def power_centres(Xa, wa, T):
     (:func:`geoface.param.power_triangulation._power_centres`' arithmetic: NaN or infinity
     for a triangle too flat for double precision), and how many triangles have a
     floating-point signed area <= 0; None when the extension lacks it."""
-    lib = _lib()
-    if lib is None or not hasattr(lib, "geoface_power_centres"):
+    fn = _compiled("geoface_power_centres")
+    if fn is None:
         return None
-    Xa = np.ascontiguousarray(Xa, np.float64)
-    wa = np.ascontiguousarray(wa, np.float64)
-    T = np.ascontiguousarray(T, np.int64)
+    Xa, wa = _f64(Xa, wa)
+    (T,) = _i64(T)
     if Xa.ndim != 2 or Xa.shape[1] != 2 or wa.shape != (len(Xa),) or T.ndim != 2 or T.shape[1] != 3:
         raise ParameterizationError("power_centres needs Xa (n, 2), wa (n,), T (m, 3)")
     cen = np.empty((len(T), 2))
-    flat = lib.geoface_power_centres(len(T), Xa.ctypes.data, wa.ctypes.data, T.ctypes.data, cen.ctypes.data)
+    flat = fn(len(T), Xa.ctypes.data, wa.ctypes.data, T.ctypes.data, cen.ctypes.data)
     return cen, int(flat)
