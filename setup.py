@@ -26,7 +26,7 @@ if _have_cgal() and os.environ.get("GEOFACE_NO_CGAL") != "1":
         "geoface.param._native.regular_triangulation",
         sources=["geoface/param/_native/regular_triangulation.cpp"],
         language="c++",
-        extra_compile_args=["-O2", "-std=c++17", "-DNDEBUG", "-DCGAL_NDEBUG"],
+        extra_compile_args=["-O3", "-std=c++17", "-DNDEBUG", "-DCGAL_NDEBUG"],
         libraries=["gmp", "mpfr"],
         optional=True,
     ))

@@ -152,6 +152,21 @@ def _pcg(solver, e, c, free, g, target):
     return None, PCG_MAX_ITERATIONS
 
 
+def _free_hessian(e: np.ndarray, c: np.ndarray, free: np.ndarray) -> sp.csc_matrix:
+    """``H[free][:, free]`` of :func:`transport_hessian` built directly (CSC, sorted)."""
+    n = len(free)
+    index = np.cumsum(free) - 1
+    diag = np.bincount(e[:, 0], c, minlength=n) + np.bincount(e[:, 1], c, minlength=n)
+    both = free[e[:, 0]] & free[e[:, 1]]
+    i, j, cb = index[e[both, 0]], index[e[both, 1]], c[both]
+    k = np.flatnonzero(free)
+    m = len(k)
+    rows = np.concatenate([i, j, np.arange(m)])
+    cols = np.concatenate([j, i, np.arange(m)])
+    vals = np.concatenate([-cb, -cb, diag[k]])
+    return sp.csc_matrix((vals, (rows, cols)), shape=(m, m))
+
+
 def _rel_residual(area, nu):
     return float(np.max(np.abs(area - nu) / nu))
 
@@ -275,7 +290,6 @@ def semi_discrete_ot(
         res = _rel_residual(pd.area, target)
         while res > stol and iterations < max_iterations:
             c_e = _hessian_weights(Pr, pd)
-            H = transport_hessian(Pr, pd, c_e)
             d = None
             if reuse and factorizations and not refactor:
                 d, its = _pcg(solver, pd.edges, c_e, free, g, target)
@@ -285,7 +299,8 @@ def semi_discrete_ot(
             if d is None:
                 refactor = False
                 d = np.zeros(len(Pr))
-                d[free] = solver.solve(H[free][:, free], -g[free])
+                # the matrix only here (a PCG step needs none), the pinned site's row and column left out
+                d[free] = solver.solve(_free_hessian(pd.edges, c_e, free), -g[free])
                 # iterative refinement: sites 1e-10 apart need the differences of d to ~1e-20
                 # while d itself is ~1e-9 (a weakly coupled cluster moves as one)
                 for _ in range(REFINEMENT_STEPS):
@@ -296,7 +311,9 @@ def semi_discrete_ot(
             gn = float(np.linalg.norm(g / target))
             step = _damped_step(Pr, hr, d, pd, target, eps0, gn, min_step, backend, flips)
             if step is None:  # no damping accepted: the diagonally scaled gradient, same rule
-                dg = -g / np.maximum(H.diagonal(), 1e-300)
+                e = pd.edges
+                diag = np.bincount(e[:, 0], c_e, minlength=len(g)) + np.bincount(e[:, 1], c_e, minlength=len(g))
+                dg = -g / np.maximum(diag, 1e-300)
                 dg -= dg.mean()
                 step = _damped_step(Pr, hr, dg, pd, target, eps0, gn, min_step, backend, flips)
                 if step is None:
