@@ -111,8 +111,11 @@ def test_the_cli_default_proxy_is_the_library_default():
     from geoface.cli import build_parser
     from geoface.pipeline import DEFAULT_PROXY
 
+    from geoface.repair.proxy import NEEDLE_RATIO
+
     args = build_parser().parse_args(["convert", "in.obj", "-o", "out"])
     assert args.proxy == DEFAULT_PROXY == ConvertOptions().proxy
+    assert args.needles == NEEDLE_RATIO == ConvertOptions().needles
 
 
 def test_the_cli_default_blend_is_the_library_default(tmp_path):
