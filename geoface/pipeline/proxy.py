@@ -39,26 +39,27 @@ class FullSurface:
     kept: np.ndarray              # scan vertices in F
     colour_source: Mesh | None    # the scan's colours over F (vertex colours or UV + texture)
     seconds: dict = field(default_factory=dict)
-    # the faces the repair created on the proxy disk (filled holes, a neck cap): a query over the
-    # scan's faces (F, first) and them, the surface pixels move onto and the error report's
-    # reference; and their vertices
-    reference: object = None
+    # the faces the repair created on the proxy disk (filled holes, a neck cap): a query over
+    # them (pixels move onto them when they are closer than the scan; the error report measures
+    # against them too) and their vertices
+    fill_query: object = None
     fill_vertices: np.ndarray | None = None
 
     def sample(self, P: np.ndarray, N_proxy: np.ndarray):
         """Positions, normals and colours (or None) for proxy surface points ``P (k, 3)`` (with
         the proxy's normals there), and the share of points that moved onto the scan."""
         dist, face, bary = self.query(P)
-        if self.reference is None:
-            snap = on_scan = dist <= self.tol
-            Q = np.where(snap[:, None], self.query.points(face, bary), P)
-        else:  # onto the scan or a fill, whichever is closer: a fill keeps its place
-            d_ref, f_ref, b_ref = self.reference(P)
-            snap = d_ref <= self.tol
-            on_scan = snap & (f_ref < len(self.F))
-            Q = np.where(snap[:, None], self.reference.points(f_ref, b_ref), P)
-            face = np.where(on_scan, f_ref, face)
-            bary = np.where(on_scan[:, None], b_ref, bary)
+        Q = self.query.points(face, bary)
+        on_scan = dist <= self.tol
+        if self.fill_query is not None:  # onto the scan or a fill, whichever is closer: a fill keeps its place
+            d_fill, f_fill, b_fill = self.fill_query(P)
+            to_fill = (d_fill < dist) & (d_fill <= self.tol)
+            on_scan &= ~to_fill
+            Q = np.where(to_fill[:, None], self.fill_query.points(f_fill, b_fill), Q)
+            keep = ~on_scan & ~to_fill
+        else:
+            keep = ~on_scan
+        Q = np.where(keep[:, None], P, Q)
         n = (self.normals[self.F[face]] * bary[:, :, None]).sum(1)
         Nn = np.where(on_scan[:, None], n, N_proxy)
         snap = on_scan
@@ -75,7 +76,9 @@ class FullSurface:
         keys of :func:`geoface.pipeline.corner_set.reconstruction_error`)."""
         from ..uvmap.bake import SurfaceQuery
 
-        d_rec = (self.query if self.reference is None else self.reference)(V_rec)[0] / self.diag
+        d_rec = self.query(V_rec)[0] / self.diag
+        if self.fill_query is not None:
+            d_rec = np.minimum(d_rec, self.fill_query(V_rec)[0] / self.diag)
         rec = SurfaceQuery(V_rec, F_rec)
         d_ref = rec(self.mesh.V[self.kept])[0] / self.diag
         d_fill = rec(self.fill_vertices)[0] / self.diag if self.fill_vertices is not None else np.zeros(0)
@@ -146,8 +149,7 @@ def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: n
     fills = {}
     if fill is not None and fill.any():
         Ff = F_disk[fill]
-        fills = {"fill_vertices": V_disk[np.unique(Ff)],
-                 "reference": SurfaceQuery(np.concatenate([mesh.V, V_disk]), np.concatenate([F, Ff + len(mesh.V)]))}
+        fills = {"fill_query": SurfaceQuery(V_disk, Ff), "fill_vertices": V_disk[np.unique(Ff)]}
     return FullSurface(mesh=mesh, F=F, query=q, normals=vertex_normals(mesh.V, F), tol=tol, **fills,
                        diag=bbox_diagonal(mesh.V[kept]) if kept.any() else bbox_diagonal(mesh.V), roi=roi,
                        kept=np.flatnonzero(kept), colour_source=colours,
