@@ -152,11 +152,16 @@ def _pcg(solver, e, c, free, g, target):
     return None, PCG_MAX_ITERATIONS
 
 
+def _hessian_diagonal(e: np.ndarray, c: np.ndarray, n: int) -> np.ndarray:
+    """The diagonal of :func:`transport_hessian`: each site's ``Σ_j c_ij``."""
+    return np.bincount(e[:, 0], c, minlength=n) + np.bincount(e[:, 1], c, minlength=n)
+
+
 def _free_hessian(e: np.ndarray, c: np.ndarray, free: np.ndarray) -> sp.csc_matrix:
     """``H[free][:, free]`` of :func:`transport_hessian` built directly (CSC, sorted)."""
     n = len(free)
     index = np.cumsum(free) - 1
-    diag = np.bincount(e[:, 0], c, minlength=n) + np.bincount(e[:, 1], c, minlength=n)
+    diag = _hessian_diagonal(e, c, n)
     both = free[e[:, 0]] & free[e[:, 1]]
     i, j, cb = index[e[both, 0]], index[e[both, 1]], c[both]
     k = np.flatnonzero(free)
@@ -259,8 +264,7 @@ def semi_discrete_ot(
     solver = SPDSolver(linear_solver, ordering="amd", mode="simplicial")
     # a Newton direction is first sought by conjugate gradients preconditioned with the last
     # factorisation (far cheaper than a new one when the Hessian has changed little); a new
-    # factorisation when they do not converge
-    reuse = REUSE_FACTOR
+    # factorisation when they do not converge (REUSE_FACTOR)
     factorizations = pcg_iterations = 0
     refactor = False
     # diagrams are updated by flips from the last one until CGAL has to build one anew (a stuck
@@ -291,7 +295,7 @@ def semi_discrete_ot(
         while res > stol and iterations < max_iterations:
             c_e = _hessian_weights(Pr, pd)
             d = None
-            if reuse and factorizations and not refactor:
+            if REUSE_FACTOR and factorizations and not refactor:
                 d, its = _pcg(solver, pd.edges, c_e, free, g, target)
                 pcg_iterations += its
                 # a slow convergence says the Hessian has drifted: factorise at the next step
@@ -311,9 +315,7 @@ def semi_discrete_ot(
             gn = float(np.linalg.norm(g / target))
             step = _damped_step(Pr, hr, d, pd, target, eps0, gn, min_step, backend, flips)
             if step is None:  # no damping accepted: the diagonally scaled gradient, same rule
-                e = pd.edges
-                diag = np.bincount(e[:, 0], c_e, minlength=len(g)) + np.bincount(e[:, 1], c_e, minlength=len(g))
-                dg = -g / np.maximum(diag, 1e-300)
+                dg = -g / np.maximum(_hessian_diagonal(pd.edges, c_e, len(g)), 1e-300)
                 dg -= dg.mean()
                 step = _damped_step(Pr, hr, dg, pd, target, eps0, gn, min_step, backend, flips)
                 if step is None:

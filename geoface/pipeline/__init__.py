@@ -210,6 +210,15 @@ def _front(opts: ConvertOptions, V: np.ndarray, F: np.ndarray, roi, up: np.ndarr
     return d / L if L > 0 else np.array([0.0, 0.0, 1.0])
 
 
+def _roi_onto(roi0, V_scan: np.ndarray, V_proxy: np.ndarray):
+    """The user's mask on a proxy: each proxy vertex takes its nearest scan vertex's."""
+    if roi0 is None:
+        return None
+    from scipy.spatial import cKDTree
+
+    return roi0[cKDTree(V_scan).query(V_proxy)[1]]
+
+
 def _scan_faces(px, disk, F_scan: np.ndarray) -> np.ndarray:
     """The scan faces a needle proxy's disk stands for: those whose proxy face is in the disk,
     and those that collapsed (the needles) onto proxy vertices that all are in the disk."""
@@ -264,10 +273,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             "the full surface", quiet=quiet)
         px = decimate(mesh.V, mesh.F, opts.proxy)
         scan, proxy_kind = mesh, "decimated"
-        if roi0 is not None:  # the user's mask: each proxy vertex takes its nearest scan vertex's
-            from scipy.spatial import cKDTree
-
-            roi0 = roi0[cKDTree(mesh.V).query(px.V)[1]]
+        roi0 = _roi_onto(roi0, mesh.V, px.V)
         mesh = Mesh(px.V, px.F)
         times["proxy"] = time.perf_counter() - t
     elif opts.needles and len(mesh.F):
@@ -278,10 +284,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             log(f"convert: needle triangles: the maps are solved with their short edges collapsed ({px.merged:,} of "
                 f"{len(mesh.V):,} vertices merged), the images sample the full surface", quiet=quiet)
             scan, proxy_kind = mesh, "needles merged"
-            if roi0 is not None:
-                from scipy.spatial import cKDTree
-
-                roi0 = roi0[cKDTree(mesh.V).query(px.V)[1]]
+            roi0 = _roi_onto(roi0, mesh.V, px.V)
             mesh = Mesh(px.V, px.F)
             times["proxy"] = px.seconds
             needle_px = px

@@ -103,23 +103,18 @@ def _near_boundary(F: np.ndarray, face: np.ndarray) -> np.ndarray:
 
 
 def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: np.ndarray | None,
-                 fill: np.ndarray | None = None, faces: np.ndarray | None = None,
-                 tol: float | None = None) -> FullSurface | None:
+                 fill: np.ndarray | None = None, faces: np.ndarray | None = None) -> FullSurface | None:
     """The scan ``mesh`` as the full surface under the proxy disk ``(V_disk, F_disk)`` (see
     module docs); ``roi_disk`` (over the proxy disk's vertices) is carried onto the scan.
     ``fill``: which faces of the disk the repair created (they have no scan under them; the
     error report measures against them, as it does without a proxy).  None when no face of the
     scan lies within ``tol`` of the proxy.  ``faces``: the scan's faces the disk stands for, when
-    the caller knows them (a proxy that only merged vertices), instead of those within ``tol``;
-    ``tol``: how far a pixel may move onto the scan (default the proxy's mean edge length; a
-    proxy that only moved vertices by ``δ`` lies within ``δ`` of the scan, except where the repair
-    changed it)."""
+    the caller knows them (a proxy that only merged vertices), instead of those within ``tol``."""
     from ..uvmap.bake import SurfaceQuery
 
     t0 = time.perf_counter()
     E = np.concatenate([F_disk[:, [0, 1]], F_disk[:, [1, 2]], F_disk[:, [2, 0]]])
-    mean_edge = float(np.linalg.norm(V_disk[E[:, 0]] - V_disk[E[:, 1]], axis=1).mean())
-    tol = mean_edge if tol is None else float(tol)
+    tol = float(np.linalg.norm(V_disk[E[:, 0]] - V_disk[E[:, 1]], axis=1).mean())
     d, face, bary = SurfaceQuery(V_disk, F_disk)(mesh.V)
     # beyond the proxy's boundary (below a neck cut) the closest proxy point is in a triangle at
     # the boundary: there only what lies on the proxy counts (a tenth of tol: the decimation's own
@@ -129,7 +124,7 @@ def full_surface(mesh: Mesh, V_disk: np.ndarray, F_disk: np.ndarray, roi_disk: n
     strict = _near_boundary(F_disk, face)
     if fill is not None:
         strict |= fill[face]
-    near = d <= np.where(strict, 0.1 * mean_edge, mean_edge)
+    near = d <= np.where(strict, 0.1 * tol, tol)
     keep_f = np.flatnonzero(near[mesh.F].all(1)) if faces is None else np.asarray(faces, np.int64)
     if not len(keep_f):
         return None

@@ -48,8 +48,6 @@ class ProxyResult:
     #: (-1: it collapsed)
     vertex_of: np.ndarray | None = None
     face_of: np.ndarray | None = None
-    #: (:func:`merge_needles`) the furthest any vertex moved: the proxy lies this close to the input
-    displacement: float = 0.0
 
 
 def decimate(V, F, vertices: int) -> ProxyResult:
@@ -138,5 +136,4 @@ def merge_needles(V, F, ratio: float = NEEDLE_RATIO) -> ProxyResult | None:
     V2, F2, kept = remove_unreferenced(V, F2)
     index = np.full(n, -1, np.int64)
     index[kept] = np.arange(len(kept))
-    moved = float(np.linalg.norm(V - V[rep], axis=1).max())
-    return ProxyResult(V2, F2, time.perf_counter() - t, merged, vertex_of=index[rep], face_of=face_of, displacement=moved)
+    return ProxyResult(V2, F2, time.perf_counter() - t, merged, vertex_of=index[rep], face_of=face_of)
