@@ -268,16 +268,9 @@ def _shoelace(X, area, mom, cell, pa, pb):
     mom[:, 1] += np.bincount(cell, s * (ra[:, 1] + rb[:, 1]), minlength=n)
 
 
-def _cells(X, w, Xa, n, tri: Triangulation) -> PowerDiagram:
-    simp, cen = tri.T, tri.cen
-    native = regular.power_cells(n, Xa, tri.T, tri.N, cen) if COMPILED_CELLS else None
-    area, mom, e, L = native if native is not None else _interior(X, Xa, n, tri)
-    # the square's sides: sites with a power centre on or outside the square can reach them
-    near = ~(np.abs(cen) < 0.5 - 1e-12).all(1)
-    cand = np.unique(simp[near].ravel())
-    cand = cand[cand < n]
-    if len(cand) == 0:  # cannot happen for n >= 2 sites; be safe
-        cand = np.arange(n)
+def _sides(X, w, cand, area, mom):
+    """The square's sides' part of the cells of sites ``cand``, added to ``area`` and ``mom``
+    (NumPy; :func:`geoface.param.regular.power_sides` is the same arithmetic compiled)."""
     pieces_cell, pieces_a, pieces_b = [], [], []
     for A, dvec in _SIDES:
         A0 = A - 0.5
@@ -290,12 +283,27 @@ def _cells(X, w, Xa, n, tri: Triangulation) -> PowerDiagram:
         pieces_b.append(A0 + br[1:, None] * dvec)
     _shoelace(X, area, mom, np.concatenate(pieces_cell), np.concatenate(pieces_a), np.concatenate(pieces_b))
 
+
+def _cells(X, w, Xa, n, tri: Triangulation) -> PowerDiagram:
+    simp, cen = tri.T, tri.cen
+    native = regular.power_cells(n, Xa, tri.T, tri.N, cen) if COMPILED_CELLS else None
+    area, mom, e, L = native if native is not None else _interior(X, Xa, n, tri)
+    # the square's sides: sites with a power centre on or outside the square can reach them
+    near = ~(np.abs(cen) < 0.5 - 1e-12).all(1)
+    cand = np.unique(simp[near].ravel())
+    cand = cand[cand < n]
+    if len(cand) == 0:  # cannot happen for n >= 2 sites; be safe
+        cand = np.arange(n)
+    if not (COMPILED_CELLS and regular.power_sides(X, w, cand, area, mom)):
+        _sides(X, w, cand, area, mom)
+
     area = np.maximum(area, 0.0)
     cent = X.copy()
     ok = area > 0
     cent[ok] = X[ok] + mom[ok] / area[ok, None]
-    # shared edges between real sites (merge duplicates from triangulated coplanar facets)
-    if len(e):
+    # shared edges between real sites: merge the duplicates of Qhull's triangulated coplanar
+    # facets (in CGAL's triangulation each pair of sites shares at most one edge)
+    if len(e) and tri.source != "cgal":
         key = e[:, 0] * np.int64(n) + e[:, 1]
         uk, inv = np.unique(key, return_inverse=True)
         L = np.bincount(inv, L)

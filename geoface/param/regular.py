@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import GeofaceError, ParameterizationError
 
-__all__ = ["available", "require", "regular_triangulation", "power_cells", "power_centres", "INSTALL_HINT"]
+__all__ = ["available", "require", "regular_triangulation", "power_cells", "power_sides", "power_centres", "INSTALL_HINT"]
 
 INSTALL_HINT = ("install CGAL's headers (Debian/Ubuntu: apt-get install libcgal-dev; conda: cgal-cpp) and rebuild "
                 "geoface (make install, or pip install -e .)")
@@ -55,6 +55,9 @@ def _lib():
             if hasattr(lib, "geoface_power_cells"):  # absent from extensions built before it
                 lib.geoface_power_cells.restype = ctypes.c_int64
                 lib.geoface_power_cells.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64] + [ctypes.c_void_p] * 7
+            if hasattr(lib, "geoface_power_sides"):
+                lib.geoface_power_sides.restype = None
+                lib.geoface_power_sides.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64] + [ctypes.c_void_p] * 3
             if hasattr(lib, "geoface_power_centres"):
                 lib.geoface_power_centres.restype = ctypes.c_int64
                 lib.geoface_power_centres.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 4
@@ -142,6 +145,28 @@ def power_cells(n: int, Xa, T, N, cen):
     k = fn(n, Xa.ctypes.data, m, T.ctypes.data, N.ctypes.data, cen.ctypes.data,
                                 area.ctypes.data, mom.ctypes.data, E.ctypes.data, L.ctypes.data)
     return area, mom, E[:k], L[:k]
+
+
+def power_sides(X, w, cand, area, mom) -> bool:
+    """Add the square's sides' part of the power cells of sites ``X (n, 2)`` (re-centred on
+    ``[-0.5, 0.5]^2``), weights ``w``, to ``area (n,)`` and ``mom (n, 2)`` in place, compiled:
+    each side is split among the candidate sites ``cand`` by the lower envelope of their power
+    along it (:func:`geoface.param.power._lower_envelope`'s arithmetic).  False (nothing added)
+    when the extension lacks it."""
+    fn = _compiled("geoface_power_sides")
+    if fn is None:
+        return False
+    X, w = _f64(X, w)
+    (cand,) = _i64(cand)
+    n = len(X)
+    if X.shape != (n, 2) or w.shape != (n,) or cand.ndim != 1 or area.shape != (n,) or mom.shape != (n, 2):
+        raise ParameterizationError("power_sides needs X (n, 2), w (n,), cand (k,), area (n,), mom (n, 2)")
+    if area.dtype != np.float64 or mom.dtype != np.float64 or not (area.flags.c_contiguous and mom.flags.c_contiguous):
+        raise ParameterizationError("power_sides accumulates into C-contiguous float64 area and mom")
+    if len(cand) and (cand.min() < 0 or cand.max() >= n):
+        raise ParameterizationError("power_sides: candidate sites out of range")
+    fn(n, X.ctypes.data, w.ctypes.data, len(cand), cand.ctypes.data, area.ctypes.data, mom.ctypes.data)
+    return True
 
 
 def power_centres(Xa, wa, T):

@@ -125,6 +125,8 @@ def test_compiled_cells_are_the_numpy_cells(layout, monkeypatch):
     assert np.abs(a.area - b.area).max() < 1e-15
     assert np.abs(a.centroid - b.centroid).max() < 1e-12
     assert np.array_equal(a.edges, b.edges) and np.abs(a.edge_length - b.edge_length).max() < 1e-14
+    # CGAL's triangulation has each pair of sites once: the edges need no merging
+    assert len(np.unique(a.edges, axis=0)) == len(a.edges) and (a.edges[:, 0] < a.edges[:, 1]).all()
     # power centres of arbitrary triangles, flat and clockwise ones included
     X = rng.random((200, 2))
     X[7] = X[3]  # a repeated vertex: a flat triangle

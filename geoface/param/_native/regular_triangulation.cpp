@@ -154,4 +154,83 @@ int64_t geoface_power_centres(int64_t m, const double* xy, const double* w, cons
   }
   return flat;
 }
+
+// The square's sides' part of the power cells: on each side A + t d (t in [0, 1]) the power of
+// candidate site c is t^2 + slope_c t + icept_c, so the side is split among the lower envelope
+// of the lines slope_c t + icept_c (taken in order of decreasing slope, ties by increasing
+// intercept, then by position in cand); each piece is added to its cell's area and first
+// moment (relative to the site) as the interior pieces are.  X: the n sites re-centred on the
+// square [-0.5, 0.5]^2, w their weights; cand: the nc sites that may reach a side.
+// Same arithmetic as geoface.param.power._lower_envelope and its caller (the NumPy fallback).
+void geoface_power_sides(int64_t n, const double* X, const double* w, int64_t nc, const int64_t* cand,
+                         double* area, double* mom) {
+  static const double side_a[4][2] = {{-0.5, -0.5}, {0.5, -0.5}, {0.5, 0.5}, {-0.5, 0.5}};
+  static const double side_d[4][2] = {{1.0, 0.0}, {0.0, 1.0}, {-1.0, 0.0}, {0.0, -1.0}};
+  std::vector<double> slope(static_cast<size_t>(nc)), icept(static_cast<size_t>(nc));
+  std::vector<int64_t> order(static_cast<size_t>(nc));
+  std::vector<double> hm, hb;
+  std::vector<int64_t> hi;
+  for (int sd = 0; sd < 4; ++sd) {
+    const double ax = side_a[sd][0], ay = side_a[sd][1], dx = side_d[sd][0], dy = side_d[sd][1];
+    for (int64_t k = 0; k < nc; ++k) {
+      const int64_t c = cand[k];
+      const double fx = ax - X[2 * c], fy = ay - X[2 * c + 1];
+      slope[k] = 2.0 * (fx * dx + fy * dy);
+      icept[k] = (fx * fx + fy * fy) - w[c];
+      order[k] = k;
+    }
+    std::stable_sort(order.begin(), order.end(), [&](int64_t a, int64_t b) {
+      if (slope[a] != slope[b]) return slope[a] > slope[b];
+      return icept[a] < icept[b];
+    });
+    hm.clear();
+    hb.clear();
+    hi.clear();
+    bool first = true;
+    double last_m = 0.0;
+    for (int64_t idx : order) {
+      const double m = slope[idx], b = icept[idx];
+      if (!first && m == last_m) continue;  // same slope, higher intercept: never below
+      first = false;
+      last_m = m;
+      while (!hm.empty()) {
+        const double m1 = hm.back(), b1 = hb.back();
+        const double x_new = (b - b1) / (m1 - m);
+        double x_prev = -std::numeric_limits<double>::infinity();
+        if (hm.size() >= 2) {
+          const double m0 = hm[hm.size() - 2], b0 = hb[hb.size() - 2];
+          x_prev = (b1 - b0) / (m0 - m1);
+        }
+        if (x_new <= x_prev) {
+          hm.pop_back();
+          hb.pop_back();
+          hi.pop_back();
+        } else {
+          break;
+        }
+      }
+      hm.push_back(m);
+      hb.push_back(b);
+      hi.push_back(idx);
+    }
+    const size_t h = hm.size();
+    for (size_t j = 0; j < h; ++j) {
+      double lo = j == 0 ? -std::numeric_limits<double>::infinity() : (hb[j] - hb[j - 1]) / (hm[j - 1] - hm[j]);
+      double up = j + 1 == h ? std::numeric_limits<double>::infinity() : (hb[j + 1] - hb[j]) / (hm[j] - hm[j + 1]);
+      lo = std::min(std::max(lo, 0.0), 1.0);
+      up = std::min(std::max(up, 0.0), 1.0);
+      if (!(up > lo)) continue;
+      const int64_t c = cand[hi[j]];
+      if (c >= n) continue;
+      const double rx = X[2 * c], ry = X[2 * c + 1];
+      const double rax = ax + lo * dx - rx, ray = ay + lo * dy - ry;
+      const double rbx = ax + up * dx - rx, rby = ay + up * dy - ry;
+      const double cr = rax * rby - ray * rbx;
+      area[c] += 0.5 * cr;
+      const double s = cr / 6.0;
+      mom[2 * c] += s * (rax + rbx);
+      mom[2 * c + 1] += s * (ray + rby);
+    }
+  }
+}
 }
