@@ -17,6 +17,8 @@ def dataset_options(b) -> None:
     b.add_argument("--lam", type=number(float, 0, 1000, lo_open=True), default=2.5, help="mass factor on the ROI (2.5)")
     b.add_argument("--blend", type=number(float, 0, 1, hi_open=True), default=0.1,
                    help="share of the conformal map's area in OT's target measure (0.1; 0 = the paper's measure)")
+    b.add_argument("--feature", type=number(float, 0, 100), default=4.0,
+                   help="extra mass on sharp spots: their masses times 1 + FEATURE (4, as convert; 0 = the paper's measure)")
     b.add_argument("--method", choices=["ot", "conformal"], default="ot", help="measure-preserving (ot) or conformal")
     b.add_argument("--ot-tol", type=number(float, 0, 1, lo_open=True, hi_open=True), default=1e-3,
                    help="OT tolerance: max relative cell-area error (1e-3)")
@@ -38,7 +40,7 @@ def _dataset_report(args, out: Path, s: dict) -> int:
 def _dataset_opts(args):
     from ..dataset import DatasetOptions
 
-    return DatasetOptions(res=args.res, augment=args.augment, roi=args.roi, lam=args.lam, blend=args.blend, method=args.method,
+    return DatasetOptions(res=args.res, augment=args.augment, roi=args.roi, lam=args.lam, blend=args.blend, feature=args.feature, method=args.method,
                           ot_tol=args.ot_tol, reconstruct=args.reconstruct, up=args.up, open=args.open)
 
 

@@ -248,7 +248,7 @@ def cmd_convert(args) -> int:
     roi = args.roi
     if roi not in ("face", "none"):
         roi = load_roi(roi, len(mesh.V))
-    opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, blend=args.blend, augment=args.augment,
+    opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, blend=args.blend, feature=args.feature, augment=args.augment,
                           method=args.method, ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
                           corner_set=args.corner_set, reconstruct=args.reconstruct, proxy=args.proxy,
                           needles=args.needles)

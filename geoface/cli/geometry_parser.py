@@ -53,6 +53,9 @@ def register(sub, common) -> None:
     s.add_argument("--lam", type=number(float, 0, 1000, lo_open=True), default=2.5, help="mass factor on the ROI (paper: 2.5; 1 = area-preserving)")
     s.add_argument("--blend", type=number(float, 0, 1, hi_open=True), default=0.1,  # = pipeline.DEFAULT_BLEND
                    help="share of the conformal map's area in OT's target measure (0.1; 0 = the paper's measure)")
+    s.add_argument("--feature", type=number(float, 0, 100), default=4.0,  # = pipeline.DEFAULT_FEATURE
+                   help="extra mass on sharp spots (cone tips, a closed mouth's corners): their masses times 1 + FEATURE "
+                        "(4; 0 = the paper's measure)")
     s.add_argument("--augment", type=number(int, 1, 8), default=1, help="number of corner sets, 1..8 (one image set each)")
     s.add_argument("--corner-set", type=number(int, 0, 7), default=None, metavar="K",
                    help="convert with corner set K (0..7) only, written directly in OUT_DIR (0: the default, face "

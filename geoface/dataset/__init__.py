@@ -57,6 +57,7 @@ class DatasetOptions:
     ``geoface synth head --meta`` or ``data_tools/make_synthetic_heads.py``, else the frontal
     face cone), ``"face"`` (always the cone) or ``"none"``; lam : mass factor on the ROI (2.5);
     blend : share of the conformal map's area in OT's target measure (0.1, as ``convert``);
+    feature : extra mass on sharp spots (4, as ``convert``);
     method : ``"ot"`` or ``"conformal"``; ot_tol : OT tolerance; reconstruct : also write
     ``reconstruction.obj`` and its error; preview : write ``preview.png``; up / open : how
     closed meshes are cut open (see :func:`geoface.repair.make_disk`).
@@ -67,6 +68,7 @@ class DatasetOptions:
     roi: str = "auto"
     lam: float = 2.5
     blend: float = 0.1
+    feature: float = 4.0
     method: str = "ot"
     ot_tol: float = 1e-3
     reconstruct: bool = False
@@ -84,7 +86,7 @@ class DatasetOptions:
         from ..pipeline import ConvertOptions
 
         return ConvertOptions(
-            res=self.res, roi="none" if roi is None else roi, lam=self.lam, blend=self.blend, augment=self.augment,
+            res=self.res, roi="none" if roi is None else roi, lam=self.lam, blend=self.blend, feature=self.feature, augment=self.augment,
             method=self.method, ot_tol=self.ot_tol, reconstruct=self.reconstruct, preview=self.preview,
             up=self.up, open=self.open, corner_set=corner_set, metrics=False,
         ).validate()

@@ -15,6 +15,14 @@ keeps that band wide.  A small β trades some of the face's share for smaller er
 cut; it also gives less to what the conformal map shrinks (a body's limbs): measured in
 docs/benchmarks.md, "The target measure".
 
+``feature`` (γ) gives sharp spots more pixels: a vertex's mass is multiplied by ``1 + γ·f``,
+``f = min(1, |angle defect| / 60°)`` taken as the largest over the vertex and its neighbours
+(on the disk's own boundary, the defect from a straight line).  A geometry image cuts the tip
+off a cone or a crease's end by an amount proportional to the pixel spacing there (not its
+square, as on a smooth surface): a slit-shaped hole closed by the repair (a head's mouth, its
+corners), a fingertip, the rim of a filled eye.  ``γ = 0`` is the paper's measure; ``convert``
+uses 4 (docs/benchmarks.md, "Sharp spots").
+
 Two details make the result usable as a parameterization:
 
 * Boundary vertices stay on their side of the square (a centroid lies inside its cell, a
@@ -61,8 +69,36 @@ from .ot import OTResult, semi_discrete_ot
 DIRECT_STALL = 4
 #: solves started again from the centroids the last one reached, when it stopped short
 MAX_RESTARTS = 4
+#: the angle defect at which a vertex counts fully as a sharp spot (``feature`` masses)
+FEATURE_ANGLE = np.radians(60.0)
 
-__all__ = ["MeasureMapResult", "MeasurePreservingSolver", "measure_preserving_map", "signed_uv_areas", "area_error"]
+__all__ = ["MeasureMapResult", "MeasurePreservingSolver", "measure_preserving_map", "sharpness", "signed_uv_areas", "area_error"]
+
+
+def sharpness(V, F, boundary=None) -> np.ndarray:
+    """Per vertex in [0, 1]: ``min(1, |angle defect| / FEATURE_ANGLE)``, then the largest over
+    each vertex and its neighbours.  The defect is ``2π - Σ angles`` inside and ``π - Σ angles``
+    at ``boundary`` vertices (default: the mesh's boundary loops), so a flat disk and its
+    straight rim are 0; a cone tip, a crease's end or a corner of a slit-shaped hole approach 1."""
+    V, F = check_mesh(V, F)
+    n = len(V)
+    angle = np.empty(F.shape)
+    for k in range(3):  # the angle at corner k, between the edges to the next two corners
+        a = V[F[:, (k + 1) % 3]] - V[F[:, k]]
+        b = V[F[:, (k + 2) % 3]] - V[F[:, k]]
+        angle[:, k] = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), (a * b).sum(1))
+    total = np.bincount(F.ravel(), angle.ravel(), minlength=n)
+    if boundary is None:
+        loops = boundary_loops(F)
+        boundary = np.concatenate(loops) if loops else np.zeros(0, np.int64)
+    defect = 2.0 * np.pi - total
+    defect[boundary] = np.pi - total[boundary]
+    f = np.minimum(1.0, np.abs(defect) / FEATURE_ANGLE)
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    g = f.copy()
+    np.maximum.at(g, edges[:, 0], f[edges[:, 1]])
+    np.maximum.at(g, edges[:, 1], f[edges[:, 0]])
+    return g
 
 
 @dataclass(frozen=True)
@@ -168,16 +204,20 @@ class MeasurePreservingSolver:
         self.boundary = np.concatenate(loops) if loops else np.zeros(0, np.int64)
         self.tol, self.fold_free, self.linear_solver, self.backend, self.quiet = tol, fold_free, linear_solver, backend, quiet
         self._warm: tuple | None = None  # (uv, heights) of the last solve from the starting map
+        self._sharpness: np.ndarray | None = None
         self.warm_started = False  # whether the last solve started from the previous heights
 
-    def masses(self, roi=None, lam: float = 2.5, *, uv=None, blend: float = 0.0) -> np.ndarray:
-        """The target masses ``ν_i = λ_i · (vertex area)``: ``lam`` on ``roi``, 1 elsewhere;
-        with ``blend`` β > 0, ``ν_i^(1-β) · (uv area_i)^β`` (same total), ``uv`` the starting map."""
+    def masses(self, roi=None, lam: float = 2.5, *, uv=None, blend: float = 0.0, feature: float = 0.0) -> np.ndarray:
+        """The target masses ``ν_i = λ_i · (vertex area)``: ``lam`` on ``roi``, 1 elsewhere; with
+        ``blend`` β > 0, ``ν_i^(1-β) · (uv area_i)^β`` (same total), ``uv`` the starting map;
+        then times ``1 + γ f_i``, ``f`` the :func:`sharpness` and γ = ``feature``."""
         n = len(self.V)
         if not (np.isfinite(lam) and lam > 0):
             raise ParameterizationError(f"lam must be positive; got {lam}")
         if not (np.isfinite(blend) and 0.0 <= blend < 1.0):
             raise ParameterizationError(f"blend must be in [0, 1); got {blend}")
+        if not (np.isfinite(feature) and feature >= 0):
+            raise ParameterizationError(f"feature must be finite and >= 0; got {feature}")
         weight = np.ones(n)
         if roi is not None:
             roi = np.asarray(roi)
@@ -185,8 +225,14 @@ class MeasurePreservingSolver:
                 raise ParameterizationError(f"roi must be a ({n},) vertex mask; got shape {roi.shape}")
             weight = np.where(roi.astype(bool), float(lam), 1.0)
         nu = weight * self.vertex_areas
+        if feature > 0:
+            if self._sharpness is None:
+                self._sharpness = sharpness(self.V, self.F, self.boundary)
+            boost = 1.0 + feature * self._sharpness
+        else:
+            boost = 1.0
         if blend == 0.0:
-            return nu
+            return nu * boost
         if uv is None:
             raise ParameterizationError("blend > 0 needs the starting map uv")
         ua = uv_vertex_areas(self.F, uv)
@@ -194,9 +240,9 @@ class MeasurePreservingSolver:
         # a vertex whose starting cells all collapsed: the smallest positive area, not zero
         ua = np.where(pos, ua, ua[pos].min() if pos.any() else 1.0)
         mixed = np.exp((1.0 - blend) * np.log(nu / nu.sum()) + blend * np.log(ua / ua.sum()))
-        return mixed * (nu.sum() / mixed.sum())
+        return mixed * (nu.sum() / mixed.sum()) * boost
 
-    def solve(self, uv, *, roi=None, lam: float = 2.5, blend: float = 0.0, h0=None) -> "MeasureMapResult":
+    def solve(self, uv, *, roi=None, lam: float = 2.5, blend: float = 0.0, feature: float = 0.0, h0=None) -> "MeasureMapResult":
         """The measure-preserving map from ``uv`` (see :func:`measure_preserving_map`)."""
         V, F, quiet, tol = self.V, self.F, self.quiet, self.tol
         fold_free, linear_solver, backend = self.fold_free, self.linear_solver, self.backend
@@ -207,7 +253,7 @@ class MeasurePreservingSolver:
             raise ParameterizationError(f"uv must be a finite ({n}, 2) array")
         if uv.min() < -1e-9 or uv.max() > 1 + 1e-9:
             raise ParameterizationError("uv must lie in the unit square (use RicciFlowResult.unit_square())")
-        nu = self.masses(roi, lam, uv=uv, blend=blend)
+        nu = self.masses(roi, lam, uv=uv, blend=blend, feature=feature)
         roi = None if roi is None else np.asarray(roi)
         self.warm_started = False
         if h0 is None and self._warm is not None and np.array_equal(self._warm[0], uv):
@@ -299,6 +345,7 @@ def measure_preserving_map(
     roi=None,
     lam: float = 2.5,
     blend: float = 0.0,
+    feature: float = 0.0,
     tol: float = 1e-3,
     fold_free: bool = True,
     h0=None,
@@ -315,13 +362,14 @@ def measure_preserving_map(
     roi : (n,) bool vertex mask of the region of interest (e.g. the face) or None
     lam : mass factor on the region of interest (the paper: 2.5); 1 = area-preserving
     blend : share β of the starting map's own area in the masses (module docs); 0 = the paper's
+    feature : γ, the extra mass on sharp spots (module docs); 0 = the paper's
     tol : OT tolerance, max |w_i - ν_i| / ν_i
     fold_free : replace the centroid map by the fold-free convex-combination map (default);
         False returns the centroids (snapped to the sides), which may fold
     backend : power-diagram construction (``"auto"``, ``"cgal"``, ``"qhull"``)
     """
     return MeasurePreservingSolver(V, F, tol=tol, fold_free=fold_free, linear_solver=linear_solver, backend=backend,
-                                   quiet=quiet).solve(uv, roi=roi, lam=lam, blend=blend, h0=h0)
+                                   quiet=quiet).solve(uv, roi=roi, lam=lam, blend=blend, feature=feature, h0=h0)
 
 
 def _max_rel_area_error(F, uv, nu) -> float:

@@ -41,6 +41,9 @@ NEEDLE_MIN_SHARE = 1e-3
 #: default share of the conformal map's own area in OT's target measure (chosen on validation
 #: heads: docs/benchmarks.md, "The target measure")
 DEFAULT_BLEND = 0.1
+#: default extra mass on sharp spots (γ of :func:`geoface.param.measure.sharpness`; chosen on
+#: validation heads: docs/benchmarks.md, "Sharp spots")
+DEFAULT_FEATURE = 4.0
 
 
 @dataclass(frozen=True)
@@ -52,7 +55,8 @@ class ConvertOptions:
     "none", or a per-input-vertex boolean mask; lam : mass factor on the ROI (2.5 in the
     paper; 1 = area-preserving); blend : share of the conformal map's own area in OT's
     target measure (:data:`DEFAULT_BLEND`; 0 = the paper's measure, see
-    :mod:`geoface.param.measure`); augment : number of corner sets (1..8); method : "ot" or
+    :mod:`geoface.param.measure`); feature : γ, sharp spots' (cone tips, a closed mouth's
+    corners) masses times ``1 + γ`` (:data:`DEFAULT_FEATURE`; 0 = the paper's measure); augment : number of corner sets (1..8); method : "ot" or
     "conformal"; ot_tol : OT tolerance; smooth : Laplacian smoothing iterations of the
     reconstruction; up / open : how :func:`geoface.repair.make_disk` cuts closed heads, and
     which way is up in the image; ``up="auto"`` (default): found from the shape in any axis
@@ -81,6 +85,7 @@ class ConvertOptions:
     roi: object = "face"
     lam: float = 2.5
     blend: float = DEFAULT_BLEND
+    feature: float = DEFAULT_FEATURE
     augment: int = 1
     method: str = "ot"
     ot_tol: float = 1e-3
@@ -106,6 +111,9 @@ class ConvertOptions:
             raise GeofaceError(f"lam must be positive; got {self.lam!r}")
         if not (np.isfinite(self.blend) and 0 <= self.blend < 1):
             raise GeofaceError(f"blend must be in [0, 1); got {self.blend!r}")
+        if isinstance(self.feature, bool) or not (isinstance(self.feature, (int, float)) and np.isfinite(self.feature)
+                                                   and 0 <= self.feature <= 100):
+            raise GeofaceError(f"feature must be a number in [0, 100]; got {self.feature!r}")
         if isinstance(self.proxy, bool) or int(self.proxy) != self.proxy or not (self.proxy == 0 or self.proxy >= 1000):
             raise GeofaceError(f"proxy must be 0 (off) or a vertex count >= 1000; got {self.proxy!r}")
         if not (isinstance(self.needles, (int, float)) and not isinstance(self.needles, bool)

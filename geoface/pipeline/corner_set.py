@@ -41,11 +41,13 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
     st["conformal_distortion"] = distortion(V, F, uv).summary()
     if opts.method == "ot":
         t = time.perf_counter()
-        log(f"convert [{pos + 1}/{count}]: optimal transport (lam {opts.lam:g}, blend {opts.blend:g})", quiet=quiet, detail=True)
-        mp = measure_preserving_map(V, F, uv, roi=roi, lam=opts.lam, blend=opts.blend, tol=opts.ot_tol, quiet=quiet)
+        log(f"convert [{pos + 1}/{count}]: optimal transport (lam {opts.lam:g}, blend {opts.blend:g}, feature {opts.feature:g})",
+            quiet=quiet, detail=True)
+        mp = measure_preserving_map(V, F, uv, roi=roi, lam=opts.lam, blend=opts.blend, feature=opts.feature, tol=opts.ot_tol,
+                                    quiet=quiet)
         uv = mp.uv
         st["ot"] = {
-            "seconds": time.perf_counter() - t, "lam": opts.lam, "blend": opts.blend, "path": mp.path, "sites": mp.sites, "restarts": mp.restarts,
+            "seconds": time.perf_counter() - t, "lam": opts.lam, "blend": opts.blend, "feature": opts.feature, "path": mp.path, "sites": mp.sites, "restarts": mp.restarts,
             "converged": mp.converged,
             "residual": mp.residual, "iterations": mp.ot.iterations if mp.ot else 0, "halvings": mp.ot.halvings if mp.ot else 0,
             "stages": mp.ot.stages if mp.ot else 0, "gradient_steps": mp.ot.gradient_steps if mp.ot else 0,
@@ -73,6 +75,7 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
     # alignment in vectorised sums) must not change the file's bytes between runs
     meta = {"corners": st["corners"], "method": opts.method, "lam": opts.lam if opts.method == "ot" else None,
             "blend": opts.blend if opts.method == "ot" else None,
+            "feature": opts.feature if opts.method == "ot" else None,
             "param": {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in st["distortion"].items()},
             # positions and normals are stored upright (x right, y up, z front); to_input turns them back
             "frame": {"to_input": [[float(f"{x:.12g}") for x in row] for row in stored.T]}}
