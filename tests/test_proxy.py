@@ -195,3 +195,19 @@ def test_cli_needles(tmp_path):
     assert "needles merged)" in p.stdout, p.stdout
     p = subprocess.run(run + ["--needles", "2", "--force"], capture_output=True, text=True)
     assert p.returncode == 2 and "Traceback" not in p.stderr and "--needles" in p.stderr
+
+
+def test_the_cli_default_feature_is_the_library_default(tmp_path):
+    from geoface.cli import build_parser
+    from geoface.dataset import DatasetOptions
+    from geoface.pipeline import DEFAULT_FEATURE
+
+    args = build_parser().parse_args(["convert", "in.obj", "-o", "out"])
+    ds = build_parser().parse_args(["dataset", "build", "in", "-o", "out"])
+    assert args.feature == ds.feature == DEFAULT_FEATURE == ConvertOptions().feature == DatasetOptions().feature
+    assert DatasetOptions().convert_options(0, None).feature == DEFAULT_FEATURE
+    f = tmp_path / "in.obj"
+    f.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    p = subprocess.run([sys.executable, "-m", "geoface", "convert", str(f), "-o", str(tmp_path / "o"), "--feature", "-1"],
+                       capture_output=True, text=True)
+    assert p.returncode == 2 and "Traceback" not in p.stderr and "--feature" in p.stderr
