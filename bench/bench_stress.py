@@ -36,7 +36,7 @@ def _angle(a, b) -> float:
     return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
 
 
-def run_case(case, res: int, augment: int, tmp: Path, blend: float | None = None) -> dict:
+def run_case(case, res: int, augment: int, tmp: Path, blend: float | None = None, feature: float | None = None) -> dict:
     import make_stress_cases as S
 
     from geoface.errors import GeofaceError
@@ -57,7 +57,8 @@ def run_case(case, res: int, augment: int, tmp: Path, blend: float | None = None
     out = {"case": case.name, "base": case.base, "kind": case.kind, "convention": case.convention, "res": res,
            "vertices": int(len(mesh.V)), "faces": int(len(mesh.F))}
     try:
-        opts = ConvertOptions(res=res, augment=augment) if blend is None else ConvertOptions(res=res, augment=augment, blend=blend)
+        given = {k: v for k, v in (("blend", blend), ("feature", feature)) if v is not None}
+        opts = ConvertOptions(res=res, augment=augment, **given)
         m = convert(mesh, tmp / "out", opts, quiet=True)
     except GeofaceError as e:
         out.update(ok=False, error=str(e), seconds=time.perf_counter() - t)
@@ -86,6 +87,7 @@ def run_case(case, res: int, augment: int, tmp: Path, blend: float | None = None
     out["face_hausdorff"] = max(face) if all(f is not None for f in face) else None
     out["roi_pixel_share"] = st0.get("roi_pixel_share")
     out["blend"] = st0["ot"].get("blend") if "ot" in st0 else None
+    out["feature"] = st0["ot"].get("feature") if "ot" in st0 else None
     if case.landmarks:
         folder = tmp / "out" / ("aug0" if augment > 1 else "")
         pix = S.landmark_pixels(folder, case.landmarks)
