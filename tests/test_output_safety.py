@@ -474,3 +474,25 @@ def test_sigterm_under_native_worker_threads_exits_cleanly(tmp_path):
         assert p.returncode == 143, (p.returncode, p.stderr[-2000:])
         assert p.stderr.strip() == "geoface: terminated"
         assert time.monotonic() - t0 < 30.0
+
+
+def test_an_interrupt_is_not_raised_where_python_would_ignore_it():
+    """A signal landing in a finaliser or a WeakSet callback would be printed and ignored
+    ("Exception ignored in"), and the run would go on: the handler waits for other code."""
+    from geoface.cli.interrupt import _swallowed
+
+    seen = []
+
+    class Finalised:
+        def __del__(self):
+            seen.append(_swallowed(sys._getframe()))
+
+    Finalised()
+    assert seen == [True] and not _swallowed(sys._getframe()) and not _swallowed(None)
+    # WeakSet's callback runs in _weakrefset.py: a frame of that file counts
+    import _weakrefset
+
+    code = compile("import sys; f = sys._getframe()", _weakrefset.__file__, "exec")
+    env: dict = {}
+    exec(code, env)
+    assert _swallowed(env["f"])
