@@ -378,12 +378,9 @@ def _damped_step(P, h, d, pd, target, eps0, gn, min_step, backend, flips=None):
     k = 0
     while tau >= min_step:
         hn = h + tau * d
-        if flips is None or flips[0]:
-            pdn = power_diagram(P, hn, previous=pd, backend=backend)
-            if flips is not None and pdn.source == "cgal":  # built anew (with Qhull flips stay cheaper)
-                flips[0] = False
-        else:
-            pdn = power_diagram(P, hn, backend=backend)
+        pdn = power_diagram(P, hn, previous=pd, backend=backend, flip=flips is None or flips[0])
+        if flips is not None and pdn.source == "cgal":  # built anew (with Qhull flips stay cheaper)
+            flips[0] = False
         gnew = pdn.area - target
         if pdn.area.min() >= eps0 and np.linalg.norm(gnew / target) <= (1 - tau / 2) * gn:
             return hn, pdn, gnew, tau, k

@@ -168,7 +168,8 @@ FLIP_MIN_SITES: int | None = None
 COMPILED_CELLS = True
 
 
-def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = None, backend: str = "auto") -> PowerDiagram:
+def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = None, backend: str = "auto",
+                  flip: bool = True) -> PowerDiagram:
     """Power diagram of ``points (n, 2)`` with ``weights (n,)`` clipped to ``[0, 1]^2``.
 
     Sites may lie on the square's edges or slightly outside it; coincident sites get
@@ -179,7 +180,8 @@ def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = Non
     a whole solve took 0.38 s instead of 1.19 s; on 43K sites flips were 6% faster).
     ``backend``: how a triangulation is built anew: ``"cgal"`` (exact predicates),
     ``"qhull"`` (SciPy; merges sites closer than ~1e-7) or ``"auto"`` (CGAL when built).
-    The result's ``source`` says which built it.  Raises :class:`ParameterizationError` for
+    The result's ``source`` says which built it.  ``flip=False``: build anew even where flips
+    would be tried (``previous`` then only lends CGAL its insertion order).  Raises :class:`ParameterizationError` for
     malformed input.
     """
     if backend not in BACKENDS:
@@ -204,13 +206,15 @@ def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = Non
     tri = None
     exact = backend == "cgal" or (backend == "auto" and regular.available())
     prev = previous._tri if previous is not None else None
+    same = prev is not None and prev.X.shape == X.shape and np.array_equal(prev.X, X)
     # with CGAL a new triangulation is as cheap as flipping to it (see FLIP_MIN_SITES)
     # (flips that get stuck cost both); the result is the same regular triangulation
-    if (prev is not None and prev.updatable and prev.X.shape == X.shape and np.array_equal(prev.X, X)
-            and (not exact or (FLIP_MIN_SITES is not None and n >= FLIP_MIN_SITES))):
+    if same and flip and prev.updatable and (not exact or (FLIP_MIN_SITES is not None and n >= FLIP_MIN_SITES)):
         tri = flip_to_regular(prev, Xa, wa)
-    if tri is None:
-        tri = (cgal_triangulation if exact else qhull_triangulation)(X, Xa, wa, n)
+    if tri is None and exact:  # the sites' spatial order is sorted once per set of sites
+        tri = cgal_triangulation(X, Xa, wa, n, prev.order if same else None)
+    elif tri is None:
+        tri = qhull_triangulation(X, Xa, wa, n)
     return _cells(X, w, Xa, n, tri)
 
 

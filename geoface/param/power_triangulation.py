@@ -48,6 +48,9 @@ class Triangulation:
     cen: np.ndarray
     updatable: bool
     source: str
+    #: CGAL's insertion order (guards first, then the sites' spatial order), kept for the next
+    #: diagram of the same sites
+    order: np.ndarray | None = None
 
 
 def _orient(Xa, a, b, c):
@@ -115,10 +118,13 @@ def qhull_triangulation(X, Xa, wa, n) -> Triangulation:
     return Triangulation(X, T, N, cen, updatable, "qhull")
 
 
-def cgal_triangulation(X, Xa, wa, n) -> Triangulation:
+def cgal_triangulation(X, Xa, wa, n, order=None) -> Triangulation:
     """The regular triangulation with exact predicates (CGAL); every triangle is
-    counter-clockwise and non-degenerate, hidden sites are simply absent."""
-    T, N = regular.regular_triangulation(Xa, wa)
+    counter-clockwise and non-degenerate, hidden sites are simply absent.  ``order``: the
+    insertion order of an earlier diagram of the same sites (computed here when None)."""
+    if order is None:
+        order = regular.spatial_order(Xa, first=np.arange(n, len(Xa)))
+    T, N = regular.regular_triangulation(Xa, wa, order)
     with np.errstate(divide="ignore", invalid="ignore"):
         compiled = regular.power_centres(Xa, wa, T)
         cen, n_flat = compiled if compiled is not None else (_power_centres(Xa, wa, T), None)
@@ -130,7 +136,7 @@ def cgal_triangulation(X, Xa, wa, n) -> Triangulation:
         n_flat = int((_orient(Xa, T[:, 0], T[:, 1], T[:, 2]) <= 0).sum())
     present = np.bincount(T.ravel(), minlength=n + 4)[:n] > 0
     updatable = bool(present.all() and n_flat == 0)
-    return Triangulation(X, T, N, cen, updatable, "cgal")
+    return Triangulation(X, T, N, cen, updatable, "cgal", order)
 
 
 #: a non-regular edge is flipped when its power in-circle determinant exceeds this share of
@@ -206,4 +212,4 @@ def flip_to_regular(prev: Triangulation, Xa, wa) -> Triangulation | None:
         return None
     if (_orient(Xa, T[:, 0], T[:, 1], T[:, 2]) <= 0).any():
         return None
-    return Triangulation(prev.X, T, N, _power_centres(Xa, wa, T), True, "flips")
+    return Triangulation(prev.X, T, N, _power_centres(Xa, wa, T), True, "flips", prev.order)

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import GeofaceError, ParameterizationError
 
-__all__ = ["available", "require", "regular_triangulation", "power_cells", "power_sides", "power_centres", "INSTALL_HINT"]
+__all__ = ["available", "require", "regular_triangulation", "spatial_order", "power_cells", "power_sides", "power_centres", "INSTALL_HINT"]
 
 INSTALL_HINT = ("install CGAL's headers (Debian/Ubuntu: apt-get install libcgal-dev; conda: cgal-cpp) and rebuild "
                 "geoface (make install, or pip install -e .)")
@@ -52,6 +52,11 @@ def _lib():
             lib.geoface_rt2.restype = ctypes.c_int64
             lib.geoface_rt2.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64,
                                         ctypes.c_void_p, ctypes.c_void_p]
+            if hasattr(lib, "geoface_rt2_ordered"):  # absent from extensions built before it
+                lib.geoface_spatial_order.restype = ctypes.c_int64
+                lib.geoface_spatial_order.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p]
+                lib.geoface_rt2_ordered.restype = ctypes.c_int64
+                lib.geoface_rt2_ordered.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 3 + [ctypes.c_int64] + [ctypes.c_void_p] * 2
             if hasattr(lib, "geoface_power_cells"):  # absent from extensions built before it
                 lib.geoface_power_cells.restype = ctypes.c_int64
                 lib.geoface_power_cells.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64] + [ctypes.c_void_p] * 7
@@ -76,8 +81,29 @@ def require() -> None:
         raise GeofaceError(f"exact power diagrams need geoface's CGAL extension: {INSTALL_HINT}")
 
 
-def regular_triangulation(X, w) -> tuple[np.ndarray, np.ndarray]:
-    """Regular triangulation of ``X (n, 2)`` with weights ``w (n,)``.
+def spatial_order(X, first=()) -> np.ndarray | None:
+    """An insertion order for :func:`regular_triangulation` over the points ``X (n, 2)``: the
+    indices ``first`` as given, then the others in CGAL's spatial (Hilbert) order — the sort a
+    range insertion does on every call.  Sites that keep their places while their weights change
+    (a Newton solve) sort once.  None when the extension predates it."""
+    fn = _compiled("geoface_spatial_order")
+    if fn is None or not hasattr(_lib(), "geoface_rt2_ordered"):
+        return None
+    X = np.ascontiguousarray(X, np.float64)
+    first = np.asarray(first, np.int64)
+    rest = np.ones(len(X), bool)
+    rest[first] = False
+    rest = np.flatnonzero(rest)
+    Xr = np.ascontiguousarray(X[rest])
+    order = np.empty(len(rest), np.int64)
+    if fn(len(rest), Xr.ctypes.data, order.ctypes.data) != 0:
+        return None
+    return np.concatenate([first, rest[order]])
+
+
+def regular_triangulation(X, w, order=None) -> tuple[np.ndarray, np.ndarray]:
+    """Regular triangulation of ``X (n, 2)`` with weights ``w (n,)``.  ``order``: the insertion
+    order (from :func:`spatial_order`; by default CGAL sorts the points itself).
 
     Returns
     -------
@@ -98,7 +124,13 @@ def regular_triangulation(X, w) -> tuple[np.ndarray, np.ndarray]:
     cap = 2 * n + 8
     T = np.empty((cap, 3), np.int64)
     N = np.empty((cap, 3), np.int64)
-    m = lib.geoface_rt2(n, X.ctypes.data, w.ctypes.data, cap, T.ctypes.data, N.ctypes.data)
+    if order is None:
+        m = lib.geoface_rt2(n, X.ctypes.data, w.ctypes.data, cap, T.ctypes.data, N.ctypes.data)
+    else:
+        order = np.ascontiguousarray(order, np.int64)
+        if order.shape != (n,):
+            raise ParameterizationError(f"order must have shape ({n},); got {order.shape}")
+        m = lib.geoface_rt2_ordered(n, X.ctypes.data, w.ctypes.data, order.ctypes.data, cap, T.ctypes.data, N.ctypes.data)
     if m == -1:
         raise ParameterizationError("regular triangulation failed: fewer than three affinely independent points")
     if m < 0:  # cannot happen (a planar triangulation has at most 2n - 5 triangles); be safe

@@ -205,6 +205,40 @@ def test_qhull_and_cgal_agree_on_well_separated_sites(layout):
     assert np.abs(a.centroid - b.centroid).max() < 1e-9
 
 
+def test_presorted_insertion_is_the_same_triangulation():
+    """CGAL's triangulation with the spatial order sorted once (a Newton solve's sites do not
+    move) has the same triangles as its own range insertion — with hidden sites, a crowded
+    cluster and duplicates — and power_diagram hands the order on to the next diagram."""
+    from geoface.param import regular
+
+    if not regular.available():
+        pytest.skip("CGAL extension not built")
+    rng = np.random.default_rng(8)
+    X = np.concatenate([rng.random((2000, 2)), 0.3 + 1e-9 * rng.random((50, 2)), rng.random((5, 2))])
+    X = np.concatenate([X, X[-5:]])  # five duplicates
+    w = 1e-4 * rng.normal(0, 1, len(X))  # enough to hide some sites
+    order = regular.spatial_order(X, first=[3, 1])
+    assert order is not None and np.array_equal(np.sort(order), np.arange(len(X))) and list(order[:2]) == [3, 1]
+    T0, _ = regular.regular_triangulation(X, w)
+    T1, N1 = regular.regular_triangulation(X, w, order)
+    assert len(np.unique(T0)) < len(X) - 100  # hidden sites are absent
+    key = lambda T: {tuple(np.roll(t, -int(np.argmin(t)))) for t in T}  # noqa: E731
+    assert key(T0) == key(T1)
+    m = len(T1)
+    back = N1 >= 0  # neighbours point back
+    assert ((N1[back] < m) & (N1[N1[back]] == np.repeat(np.arange(m), 3).reshape(m, 3)[back][:, None]).any(1)).all()
+    with pytest.raises(ParameterizationError, match="order"):
+        regular.regular_triangulation(X, w, order[:-1])
+    P = rng.random((500, 2))
+    a = power_diagram(P, backend="cgal")
+    w = 1e-4 * rng.normal(0, 1, 500)
+    b = power_diagram(P, w, previous=a, backend="cgal", flip=False)
+    assert b._tri.order is a._tri.order and b.source == "cgal"
+    fresh = power_diagram(P, w, backend="cgal")  # sorts anew: the same cells
+    assert fresh._tri.order is not a._tri.order
+    assert np.abs(b.area - fresh.area).max() < 1e-15 and np.abs(b.centroid - fresh.centroid).max() < 1e-12
+
+
 @pytest.mark.parametrize("spacing", [1e-6, 1e-9, 1e-11])
 def test_exact_predicates_resolve_crowded_sites(spacing):
     """Sites far closer than floating point resolves by arithmetic (the squeezed ends of

@@ -5,6 +5,8 @@
 // ctypes by geoface/param/native.py (no Python headers needed to build it).
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
 #include <CGAL/Regular_triangulation_2.h>
+#include <CGAL/Spatial_sort_traits_adapter_2.h>
+#include <CGAL/spatial_sort.h>
 #include <CGAL/Triangulation_face_base_with_info_2.h>
 #include <CGAL/Triangulation_vertex_base_with_info_2.h>
 
@@ -37,6 +39,24 @@ int geoface_rt2_abi(void) { return 1; }
 // N (cap x 3: the triangle across the edge opposite T[t][k], -1 across the convex hull).
 // Returns the number of triangles; -m when m > cap (nothing written); -1 on failure
 // (fewer than three affinely independent points, or an exception).
+namespace {
+// Writes rt's finite triangles (see geoface_rt2); returns their number, or -m when m > cap.
+int64_t write_faces(RT& rt, int64_t cap, int64_t* T, int64_t* N) {
+  int64_t m = 0;
+  for (auto f = rt.finite_faces_begin(); f != rt.finite_faces_end(); ++f) f->info() = m++;
+  if (m > cap) return -m;
+  for (auto f = rt.finite_faces_begin(); f != rt.finite_faces_end(); ++f) {
+    const int64_t t = f->info();
+    for (int k = 0; k < 3; ++k) {
+      T[3 * t + k] = f->vertex(k)->info();
+      auto g = f->neighbor(k);
+      N[3 * t + k] = rt.is_infinite(g) ? -1 : g->info();
+    }
+  }
+  return m;
+}
+}  // namespace
+
 int64_t geoface_rt2(int64_t n, const double* xy, const double* w, int64_t cap, int64_t* T, int64_t* N) {
   try {
     std::vector<std::pair<WP, int64_t>> pts;
@@ -45,18 +65,51 @@ int64_t geoface_rt2(int64_t n, const double* xy, const double* w, int64_t cap, i
     RT rt;
     rt.insert(pts.begin(), pts.end());  // spatially sorted insertion
     if (rt.dimension() < 2) return -1;
-    int64_t m = 0;
-    for (auto f = rt.finite_faces_begin(); f != rt.finite_faces_end(); ++f) f->info() = m++;
-    if (m > cap) return -m;
-    for (auto f = rt.finite_faces_begin(); f != rt.finite_faces_end(); ++f) {
-      const int64_t t = f->info();
-      for (int k = 0; k < 3; ++k) {
-        T[3 * t + k] = f->vertex(k)->info();
-        auto g = f->neighbor(k);
-        N[3 * t + k] = rt.is_infinite(g) ? -1 : g->info();
+    return write_faces(rt, cap, T, N);
+  } catch (const std::exception&) {
+    return -1;
+  } catch (...) {
+    return -1;
+  }
+}
+
+// A spatial (Hilbert, median policy) order of the first n points of xy (n x 2), written to
+// order (n): the order in which CGAL's range insertion would insert them.  Returns 0, or -1
+// on an exception.
+int64_t geoface_spatial_order(int64_t n, const double* xy, int64_t* order) {
+  try {
+    std::vector<std::pair<P2, int64_t>> q;
+    q.reserve(static_cast<size_t>(n));
+    for (int64_t i = 0; i < n; ++i) q.emplace_back(P2(xy[2 * i], xy[2 * i + 1]), i);
+    typedef CGAL::First_of_pair_property_map<std::pair<P2, int64_t>> Pmap;
+    CGAL::spatial_sort(q.begin(), q.end(), CGAL::Spatial_sort_traits_adapter_2<K, Pmap>());
+    for (int64_t i = 0; i < n; ++i) order[i] = q[static_cast<size_t>(i)].second;
+    return 0;
+  } catch (...) {
+    return -1;
+  }
+}
+
+// geoface_rt2 with the insertion order given (order: a permutation of 0..n-1, e.g. the guard
+// sites first and then geoface_spatial_order of the others), each point located from the last
+// one's face.  The sort is the part of a range insertion that does not depend on the weights:
+// a Newton solve over fixed sites computes it once.  Same triangulation as geoface_rt2.
+int64_t geoface_rt2_ordered(int64_t n, const double* xy, const double* w, const int64_t* order, int64_t cap,
+                            int64_t* T, int64_t* N) {
+  try {
+    RT rt;
+    RT::Face_handle hint;
+    for (int64_t j = 0; j < n; ++j) {
+      const int64_t i = order[j];
+      if (i < 0 || i >= n) return -1;
+      RT::Vertex_handle v = rt.insert(WP(P2(xy[2 * i], xy[2 * i + 1]), w[i]), hint);
+      if (v != RT::Vertex_handle()) {
+        v->info() = i;
+        hint = v->face();
       }
     }
-    return m;
+    if (rt.dimension() < 2) return -1;
+    return write_faces(rt, cap, T, N);
   } catch (const std::exception&) {
     return -1;
   } catch (...) {
