@@ -267,9 +267,8 @@ def semi_discrete_ot(
     # factorisation when they do not converge (REUSE_FACTOR)
     factorizations = pcg_iterations = 0
     refactor = False
-    # diagrams are updated by flips from the last one until CGAL has to build one anew (a stuck
-    # update: cells vanish or appear, as they then keep doing; or a problem too small for flips)
-    flips = [True]
+    # each trial diagram is the last accepted one's triangulation flipped to the new heights
+    # (compiled, exact); built anew when flips cannot get there (a cell would vanish)
     # gauge: pin the site with the largest starting cell (re-centred after every step)
     free = np.ones(len(Pr), bool)
     free[int(np.argmax(pd.area))] = False
@@ -313,11 +312,11 @@ def semi_discrete_ot(
                 factorizations += 1
             d -= d.mean()
             gn = float(np.linalg.norm(g / target))
-            step = _damped_step(Pr, hr, d, pd, target, eps0, gn, min_step, backend, flips)
+            step = _damped_step(Pr, hr, d, pd, target, eps0, gn, min_step, backend)
             if step is None:  # no damping accepted: the diagonally scaled gradient, same rule
                 dg = -g / np.maximum(_hessian_diagonal(pd.edges, c_e, len(g)), 1e-300)
                 dg -= dg.mean()
-                step = _damped_step(Pr, hr, dg, pd, target, eps0, gn, min_step, backend, flips)
+                step = _damped_step(Pr, hr, dg, pd, target, eps0, gn, min_step, backend)
                 if step is None:
                     empty = int((power_diagram(Pr, hr + min_step * d, previous=pd, backend=backend).area <= 0).sum())
                     why = (f"{empty} sites lose their cells even for tiny steps ({pd.source} triangulation)"
@@ -369,18 +368,16 @@ def semi_discrete_ot(
     )
 
 
-def _damped_step(P, h, d, pd, target, eps0, gn, min_step, backend, flips=None):
+def _damped_step(P, h, d, pd, target, eps0, gn, min_step, backend):
     """The damping rule of Kitagawa, Mérigot & Thibert along ``d``: the largest ``τ = 2^-k``
     (down to ``min_step``) whose cells are all at least ``eps0`` and whose residual falls by
-    ``1 - τ/2``; ``(h, diagram, gradient, τ, k)`` or None.  ``flips``: a one-item list, whether
-    diagrams may be updated from ``pd`` by flips (set False once an update falls back)."""
+    ``1 - τ/2``; ``(h, diagram, gradient, τ, k)`` or None.  Each trial diagram starts from
+    ``pd``'s (flips, or CGAL's insertion order when it is built anew)."""
     tau = 1.0
     k = 0
     while tau >= min_step:
         hn = h + tau * d
-        pdn = power_diagram(P, hn, previous=pd, backend=backend, flip=flips is None or flips[0])
-        if flips is not None and pdn.source == "cgal":  # built anew (with Qhull flips stay cheaper)
-            flips[0] = False
+        pdn = power_diagram(P, hn, previous=pd, backend=backend)
         gnew = pdn.area - target
         if pdn.area.min() >= eps0 and np.linalg.norm(gnew / target) <= (1 - tau / 2) * gn:
             return hn, pdn, gnew, tau, k

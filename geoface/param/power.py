@@ -35,7 +35,7 @@ import numpy as np
 
 from ..errors import ParameterizationError
 from . import regular
-from .power_triangulation import Triangulation, cgal_triangulation, flip_to_regular, qhull_triangulation
+from .power_triangulation import Triangulation, cgal_triangulation, exact_flips, flip_to_regular, qhull_triangulation
 
 __all__ = ["PowerDiagram", "power_diagram", "BACKENDS"]
 
@@ -156,12 +156,10 @@ def _lower_envelope(slope, icept):
     return owners, np.concatenate([lo[keep], hi[keep][-1:]])
 
 
-#: flip updates of a previous triangulation (``power_diagram(previous=...)``) with CGAL from this
-#: many sites (None: never); otherwise, and whenever flips get stuck, CGAL triangulates anew.
-#: With the compiled cell sums a new CGAL triangulation is as fast as flips or faster at every
-#: size measured (OT on a 43K head: equal; 134K bust: 2% faster; 100K clustered points, where
-#: flips get stuck: 20% faster), so flips serve the Qhull backend only.
-FLIP_MIN_SITES: int | None = None
+#: update a previous diagram's CGAL triangulation by compiled exact flips (False: build every
+#: diagram anew, for tests and comparisons; both give the same regular triangulation).  On OT
+#: problems of 1.2K-100K sites the flips cut the solve by 25-45%.
+EXACT_FLIPS = True
 
 #: sum the cells' interior pieces with the compiled extension when it has them (same arithmetic
 #: as the NumPy path, 10-20x faster; False forces NumPy, for tests)
@@ -174,10 +172,10 @@ def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = Non
 
     Sites may lie on the square's edges or slightly outside it; coincident sites get
     empty cells.  ``previous``: a diagram of the same points with other weights (a Newton
-    step's last iterate); without CGAL (or from :data:`FLIP_MIN_SITES` sites, by default never) its regular
-    triangulation is updated by edge flips, and a new one is built when flips cannot get
-    there.  Below that size CGAL's new triangulation is the cheaper (on a 1.2K-site OT problem
-    a whole solve took 0.38 s instead of 1.19 s; on 43K sites flips were 6% faster).
+    step's last iterate): its regular triangulation is updated by Lawson flips (with CGAL: compiled,
+    exact predicates, see :data:`EXACT_FLIPS`; with Qhull: vectorised NumPy), and a new one is
+    built when flips cannot get there (a cell must vanish); a new CGAL triangulation reuses the
+    previous one's insertion order.
     ``backend``: how a triangulation is built anew: ``"cgal"`` (exact predicates),
     ``"qhull"`` (SciPy; merges sites closer than ~1e-7) or ``"auto"`` (CGAL when built).
     The result's ``source`` says which built it.  ``flip=False``: build anew even where flips
@@ -207,10 +205,11 @@ def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = Non
     exact = backend == "cgal" or (backend == "auto" and regular.available())
     prev = previous._tri if previous is not None else None
     same = prev is not None and prev.X.shape == X.shape and np.array_equal(prev.X, X)
-    # with CGAL a new triangulation is as cheap as flipping to it (see FLIP_MIN_SITES)
-    # (flips that get stuck cost both); the result is the same regular triangulation
-    if same and flip and prev.updatable and (not exact or (FLIP_MIN_SITES is not None and n >= FLIP_MIN_SITES)):
-        tri = flip_to_regular(prev, Xa, wa)
+    if same and flip and prev.updatable:
+        if not exact:
+            tri = flip_to_regular(prev, Xa, wa)
+        elif EXACT_FLIPS:
+            tri = exact_flips(prev, X, Xa, wa, n)
     if tri is None and exact:  # the sites' spatial order is sorted once per set of sites
         tri = cgal_triangulation(X, Xa, wa, n, prev.order if same else None)
     elif tri is None:

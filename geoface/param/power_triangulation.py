@@ -3,9 +3,9 @@ with Qhull or CGAL, or updated from a previous one by flips.
 
 Newton's method for OT asks for many diagrams of the same sites with slowly changing weights:
 ``power_diagram(P, w, previous=pd)`` starts from ``pd``'s regular triangulation and restores
-regularity by Lawson flips (vectorised rounds over independent sets of non-regular edges, the
-power in-circle test taken relative to the fourth site), faster than a new Qhull hull; against
-CGAL's exact triangulation (with compiled cell sums) they no longer win (``power.FLIP_MIN_SITES``).
+regularity by Lawson flips — compiled with CGAL's exact predicates behind a floating-point
+filter (:func:`exact_flips`), or, for the Qhull backend, vectorised rounds over independent
+sets of non-regular edges (:func:`flip_to_regular`).
 Flips cannot delete a site: when one must vanish the update gets stuck on a non-convex quad and
 the diagram is built anew.  Power centres come from each triangle's three sites (relative
 to one of them), far more precise than Qhull's plane equations for cells 1e-6 wide.
@@ -125,6 +125,20 @@ def cgal_triangulation(X, Xa, wa, n, order=None) -> Triangulation:
     if order is None:
         order = regular.spatial_order(Xa, first=np.arange(n, len(Xa)))
     T, N = regular.regular_triangulation(Xa, wa, order)
+    return _exact(X, Xa, wa, n, T, N, "cgal", order)
+
+
+def exact_flips(prev: Triangulation, X, Xa, wa, n) -> Triangulation | None:
+    """The previous diagram's regular triangulation flipped to the new weights (compiled, exact
+    predicates): a Newton step moves few edges, and flipping them costs a tenth of building the
+    triangulation anew.  None when the flips cannot get there (a site must disappear) or the
+    extension predates them."""
+    got = regular.flip_to_regular(Xa, wa, prev.T, prev.N)
+    return None if got is None else _exact(X, Xa, wa, n, got[0], got[1], "flips", prev.order)
+
+
+def _exact(X, Xa, wa, n, T, N, source, order) -> Triangulation:
+    """A Triangulation of exact-predicate triangles ``T``, ``N``: their power centres."""
     with np.errstate(divide="ignore", invalid="ignore"):
         compiled = regular.power_centres(Xa, wa, T)
         cen, n_flat = compiled if compiled is not None else (_power_centres(Xa, wa, T), None)
@@ -136,7 +150,7 @@ def cgal_triangulation(X, Xa, wa, n, order=None) -> Triangulation:
         n_flat = int((_orient(Xa, T[:, 0], T[:, 1], T[:, 2]) <= 0).sum())
     present = np.bincount(T.ravel(), minlength=n + 4)[:n] > 0
     updatable = bool(present.all() and n_flat == 0)
-    return Triangulation(X, T, N, cen, updatable, "cgal", order)
+    return Triangulation(X, T, N, cen, updatable, source, order)
 
 
 #: a non-regular edge is flipped when its power in-circle determinant exceeds this share of

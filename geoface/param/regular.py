@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import GeofaceError, ParameterizationError
 
-__all__ = ["available", "require", "regular_triangulation", "spatial_order", "power_cells", "power_sides", "power_centres", "INSTALL_HINT"]
+__all__ = ["available", "require", "regular_triangulation", "spatial_order", "flip_to_regular", "power_cells", "power_sides", "power_centres", "INSTALL_HINT"]
 
 INSTALL_HINT = ("install CGAL's headers (Debian/Ubuntu: apt-get install libcgal-dev; conda: cgal-cpp) and rebuild "
                 "geoface (make install, or pip install -e .)")
@@ -57,6 +57,10 @@ def _lib():
                 lib.geoface_spatial_order.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p]
                 lib.geoface_rt2_ordered.restype = ctypes.c_int64
                 lib.geoface_rt2_ordered.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 3 + [ctypes.c_int64] + [ctypes.c_void_p] * 2
+            if hasattr(lib, "geoface_rt2_flip"):  # absent from extensions built before it
+                lib.geoface_rt2_flip.restype = ctypes.c_int64
+                lib.geoface_rt2_flip.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 2 + [ctypes.c_int64] + \
+                    [ctypes.c_void_p] * 2 + [ctypes.c_int64]
             if hasattr(lib, "geoface_power_cells"):  # absent from extensions built before it
                 lib.geoface_power_cells.restype = ctypes.c_int64
                 lib.geoface_power_cells.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64] + [ctypes.c_void_p] * 7
@@ -136,6 +140,26 @@ def regular_triangulation(X, w, order=None) -> tuple[np.ndarray, np.ndarray]:
     if m < 0:  # cannot happen (a planar triangulation has at most 2n - 5 triangles); be safe
         raise ParameterizationError(f"regular triangulation has {-m} triangles, more than {cap}")
     return T[:m], N[:m]  # views: no copy of ~40 bytes a triangle
+
+
+def flip_to_regular(X, w, T, N, max_flips: int | None = None) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """Lawson flips, with exact predicates, from the regular triangulation ``T``, ``N`` of the
+    points ``X`` under other weights (every point a vertex; as :func:`regular_triangulation`
+    returns them) to the one of the weights ``w``.  Returns new ``(T, N, flips)``, or None when
+    the flips cannot get there (a point must disappear), after ``max_flips`` (default: one per
+    triangle; triangulating anew is then cheaper), or when the extension predates it."""
+    fn = _compiled("geoface_rt2_flip")
+    if fn is None:
+        return None
+    X, w = _f64(X, w)
+    T = np.array(T, np.int64, order="C", copy=True)
+    N = np.array(N, np.int64, order="C", copy=True)
+    if X.shape != (len(w), 2) or T.ndim != 2 or T.shape[1:] != (3,) or N.shape != T.shape:
+        raise ParameterizationError(f"flip_to_regular needs X (n, 2), w (n,), T and N (m, 3); got {X.shape}, {w.shape}, "
+                                    f"{T.shape}, {N.shape}")
+    k = fn(len(X), X.ctypes.data, w.ctypes.data, len(T), T.ctypes.data, N.ctypes.data,
+           len(T) if max_flips is None else int(max_flips))
+    return None if k < 0 else (T, N, int(k))
 
 
 def _compiled(name: str):

@@ -59,14 +59,16 @@ def test_power_cells_match_brute_force():
     assert ((pd.area == 0) == (a == 0)).mean() > 0.95
 
 
-@pytest.mark.parametrize("layout", ["random", "grid", "clustered"])
-def test_flip_update_equals_fresh_hull(layout, monkeypatch):
-    """A diagram updated by edge flips from the previous weights' triangulation is the
-    diagram built from scratch (CGAL's exact regular triangulation): same cells, same shared
-    edges."""
-    from geoface.param import power
+@pytest.mark.parametrize("backend,layout", [("cgal", "random"), ("cgal", "grid"), ("cgal", "clustered"),
+                                            ("qhull", "random"), ("qhull", "grid")])
+def test_flip_update_equals_fresh_hull(backend, layout):
+    """A diagram updated by edge flips from the previous weights' triangulation (compiled with
+    exact predicates for CGAL, NumPy rounds for Qhull) is the diagram built from scratch
+    (CGAL's exact regular triangulation): same cells, same shared edges, same triangles."""
+    from geoface.param import regular
 
-    monkeypatch.setattr(power, "FLIP_MIN_SITES", 0)  # flips at any size (by default never with CGAL)
+    if backend == "cgal" and not regular.available():
+        pytest.skip("CGAL extension not built")
     rng = np.random.default_rng(7)
     if layout == "random":
         P = rng.random((2000, 2))
@@ -75,17 +77,20 @@ def test_flip_update_equals_fresh_hull(layout, monkeypatch):
     else:
         P = np.concatenate([rng.random((1000, 2)), 0.3 + 1e-6 * rng.random((500, 2))])
     n = len(P)
-    pd0 = power_diagram(P)
+    pd0 = power_diagram(P, backend=backend)
     # weight changes on the scale of each site's squared spacing: the triangulation changes
     # a lot while no cell vanishes
     nn = cKDTree(P).query(P, 2)[0][:, 1]
     updated = 0
     for scale in (0.05, 0.2, 0.4):
         w1 = scale * nn**2 * rng.normal(0, 1, n)
-        a = power_diagram(P, w1, previous=pd0)
+        a = power_diagram(P, w1, previous=pd0, backend=backend)
         b = power_diagram(P, w1, backend="cgal")
         updated += a.source == "flips"
         assert b.source == "cgal"
+        if backend == "cgal" and layout == "random" and a.source == "flips":  # no ties: the same triangles
+            key = lambda T: {tuple(np.roll(t, -int(np.argmin(t)))) for t in T}  # noqa: E731
+            assert key(a._tri.T) == key(b._tri.T)
         # round-off only: a wrong edge would change areas by a share of a cell
         assert np.abs(a.area - b.area).max() < 1e-10 / n
         big = a.edge_length > 1e-9
@@ -143,35 +148,68 @@ def test_compiled_cells_are_the_numpy_cells(layout, monkeypatch):
     assert flat == int((o <= 0).sum()) > 400
 
 
-def test_small_problems_triangulate_anew_instead_of_flipping():
-    """With CGAL every diagram is built anew (``FLIP_MIN_SITES``: None, as cheap as flips):
-    the same cells as the flip update, and OT takes the same steps either way."""
-    from geoface.param import power
+def test_exact_flips_and_new_triangulations_give_the_same_solve(monkeypatch):
+    """OT's trial diagrams come from flips of the last accepted one (compiled, exact): the
+    same steps and heights as building every diagram anew, and the flips are taken."""
+    from geoface.param import power, regular
 
+    if not regular.available():
+        pytest.skip("CGAL extension not built")
     rng = np.random.default_rng(3)
-    P = rng.random((1500, 2))
-    pd0 = power_diagram(P)
-    w = 0.2 * cKDTree(P).query(P, 2)[0][:, 1] ** 2 * rng.normal(0, 1, len(P))
-    a = power_diagram(P, w, previous=pd0)
-    assert a.source == "cgal" and power.FLIP_MIN_SITES is None
+    P = np.concatenate([rng.random((1500, 2)), 0.6 + 1e-6 * rng.random((30, 2))])
     nu = rng.random(len(P)) + 0.5
+    sources = []
+    real = power.power_diagram
+
+    def spy(*a, **k):
+        pd = real(*a, **k)
+        sources.append(pd.source)
+        return pd
+
+    monkeypatch.setattr("geoface.param.ot.power_diagram", spy)
+    r_flip = semi_discrete_ot(P, nu, tol=1e-8)
+    assert sources.count("flips") >= r_flip.iterations - 1
+    monkeypatch.setattr(power, "EXACT_FLIPS", False)
+    sources.clear()
     r_new = semi_discrete_ot(P, nu, tol=1e-8)
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(power, "FLIP_MIN_SITES", 0)
-        b = power_diagram(P, w, previous=pd0)
-        r_flip = semi_discrete_ot(P, nu, tol=1e-8)
-    assert b.source == "flips"
-    assert np.abs(a.area - b.area).max() < 1e-14
-    assert r_new.iterations == r_flip.iterations and r_new.residual <= 1e-8
+    assert "flips" not in sources
+    assert r_new.iterations == r_flip.iterations and r_flip.residual <= 1e-8
     assert np.abs(r_new.h - r_flip.h).max() < 1e-12
 
 
-def test_flip_update_falls_back_when_a_cell_vanishes(monkeypatch):
+def test_bare_exact_flips():
+    """regular.flip_to_regular: the regular triangulation of the new weights (CGAL's own, triangle
+    for triangle), neighbours consistent; None when a site must vanish or flips run out."""
+    from geoface.param import regular
+
+    if not regular.available():
+        pytest.skip("CGAL extension not built")
+    rng = np.random.default_rng(11)
+    X = np.concatenate([rng.random((800, 2)), [[9.0, 0.0], [0.0, 9.0], [-9.0, 0.0], [0.0, -9.0]]])
+    T0, N0 = regular.regular_triangulation(X, np.zeros(len(X)))
+    w = 0.3 * cKDTree(X).query(X, 2)[0][:, 1] ** 2 * rng.normal(0, 1, len(X))
+    w[-4:] = 0.0
+    T1, _ = regular.regular_triangulation(X, w)
+    assert len(np.unique(T1)) == len(X)
+    T, N, k = regular.flip_to_regular(X, w, T0, N0)
+    assert k > 50 and np.array_equal(T0, regular.regular_triangulation(X, np.zeros(len(X)))[0])  # inputs untouched
+    key = lambda T: {tuple(np.roll(t, -int(np.argmin(t)))) for t in T}  # noqa: E731
+    assert key(T) == key(T1)
+    m = len(T)
+    for t in range(m):  # each neighbour shares the edge opposite the vertex, and points back
+        for j in range(3):
+            s = N[t, j]
+            if s >= 0:
+                assert t in N[s] and set(T[t]) - {T[t, j]} <= set(T[s])
+    assert regular.flip_to_regular(X, w, T0, N0, max_flips=k - 1) is None
+    w2 = w.copy()
+    w2[100] = -1.0  # its cell vanishes: flips cannot remove a vertex
+    assert regular.flip_to_regular(X, w2, T0, N0) is None
+
+
+def test_flip_update_falls_back_when_a_cell_vanishes():
     """A site whose weight drops until its cell is empty cannot be reached by flips: the
     update gives up and the diagram is built anew (exactly)."""
-    from geoface.param import power
-
-    monkeypatch.setattr(power, "FLIP_MIN_SITES", 0)
     P = grid_points(6)
     pd0 = power_diagram(P)
     w = np.zeros(len(P))
@@ -182,10 +220,7 @@ def test_flip_update_falls_back_when_a_cell_vanishes(monkeypatch):
     assert np.allclose(a.area, b.area, atol=1e-15)
 
 
-def test_flip_update_needs_the_same_points(monkeypatch):
-    from geoface.param import power
-
-    monkeypatch.setattr(power, "FLIP_MIN_SITES", 0)
+def test_flip_update_needs_the_same_points():
     rng = np.random.default_rng(0)
     P = rng.random((200, 2))
     pd0 = power_diagram(P)

@@ -40,6 +40,17 @@ int geoface_rt2_abi(void) { return 1; }
 // Returns the number of triangles; -m when m > cap (nothing written); -1 on failure
 // (fewer than three affinely independent points, or an exception).
 namespace {
+// Rotates triangle t (and its neighbours with it) to start at its smallest vertex index: the
+// same triangles then give the same power centres to the last bit however they were built.
+inline void canonical(int64_t t, int64_t* T, int64_t* N) {
+  int64_t* a = T + 3 * t;
+  int64_t* b = N + 3 * t;
+  const int r = a[1] < a[0] ? (a[2] < a[1] ? 2 : 1) : (a[2] < a[0] ? 2 : 0);
+  if (r == 0) return;
+  const int64_t ta[3] = {a[r], a[(r + 1) % 3], a[(r + 2) % 3]}, tb[3] = {b[r], b[(r + 1) % 3], b[(r + 2) % 3]};
+  for (int k = 0; k < 3; ++k) a[k] = ta[k], b[k] = tb[k];
+}
+
 // Writes rt's finite triangles (see geoface_rt2); returns their number, or -m when m > cap.
 int64_t write_faces(RT& rt, int64_t cap, int64_t* T, int64_t* N) {
   int64_t m = 0;
@@ -52,6 +63,7 @@ int64_t write_faces(RT& rt, int64_t cap, int64_t* T, int64_t* N) {
       auto g = f->neighbor(k);
       N[3 * t + k] = rt.is_infinite(g) ? -1 : g->info();
     }
+    canonical(t, T, N);
   }
   return m;
 }
@@ -112,6 +124,107 @@ int64_t geoface_rt2_ordered(int64_t n, const double* xy, const double* w, const 
     return write_faces(rt, cap, T, N);
   } catch (const std::exception&) {
     return -1;
+  } catch (...) {
+    return -1;
+  }
+}
+
+// Lawson flips from a regular triangulation of the same points under other weights to the one
+// of the weights w, in place.  T, N (m x 3) as geoface_rt2 writes them, every point a vertex.
+// Each interior edge whose opposite vertex lies strictly inside the oriented power circle of
+// its triangle (CGAL's exact predicate) is flipped when its quad is strictly convex; each flip
+// lowers the lifted surface, so the flips end, and the four outer edges of a flipped quad are
+// tested again.  Returns the number of flips; -1 when an edge stays non-regular with a quad that
+// is not convex (a point must disappear: the caller triangulates anew) or after max_flips.
+int64_t geoface_rt2_flip(int64_t n, const double* xy, const double* w, int64_t m, int64_t* T, int64_t* N,
+                         int64_t max_flips) {
+  try {
+    std::vector<WP> P;
+    P.reserve(static_cast<size_t>(n));
+    for (int64_t i = 0; i < n; ++i) P.emplace_back(P2(xy[2 * i], xy[2 * i + 1]), w[i]);
+    const auto power_side = K().power_side_of_oriented_power_circle_2_object();
+    const auto orient = K().orientation_2_object();
+    // d strictly inside the oriented power circle of the counter-clockwise (c, a, b): the sign
+    // of the lifted in-circle determinant in double precision when its error bound (Shewchuk's
+    // for the in-circle test, with room for the weights) decides it, CGAL's exact test otherwise
+    auto violated = [&](int64_t c, int64_t a, int64_t b, int64_t d) -> bool {
+      const double dx = xy[2 * d], dy = xy[2 * d + 1], dw = w[d];
+      const double ax = xy[2 * c] - dx, ay = xy[2 * c + 1] - dy;
+      const double bx = xy[2 * a] - dx, by = xy[2 * a + 1] - dy;
+      const double cx = xy[2 * b] - dx, cy = xy[2 * b + 1] - dy;
+      const double al = ax * ax + ay * ay, bl = bx * bx + by * by, cl = cx * cx + cy * cy;
+      const double aw = w[c] - dw, bw = w[a] - dw, cw = w[b] - dw;
+      const double az = al - aw, bz = bl - bw, cz = cl - cw;
+      const double bxcy = bx * cy, cxby = cx * by, cxay = cx * ay, axcy = ax * cy, axby = ax * by, bxay = bx * ay;
+      const double det = az * (bxcy - cxby) + bz * (cxay - axcy) + cz * (axby - bxay);
+      const double perm = (al + std::fabs(aw)) * (std::fabs(bxcy) + std::fabs(cxby)) +
+                          (bl + std::fabs(bw)) * (std::fabs(cxay) + std::fabs(axcy)) +
+                          (cl + std::fabs(cw)) * (std::fabs(axby) + std::fabs(bxay));
+      const double bound = 1e-14 * perm;
+      if (det > bound) return true;
+      if (det < -bound) return false;
+      return power_side(P[c], P[a], P[b], P[d]) == CGAL::ON_POSITIVE_SIDE;
+    };
+    auto opposite = [&](int64_t s, int64_t t) -> int {
+      for (int j = 0; j < 3; ++j)
+        if (N[3 * s + j] == t) return j;
+      return -1;
+    };
+    std::vector<int64_t> stack, stuck;
+    stack.reserve(static_cast<size_t>(3 * m));
+    for (int64_t e = 3 * m - 1; e >= 0; --e)
+      if (N[e] > e / 3) stack.push_back(e);
+    int64_t flips = 0;
+    while (!stack.empty()) {
+      const int64_t e = stack.back();
+      stack.pop_back();
+      const int64_t t = e / 3, s = N[e];
+      const int k = static_cast<int>(e % 3);
+      if (s < 0) continue;
+      const int j = opposite(s, t);
+      if (j < 0) return -1;  // not a valid triangulation
+      const int64_t c = T[3 * t + k], a = T[3 * t + (k + 1) % 3], b = T[3 * t + (k + 2) % 3], d = T[3 * s + j];
+      if (c < 0 || c >= n || a < 0 || a >= n || b < 0 || b >= n || d < 0 || d >= n) return -1;
+      if (!violated(c, a, b, d)) continue;
+      if (orient(P[c].point(), P[a].point(), P[d].point()) != CGAL::LEFT_TURN ||
+          orient(P[c].point(), P[d].point(), P[b].point()) != CGAL::LEFT_TURN) {
+        stuck.push_back(e);
+        continue;
+      }
+      if (++flips > max_flips) return -1;
+      const int64_t nt_b = N[3 * t + (k + 2) % 3], nt_a = N[3 * t + (k + 1) % 3];
+      const int64_t ns_b = N[3 * s + (j + 1) % 3], ns_a = N[3 * s + (j + 2) % 3];
+      // t becomes (c, a, d), s becomes (c, d, b)
+      T[3 * t] = c, T[3 * t + 1] = a, T[3 * t + 2] = d;
+      N[3 * t] = ns_b, N[3 * t + 1] = s, N[3 * t + 2] = nt_b;
+      T[3 * s] = c, T[3 * s + 1] = d, T[3 * s + 2] = b;
+      N[3 * s] = ns_a, N[3 * s + 1] = nt_a, N[3 * s + 2] = t;
+      if (ns_b >= 0) {
+        const int jj = opposite(ns_b, s);
+        if (jj < 0) return -1;
+        N[3 * ns_b + jj] = t;
+      }
+      if (nt_a >= 0) {
+        const int jj = opposite(nt_a, t);
+        if (jj < 0) return -1;
+        N[3 * nt_a + jj] = s;
+      }
+      stack.push_back(3 * t);
+      stack.push_back(3 * t + 2);
+      stack.push_back(3 * s);
+      stack.push_back(3 * s + 1);
+    }
+    // an edge set aside is still there unless a flip around it tested it again
+    for (const int64_t e : stuck) {
+      const int64_t t = e / 3, s = N[e];
+      if (s < 0) continue;
+      const int j = opposite(s, t);
+      if (j < 0) return -1;
+      const int k = static_cast<int>(e % 3);
+      if (violated(T[3 * t + k], T[3 * t + (k + 1) % 3], T[3 * t + (k + 2) % 3], T[3 * s + j])) return -1;
+    }
+    for (int64_t t = 0; t < m; ++t) canonical(t, T, N);
+    return flips;
   } catch (...) {
     return -1;
   }
