@@ -305,8 +305,8 @@ def _cells(X, w, Xa, n, tri: Triangulation) -> PowerDiagram:
     ok = area > 0
     cent[ok] = X[ok] + mom[ok] / area[ok, None]
     # shared edges between real sites: merge the duplicates of Qhull's triangulated coplanar
-    # facets (in CGAL's triangulation each pair of sites shares at most one edge)
-    if len(e) and tri.source != "cgal":
+    # facets (in CGAL's triangulation, and its exact flips, each pair of sites shares at most one edge)
+    if len(e) and not tri.exact:
         key = e[:, 0] * np.int64(n) + e[:, 1]
         uk, inv = np.unique(key, return_inverse=True)
         L = np.bincount(inv, L)

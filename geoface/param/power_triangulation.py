@@ -51,6 +51,9 @@ class Triangulation:
     #: CGAL's insertion order (guards first, then the sites' spatial order), kept for the next
     #: diagram of the same sites
     order: np.ndarray | None = None
+    #: built by CGAL or its exact flips: a proper triangulation, each pair of sites shares at most
+    #: one edge (Qhull's triangulated coplanar facets can repeat one)
+    exact: bool = False
 
 
 def _orient(Xa, a, b, c):
@@ -150,7 +153,7 @@ def _exact(X, Xa, wa, n, T, N, source, order) -> Triangulation:
         n_flat = int((_orient(Xa, T[:, 0], T[:, 1], T[:, 2]) <= 0).sum())
     present = np.bincount(T.ravel(), minlength=n + 4)[:n] > 0
     updatable = bool(present.all() and n_flat == 0)
-    return Triangulation(X, T, N, cen, updatable, source, order)
+    return Triangulation(X, T, N, cen, updatable, source, order, exact=True)
 
 
 #: a non-regular edge is flipped when its power in-circle determinant exceeds this share of
