@@ -57,8 +57,9 @@ from .ricci_mesh import degenerate_boundary_edges, flip_ears, n_degenerate
 from .ricci_result import RicciFlowResult
 
 
-#: trial steps whose log conformal factors span more than this are refused (lengths overflow)
-MAX_LOG_SCALE_RANGE = 600.0
+#: trial steps whose log conformal factors span more than this are refused: lengths e^±100 keep
+#: the products of Heron's formula and Ptolemy's flips finite (real scans span up to ~20)
+MAX_LOG_SCALE_RANGE = 200.0
 #: a triangulation with an angle outside these (radians) starts on intrinsic Delaunay flips
 POOR_MIN_ANGLE = np.radians(1.0)
 POOR_MAX_ANGLE = np.radians(177.0)
@@ -278,18 +279,17 @@ class RicciFlowSolver:
         free[gauge] = False
 
         def evaluate(uu):
-            if tri is not None:
-                # a trial step so long that the scaled lengths overflow is refused before any
-                # flip (a Delaunay test on infinite lengths would flip without end)
-                refused = not (np.isfinite(uu).all() and np.ptp(uu) < MAX_LOG_SCALE_RANGE)
-                if not refused:
-                    try:
-                        tri.make_delaunay(uu)
-                    except ParameterizationError:
-                        refused = True
-                if refused:
-                    return np.inf, np.full(self.n, np.nan), np.full(tri.F.shape, np.nan), tri.F
+            # a trial step so long that the scaled lengths overflow is refused (and before any
+            # flip: a Delaunay test on infinite lengths would flip without end)
+            refused = not (np.isfinite(uu).all() and np.ptp(uu) < MAX_LOG_SCALE_RANGE)
+            if tri is not None and not refused:
+                try:
+                    tri.make_delaunay(uu)
+                except ParameterizationError:
+                    refused = True
             F = self.F if tri is None else tri.F
+            if refused:
+                return np.inf, np.full(self.n, np.nan), np.full(F.shape, np.nan), F
             E, g, ang = self.energy(uu, theta, F, tri)
             return E, g, ang, F
 
