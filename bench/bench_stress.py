@@ -115,10 +115,12 @@ def main() -> None:
     ap.add_argument("--ict-variants", type=int, default=None, help="only the first N ICT heads get the stress variants")
     ap.add_argument("--meshes", nargs="*", default=list(S.REAL))
     ap.add_argument("--kinds", nargs="*", default=list(S.CASE_KINDS), choices=S.CASE_KINDS)
-    ap.add_argument("--conventions", nargs="*", default=list(S.CONVENTIONS) + [S.TILTED])
+    ap.add_argument("--conventions", nargs="*", default=list(S.CONVENTIONS) + [S.TILTED],
+                    help="comma-separated too, for names that start with '-': --conventions=-x-up,-y-up")
     ap.add_argument("--only", nargs="*", default=None, help="case names to run (default all)")
     ap.add_argument("--out", type=Path, default=None, help="also append the JSON lines to this file")
     args = ap.parse_args()
+    args.conventions = [c for item in args.conventions for c in item.split(",") if c]
     import os
 
     os.environ.setdefault("GEOFACE_QUIET", "1")
