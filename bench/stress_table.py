@@ -3,6 +3,7 @@ resolution (the frame found, the conformal factor's range, the OT path and itera
 face Hausdorff, the face-pixel share, seconds, whether the face is upright), and a summary.
 
     python bench/stress_table.py bench/results/stress/stress_256.jsonl [more.jsonl ...]
+    python bench/stress_table.py stress_512.jsonl stress_512_conventions.jsonl --conventions --summary-only
 """
 
 from __future__ import annotations
@@ -105,17 +106,49 @@ def per_base(rows) -> str:
     return "\n".join(out)
 
 
+def by_convention(rows) -> str:
+    """The cases that move a mesh into another axis convention: one row per mesh (and ICT
+    variant) and resolution seen in more than one convention, one column per convention, each cell the worst whole / face
+    Hausdorff of the 8 sets (``!`` marks a case that failed, lost a set or was not upright)."""
+    conv = [c for c in CONVENTION_ORDER if any(r["convention"] == c for r in rows)]
+    out = ["| mesh | N | " + " | ".join(conv) + " |", "|---|---|" + "---|" * len(conv)]
+    cells: dict = {}
+    for r in rows:
+        if r["kind"] not in ("base", "axes"):
+            continue
+        name = r["case"][: -len(r["convention"]) - 1] if r["case"].endswith("_" + r["convention"]) else r["case"]
+        if not r["ok"]:
+            cell = "FAILED"
+        else:
+            bad = r["failed_sets"] or r["flipped"] or r.get("upright_problems")
+            cell = f"{100 * r['hausdorff']:.2f} / {_pct(r['face_hausdorff'])}{' !' if bad else ''}"
+        cells[(name, r["res"], r["convention"])] = cell
+    keys = sorted({(k[0], k[1]) for k in cells if sum(1 for c in conv if (k[0], k[1], c) in cells) > 1},
+                  key=lambda k: (k[1], k[0].startswith("ict"), k[0]))
+    for name, res in keys:
+        out.append(f"| {name} | {res} | " + " | ".join(cells.get((name, res, c), "–") for c in conv) + " |")
+    return "\n".join(out)
+
+
+#: column order of :func:`by_convention`
+CONVENTION_ORDER = ("y-up", "z-up+x", "z-up-y", "x-up", "-x-up", "-y-up", "-z-up", "y-up-x", "tilted-mm-far")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("files", nargs="+")
     ap.add_argument("--summary-only", action="store_true")
     ap.add_argument("--per-mesh", action="store_true", help="also the table of one row per source mesh")
+    ap.add_argument("--conventions", action="store_true", help="also the table of one column per axis convention")
     args = ap.parse_args()
     rows = load(args.files)
     print(summary(rows))
     if args.per_mesh:
         print()
         print(per_base(rows))
+    if args.conventions:
+        print()
+        print(by_convention(rows))
     if not args.summary_only:
         print()
         print(table(rows))
