@@ -37,6 +37,16 @@ def _frame(r):
     return f"{cue}{'' if fr.get('certain', True) else ' (uncertain)'}"
 
 
+def _tilt(r):
+    """The eye line's angle to the image rows in the default image (degrees), or None."""
+    import math
+
+    p = r.get("landmark_pixels") or {}
+    if "eye_right" not in p or "eye_left" not in p:
+        return None
+    return math.degrees(math.atan2(p["eye_left"][0] - p["eye_right"][0], p["eye_left"][1] - p["eye_right"][1]))
+
+
 def _upright(r):
     if "upright_problems" not in r:
         return "–"
@@ -85,8 +95,8 @@ def per_base(rows) -> str:
     """One row per source mesh and resolution: its cases (conventions and stress kinds), the
     worst and median whole-mesh Hausdorff (worst corner set of each case), the worst face
     Hausdorff, and where the worst case came from."""
-    out = ["| mesh | N | cases | all 8 sets | flips | whole Hausdorff: median / worst (case) | face Hausdorff: worst (case) | upright |",
-           "|---|---|---|---|---|---|---|---|"]
+    out = ["| mesh | N | cases | all 8 sets | flips | whole Hausdorff: median / worst (case) | face Hausdorff: worst (case) | upright "
+           "(eye line, worst) |", "|---|---|---|---|---|---|---|---|"]
     import statistics
 
     keys = sorted({(r["base"], r["res"]) for r in rows}, key=lambda k: (k[1], k[0].startswith("ict"), k[0]))
@@ -99,6 +109,9 @@ def per_base(rows) -> str:
         fw = max(fr, key=lambda r: r["face_hausdorff"]) if fr else None
         heads = [r for r in ok if "upright_problems" in r]
         up = f"{sum(1 for r in heads if not r['upright_problems'])} of {len(heads)}" if heads else "–"
+        tilts = [t for t in (_tilt(r) for r in heads) if t is not None]
+        if tilts:
+            up += f" ({max(tilts, key=abs):+.0f}°)"
         med = statistics.median(r["hausdorff"] for r in ok) if ok else None
         out.append(f"| {base} | {res} | {len(rs)} | {full} | {sum(r['flipped'] for r in ok)} | "
                    f"{_pct(med)} / {_pct(hw['hausdorff']) if hw else '–'} ({hw['case'] if hw else ''}) | "
