@@ -100,8 +100,14 @@ def per_base(rows) -> str:
     import statistics
 
     keys = sorted({(r["base"], r["res"]) for r in rows}, key=lambda k: (k[1], k[0].startswith("ict"), k[0]))
-    for base, res in keys:
-        rs = [r for r in rows if r["base"] == base and r["res"] == res]
+    # ICT heads with one case each (no variants) share a row
+    single = [k for k in keys if k[0].startswith("ict") and sum(1 for r in rows if (r["base"], r["res"]) == k) == 1]
+    groups = [(k[0], k[1], [k[0]]) for k in keys if k not in single]
+    for res in sorted({k[1] for k in single}):
+        names = [k[0] for k in single if k[1] == res]
+        groups.append((names[0] if len(names) == 1 else f"{names[0]}–{names[-1]}", res, names))
+    for base, res, members in groups:
+        rs = [r for r in rows if r["base"] in members and r["res"] == res]
         ok = [r for r in rs if r["ok"]]
         full = sum(1 for r in ok if not r["failed_sets"])
         hw = max(ok, key=lambda r: r["hausdorff"]) if ok else None
