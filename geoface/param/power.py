@@ -166,8 +166,7 @@ EXACT_FLIPS = True
 COMPILED_CELLS = True
 
 
-def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = None, backend: str = "auto",
-                  flip: bool = True) -> PowerDiagram:
+def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = None, backend: str = "auto") -> PowerDiagram:
     """Power diagram of ``points (n, 2)`` with ``weights (n,)`` clipped to ``[0, 1]^2``.
 
     Sites may lie on the square's edges or slightly outside it; coincident sites get
@@ -178,8 +177,7 @@ def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = Non
     previous one's insertion order.
     ``backend``: how a triangulation is built anew: ``"cgal"`` (exact predicates),
     ``"qhull"`` (SciPy; merges sites closer than ~1e-7) or ``"auto"`` (CGAL when built).
-    The result's ``source`` says which built it.  ``flip=False``: build anew even where flips
-    would be tried (``previous`` then only lends CGAL its insertion order).  Raises :class:`ParameterizationError` for
+    The result's ``source`` says which built it.  Raises :class:`ParameterizationError` for
     malformed input.
     """
     if backend not in BACKENDS:
@@ -205,7 +203,7 @@ def power_diagram(points, weights=None, *, previous: "PowerDiagram | None" = Non
     exact = backend == "cgal" or (backend == "auto" and regular.available())
     prev = previous._tri if previous is not None else None
     same = prev is not None and prev.X.shape == X.shape and np.array_equal(prev.X, X)
-    if same and flip and prev.updatable:
+    if same and prev.updatable:
         if not exact:
             tri = flip_to_regular(prev, Xa, wa)
         elif EXACT_FLIPS:

@@ -269,7 +269,9 @@ def test_presorted_insertion_is_the_same_triangulation():
     P = rng.random((500, 2))
     a = power_diagram(P, backend="cgal")
     w = 1e-4 * rng.normal(0, 1, 500)
-    b = power_diagram(P, w, previous=a, backend="cgal", flip=False)
+    with pytest.MonkeyPatch.context() as mp:  # built anew: the previous diagram lends its order only
+        mp.setattr("geoface.param.power.EXACT_FLIPS", False)
+        b = power_diagram(P, w, previous=a, backend="cgal")
     assert b._tri.order is a._tri.order and b.source == "cgal"
     fresh = power_diagram(P, w, backend="cgal")  # sorts anew: the same cells
     assert fresh._tri.order is not a._tri.order

@@ -139,9 +139,9 @@ int64_t geoface_rt2_ordered(int64_t n, const double* xy, const double* w, const 
 int64_t geoface_rt2_flip(int64_t n, const double* xy, const double* w, int64_t m, int64_t* T, int64_t* N,
                          int64_t max_flips) {
   try {
-    std::vector<WP> P;
-    P.reserve(static_cast<size_t>(n));
-    for (int64_t i = 0; i < n; ++i) P.emplace_back(P2(xy[2 * i], xy[2 * i + 1]), w[i]);
+    // CGAL's points are made only where a test needs them (most are decided by the filter)
+    auto pt = [&](int64_t i) { return P2(xy[2 * i], xy[2 * i + 1]); };
+    auto wp = [&](int64_t i) { return WP(pt(i), w[i]); };
     const auto power_side = K().power_side_of_oriented_power_circle_2_object();
     const auto orient = K().orientation_2_object();
     // d strictly inside the oriented power circle of the counter-clockwise (c, a, b): the sign
@@ -163,7 +163,7 @@ int64_t geoface_rt2_flip(int64_t n, const double* xy, const double* w, int64_t m
       const double bound = 1e-14 * perm;
       if (det > bound) return true;
       if (det < -bound) return false;
-      return power_side(P[c], P[a], P[b], P[d]) == CGAL::ON_POSITIVE_SIDE;
+      return power_side(wp(c), wp(a), wp(b), wp(d)) == CGAL::ON_POSITIVE_SIDE;
     };
     auto opposite = [&](int64_t s, int64_t t) -> int {
       for (int j = 0; j < 3; ++j)
@@ -186,8 +186,7 @@ int64_t geoface_rt2_flip(int64_t n, const double* xy, const double* w, int64_t m
       const int64_t c = T[3 * t + k], a = T[3 * t + (k + 1) % 3], b = T[3 * t + (k + 2) % 3], d = T[3 * s + j];
       if (c < 0 || c >= n || a < 0 || a >= n || b < 0 || b >= n || d < 0 || d >= n) return -1;
       if (!violated(c, a, b, d)) continue;
-      if (orient(P[c].point(), P[a].point(), P[d].point()) != CGAL::LEFT_TURN ||
-          orient(P[c].point(), P[d].point(), P[b].point()) != CGAL::LEFT_TURN) {
+      if (orient(pt(c), pt(a), pt(d)) != CGAL::LEFT_TURN || orient(pt(c), pt(d), pt(b)) != CGAL::LEFT_TURN) {
         stuck.push_back(e);
         continue;
       }
