@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import InvalidGeometryImageError, InvalidMeshError, RenderError
+from ..errors import InvalidGeometryImageError
+from ..mesh.raster import bbox_pixels, rasterize_mesh  # noqa: F401  (public here too)
 from ..mesh.core import check_mesh
 
 __all__ = ["rasterize_faces", "rasterize_mesh", "bbox_pixels", "interpolate", "interpolate_corners", "sample_texture", "uv_to_pixel",
@@ -91,38 +91,6 @@ def rasterize_faces(F: np.ndarray, uv: np.ndarray, N: int, *, align_corners: boo
     return face.reshape(N, N), bary.reshape(N, N, 3)
 
 
-def bbox_pixels(x, y, det, j0, i0, nj, count, chunk: int):
-    """Enumerate the pixel centres in triangles' bounding boxes, in chunks of about ``chunk``.
-
-    ``x, y (m, 3)``: vertex pixel coordinates (centres at integers); ``det (m,)``: twice the
-    signed area; ``j0, i0 (m,)``: first column/row of each box; ``nj (m,)``: box width;
-    ``count (m,)``: pixels in the box (0 skips the triangle).  Yields
-    ``(tt, ii, jj, b0, b1, b2)``: triangle, row, column and barycentric coordinates of every
-    enumerated pixel (inside or not: the caller tests the signs).
-    """
-    tri = np.flatnonzero(count)
-    csum = np.cumsum(count[tri])
-    start = 0
-    while start < len(tri):
-        base = csum[start - 1] if start else 0
-        stop = max(int(np.searchsorted(csum, base + chunk, side="right")), start + 1)
-        t = tri[start:stop]
-        c = count[t]
-        rep = np.repeat(np.arange(len(t)), c)
-        local = np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c)
-        tt = t[rep]
-        jj = j0[tt] + local % nj[tt]
-        ii = i0[tt] + local // nj[tt]
-        px = jj.astype(np.float64)
-        py = ii.astype(np.float64)
-        xa, ya = x[tt], y[tt]
-        d = det[tt]
-        b1 = ((px - xa[:, 0]) * (ya[:, 2] - ya[:, 0]) - (xa[:, 2] - xa[:, 0]) * (py - ya[:, 0])) / d
-        b2 = ((xa[:, 1] - xa[:, 0]) * (py - ya[:, 0]) - (px - xa[:, 0]) * (ya[:, 1] - ya[:, 0])) / d
-        yield tt, ii, jj, 1.0 - b1 - b2, b1, b2
-        start = stop
-
-
 def interpolate(face: np.ndarray, bary: np.ndarray, F: np.ndarray, attr: np.ndarray, fill: float = 0.0) -> np.ndarray:
     """Per-vertex ``attr (n, k)`` at every pixel: ``(k, N, N)``; ``fill`` where uncovered."""
     attr = np.asarray(attr, np.float64)
@@ -174,56 +142,3 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     top = Tf[y0c, x0c] * (1 - fx) + Tf[y0c, x1c] * fx
     bot = Tf[y1c, x0c] * (1 - fx) + Tf[y1c, x1c] * fx
     return top * (1 - fy) + bot * fy
-
-
-def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_000_000):
-    """Nearest triangle per pixel centre.
-
-    Parameters
-    ----------
-    V : (n, 3) float64 world positions; F : (m, 3) int64 triangles
-    camera : Camera
-    near : triangles with a vertex at camera depth ``<= near`` are skipped
-
-    Returns
-    -------
-    face : (H, W) int64, −1 where no triangle covers the pixel centre
-    bary : (H, W, 3) float64 perspective-correct barycentric weights (zeros where empty)
-    depth : (H, W) float64 camera-space z (inf where empty)
-    """
-    try:
-        V, F = check_mesh(V, F, allow_empty=True)
-    except InvalidMeshError as e:
-        raise RenderError(str(e)) from None
-    if not isinstance(camera, Camera):
-        raise RenderError(f"camera must be a geoface.camera.Camera; got {type(camera).__name__}")
-    H, W = camera.height, camera.width
-    uv, z = camera.project(V)
-    x, y, zf = uv[F, 0] - 0.5, uv[F, 1] - 0.5, z[F]  # bbox_pixels: pixel centres at integers
-    det = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
-    j0 = np.clip(np.ceil(x.min(1)), 0, W - 1).astype(np.int64)
-    j1 = np.clip(np.floor(x.max(1)), 0, W - 1).astype(np.int64)
-    i0 = np.clip(np.ceil(y.min(1)), 0, H - 1).astype(np.int64)
-    i1 = np.clip(np.floor(y.max(1)), 0, H - 1).astype(np.int64)
-    on = ((det != 0) & (zf.min(1) > near) & (x.max(1) >= 0) & (x.min(1) <= W - 1)
-          & (y.max(1) >= 0) & (y.min(1) <= H - 1))
-    nj = np.maximum(j1 - j0 + 1, 1)
-    count = np.where(on, nj * np.maximum(i1 - i0 + 1, 0), 0)
-    zbuf = np.full(H * W, np.inf)
-    face = np.full(H * W, -1, dtype=np.int64)
-    bary = np.zeros((H * W, 3))
-    for tt, ii, jj, b0, b1, b2 in bbox_pixels(x, y, det, j0, i0, nj, count, chunk):
-        inside = (b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9)
-        tt, pix = tt[inside], ii[inside] * W + jj[inside]
-        w = np.clip(np.stack([b0[inside], b1[inside], b2[inside]], 1), 0.0, None) / zf[tt]
-        zc = 1.0 / w.sum(1)  # perspective-correct depth: 1/z is linear on screen
-        order = np.lexsort((zc, pix))  # by pixel, nearest first
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = pix[order[1:]] != pix[order[:-1]]
-        k = order[first]
-        win = zc[k] < zbuf[pix[k]]  # nearer than what earlier chunks left
-        k = k[win]
-        zbuf[pix[k]] = zc[k]
-        face[pix[k]] = tt[k]
-        bary[pix[k]] = w[k] * zc[k, None]
-    return face.reshape(H, W), bary.reshape(H, W, 3), zbuf.reshape(H, W)

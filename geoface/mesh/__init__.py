@@ -31,7 +31,7 @@ from .._lazy import lazy_exports
 # file IO (trimesh) and the frame search are imported on first use
 __getattr__, _lazy_dir, _LAZY_NAMES = lazy_exports("geoface.mesh", {
     "Mesh": "io", "load_mesh": "io", "save_mesh": "io",
-    "mesh_frame": "frame", "MeshFrame": "frame", "parse_up": "frame",
+    "mesh_frame": "frame", "MeshFrame": "frame", "parse_up": "frame", "rasterize_mesh": "raster",
 })
 
 

@@ -39,10 +39,10 @@ __all__ = ["Tracking", "track_frames", "track_capture", "track_input", "read_fra
 
 #: the tracker named in the landmarks files it writes
 TRACKER = "mediapipe-facemesh"
-_TABLE = Path(__file__).with_name("data") / "mediapipe_ibug68.json"
+_TABLE = Path(__file__).parents[1] / "data" / "mediapipe_ibug68.json"
 
 
-def _mediapipe():
+def load_mediapipe():
     import os
 
     # MediaPipe's C++ side logs to stderr (glog/absl); a quiet library keeps it to errors
@@ -67,7 +67,7 @@ def ibug68_from_mediapipe() -> tuple[np.ndarray, np.ndarray]:
 
 
 @contextlib.contextmanager
-def _native_stderr_quiet():
+def quiet_native_stderr():
     """MediaPipe's C++ graph writes its set-up chatter (TFLite delegates, feedback tensors) straight
     to file descriptor 2, past Python's logging: hold it while the graph runs, unless the
     ``geoface`` logger is at DEBUG (``-v``)."""
@@ -106,7 +106,7 @@ def _each_frame(make_graph, frames, description: str, quiet):
     frames = [_uint8(f) for f in frames]
     if not frames:
         return
-    with _native_stderr_quiet():
+    with quiet_native_stderr():
         graph = make_graph()
         first = graph.process(frames[0])
     try:
@@ -121,7 +121,7 @@ def facemesh_points(frames, *, video: bool = True, irises: bool = False, quiet: 
     face is found); with ``irises`` its attention model's 478 (the last ten: the irises' centres and
     rims), ``(T, 478, 2)``. ``video``: track from frame to frame (MediaPipe's video mode). The
     68-point table was fitted on the 468-point model (``irises=False``)."""
-    mp = _mediapipe()
+    mp = load_mediapipe()
     n = 478 if irises else 468
 
     def graph():
@@ -142,7 +142,7 @@ def face_confidence(frames, *, quiet: bool | None = None) -> np.ndarray:
     """The face detector's confidence in each frame, ``(T,)`` in [0, 1]: MediaPipe's BlazeFace
     score of its best face (the full-range model, which also finds small and distant faces), 0
     where it finds none."""
-    mp = _mediapipe()
+    mp = load_mediapipe()
     out = []
     for _, r in _each_frame(lambda: mp.solutions.face_detection.FaceDetection(model_selection=1, min_detection_confidence=0.05),
                             frames, "detecting the face", quiet):
@@ -198,7 +198,7 @@ def one_euro(points, fps: float, *, scale=None, min_cutoff: float = SMOOTHING["m
 
 def person_masks(frames, *, quiet: bool | None = None) -> np.ndarray:
     """MediaPipe's selfie segmentation of each frame, ``(T, H, W)`` float in [0, 1]."""
-    mp = _mediapipe()
+    mp = load_mediapipe()
     return np.stack([np.asarray(r.segmentation_mask, np.float32) for _, r in _each_frame(
         lambda: mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=0), frames, "segmenting the person", quiet)])
 

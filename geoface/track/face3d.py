@@ -1,0 +1,114 @@
+"""A face in 3D from its landmarks: its frame (right, up, front), whether the points look like a
+face's, and the ICT-FaceKit head's landmarks that both are measured against."""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+__all__ = ["INNER", "RIGID", "EYE_RIGHT", "EYE_LEFT", "face_frame", "keypoint_frame", "keypoints_of", "shape_error",
+           "nose_out", "eye_distance", "template_landmarks", "similarity"]
+
+#: the iBUG landmarks that the frame and the shape check use: brows, nose, eyes, mouth (0-16, the
+#: jaw line, are contour points: where the cheek turns away from each view)
+INNER = tuple(range(17, 68))
+#: the inner landmarks that move little with expressions: the nose and the eye corners
+RIGID = (27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39, 42, 45)
+EYE_RIGHT, EYE_LEFT = tuple(range(36, 42)), tuple(range(42, 48))
+
+
+@lru_cache(maxsize=1)
+def template_landmarks():
+    """The ICT-FaceKit mean head's 68 landmarks (Y up, facing +Z, cm), or None without the model."""
+    try:
+        from geoface.synth.ict import load_ict_model
+
+        h = load_ict_model().head(None)
+    except Exception:  # the model's files are optional to the tracker
+        return None
+    return h.V[h.landmarks].copy()
+
+
+def keypoints_of(P) -> np.ndarray:
+    """The face detector's four key points from 68 landmarks ``P (68, 3)``: the subject's right
+    eye's centre, the left's, the nose tip, the mouth's centre, ``(4, 3)``."""
+    P = np.asarray(P, np.float64)
+    return np.stack([P[list(EYE_RIGHT)].mean(0), P[list(EYE_LEFT)].mean(0), P[30], P[[51, 57, 62, 66]].mean(0)])
+
+
+def similarity(A, B):
+    """``(s, R, t)`` minimising ``sum |s R a + t - b|^2`` over the rows of ``A``, ``B`` (Umeyama)."""
+    ma, mb = A.mean(0), B.mean(0)
+    A0, B0 = A - ma, B - mb
+    U, D, Vt = np.linalg.svd(B0.T @ A0)
+    S = np.eye(3)
+    if np.linalg.det(U @ Vt) < 0:
+        S[2, 2] = -1.0
+    R = U @ S @ Vt
+    s = float((D * np.diag(S)).sum() / max((A0 ** 2).sum(), 1e-300))
+    return s, R, mb - s * R @ ma
+
+
+def _unit(v) -> np.ndarray:
+    return v / max(float(np.linalg.norm(v)), 1e-300)
+
+
+def eye_distance(P) -> float:
+    """The outer eye corners' distance (iBUG 36 to 45)."""
+    return float(np.linalg.norm(P[45] - P[36]))
+
+
+def _frame_onto(T, P):
+    _, R, _ = similarity(T, P)
+    return R[:, 0].copy(), R[:, 1].copy(), R[:, 2].copy()
+
+
+def face_frame(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(right, up, front)`` of a face from its 68 iBUG landmarks in 3D ``points (68, 3)``: the
+    ICT-FaceKit head's axes (x right, y up, z front) after the best rotation of its inner landmarks
+    (:data:`INNER`: brows, nose, eyes, mouth) onto these. Of the frames tried on heads turned at
+    random (the nose and eye corners alone, the eye and mouth corners, with the eye line made level
+    exactly), this one moved least with the turn. Without the model's files: the eye line, and up
+    from the mouth to the eyes."""
+    P = np.asarray(points, np.float64)
+    T = template_landmarks()
+    idx = [i for i in INNER if np.isfinite(P[i]).all()]
+    if T is not None and len(idx) >= 10:
+        return _frame_onto(T[idx], P[idx])
+    return _frame_of_keypoints(keypoints_of(P))
+
+
+def keypoint_frame(K) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(right, up, front)`` from the face detector's four key points in 3D ``K (4, 3)`` (eyes,
+    nose tip, mouth: :func:`keypoints_of`), where the face mesh finds no face (a masked face): the
+    ICT-FaceKit head's four after the best rotation onto these."""
+    K = np.asarray(K, np.float64)
+    T = template_landmarks()
+    if T is not None:
+        return _frame_onto(keypoints_of(T), K)
+    return _frame_of_keypoints(K)
+
+
+def _frame_of_keypoints(K):
+    right = _unit(K[1] - K[0])
+    front = _unit(np.cross(right, 0.5 * (K[0] + K[1]) - K[3]))
+    return right, np.cross(front, right), front
+
+
+def shape_error(P) -> float:
+    """RMS distance of the inner landmarks from the ICT head's after the best similarity, over the
+    outer eye corners' distance (NaN without the model's files)."""
+    T = template_landmarks()
+    idx = [i for i in INNER if np.isfinite(P[i]).all()]
+    if T is None or len(idx) < 10:
+        return float("nan")
+    s, R, t = similarity(T[idx], P[idx])
+    X = s * T[idx] @ R.T + t
+    return float(np.sqrt(((X - P[idx]) ** 2).sum(1).mean())) / max(eye_distance(P), 1e-300)
+
+
+def nose_out(K, front) -> float:
+    """How far the nose tip stands in front of the eyes' centres, over their distance, from the
+    four key points ``K (4, 3)`` (a hollow face, seen from behind, has it negative)."""
+    K = np.asarray(K, np.float64)
+    return float((K[2] - 0.5 * (K[0] + K[1])) @ front) / max(float(np.linalg.norm(K[1] - K[0])), 1e-300)
