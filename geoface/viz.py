@@ -306,7 +306,9 @@ def gimage_montage(gi, *, screenshot=None, surface: bool = False, gap: int = 4, 
     Each tile is ``N × N`` (the modality mapped to 8 bits: position and normal as RGB in
     [0, 1], texture as is, mask white), tiles separated by ``gap`` grey pixels.  With
     ``surface=True`` a 3D rendering of the geometry image (the reconstructed surface,
-    textured when it has texture channels) is appended as a last tile.  ``tile=T`` scales
+    textured when it has texture channels) is appended as a last tile: in the frame the images
+    store (x right, y up, z front), seen from +z with +y up, so a wrong frame shows there (a head
+    stored sideways looks sideways).  ``tile=T`` scales
     every tile to ``T × T`` (nearest neighbour, pixels stay visible; default ``N``).
 
     Returns an ``(T, k·T + (k-1)·gap, 3) uint8`` image; written as PNG to ``screenshot``.
@@ -324,9 +326,9 @@ def gimage_montage(gi, *, screenshot=None, surface: bool = False, gap: int = 4, 
     if surface:
         from .gimage import reconstruct
 
-        rec = reconstruct(gi)
+        rec = reconstruct(gi, frame="stored")
         pic = plot_mesh(rec, screenshot=None, off_screen=True if off_screen is None else off_screen,
-                        window_size=window_size or (max(N, 128), max(N, 128)))
+                        window_size=window_size or (max(N, 128), max(N, 128)), view="xy")
         cv2 = lazy_import("cv2", "geometry-image montage")
         tiles.append(("surface", cv2.resize(pic, (N, N), interpolation=cv2.INTER_AREA)))
     if labels:

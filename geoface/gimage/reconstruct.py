@@ -43,11 +43,13 @@ def _laplacian_smooth(V, F, iterations, fixed):
     return V
 
 
-def reconstruct(gi: GeometryImage, *, smooth: int = 0) -> Mesh:
+def reconstruct(gi: GeometryImage, *, smooth: int = 0, frame: str = "input") -> Mesh:
     """Mesh of a geometry image (see module docs).
 
     ``smooth``: iterations of Laplacian smoothing (λ = 0.5) of the interior vertices, to
     remove the staircase of quantised positions in flat areas; 0 keeps pixel positions.
+    ``frame``: "input" (default: where the input mesh was) or "stored" (upright as the images
+    store it: x right, y up, z front; see :meth:`GeometryImage.positions`).
     Per-vertex colours come from the texture channels when present; the texture image
     (8-bit) is attached with per-vertex UVs at the pixel centres.
     """
@@ -59,7 +61,7 @@ def reconstruct(gi: GeometryImage, *, smooth: int = 0) -> Mesh:
         raise InvalidGeometryImageError(f"mask must be {N}x{N}")
     if int(smooth) != smooth or not 0 <= smooth <= MAX_SMOOTH:
         raise InvalidGeometryImageError(f"smooth must be an integer in 0..{MAX_SMOOTH}; got {smooth!r}")
-    P = gi.positions()
+    P = gi.positions(frame)
     if not np.isfinite(P).all():
         raise InvalidGeometryImageError("position image has non-finite values")
     index = np.full((N, N), -1, np.int64)

@@ -249,6 +249,22 @@ def _explicit_roi(opts: ConvertOptions, V0: np.ndarray) -> np.ndarray | None:
     return m
 
 
+def _face_record(frame, stored):
+    """The face found by looking (``frame.face``), for ``metrics.json`` and each set's
+    ``meta.json``: its landmarks (68, else the detector's 4 key points) in the stored frame (x
+    right, y up, z front); None when no face was found."""
+    lm = None if frame is None else frame.face
+    if lm is None or not lm.found:
+        return None
+    mesh = lm.source == "face mesh"
+    P = lm.points if mesh else lm.keypoints
+    r = lambda v: None if not np.isfinite(v) else round(float(v), 6)  # noqa: E731
+    meta = {"source": lm.source, "confidence": round(float(lm.confidence), 4),
+            "points": [[r(x) for x in p] for p in P @ stored.T],
+            "names": "iBUG 68" if mesh else ["eye_right", "eye_left", "nose_tip", "mouth"]}
+    return {"points": P, "meta": meta, "metrics": dict(lm.to_dict(points=False), points=meta["points"], names=meta["names"])}
+
+
 def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | None = None, *, quiet: bool | None = None,
             overwrite: bool = True) -> dict:
     """Convert ``mesh`` into geometry images in ``out_dir`` (see module docs).
@@ -358,6 +374,9 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     from .._io import atomic_dir
 
     stored = upright_rotation(up_vec, front)
+    face = _face_record(frame, stored)
+    if face is not None:
+        metrics["face"] = face["metrics"]
     with atomic_dir(out_dir, overwrite=overwrite) as tmp_root:
         solver = RicciFlowSolver(V, dm.F)
         failures: list = []
@@ -367,7 +386,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             folder.mkdir(exist_ok=True)
             try:
                 V, roi, colors = convert_set(st, folder, pos, len(sets), corners, solver, V, roi, colors, dm, opts, quiet,
-                                              stored, full=full)
+                                              stored, full=full, face=face)
             except GeofaceError as e:
                 if len(sets) == 1:
                     raise

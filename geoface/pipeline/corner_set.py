@@ -16,11 +16,12 @@ from ..mesh.io import first_corner_uv
 from ..progress import log
 
 
-def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opts, quiet, stored, full=None):
+def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opts, quiet, stored, full=None, face=None):
     """One corner set: Ricci flow → OT → images → reconstruction, into ``folder``; fills
     ``st`` and returns the (possibly extended) per-vertex data.  ``full``: the scan under a
     proxy (:class:`geoface.pipeline.proxy.FullSurface`), which the images sample and the error
-    report measures against."""
+    report measures against.  ``face``: the face found on the surface (``meta.json``'s ``face``:
+    its landmarks in the stored frame), to which this set adds where they land in the images."""
     from ..gimage import geometry_image, reconstruct, save_reconstruction
     from ..gimage.image import write_gimage_files
     from ..gimage.raster import interpolate, rasterize_faces
@@ -79,6 +80,9 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
             "param": {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in st["distortion"].items()},
             # positions and normals are stored upright (x right, y up, z front); to_input turns them back
             "frame": {"to_input": [[float(f"{x:.12g}") for x in row] for row in stored.T]}}
+    if face is not None:
+        meta["face"] = dict(face["meta"], **face_pixels(face["points"], V, F, uv, opts.res))
+        st["face_pixels"] = {k: meta["face"][k] for k in ("eye_line_degrees", "center_offset")}
     fid, bary = rasterize_faces(F, uv, opts.res, align_corners=True)
     if full is None:
         gi = geometry_image(V @ stored.T, F, uv, opts.res, meta=meta, raster=(fid, bary), **kw)
@@ -115,6 +119,33 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
     if opts.preview:
         _preview(gi, folder / "preview.png")
     return V, roi, colors
+
+
+def face_pixels(points, V, F, uv, N) -> dict:
+    """Where face landmarks ``points (k, 3)`` (the 68 iBUG, NaN where unknown; or the detector's
+    four key points) land in the ``N``² images of the map ``uv`` of ``(V, F)``: each at the closest
+    point of the surface, carried through the map. ``{"pixels": [[x (column), y (row)] or None],
+    "eye_line_degrees": the line from the subject's right eye to the left against the image rows
+    (positive: the left eye higher), "center_offset": the eyes' and the mouth's centre's column
+    from the image's middle, over the width}``."""
+    from ..gimage.raster import uv_to_pixel
+    from ..track.face3d import keypoints_of
+    from ..uvmap.bake import closest_points
+
+    P = np.asarray(points, np.float64)
+    ok = np.isfinite(P).all(1)
+    px = np.full((len(P), 2), np.nan)
+    if ok.any():
+        _, f, b = closest_points(P[ok], V, F)
+        q = np.einsum("kj,kjd->kd", b, uv[F[f]])
+        x, y = uv_to_pixel(q, N, True)
+        px[ok] = np.column_stack([x, y])
+    K = keypoints_of(px) if len(P) == 68 else px  # (right eye, left eye, nose, mouth) in pixels
+    eye = float(np.degrees(np.arctan2(-(K[1, 1] - K[0, 1]), K[1, 0] - K[0, 0])))
+    center = float((0.25 * (K[0, 0] + K[1, 0]) + 0.5 * K[3, 0]) / (N - 1) - 0.5)
+    r = lambda v: None if not np.isfinite(v) else round(float(v), 3)  # noqa: E731
+    return {"pixels": [[r(a), r(b)] if np.isfinite(a) else None for a, b in px], "eye_line_degrees": r(eye),
+            "center_offset": r(center)}
 
 
 def _scan_gimage(full, V, F, uv, fid, bary, stored, meta):

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..mesh.core import face_areas, face_normals
 
-__all__ = ["TEMPLATE_FIT", "fit_head_template", "surface_samples", "template_face_region"]
+__all__ = ["TEMPLATE_FIT", "fit_head_template", "fit_head_template_from", "surface_samples", "template_face_region"]
 
 
 def surface_samples(V, F, n, seed):
@@ -54,7 +54,7 @@ def _template():
     tpl = _template_mesh()
     if tpl is None:
         return None
-    V, F, mask = tpl
+    V, F, mask, _ = tpl
     whole = surface_samples(V, F, _TEMPLATE_POINTS, 1)[0]
     face = surface_samples(V, F[mask[F].all(1)], _TEMPLATE_POINTS, 2)[0]
     return whole, face
@@ -196,6 +196,39 @@ def fit_head_template(P, *, face_only: bool = False):
     return best
 
 
+def fit_head_template_from(P, landmarks, *, face_only: bool = False):
+    """Register the head template to the scan samples ``P`` from where the face's landmarks put
+    it: the best similarity of the template's landmarks onto ``landmarks`` (``(68, 3)`` iBUG
+    points, NaN where unknown, or the four key points of :func:`geoface.track.face3d.keypoints_of`),
+    then trimmed ICP as in :func:`fit_head_template` from that one start. ``(R, s, t, error)``, or
+    None without the model."""
+    from scipy.spatial import cKDTree
+
+    from ..track.face3d import INNER, keypoints_of, similarity
+
+    tpl, lm = _template(), _template_landmarks()
+    if tpl is None or lm is None:
+        return None
+    L = np.asarray(landmarks, np.float64)
+    if len(L) == 4:
+        A, B = keypoints_of(lm), L
+    else:
+        idx = [i for i in INNER if np.isfinite(L[i]).all()]
+        A, B = lm[idx], L[idx]
+    s, R, t = similarity(A, B)
+    T = tpl[1] if face_only else tpl[0]
+    rT = float(np.sqrt(((T - T.mean(0)) ** 2).sum(1).mean()))
+    R, s, t, e = _icp(T, P, cKDTree(P), R, s, t, 30, not face_only, stop=1e-4)
+    return R, s, t, e / (s * rT)
+
+
+@lru_cache(maxsize=1)
+def _template_landmarks():
+    """The ICT-FaceKit mean head's 68 landmarks, or None when the model is not installed."""
+    tpl = _template_mesh()
+    return None if tpl is None else tpl[0][tpl[3]]
+
+
 def turned_fit(P, fit, *, face_only: bool = False):
     """The template registered again from ``fit`` turned half a turn about its up axis (the face
     where the back of the head was): ``(R, s, t, error)``. A smooth, egg-shaped head can fit
@@ -225,7 +258,7 @@ def template_face_region(V, frame, *, reach: float = 0.08) -> np.ndarray | None:
     tpl = _template_mesh()
     if tpl is None:
         return None
-    Vt, _, face = tpl
+    Vt, _, face, _ = tpl
     X = s * Vt @ R.T + t
     rT = s * float(np.sqrt(((Vt - Vt.mean(0)) ** 2).sum(1).mean()))
     d, j = cKDTree(X).query(np.asarray(V, float))
@@ -242,4 +275,4 @@ def _template_mesh():
         h = load_ict_model().head(None)
     except Exception:
         return None
-    return h.V.copy(), h.F.copy(), h.face_mask.copy()
+    return h.V.copy(), h.F.copy(), h.face_mask.copy(), h.landmarks.copy()

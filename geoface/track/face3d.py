@@ -3,11 +3,12 @@ face's, and the ICT-FaceKit head's landmarks that both are measured against."""
 from __future__ import annotations
 
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
 __all__ = ["INNER", "RIGID", "EYE_RIGHT", "EYE_LEFT", "face_frame", "keypoint_frame", "keypoints_of", "shape_error",
-           "nose_out", "eye_distance", "template_landmarks", "similarity"]
+           "nose_out", "eye_distance", "template_landmarks", "template_keypoints", "similarity", "TEMPLATE_FILE"]
 
 #: the iBUG landmarks that the frame and the shape check use: brows, nose, eyes, mouth (0-16, the
 #: jaw line, are contour points: where the cheek turns away from each view)
@@ -17,16 +18,47 @@ RIGID = (27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39, 42, 45)
 EYE_RIGHT, EYE_LEFT = tuple(range(36, 42)), tuple(range(42, 48))
 
 
+#: the ICT-FaceKit mean head's landmarks as our face finder sees them (``data_tools/fit_scan_template.py``)
+TEMPLATE_FILE = Path(__file__).parents[1] / "data" / "scan_template.json"
+
+
 @lru_cache(maxsize=1)
-def template_landmarks():
-    """The ICT-FaceKit mean head's 68 landmarks (Y up, facing +Z, cm), or None without the model."""
+def _template():
+    """``(68 landmarks, 4 key points)`` of the ICT-FaceKit mean head (Y up, facing +Z, cm) as
+    :func:`geoface.track.scan.scan_landmarks` finds them on renders of it: the frame of a face
+    compares like with like (MediaPipe's points are not the model's: its nose tip sits 3 mm lower,
+    its eye corners 4 mm further in), so the mean head's own frame comes out as its axes. Without
+    that file, the model's own landmarks; None without either."""
+    import json
+
+    try:
+        d = json.loads(TEMPLATE_FILE.read_text())
+        P, K = np.asarray(d["points"], np.float64), np.asarray(d["keypoints"], np.float64)
+        if P.shape == (68, 3) and K.shape == (4, 3) and np.isfinite(P).all() and np.isfinite(K).all():
+            return P, K
+    except (OSError, ValueError, KeyError):
+        pass
     try:
         from geoface.synth.ict import load_ict_model
 
         h = load_ict_model().head(None)
     except Exception:  # the model's files are optional to the tracker
         return None
-    return h.V[h.landmarks].copy()
+    P = h.V[h.landmarks].copy()
+    return P, keypoints_of(P)
+
+
+def template_landmarks():
+    """The ICT-FaceKit mean head's 68 landmarks as the face finder sees them (:func:`_template`),
+    ``(68, 3)``, or None."""
+    t = _template()
+    return None if t is None else t[0]
+
+
+def template_keypoints():
+    """The mean head's four key points as the face detector gives them, ``(4, 3)``, or None."""
+    t = _template()
+    return None if t is None else t[1]
 
 
 def keypoints_of(P) -> np.ndarray:
@@ -83,9 +115,9 @@ def keypoint_frame(K) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     nose tip, mouth: :func:`keypoints_of`), where the face mesh finds no face (a masked face): the
     ICT-FaceKit head's four after the best rotation onto these."""
     K = np.asarray(K, np.float64)
-    T = template_landmarks()
+    T = template_keypoints()
     if T is not None:
-        return _frame_onto(keypoints_of(T), K)
+        return _frame_onto(T, K)
     return _frame_of_keypoints(K)
 
 

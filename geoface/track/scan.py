@@ -46,7 +46,7 @@ import numpy as np
 from geoface.errors import GeofaceError
 
 from .face3d import INNER, RIGID, eye_distance, face_frame, keypoint_frame, keypoints_of, nose_out, shape_error, similarity
-from .face3d import template_landmarks
+from .face3d import template_keypoints
 from .look import STYLES, Looker, any_up, camera_at, lift, principal_frame, search_views, turn, unit, unrotate
 
 __all__ = ["ScanLandmarks", "scan_landmarks", "MIN_CONFIDENCE", "MAX_SHAPE_ERROR"]
@@ -135,7 +135,8 @@ def _window(res: int) -> int:
 
 
 def scan_landmarks(V, F, *, resolution: int = 256, search_resolution: int = 128, views: int = 5,
-                   min_confidence: float = MIN_CONFIDENCE, iterations: int = 4, candidates: int = 3) -> ScanLandmarks:
+                   min_confidence: float = MIN_CONFIDENCE, iterations: int = 4, candidates: int = 3,
+                   source: str = "auto") -> ScanLandmarks:
     """Find the face on the mesh ``(V, F)`` by looking at it (module description): its 68 iBUG
     landmarks in 3D, in the mesh's coordinates, and its frame.
 
@@ -150,6 +151,8 @@ def scan_landmarks(V, F, *, resolution: int = 256, search_resolution: int = 128,
     iterations : most refinements of the frontal view (each renders and looks once more).
     candidates : the second looks' best faces (each looking its own way) refined in turn until
         one refines.
+    source : "auto" (the face mesh's 68 landmarks, the detector's four key points where the face
+        mesh finds no face), "face mesh" or "face detector" (only those).
 
     Returns a :class:`ScanLandmarks`; ``found`` False (with ``why``) when no face is seen. Raises
     :class:`geoface.errors.MissingDependencyError` without MediaPipe.
@@ -169,6 +172,8 @@ def scan_landmarks(V, F, *, resolution: int = 256, search_resolution: int = 128,
         raise GeofaceError(f"views must be in 1..{len(CONSENSUS_TURNS)}; got {views!r}")
     if int(resolution) < 64 or int(search_resolution) < 64:
         raise GeofaceError(f"resolution and search_resolution must be at least 64; got {resolution}, {search_resolution}")
+    if source not in ("auto",) + SOURCES:
+        raise GeofaceError(f"source must be one of auto, {', '.join(SOURCES)}; got {source!r}")
     nan68, nan4 = np.full((68, 3), np.nan), np.full((4, 3), np.nan)
 
     def none(why, conf=0.0):
@@ -184,7 +189,7 @@ def scan_landmarks(V, F, *, resolution: int = 256, search_resolution: int = 128,
         refined = None
         for _, guess in _verified(look, found, search_resolution)[: max(1, int(candidates))]:
             look.focus(guess[0], FOCUS * guess[3])
-            refined = _refine(look, guess, resolution, iterations)
+            refined = _refine(look, guess, resolution, iterations, source)
             if refined is not None:
                 break
         if refined is None:
@@ -224,10 +229,9 @@ def scan_landmarks(V, F, *, resolution: int = 256, search_resolution: int = 128,
 
 
 def _keypoint_shape_error(K) -> float:
-    T = template_landmarks()
-    if T is None:
+    A = template_keypoints()
+    if A is None:
         return float("nan")
-    A = keypoints_of(T)
     s, R, t = similarity(A, K)
     return float(np.sqrt(((s * A @ R.T + t - K) ** 2).sum(1).mean())) / max(float(np.linalg.norm(K[1] - K[0])), 1e-300)
 
@@ -363,14 +367,15 @@ def _usable(P, source) -> bool:
     return bool(np.isfinite(P[need]).all())
 
 
-def _refine(look, guess, res, iterations):
+def _refine(look, guess, res, iterations, source="auto"):
     """Look at the face from its front, level with its eyes, until the frame the landmarks give
     moves less than half a degree: ``(landmarks, centre, front, up, half, style, source)`` or None.
     While the face mesh finds no face the next of :data:`geoface.track.look.STYLES` is tried, and
     after them the detector's key points."""
     center, front, up, half = guess
     P = None
-    plans = [(SOURCES[0], st) for st in STYLES] + [(SOURCES[1], STYLES[0])]
+    plans = ([(SOURCES[0], st) for st in STYLES] if source != SOURCES[1] else []) + \
+        ([(SOURCES[1], STYLES[0])] if source != SOURCES[0] else [])
     k = 0
     for _ in range(max(1, int(iterations)) + len(plans) - 1):
         source, st = plans[k]
