@@ -23,7 +23,12 @@ Kinds of case (``CASE_KINDS``):
   mouth openings filled;
 * ``decimated``: coarse, 1K faces (quadric decimation);
 * ``photo``: an ICT head open at the neck with 18 holes and 3 floating components (a 3D photo);
-* ``raw_face``: an ICT face, subdivided to ~47K vertices, with fins and 5 floating components.
+* ``raw_face``: an ICT face, subdivided to ~47K vertices, with fins and 5 floating components;
+* ``turned``: the base (and its face-only and closed variants) turned by a random rotation (not an
+  axis permutation: ``turned(base, seed)``);
+* ``torso``: an ICT head on shoulders in a shirt: the head closed at the neck, joined (a boolean
+  union, manifold3d) to a torso with a collar, one closed surface (a head-and-shoulders 3D photo);
+* ``plinth``: an ICT head closed at the neck standing on a flat square plinth (a bust on its base).
 
     python data_tools/make_stress_cases.py OUT_DIR [--ict 2] [--meshes face.obj lion.off] [--kinds axes fins]
 
@@ -57,7 +62,7 @@ CONVENTIONS = {
 TILTED = "tilted-mm-far"
 
 CASE_KINDS = ("axes", "fins", "debris", "soup", "holes", "slivers", "face_only", "closed_neck", "decimated", "photo",
-              "raw_face")
+              "raw_face", "turned", "torso", "plinth")
 
 #: the real meshes of ../shared/data/meshes (also vendored in tests/data/meshes): up and front
 #: as modelled (all are Y-up), and for the human heads the nose tip, eyes and chin marked by hand
@@ -207,6 +212,85 @@ def moved(base: StressCase, convention: str) -> StressCase:
                    s=s * base.s, t=s * R @ base.t + t, up=R @ base.up, front=R @ base.front,
                    landmarks={k: s * R @ v + t for k, v in base.landmarks.items()}, roi=base.roi)
     return c
+
+
+def turned(base: StressCase, seed: int) -> StressCase:
+    """``base`` turned by a random rotation (uniform on SO(3), from ``seed``) about its centre."""
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.random(random_state=seed).as_matrix()
+    c = 0.5 * (base.V.min(0) + base.V.max(0))
+    t = c - R @ c
+    return StressCase(f"{base.name}_turned{seed}", base.base, "turned", base.V @ R.T + t, base.F.copy(),
+                      convention=f"turned{seed}", R=R @ base.R, s=base.s, t=R @ base.t + t, up=R @ base.up,
+                      front=R @ base.front, landmarks={k: R @ v + t for k, v in base.landmarks.items()}, roi=base.roi)
+
+
+def _manifold(V, F):
+    import manifold3d as m3
+
+    return m3.Manifold(m3.Mesh(vert_properties=np.asarray(V, np.float32), tri_verts=np.asarray(F, np.uint32)))
+
+
+def _union(base: StressCase, kind: str, parts) -> StressCase:
+    """The closed base joined to ``parts`` (manifold3d solids) by a boolean union: one closed surface."""
+    from scipy.spatial import cKDTree
+
+    head = closed_neck(base)
+    solid = _manifold(head.V, head.F)
+    for p in parts:
+        solid = solid + p
+    m = solid.to_mesh()
+    V, F = np.asarray(m.vert_properties, float)[:, :3], np.asarray(m.tri_verts, np.int64)
+    roi = None
+    if base.roi is not None:  # the face mask: vertices at the head's face vertices
+        d, i = cKDTree(base.V).query(V)
+        roi = base.roi[i] & (d < 1e-3 * float(np.linalg.norm(np.ptp(base.V, 0))))
+    return _derived(base, kind, V, F, roi=roi)
+
+
+def _below_neck(base: StressCase):
+    """The transform (3 x 4, columns: the base's right, up, front and the neck's centre) that puts
+    a solid built along +x right, +y up, +z front under the neck of a base open at the neck, and
+    the head's width."""
+    from geoface.mesh.core import boundary_loops, loop_length
+
+    loop = max(boundary_loops(base.F), key=lambda lp: loop_length(base.V, lp))  # the neck: the longest opening
+    up, front = base.up / np.linalg.norm(base.up), base.front / np.linalg.norm(base.front)
+    right = np.cross(up, front)
+    c = base.V[loop].mean(0)
+    low = float((base.V[loop] @ up).min())
+    c = c + (low - c @ up) * up  # at the lowest point of the neck's cut
+    return np.column_stack([right, up, front, c]).tolist(), float(np.ptp(base.V @ right))
+
+
+#: a solid built along +z turned to stand along +y (a proper rotation: x stays, z -> y, y -> -z)
+_Z_TO_Y = [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0]]
+
+
+def with_torso(base: StressCase) -> StressCase:
+    """A head on shoulders in a shirt: the head closed at the neck, joined to a torso (an
+    elliptic cone 2.4 head widths across at the shoulders, narrowing upwards) and a collar ring
+    round the neck."""
+    import manifold3d as m3
+
+    M, w = _below_neck(base)
+    r = 0.5 * w
+    torso = m3.Manifold.cylinder(1.6 * r, 1.0 * r, 0.45 * r, 48).scale([2.4, 1.1, 1.0]).transform(_Z_TO_Y)
+    torso = torso.translate([0.0, -1.4 * r, -0.1 * r])  # its top 0.2 r above the neck's lowest point
+    collar = m3.Manifold.cylinder(0.3 * r, 0.5 * r, 0.42 * r, 48).transform(_Z_TO_Y).translate([0.0, 0.05 * r, 0.0])
+    return _union(base, "torso", [torso.transform(M), collar.transform(M)])
+
+
+def with_plinth(base: StressCase) -> StressCase:
+    """A bust on its base: the head closed at the neck, standing on a flat square plinth."""
+    import manifold3d as m3
+
+    M, w = _below_neck(base)
+    r = 0.5 * w
+    neck = m3.Manifold.cylinder(0.9 * r, 0.42 * r, 0.42 * r, 32).transform(_Z_TO_Y).translate([0.0, -0.7 * r, 0.0])
+    block = m3.Manifold.cube([1.8 * r, 0.4 * r, 1.8 * r], center=True).translate([0.0, -0.9 * r, 0.0])
+    return _union(base, "plinth", [neck.transform(M), block.transform(M)])
 
 
 def _derived(base: StressCase, kind: str, V, F, roi=None, **kw) -> StressCase:
@@ -433,9 +517,11 @@ def write_soup_obj(path: Path, V: np.ndarray, F: np.ndarray) -> None:
 
 
 # ----------------------------------------------------------------------------------- checks
-def landmark_pixels(folder, landmarks: dict) -> dict:
+def landmark_pixels(folder, landmarks: dict, *, subpixel: bool = False) -> dict:
     """Where each landmark lands in the geometry images of ``folder``: the (row, column) of the
-    pixel whose decoded position (``position.png``) is nearest to it, and that distance."""
+    pixel whose decoded position (``position.png``) is nearest to it, and that distance.
+    ``subpixel``: the row and column refined to a fraction of a pixel (the positions about that
+    pixel fitted linearly, the landmark's offset solved in the least-squares sense)."""
     from scipy.spatial import cKDTree
 
     from geoface.gimage import load_gimage
@@ -450,6 +536,11 @@ def landmark_pixels(folder, landmarks: dict) -> dict:
     for k, p in landmarks.items():
         d, i = tree.query(np.asarray(p, float))
         r, c = divmod(int(idx[i]), N)
+        if subpixel and 0 < r < N - 1 and 0 < c < N - 1 and gi.mask[r - 1:r + 2, c - 1:c + 2].all():
+            J = np.column_stack([(P[r + 1, c] - P[r - 1, c]) / 2, (P[r, c + 1] - P[r, c - 1]) / 2])  # d pos / d (row, col)
+            dr, dc = np.linalg.lstsq(J, np.asarray(p, float) - P[r, c], rcond=None)[0]
+            if abs(dr) <= 1 and abs(dc) <= 1:
+                r, c = r + float(dr), c + float(dc)
         out[k] = (r, c, float(d))
     return out
 
@@ -512,6 +603,13 @@ def stress_cases(*, meshes=tuple(REAL), ict=(0,), kinds=CASE_KINDS, conventions=
             yield photo(b)
         if ict_b and "raw_face" in kinds:
             yield raw_face(b)
+        if "turned" in kinds:
+            for j, v in enumerate(variants):
+                yield turned(v, 7 + 11 * j)
+        if ict_b and "torso" in kinds:
+            yield with_torso(b)
+        if ict_b and "plinth" in kinds:
+            yield with_plinth(b)
 
 
 def main() -> None:

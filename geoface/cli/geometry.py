@@ -68,6 +68,7 @@ def cmd_repair(args) -> int:
         cap_area=args.cap_area,
         target_vertices=args.target_vertices,
         min_component_area=args.min_component_area,
+        find_face=args.find_face,
     )
     log(f"repairing {args.input}: {len(mesh.V)} vertices, {len(mesh.F)} faces")
     res = make_disk(mesh.V, mesh.F, opts)
@@ -251,7 +252,7 @@ def cmd_convert(args) -> int:
     opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, blend=args.blend, feature=args.feature, augment=args.augment,
                           method=args.method, ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
                           corner_set=args.corner_set, reconstruct=args.reconstruct, proxy=args.proxy,
-                          needles=args.needles)
+                          needles=args.needles, find_face=args.find_face)
     m = convert(mesh, out, opts, overwrite=args.force)
     print(_convert_summary(args, out, m))
     from .. import progress as _progress

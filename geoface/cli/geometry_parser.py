@@ -20,8 +20,11 @@ def register(sub, common) -> None:
     s.add_argument("-o", "--output", required=True, help="output mesh (obj, ply, off, stl, glb)")
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto",
                    help="how to open a closed surface (default auto: plane cut near the bottom if closed)")
-    s.add_argument("--up", default="auto", type=axis(), help="up axis: auto (default: from the shape, any axis convention: a human head "
-                   "by the head template, else the opening, a flat cut, the plane it stands on) or x, y, z, -x, -y, -z")
+    s.add_argument("--up", default="auto", type=axis(), help="up axis: auto (default: from the face, found by looking at renders "
+                   "of the surface, in any pose; without one from the shape: the head template, the opening, a flat cut, the "
+                   "plane it stands on) or x, y, z, -x, -y, -z")
+    s.add_argument("--no-find-face", dest="find_face", action="store_false",
+                   help="with --up auto, do not look for the face (the shape's cues alone)")
     s.add_argument("--height", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.02, help="plane cut height as a fraction of the extent along up (0.02)")
     s.add_argument("--cap-area", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.02, help="area fraction removed by --open cap (0.02)")
     s.add_argument("--target-vertices", type=number(int, 16, 10_000_000), default=None, help="remesh to about this many vertices")
@@ -67,8 +70,11 @@ def register(sub, common) -> None:
                    help="skip reconstruction.obj and its error report (the images come first either way; "
                         "dataset builds skip them unless --reconstruct)")
     s.add_argument("--up", default="auto", type=axis(), help="up axis: where closed heads are cut open, and which way the face is upright "
-                   "in the image; auto (default): from the shape, in any axis convention (a human head by the head template, "
-                   "else the opening, a flat cut, the plane it stands on; uncertain cases say so), or x, y, z, -x, -y, -z")
+                   "in the image; auto (default): from the face, found by looking at renders of the surface in any pose "
+                   "(without one from the shape: the head template, the opening, a flat cut, the plane it stands on; uncertain "
+                   "cases say so), or x, y, z, -x, -y, -z")
+    s.add_argument("--no-find-face", dest="find_face", action="store_false",
+                   help="with --up auto, do not look for the face (the shape's cues alone)")
     s.add_argument("--front", default="auto", type=axis(), help="face direction: auto (default: towards the centroid of a --roi mask "
                    "file; without one, the front found with --up auto, or where the mesh faces about a given --up: symmetry "
                    "and detail, as `view` finds it) or an axis (z, -x, ...)")

@@ -105,7 +105,8 @@ def default_corners(V, F, reference: int | None = None, front=None, up=None) -> 
     return corner_sets(V, F, n=1, reference=reference, front=front, up=up)[0]
 
 
-def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=None, count: int | None = None) -> list[np.ndarray]:
+def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=None, count: int | None = None,
+                turn: float = 0.0) -> list[np.ndarray]:
     """The paper's augmentation: ``n`` different corner sets, each splitting the boundary
     into four equal arcs, set ``k`` turned ``k / (4n)`` of the boundary further than set 0
     (:func:`default_corners`).
@@ -115,7 +116,9 @@ def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=N
     image.  On a boundary too coarse for that, a set that would repeat an earlier one is
     moved along the boundary by whole vertices until it differs, and where no such turn is new
     (a boundary of a dozen vertices) one or two of its corners move on their own.  ``count``: only the first
-    ``count`` of the ``n`` sets (default all).
+    ``count`` of the ``n`` sets (default all).  ``turn``: every set turned a further ``turn`` of
+    the boundary's length (in boundary order; ``geoface convert`` turns them so that the face's eye
+    line comes out level).
     """
     if int(n) != n or n < 1:
         raise ParameterizationError(f"n must be a positive integer; got {n!r}")
@@ -126,7 +129,7 @@ def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=N
     seen: set = set()
     pos = {int(v): i for i, v in enumerate(loop)}
     for k in range(int(n) if count is None else min(int(count), int(n))):
-        c = _split(V, loop, start, _BASE + k / (4.0 * n))
+        c = _split(V, loop, start, _BASE + k / (4.0 * n) + float(turn))
         shift = 0
         while frozenset(c.tolist()) in seen and shift < len(loop):
             shift += 1

@@ -64,11 +64,21 @@ class IntrinsicTriangulation:
         return self.L * np.exp(0.5 * (u[src] + u[dst]))
 
     def make_delaunay(self, u: np.ndarray, max_flips: int | None = None) -> int:
-        """Flip (Ptolemy) until every interior edge is Delaunay for the metric scaled by ``u``."""
+        """Flip (Ptolemy) until every interior edge is Delaunay for the metric scaled by ``u``.
+
+        A flip never leaves a boundary vertex with a single triangle (an ear): the edge from a
+        boundary vertex that has two is kept. Such an ear's triangle would have to open to the
+        vertex's whole boundary angle — flat, with zero area on the surface, where it was a
+        split edge's midpoint — and a corner there gets no mass in the measure-preserving map
+        (:func:`geoface.param.ricci_mesh.flip_ears` removes the input's ears for the same reason)."""
         F, twin = self.F, self.twin
         Ls = self.scaled_halfedges(u)
         src = F.ravel()
         dst = F[:, [1, 2, 0]].ravel()
+        n = int(F.max()) + 1 if len(F) else 0
+        deg = np.bincount(F.ravel(), minlength=n)  # triangles at each vertex
+        on_boundary = np.zeros(n, bool)
+        on_boundary[src[twin < 0]] = True
 
         def cos2(h: int) -> float:  # 2 cos of the angle opposite half-edge h
             f, k = divmod(h, 3)
@@ -99,6 +109,14 @@ class IntrinsicTriangulation:
             outer_twins = {int(twin[x]) for x in six} - {h, t}
             if outer_twins & six:  # a face glued to its neighbour twice: not flippable
                 continue
+            A, B = int(src[h]), int(dst[h])
+            if (on_boundary[A] and deg[A] <= 2) or (on_boundary[B] and deg[B] <= 2):
+                continue  # the flip would leave an ear
+            C, D = int(F[h // 3, (h % 3 + 2) % 3]), int(F[t // 3, (t % 3 + 2) % 3])
+            deg[A] -= 1
+            deg[B] -= 1
+            deg[C] += 1
+            deg[D] += 1
             outer = self._flip(h, t, Ls, u, src, dst)
             done += 1
             if done > limit:

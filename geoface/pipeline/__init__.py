@@ -24,7 +24,7 @@ from ..errors import GeofaceError, InvalidMeshError
 from ..mesh.io import Mesh
 from ..progress import log
 from ..repair.proxy import NEEDLE_RATIO
-from .corner_set import convert_set, corner_uvs_for, extend_split, reconstruction_error  # noqa: F401  (extend_split: public here too)
+from .corner_set import convert_set, corner_uvs_for, extend_split, level_turn, reconstruction_error  # noqa: F401  (extend_split: public here too)
 from ..rotations import upright_rotation  # noqa: F401  (re-exported)
 
 __all__ = ["ConvertOptions", "convert", "face_region", "load_roi", "reconstruction_error", "corner_uvs_for", "upright_rotation"]
@@ -78,7 +78,13 @@ class ConvertOptions:
     times the longest edge of their face (needle triangles: marching-cubes output, edges split
     next to their ends) would merge at least 0.1% of the vertices, the maps are solved on a proxy
     with those edges collapsed (:func:`geoface.repair.proxy.merge_needles`) and the images sample
-    the full surface, as for a decimated proxy; 0: never.
+    the full surface, as for a decimated proxy; 0: never; find_face : with ``up="auto"``, look for
+    the face first (:func:`geoface.track.scan.scan_landmarks`): where one is found, up, front and
+    the eye line are the face's, and its landmarks go into ``metrics.json`` and ``meta.json``
+    (default True; False: the shape's cues alone); level : where a face was found, turn the
+    corner sets along the boundary until its eye line is level in the default image (corner set
+    0's final map; :func:`geoface.pipeline.corner_set.level_turn`: one more map where it is within
+    1° already, up to three more where not; default True).
     """
 
     res: int = 512
@@ -99,6 +105,8 @@ class ConvertOptions:
     metrics: bool = True
     proxy: int = DEFAULT_PROXY
     needles: float = NEEDLE_RATIO
+    find_face: bool = True
+    level: bool = True
 
     def validate(self) -> "ConvertOptions":
         from ..gimage.raster import MAX_RES
@@ -249,6 +257,38 @@ def _explicit_roi(opts: ConvertOptions, V0: np.ndarray) -> np.ndarray | None:
     return m
 
 
+def _key(corners) -> tuple:
+    return tuple(int(c) for c in corners)
+
+
+def _level(solver, V, F, roi, colors, face, front, up, opts, quiet):
+    """The turn of the corner sets that makes the face's eye line level in the default image
+    (:func:`geoface.pipeline.corner_set.level_turn`, measured on set 0's final map), and the maps
+    made on the way (``{corners: (st entries, map_set's result)}``: the sets at that turn are not
+    made twice). The result goes into ``face["metrics"]["level"]``."""
+    from ..param.corners import corner_sets
+    from .corner_set import face_pixels, map_set
+
+    made: dict = {}
+
+    def tilt(turn):
+        c = corner_sets(V, F, n=8, front=front, up=up, count=1, turn=turn)[0]
+        st = {"corner_set": 0, "corners": [int(x) for x in c]}
+        try:
+            res = map_set(st, solver, c, V, roi, colors, opts, True)
+        except GeofaceError:
+            return None
+        made[_key(c)] = ({k: v for k, v in st.items() if k not in ("corner_set", "corners")}, res)
+        r, Vx, _, _, uv = res
+        return face_pixels(face["points"], Vx, r.F, uv, opts.res)["eye_line_degrees"]
+
+    log("convert: levelling the face's eye line (corner set 0)", quiet=quiet, detail=True)
+    level = level_turn(tilt, tilt(0.0))
+    face["metrics"]["level"] = level
+    keep = _key(corner_sets(V, F, n=8, front=front, up=up, count=1, turn=level["turn"])[0])
+    return level["turn"], {k: v for k, v in made.items() if k == keep}
+
+
 def _face_record(frame, stored):
     """The face found by looking (``frame.face``), for ``metrics.json`` and each set's
     ``meta.json``: its landmarks (68, else the detector's 4 key points) in the stored frame (x
@@ -315,7 +355,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
 
     t = time.perf_counter()
     log(f"convert: repairing {len(mesh.V)} vertices to a disk", quiet=quiet)
-    disk = make_disk(mesh.V, mesh.F, up=opts.up, open=opts.open, quiet=quiet)
+    disk = make_disk(mesh.V, mesh.F, up=opts.up, open=opts.open, find_face=bool(opts.find_face), quiet=quiet)
     dm = mesh.with_geometry(disk.V, disk.F, disk.vertex_map, disk.face_map)
     V = dm.V
     colors = dm.colors
@@ -342,7 +382,13 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         if roi is None or not roi.any():
             roi = face_region(V, front)
     indices = [opts.corner_set] if opts.corner_set is not None else list(range(opts.augment))
-    all_sets = corner_sets(V, dm.F, n=8, front=front, up=up_vec, count=max(indices) + 1)
+    face = _face_record(frame, upright_rotation(up_vec, front))
+    solver = RicciFlowSolver(V, dm.F)
+    turn, mapped = 0.0, {}
+    if face is not None and opts.level:
+        # the corner sets turned along the boundary until the face's eye line is level in set 0
+        turn, mapped = _level(solver, V, dm.F, roi, colors, face, front, up_vec, opts, quiet)
+    all_sets = corner_sets(V, dm.F, n=8, front=front, up=up_vec, count=max(indices) + 1, turn=turn)
     sets = [all_sets[i] for i in indices]
     times["corners"] = time.perf_counter() - t
     full = None
@@ -374,11 +420,9 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     from .._io import atomic_dir
 
     stored = upright_rotation(up_vec, front)
-    face = _face_record(frame, stored)
     if face is not None:
         metrics["face"] = face["metrics"]
     with atomic_dir(out_dir, overwrite=overwrite) as tmp_root:
-        solver = RicciFlowSolver(V, dm.F)
         failures: list = []
         for pos, (k, corners) in enumerate(zip(indices, sets)):
             st: dict = {"corner_set": k, "corners": [int(c) for c in corners]}
@@ -386,7 +430,7 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
             folder.mkdir(exist_ok=True)
             try:
                 V, roi, colors = convert_set(st, folder, pos, len(sets), corners, solver, V, roi, colors, dm, opts, quiet,
-                                              stored, full=full, face=face)
+                                              stored, full=full, face=face, mapped=mapped.pop(_key(corners), None))
             except GeofaceError as e:
                 if len(sets) == 1:
                     raise

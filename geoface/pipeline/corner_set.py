@@ -16,15 +16,11 @@ from ..mesh.io import first_corner_uv
 from ..progress import log
 
 
-def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opts, quiet, stored, full=None, face=None):
-    """One corner set: Ricci flow → OT → images → reconstruction, into ``folder``; fills
-    ``st`` and returns the (possibly extended) per-vertex data.  ``full``: the scan under a
-    proxy (:class:`geoface.pipeline.proxy.FullSurface`), which the images sample and the error
-    report measures against.  ``face``: the face found on the surface (``meta.json``'s ``face``:
-    its landmarks in the stored frame), to which this set adds where they land in the images."""
-    from ..gimage import geometry_image, reconstruct, save_reconstruction
-    from ..gimage.image import write_gimage_files
-    from ..gimage.raster import interpolate, rasterize_faces
+def map_set(st, solver, corners, V, roi, colors, opts, quiet, pos=0, count=1):
+    """The maps of one corner set: Ricci flow (conformal, a rectangle) then, with ``opts.method ==
+    "ot"``, the measure-preserving map. Fills ``st`` (``ricci``, ``conformal_distortion``, ``ot``)
+    and returns ``(r, V, roi, colors, uv)``: the flow's result, the per-vertex data extended where
+    the flow split boundary edges, and the final UVs."""
     from ..param.measure import measure_preserving_map
     from ..param.metrics import distortion
 
@@ -63,6 +59,28 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
             "max_displacement": mp.fold_free.max_displacement if mp.fold_free else 0.0,
             "fold_free_solve": mp.fold_free.solve if mp.fold_free else None,
         }
+    return r, V, roi, colors, uv
+
+
+def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opts, quiet, stored, full=None, face=None,
+                mapped=None):
+    """One corner set: Ricci flow → OT → images → reconstruction, into ``folder``; fills
+    ``st`` and returns the (possibly extended) per-vertex data.  ``full``: the scan under a
+    proxy (:class:`geoface.pipeline.proxy.FullSurface`), which the images sample and the error
+    report measures against.  ``face``: the face found on the surface (``meta.json``'s ``face``:
+    its landmarks in the stored frame), to which this set adds where they land in the images.
+    ``mapped``: ``(st entries, map_set's result)`` of these corners, made already."""
+    from ..gimage import geometry_image, reconstruct, save_reconstruction
+    from ..gimage.image import write_gimage_files
+    from ..gimage.raster import interpolate, rasterize_faces
+    from ..param.metrics import distortion
+
+    if mapped is None:
+        r, V, roi, colors, uv = map_set(st, solver, corners, V, roi, colors, opts, quiet, pos, count)
+    else:
+        st.update(mapped[0])
+        r, V, roi, colors, uv = mapped[1]
+    F = r.F
     st["distortion"] = distortion(V, F, uv).summary()
     t = time.perf_counter()
     log(f"convert [{pos + 1}/{count}]: geometry images {opts.res}x{opts.res}", quiet=quiet, detail=True)
@@ -119,6 +137,41 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
     if opts.preview:
         _preview(gi, folder / "preview.png")
     return V, roi, colors
+
+
+#: a default image whose face's eye line is further than this from level (degrees) is made again
+#: with the corner sets turned along the boundary (:func:`level_turn`)
+LEVEL_DEGREES = 1.0
+
+
+def level_turn(tilt, first: float, *, tol: float = LEVEL_DEGREES, tries: int = 3) -> dict:
+    """The turn of the corner sets (a share of the boundary's length, :func:`geoface.param.corners.corner_sets`)
+    that brings a face's eye line level in the default image: a boundary that is not
+    mirror-symmetric about the face (a bust's shoulders, a coarse neck cut, a torso) and the
+    measure's pull turn the face in the image, and turning the corners along the boundary turns it
+    back (a whole turn of the boundary turns the image once round). ``tilt(turn)``: the eye line's
+    angle (degrees) in the final map of corner set 0 turned so, or None where it fails; ``first``:
+    ``tilt(0)``. Secant steps, at most ``tries`` more maps. ``{"turn", "eye_line_before",
+    "eye_line_after", "tries"}`` (turn 0 where the line was level already or no turn helped)."""
+    out = {"turn": 0.0, "eye_line_before": first, "eye_line_after": first, "tries": 0}
+    if first is None or abs(first) <= tol:
+        return out
+    best = (abs(first), 0.0, first)
+    x0, y0, x1 = 0.0, first, first / 360.0
+    for k in range(tries):
+        y1 = tilt(x1)
+        out["tries"] = k + 1
+        if y1 is None:
+            break
+        if abs(y1) < best[0]:
+            best = (abs(y1), x1, y1)
+        if abs(y1) <= 0.5 * tol or y1 == y0:
+            break
+        x0, y0, x1 = x1, y1, x1 - y1 * (x1 - x0) / (y1 - y0)
+        if abs(x1) > 0.125:  # more than an eighth of the boundary: not a small correction
+            break
+    out.update(turn=best[1], eye_line_after=best[2])
+    return out
 
 
 def face_pixels(points, V, F, uv, N) -> dict:

@@ -83,6 +83,10 @@ class RepairOptions:
         Refine hole patches to the surrounding edge length; fair them (bi-Laplacian).
     max_handles : int
         Refuse meshes with more handles than this (default 100).
+    find_face : bool
+        With ``up="auto"``, look for the face first (renders of the surface and the face tracker:
+        :func:`geoface.track.scan.scan_landmarks`; about a second); its frame decides where one is
+        found.  False: the shape's cues alone.
     seed : int
         Seed for the roots tried when searching short handle loops.
     """
@@ -102,6 +106,7 @@ class RepairOptions:
     fair_holes: bool = True
     max_handles: int = 100
     seed: int = 0
+    find_face: bool = True
 
     def validate(self) -> "RepairOptions":
         if self.open not in OPEN_MODES:
@@ -252,7 +257,7 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
         from .upright import upright_frame
 
         pieces = keep_components(cleaned.V, cleaned.F, min_area_fraction=WHOLE_AREA_FRACTION, largest_only=False)
-        frame = upright_frame(res.V, res.F, whole=(pieces.V, pieces.F))
+        frame = upright_frame(res.V, res.F, whole=(pieces.V, pieces.F), look=bool(opts.find_face))
         opts = replace(opts, up=frame.up)
         # an uncertain frame is said whatever the verbosity (the user should check it)
         log(f"make_disk: up {axis_text(frame.up)}, front {axis_text(frame.front)} ({frame.kind}; {frame.how})"

@@ -158,23 +158,39 @@ def turn(front, up, yaw, pitch):
 
 
 class Looker:
-    """The mesh, MediaPipe's full-range face detector and its static face mesh, built once per
-    call; counts the renders."""
+    """The mesh, MediaPipe's face detectors (full and short range) and its static face mesh, built
+    once per search; counts the renders. A context manager: MediaPipe's graphs write their set-up
+    chatter (TFLite delegates, feedback tensors) to file descriptor 2 from their own threads, at
+    their first runs, so the descriptor is held from set-up to close (as the tracker holds it)."""
 
     def __init__(self, V, F):
-        from geoface.track import load_mediapipe, quiet_native_stderr
-
         self.V, self.F, self.renders = V, F, 0
         self._full = (V, F)
+        self._hold = None
+
+    def __enter__(self):
+        from geoface.track import load_mediapipe, quiet_native_stderr
 
         mp = load_mediapipe()
-        self._quiet = quiet_native_stderr
-        with quiet_native_stderr():
+        self._hold = quiet_native_stderr()
+        self._hold.__enter__()
+        try:
             self.det = mp.solutions.face_detection.FaceDetection(model_selection=1, min_detection_confidence=0.3)
             self.near = mp.solutions.face_detection.FaceDetection(model_selection=0, min_detection_confidence=0.3)
             self.mesh = mp.solutions.face_mesh.FaceMesh(static_image_mode=True, max_num_faces=1, refine_landmarks=False,
                                                         min_detection_confidence=0.3)
-        self.first = True
+        except BaseException:
+            self._hold.__exit__(None, None, None)
+            raise
+        return self
+
+    def __exit__(self, *exc):
+        try:
+            for g in (self.det, self.near, self.mesh):
+                g.close()
+        finally:
+            self._hold.__exit__(None, None, None)
+        return False
 
     def coarse(self, faces: int = COARSE_FACES) -> None:
         """Look at a decimated copy from now on (at most ``faces`` faces: quadric edge collapse by
@@ -206,12 +222,7 @@ class Looker:
         return render_grey(self.V, self.F, camera, background=st[1], key=key)
 
     def _run(self, graph, img):
-        img = np.ascontiguousarray(img)
-        if self.first:
-            self.first = False
-            with self._quiet():
-                return graph.process(img)
-        return graph.process(img)
+        return graph.process(np.ascontiguousarray(img))
 
     def detect_all(self, img, *, near: bool = False):
         """Every face the detector finds: ``[(score, key points (6, 2) px, box (x0, y0, w, h) px)]``;
@@ -238,10 +249,6 @@ class Looker:
             return None
         H, W = img.shape[:2]
         return np.array([[p.x * W, p.y * H] for p in r.multi_face_landmarks[0].landmark[:468]])
-
-    def close(self):
-        for g in (self.det, self.near, self.mesh):
-            g.close()
 
 
 def unrotate(kp, k, W):

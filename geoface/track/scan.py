@@ -61,6 +61,8 @@ MAX_SHAPE_ERROR = 0.2
 FACE_SHARE = 0.5
 #: the search's candidates looked at a second time
 VERIFY = 10
+#: where the mosaic search finds no face, the second search's resolution over the first's
+FINE = 1.5
 #: the refined views' half width over the face's height (nasion to chin)
 FACE_HALF = 1.25
 #: a landmark's pixel that shows a surface deeper than the nearest within a few pixels by more
@@ -181,24 +183,29 @@ def scan_landmarks(V, F, *, resolution: int = 256, search_resolution: int = 128,
                              renders=look.renders)
 
     look = Looker(V, F)
-    try:
+    with look:
         look.coarse()
-        found = _search(look, search_resolution)
-        if not found:
-            return none(f"no face in any of {len(search_views())} views")
-        refined = None
-        for _, guess in _verified(look, found, search_resolution)[: max(1, int(candidates))]:
-            look.focus(guess[0], FOCUS * guess[3])
-            refined = _refine(look, guess, resolution, iterations, source)
-            if refined is not None:
+        refined, found = None, []
+        # a small face (a head on shoulders, a bust on a plinth) may be missed in the mosaic: then
+        # each turn of each view is looked at on its own, at a finer resolution
+        for res, mosaic in ((search_resolution, True), (int(FINE * search_resolution), False)):
+            found = _search(look, res, mosaic=mosaic)
+            verified = _verified(look, found, search_resolution) if found else []
+            for _, guess in verified[: max(1, int(candidates))]:
+                look.focus(guess[0], FOCUS * guess[3])
+                refined = _refine(look, guess, resolution, iterations, source)
+                if refined is not None:
+                    break
+            if refined is not None or verified:
                 break
+            look.coarse()
+        if refined is None and not found:
+            return none(f"no face in any of {len(search_views())} views")
         if refined is None:
             return none(f"the detector saw a face (score {found[0][0]:.2f}) but found none from in front of it",
                         float(found[0][0]))
         look.focus(refined[1], FOCUS * refined[4] * refined[5][0])
         lifts, lifts468, conf = _consensus_views(look, refined, resolution, int(views))
-    finally:
-        look.close()
     source = refined[-1]
     if not lifts:
         return none("no view of the face shows the nose in front of the eyes (a hollow face?)", conf)
@@ -236,11 +243,11 @@ def _keypoint_shape_error(K) -> float:
     return float(np.sqrt(((s * A @ R.T + t - K) ** 2).sum(1).mean())) / max(float(np.linalg.norm(K[1] - K[0])), 1e-300)
 
 
-def _search(look, res):
+def _search(look, res, *, mosaic: bool = True):
     """The search's views where the detector finds a face, best first: ``[(score, key points
-    (6, 2), box, camera, face, depth)]``, one a view and turn of the image. The four turns of a
-    view are looked at in one image (a 2 × 2 mosaic: the full-range detector finds small faces, and
-    one call costs a quarter of four)."""
+    (6, 2), box, camera, face, depth)]``, one a view and turn of the image. ``mosaic``: the four
+    turns of a view are looked at in one image (a 2 × 2 mosaic: the full-range detector finds
+    small faces, and one call costs a quarter of four); else one by one."""
     c, radius, E = principal_frame(look.V, look.F)
     out = []
     for d in search_views() @ E.T:
@@ -248,17 +255,21 @@ def _search(look, res):
         img, face, depth = look.render(cam)
         if (face >= 0).mean() < 0.01:
             continue
-        mosaic = np.zeros((2 * res, 2 * res, 3), np.uint8)
-        for k in range(4):
-            i, j = divmod(k, 2)
-            mosaic[i * res:(i + 1) * res, j * res:(j + 1) * res] = np.rot90(img, k)
         best: dict = {}
-        for score, kp, box in look.detect_all(mosaic):
-            i, j = min(int((box[1] + 0.5 * box[3]) // res), 1), min(int((box[0] + 0.5 * box[2]) // res), 1)
-            k = 2 * i + j
+        if mosaic:
+            tiles = np.zeros((2 * res, 2 * res, 3), np.uint8)
+            for k in range(4):
+                i, j = divmod(k, 2)
+                tiles[i * res:(i + 1) * res, j * res:(j + 1) * res] = np.rot90(img, k)
+            found = []
+            for score, kp, box in look.detect_all(tiles):
+                i, j = min(int((box[1] + 0.5 * box[3]) // res), 1), min(int((box[0] + 0.5 * box[2]) // res), 1)
+                found.append((2 * i + j, score, kp - np.array([j * res, i * res], np.float64), box))
+        else:
+            found = [(k, sc, kp, box) for k in range(4) for sc, kp, box in look.detect_all(np.ascontiguousarray(np.rot90(img, k)))]
+        for k, score, kp, box in found:
             if k not in best or score > best[k][0]:
-                off = np.array([j * res, i * res], np.float64)
-                best[k] = (score, unrotate(kp - off, k, res), np.array([0.0, 0.0, box[2], box[3]]), cam, face, depth)
+                best[k] = (score, unrotate(kp, k, res), np.array([0.0, 0.0, box[2], box[3]]), cam, face, depth)
         out += best.values()
     return sorted(out, key=lambda x: -x[0])
 
