@@ -63,22 +63,23 @@ class IntrinsicTriangulation:
         dst = self.F[:, [1, 2, 0]].ravel()
         return self.L * np.exp(0.5 * (u[src] + u[dst]))
 
-    def make_delaunay(self, u: np.ndarray, max_flips: int | None = None) -> int:
+    def make_delaunay(self, u: np.ndarray, max_flips: int | None = None, keep=None) -> int:
         """Flip (Ptolemy) until every interior edge is Delaunay for the metric scaled by ``u``.
 
-        A flip never leaves a boundary vertex with a single triangle (an ear): the edge from a
-        boundary vertex that has two is kept. Such an ear's triangle would have to open to the
-        vertex's whole boundary angle — flat, with zero area on the surface, where it was a
-        split edge's midpoint — and a corner there gets no mass in the measure-preserving map
-        (:func:`geoface.param.ricci_mesh.flip_ears` removes the input's ears for the same reason)."""
+        ``keep``: boundary vertices (a rectangle's corners) that a flip must never leave with a
+        single triangle (an ear): the inner edge of one that has two is kept. A corner's ear
+        would be one triangle spanning the corner — flat, of zero area on the surface, where
+        the corner sits on a split edge's midpoint — and gets no mass in the
+        measure-preserving map, which then cannot converge."""
         F, twin = self.F, self.twin
         Ls = self.scaled_halfedges(u)
         src = F.ravel()
         dst = F[:, [1, 2, 0]].ravel()
         n = int(F.max()) + 1 if len(F) else 0
         deg = np.bincount(F.ravel(), minlength=n)  # triangles at each vertex
-        on_boundary = np.zeros(n, bool)
-        on_boundary[src[twin < 0]] = True
+        kept = np.zeros(n, bool)
+        if keep is not None:
+            kept[np.asarray(keep, np.int64)] = True
 
         def cos2(h: int) -> float:  # 2 cos of the angle opposite half-edge h
             f, k = divmod(h, 3)
@@ -110,8 +111,8 @@ class IntrinsicTriangulation:
             if outer_twins & six:  # a face glued to its neighbour twice: not flippable
                 continue
             A, B = int(src[h]), int(dst[h])
-            if (on_boundary[A] and deg[A] <= 2) or (on_boundary[B] and deg[B] <= 2):
-                continue  # the flip would leave an ear
+            if (kept[A] and deg[A] <= 2) or (kept[B] and deg[B] <= 2):
+                continue  # the flip would leave a corner an ear
             C, D = int(F[h // 3, (h % 3 + 2) % 3]), int(F[t // 3, (t % 3 + 2) % 3])
             deg[A] -= 1
             deg[B] -= 1

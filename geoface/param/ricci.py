@@ -139,6 +139,28 @@ class RicciFlowSolver:
         #: needles or caps: an angle under 1 degree or over 177 (see ``solve``)
         self.poor_triangulation = bool(len(ang) and (ang.min() < POOR_MIN_ANGLE or ang.max() > POOR_MAX_ANGLE))
 
+    def refine_boundary(self, min_vertices: int, *, rounds: int = 4) -> int:
+        """Refine the triangles along the boundary (red-green,
+        :func:`geoface.param.ricci_mesh.refine_boundary_band`: the boundary doubles its vertices
+        each round, the triangles keep their shapes) until it has at least ``min_vertices``
+        vertices, at most ``rounds`` rounds. Corners can then sit within about ``1 /
+        min_vertices`` of the boundary where they are asked for, on a coarse scan too (a neck
+        cut of 18 edges puts a corner up to half an edge, a 36th of the boundary, from its
+        place: the face turns by that in the image). New vertices are edge midpoints appended as
+        the flow's own splits (``split_edges``). Returns how many were added."""
+        from .ricci_mesh import refine_boundary_band
+
+        n0 = self.n
+        for _ in range(int(rounds)):
+            if len(self.boundary) >= min_vertices:
+                break
+            V, F, edges = refine_boundary_band(self.V, self.F)
+            self.split_edges = np.vstack([self.split_edges, edges])
+            self._set_mesh(V, F)
+        if self.n > n0:
+            self._u_warm = None
+        return self.n - n0
+
     def _split_boundary_edges(self, edges: list[tuple[int, int]]) -> None:
         """Split boundary edges ``a -> b`` of the mesh at their 3D midpoints (the triangle
         on each is split in two); new vertices are appended, so indices stay valid."""
@@ -284,7 +306,7 @@ class RicciFlowSolver:
             refused = not (np.isfinite(uu).all() and np.ptp(uu) < MAX_LOG_SCALE_RANGE)
             if tri is not None and not refused:
                 try:
-                    tri.make_delaunay(uu)
+                    tri.make_delaunay(uu, keep=corners)
                 except ParameterizationError:
                     refused = True
             F = self.F if tri is None else tri.F

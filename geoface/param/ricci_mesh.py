@@ -72,3 +72,51 @@ def degenerate_boundary_edges(tri: IntrinsicTriangulation, u: np.ndarray, tol: f
 def n_degenerate(ang: np.ndarray) -> int:
     """Triangles at the triangle-inequality limit (an angle of 0 or pi)."""
     return int(((ang < 1e-12) | (ang > np.pi - 1e-12)).any(1).sum())
+
+
+def refine_boundary_band(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One round of red-green refinement of the triangles along the boundary: every triangle
+    with a boundary edge, and every triangle that would otherwise have two or three split edges,
+    is split in four at its edges' midpoints (red); a triangle with one split edge is halved
+    from its midpoint (green). The boundary doubles its vertices, the surface keeps its shape
+    (midpoints of straight edges), and the triangles stay well shaped (red ones are similar to
+    their parent, green ones halves), unlike a fan of midpoint splits at one vertex.
+
+    Returns ``(V, F, edges)``: the new vertices appended in the order of ``edges (k, 2)``, each
+    the midpoint of its edge ``(a, b)`` (the convention of ``RicciFlowSolver.split_edges``)."""
+    from ..mesh.core import boundary_loops
+
+    F = np.asarray(F, np.int64)
+    E = np.sort(np.stack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]], 1), axis=2)  # (m, 3, 2): edge k = (F[k], F[k+1])
+    keys = E[:, :, 0] * (len(V) + 1) + E[:, :, 1]
+    uniq, inv = np.unique(keys.ravel(), return_inverse=True)
+    inv = inv.reshape(-1, 3)
+    bnd = np.zeros(len(uniq), bool)
+    for loop in boundary_loops(F):
+        a, b = np.minimum(loop, np.roll(loop, -1)), np.maximum(loop, np.roll(loop, -1))
+        bnd[np.searchsorted(uniq, a * (len(V) + 1) + b)] = True
+    red = bnd[inv].any(1)
+    split = np.zeros(len(uniq), bool)
+    while True:
+        split[inv[red].ravel()] = True
+        more = ~red & (split[inv].sum(1) >= 2)
+        if not more.any():
+            break
+        red |= more
+    ids = np.flatnonzero(split)
+    mid = np.full(len(uniq), -1, np.int64)
+    mid[ids] = len(V) + np.arange(len(ids))
+    edges = np.stack([uniq[ids] // (len(V) + 1), uniq[ids] % (len(V) + 1)], 1)
+    V2 = np.vstack([V, 0.5 * (V[edges[:, 0]] + V[edges[:, 1]])])
+    m = mid[inv]  # (m, 3): midpoint of edge k of each face, -1 where not split
+    out = [F[(m < 0).all(1)]]
+    r = red
+    a, b, c = F[r, 0], F[r, 1], F[r, 2]
+    mab, mbc, mca = m[r, 0], m[r, 1], m[r, 2]
+    out += [np.stack(t, 1) for t in ((a, mab, mca), (mab, b, mbc), (mca, mbc, c), (mab, mbc, mca))]
+    g = ~red & ((m >= 0).sum(1) == 1)
+    for k in range(3):  # green: the one split edge is edge k = (F[k], F[k+1]); the apex is F[k+2]
+        s = g & (m[:, k] >= 0)
+        p, q, x, mm = F[s, k], F[s, (k + 1) % 3], F[s, (k + 2) % 3], m[s, k]
+        out += [np.stack([p, mm, x], 1), np.stack([mm, q, x], 1)]
+    return V2, np.concatenate(out).astype(np.int64), edges

@@ -261,18 +261,22 @@ def _key(corners) -> tuple:
     return tuple(int(c) for c in corners)
 
 
-def _level(solver, V, F, roi, colors, face, front, up, opts, quiet):
+def _level(solver, V, roi, colors, face, front, up, opts, quiet):
     """The turn of the corner sets that makes the face's eye line level in the default image
     (:func:`geoface.pipeline.corner_set.level_turn`, measured on set 0's final map), and the maps
     made on the way (``{corners: (st entries, map_set's result)}``: the sets at that turn are not
-    made twice). The result goes into ``face["metrics"]["level"]``."""
+    made twice). Corners sit on vertices, so on a coarse boundary no turn may come within
+    :data:`COARSE_LEVEL_DEGREES`; the boundary is then refined
+    (:meth:`geoface.param.ricci.RicciFlowSolver.refine_boundary`, to :data:`LEVEL_BOUNDARY`
+    vertices: a corner moves by a 180th of the boundary, the image by 2°) and the turn sought
+    again. The result goes into ``face["metrics"]["level"]``."""
     from ..param.corners import corner_sets
-    from .corner_set import face_pixels, map_set
+    from .corner_set import LEVEL_DEGREES, face_pixels, map_set
 
     made: dict = {}
 
     def tilt(turn):
-        c = corner_sets(V, F, n=8, front=front, up=up, count=1, turn=turn)[0]
+        c = corner_sets(solver.V, solver.F, n=8, front=front, up=up, count=1, turn=turn)[0]
         st = {"corner_set": 0, "corners": [int(x) for x in c]}
         try:
             res = map_set(st, solver, c, V, roi, colors, opts, True)
@@ -284,9 +288,24 @@ def _level(solver, V, F, roi, colors, face, front, up, opts, quiet):
 
     log("convert: levelling the face's eye line (corner set 0)", quiet=quiet, detail=True)
     level = level_turn(tilt, tilt(0.0))
+    added = 0
+    if level["eye_line_after"] is not None and abs(level["eye_line_after"]) > COARSE_LEVEL_DEGREES:
+        # corners move by whole vertices: on a coarse boundary no turn is near enough
+        added = solver.refine_boundary(LEVEL_BOUNDARY)
+        if added:
+            made.clear()
+            level = level_turn(tilt, tilt(0.0))
+    level["boundary_vertices_added"] = added
     face["metrics"]["level"] = level
-    keep = _key(corner_sets(V, F, n=8, front=front, up=up, count=1, turn=level["turn"])[0])
+    keep = _key(corner_sets(solver.V, solver.F, n=8, front=front, up=up, count=1, turn=level["turn"])[0])
     return level["turn"], {k: v for k, v in made.items() if k == keep}
+
+
+#: where no turn of the corner sets brings the eye line within this many degrees of level, the
+#: boundary is refined to at least :data:`LEVEL_BOUNDARY` vertices (a whole turn of the boundary
+#: turns the image once round: a vertex step is then 2°) and the turn sought again
+COARSE_LEVEL_DEGREES = 2.0
+LEVEL_BOUNDARY = 180
 
 
 def _face_record(frame, stored):
@@ -387,8 +406,8 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     turn, mapped = 0.0, {}
     if face is not None and opts.level:
         # the corner sets turned along the boundary until the face's eye line is level in set 0
-        turn, mapped = _level(solver, V, dm.F, roi, colors, face, front, up_vec, opts, quiet)
-    all_sets = corner_sets(V, dm.F, n=8, front=front, up=up_vec, count=max(indices) + 1, turn=turn)
+        turn, mapped = _level(solver, V, roi, colors, face, front, up_vec, opts, quiet)
+    all_sets = corner_sets(solver.V, solver.F, n=8, front=front, up=up_vec, count=max(indices) + 1, turn=turn)
     sets = [all_sets[i] for i in indices]
     times["corners"] = time.perf_counter() - t
     full = None

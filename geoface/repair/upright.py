@@ -173,6 +173,14 @@ def _from_face(V, F, Ps, face, op, kind, cues) -> UprightFrame:
             checks.append(f"the face's rim {'agrees' if a <= FACE_OPENING_DEGREES else 'differs'} ({a:.0f}°)")
     how = (f"the face ({found} from {face.views} views, score {face.confidence:.2f}, by the "
            f"{face.source})" + (": " + ", ".join(checks) if checks else ""))
+    fig = standing_figure(Ps)
+    if fig is not None and fig[1] <= FIGURE_FIT and fig[0] @ up > np.cos(np.radians(45.0)):
+        # a standing figure whose face was found: up is the body's (its feet are cut level), the
+        # front the face's
+        cues.update(figure_head_fit=fig[1], figure_foot_fit=fig[2], face_up_angle=_deg(fig[0], up))
+        up = unit(fig[0])
+        return UprightFrame(up, orthogonal(front, up), "figure", f"the long axis, towards the head; front by {how}",
+                            cues=cues, template=template, face=face)
     return UprightFrame(up, front, kind, how, cues=cues, template=template, face=face)
 
 

@@ -188,24 +188,26 @@ def scan_landmarks(V, F, *, resolution: int = 256, search_resolution: int = 128,
         refined, found = None, []
         # a small face (a head on shoulders, a bust on a plinth) may be missed in the mosaic: then
         # each turn of each view is looked at on its own, at a finer resolution
+        lifts, seen = [], 0.0
         for res, mosaic in ((search_resolution, True), (int(FINE * search_resolution), False)):
             found = _search(look, res, mosaic=mosaic)
-            verified = _verified(look, found, search_resolution) if found else []
-            for _, guess in verified[: max(1, int(candidates))]:
+            seen = max([seen] + [f[0] for f in found])
+            for _, guess in (_verified(look, found, search_resolution) if found else [])[: max(1, int(candidates))]:
                 look.focus(guess[0], FOCUS * guess[3])
                 refined = _refine(look, guess, resolution, iterations, source)
-                if refined is not None:
+                if refined is None:
+                    continue
+                look.focus(refined[1], FOCUS * refined[4] * refined[5][0])
+                lifts, lifts468, conf = _consensus_views(look, refined, resolution, int(views))
+                if lifts:
                     break
-            if refined is not None or verified:
+            if lifts:
                 break
             look.coarse()
-        if refined is None and not found:
+        if not seen:
             return none(f"no face in any of {len(search_views())} views")
         if refined is None:
-            return none(f"the detector saw a face (score {found[0][0]:.2f}) but found none from in front of it",
-                        float(found[0][0]))
-        look.focus(refined[1], FOCUS * refined[4] * refined[5][0])
-        lifts, lifts468, conf = _consensus_views(look, refined, resolution, int(views))
+            return none(f"the detector saw a face (score {seen:.2f}) but found none from in front of it", float(seen))
     source = refined[-1]
     if not lifts:
         return none("no view of the face shows the nose in front of the eyes (a hollow face?)", conf)
@@ -397,6 +399,8 @@ def _refine(look, guess, res, iterations, source="auto"):
                 k += 1
                 continue
             break
+        if nose_out(keypoints_of(obs[0]) if source == SOURCES[0] else obs[0], f2) <= 0:
+            return None  # a hollow face: the inside of a face scan, seen from behind
         P = obs[0]
         center, f1, u1, half = _frame_and_size(P, source)
         moved = np.degrees(np.arccos(np.clip(min(f1 @ front, u1 @ up), -1.0, 1.0)))
