@@ -63,23 +63,12 @@ class IntrinsicTriangulation:
         dst = self.F[:, [1, 2, 0]].ravel()
         return self.L * np.exp(0.5 * (u[src] + u[dst]))
 
-    def make_delaunay(self, u: np.ndarray, max_flips: int | None = None, keep=None) -> int:
-        """Flip (Ptolemy) until every interior edge is Delaunay for the metric scaled by ``u``.
-
-        ``keep``: boundary vertices (a rectangle's corners) that a flip must never leave with a
-        single triangle (an ear): the inner edge of one that has two is kept. A corner's ear
-        would be one triangle spanning the corner — flat, of zero area on the surface, where
-        the corner sits on a split edge's midpoint — and gets no mass in the
-        measure-preserving map, which then cannot converge."""
+    def make_delaunay(self, u: np.ndarray, max_flips: int | None = None) -> int:
+        """Flip (Ptolemy) until every interior edge is Delaunay for the metric scaled by ``u``."""
         F, twin = self.F, self.twin
         Ls = self.scaled_halfedges(u)
         src = F.ravel()
         dst = F[:, [1, 2, 0]].ravel()
-        n = int(F.max()) + 1 if len(F) else 0
-        deg = np.bincount(F.ravel(), minlength=n)  # triangles at each vertex
-        kept = np.zeros(n, bool)
-        if keep is not None:
-            kept[np.asarray(keep, np.int64)] = True
 
         def cos2(h: int) -> float:  # 2 cos of the angle opposite half-edge h
             f, k = divmod(h, 3)
@@ -110,14 +99,6 @@ class IntrinsicTriangulation:
             outer_twins = {int(twin[x]) for x in six} - {h, t}
             if outer_twins & six:  # a face glued to its neighbour twice: not flippable
                 continue
-            A, B = int(src[h]), int(dst[h])
-            if (kept[A] and deg[A] <= 2) or (kept[B] and deg[B] <= 2):
-                continue  # the flip would leave a corner an ear
-            C, D = int(F[h // 3, (h % 3 + 2) % 3]), int(F[t // 3, (t % 3 + 2) % 3])
-            deg[A] -= 1
-            deg[B] -= 1
-            deg[C] += 1
-            deg[D] += 1
             outer = self._flip(h, t, Ls, u, src, dst)
             done += 1
             if done > limit:

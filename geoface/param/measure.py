@@ -224,7 +224,14 @@ class MeasurePreservingSolver:
             if roi.shape != (n,):
                 raise ParameterizationError(f"roi must be a ({n},) vertex mask; got shape {roi.shape}")
             weight = np.where(roi.astype(bool), float(lam), 1.0)
-        nu = weight * self.vertex_areas
+        va = self.vertex_areas
+        # a vertex whose triangles are all flat (the flow's intrinsic flips can leave a corner on
+        # a straight stretch of the boundary one triangle spanning it, of zero area on the
+        # surface): the smallest area of the others, not zero, which no cell can match
+        flat = va <= 1e-12 * va.max()
+        if flat.any() and not flat.all():
+            va = np.where(flat, va[~flat].min(), va)
+        nu = weight * va
         if feature > 0:
             if self._sharpness is None:
                 self._sharpness = sharpness(self.V, self.F, self.boundary)

@@ -306,7 +306,7 @@ class RicciFlowSolver:
             refused = not (np.isfinite(uu).all() and np.ptp(uu) < MAX_LOG_SCALE_RANGE)
             if tri is not None and not refused:
                 try:
-                    tri.make_delaunay(uu, keep=corners)
+                    tri.make_delaunay(uu)
                 except ParameterizationError:
                     refused = True
             F = self.F if tri is None else tri.F

@@ -1,0 +1,80 @@
+"""The face in ``convert``: its landmarks recorded (``metrics.json``, each set's ``meta.json``)
+and the corner sets turned along the boundary until its eye line is level in the default image."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import GeofaceError
+from ..progress import log
+from .corner_set import level_turn
+
+__all__ = ["level_corners", "face_record", "corners_key", "COARSE_LEVEL_DEGREES", "LEVEL_BOUNDARY"]
+
+
+def corners_key(corners) -> tuple:
+    """A corner set as a dictionary key."""
+    return tuple(int(c) for c in corners)
+
+
+def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
+    """The turn of the corner sets that makes the face's eye line level in the default image
+    (:func:`geoface.pipeline.corner_set.level_turn`, measured on set 0's final map), and the maps
+    made on the way (``{corners: (st entries, map_set's result)}``: the sets at that turn are not
+    made twice). Corners sit on vertices, so on a coarse boundary no turn may come within
+    :data:`COARSE_LEVEL_DEGREES`; the boundary is then refined
+    (:meth:`geoface.param.ricci.RicciFlowSolver.refine_boundary`, to :data:`LEVEL_BOUNDARY`
+    vertices: a corner moves by a 180th of the boundary, the image by 2°) and the turn sought
+    again. The result goes into ``face["metrics"]["level"]``."""
+    from ..param.corners import corner_sets
+    from .corner_set import face_pixels, map_set
+
+    made: dict = {}
+
+    def tilt(turn):
+        c = corner_sets(solver.V, solver.F, n=8, front=front, up=up, count=1, turn=turn)[0]
+        st = {"corner_set": 0, "corners": [int(x) for x in c]}
+        try:  # the first map is set 0's own: its iterations show with -v like any set's
+            res = map_set(st, solver, c, V, roi, colors, opts, quiet if not made else True)
+        except GeofaceError:
+            return None
+        made[corners_key(c)] = ({k: v for k, v in st.items() if k not in ("corner_set", "corners")}, res)
+        r, Vx, _, _, uv = res
+        return face_pixels(face["points"], Vx, r.F, uv, opts.res)["eye_line_degrees"]
+
+    log("convert: levelling the face's eye line (corner set 0)", quiet=quiet, detail=True)
+    level = level_turn(tilt, tilt(0.0))
+    added = 0
+    if level["eye_line_after"] is not None and abs(level["eye_line_after"]) > COARSE_LEVEL_DEGREES:
+        # corners move by whole vertices: on a coarse boundary no turn is near enough
+        added = solver.refine_boundary(LEVEL_BOUNDARY)
+        if added:
+            made.clear()
+            level = level_turn(tilt, tilt(0.0))
+    level["boundary_vertices_added"] = added
+    face["metrics"]["level"] = level
+    keep = corners_key(corner_sets(solver.V, solver.F, n=8, front=front, up=up, count=1, turn=level["turn"])[0])
+    return level["turn"], {k: v for k, v in made.items() if k == keep}
+
+
+#: where no turn of the corner sets brings the eye line within this many degrees of level, the
+#: boundary is refined to at least :data:`LEVEL_BOUNDARY` vertices (a whole turn of the boundary
+#: turns the image once round: a vertex step is then 2°) and the turn sought again
+COARSE_LEVEL_DEGREES = 2.0
+LEVEL_BOUNDARY = 180
+
+
+def face_record(frame, stored):
+    """The face found by looking (``frame.face``), for ``metrics.json`` and each set's
+    ``meta.json``: its landmarks (68, else the detector's 4 key points) in the stored frame (x
+    right, y up, z front); None when no face was found."""
+    lm = None if frame is None else frame.face
+    if lm is None or not lm.found:
+        return None
+    mesh = lm.source == "face mesh"
+    P = lm.points if mesh else lm.keypoints
+    r = lambda v: None if not np.isfinite(v) else round(float(v), 6)  # noqa: E731
+    meta = {"source": lm.source, "confidence": round(float(lm.confidence), 4),
+            "points": [[r(x) for x in p] for p in P @ stored.T],
+            "names": "iBUG 68" if mesh else ["eye_right", "eye_left", "nose_tip", "mouth"]}
+    return {"points": P, "meta": meta, "metrics": dict(lm.to_dict(points=False), points=meta["points"], names=meta["names"])}
