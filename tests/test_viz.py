@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -324,3 +325,34 @@ def test_montage_labels_are_legible_on_every_tile(tmp_path):
         assert main(["view", str(folder), "--screenshot", str(tmp_path / "m.png")]) == 0
     caption = buf.getvalue()
     assert ("texture" in caption) == gi.has("texture") and "mask | surface" in caption
+
+
+def test_the_surface_tile_shows_the_head_as_stored_upright_and_facing_us(tmp_path):
+    """The montage's surface tile is the reconstruction in the stored frame seen from +z (it once
+    re-oriented the mesh by itself, hiding a head stored sideways or face-up): an ICT head turned
+    at random is converted, and the face detector finds its face in the tile, upright, with the
+    eye line within 5° of level."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data_tools"))
+    import make_stress_cases as S
+
+    from geoface import viz
+    from geoface.gimage import load_gimage
+    from geoface.pipeline import ConvertOptions, convert
+    from geoface.track.look import Looker
+
+    def surface_face(case, out, **kw):
+        convert(Mesh(case.V, case.F), out, ConvertOptions(res=128, reconstruct=False, preview=False, **kw), quiet=True)
+        img = viz.gimage_montage(load_gimage(out), surface=True, labels=False, tile=256, window_size=(256, 256))
+        with Looker(case.V, case.F) as look:
+            d = look.detect(np.ascontiguousarray(img[:, -256:]))
+        if d is None:
+            return None
+        eye_r, eye_l, nose, mouth = d[1][:4]
+        return d[0], float(np.degrees(np.arctan2(-(eye_l[1] - eye_r[1]), eye_l[0] - eye_r[0]))), nose[1] < mouth[1]
+
+    case = S.turned(S.ict_base(2), 41)
+    score, tilt, nose_above_mouth = surface_face(case, tmp_path / "found")
+    assert score > 0.7 and abs(tilt) < 5 and nose_above_mouth, (score, tilt)
+    # stored with a wrong up (the face's right, given), the tile shows the head lying on its side
+    wrong = surface_face(case, tmp_path / "wrong", up=tuple(float(x) for x in case.R @ np.array([1.0, 0.0, 0.0])))
+    assert wrong is None or abs(wrong[1]) > 45, wrong

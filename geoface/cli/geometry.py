@@ -44,13 +44,39 @@ def cmd_inspect(args) -> int:
         "vertex_colors": mesh.colors is not None,
         "texture": None if mesh.texture is None else list(mesh.texture.shape),
     }
-    write_json(args, {"file": str(args.file), **rep.to_dict(), "attributes": attrs})
+    face = _inspect_face(mesh) if args.face and len(mesh.F) else None
+    write_json(args, {"file": str(args.file), **rep.to_dict(), "attributes": attrs,
+                      **({} if face is None else {"face": face})})
     if not json_to_stdout(args):
         print(f"{args.file}")
         print(rep.format())
         tex = "none" if attrs["texture"] is None else "x".join(map(str, attrs["texture"]))
         print(f"attributes          uv={attrs['uv']}, vertex colours={attrs['vertex_colors']}, texture={tex}")
+        if face is not None:
+            print(_face_line(face))
     return 0
+
+
+def _inspect_face(mesh) -> dict:
+    """The face found on the mesh by looking (:func:`geoface.track.scan.scan_landmarks`), as JSON:
+    found, how sure, the frame, the 68 landmarks in the file's coordinates."""
+    from ..errors import MissingDependencyError
+    from ..track.scan import scan_landmarks
+
+    try:
+        return scan_landmarks(mesh.V, mesh.F).to_dict()
+    except MissingDependencyError as e:
+        return {"found": False, "why": str(e)}
+
+
+def _face_line(face: dict) -> str:
+    from ..mesh.frame import axis_text
+
+    if not face["found"]:
+        return f"face                not found: {face['why']}"
+    n = "68 landmarks" if face["source"] == "face mesh" else "the detector's 4 key points (no face mesh)"
+    return (f"face                found: {n} from {face['views']} views, score {face['confidence']:.2f}; "
+            f"up {axis_text(face['up'], 0.08)}, front {axis_text(face['front'], 0.08)} (--json: the landmarks)")
 
 
 # --------------------------------------------------------------------------- repair
@@ -252,7 +278,7 @@ def cmd_convert(args) -> int:
     opts = ConvertOptions(res=args.res, roi=roi, lam=args.lam, blend=args.blend, feature=args.feature, augment=args.augment,
                           method=args.method, ot_tol=args.ot_tol, smooth=args.smooth, up=args.up, open=args.open, front=args.front,
                           corner_set=args.corner_set, reconstruct=args.reconstruct, proxy=args.proxy,
-                          needles=args.needles, find_face=args.find_face)
+                          needles=args.needles, find_face=args.find_face, level=args.level)
     m = convert(mesh, out, opts, overwrite=args.force)
     print(_convert_summary(args, out, m))
     from .. import progress as _progress

@@ -10,8 +10,10 @@ def register(sub, common) -> None:
     from .._args import add_json, number, output_option
     from ._common import axis
 
-    s = sub.add_parser("inspect", help="print a mesh's topology report")
+    s = sub.add_parser("inspect", help="print a mesh's topology report, and the face found on it")
     s.add_argument("file")
+    s.add_argument("--no-face", dest="face", action="store_false",
+                   help="do not look for the face (renders of the mesh and the face tracker: about a second)")
     add_json(s, "the report")
     s.set_defaults(func=cmd_inspect)
 
@@ -75,6 +77,9 @@ def register(sub, common) -> None:
                    "cases say so), or x, y, z, -x, -y, -z")
     s.add_argument("--no-find-face", dest="find_face", action="store_false",
                    help="with --up auto, do not look for the face (the shape's cues alone)")
+    s.add_argument("--no-level", dest="level", action="store_false",
+                   help="where a face was found, keep the corners where the boundary puts them (default: turned along the "
+                        "boundary until the face's eye line is level in the default image)")
     s.add_argument("--front", default="auto", type=axis(), help="face direction: auto (default: towards the centroid of a --roi mask "
                    "file; without one, the front found with --up auto, or where the mesh faces about a given --up: symmetry "
                    "and detail, as `view` finds it) or an axis (z, -x, ...)")

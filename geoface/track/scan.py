@@ -231,7 +231,7 @@ def _scan_landmarks(V, F, resolution, search_resolution, views, min_confidence, 
             return none(f"the detector saw a face (score {seen:.2f}) but found none from in front of it", float(seen))
     source = refined[-1]
     if not lifts:
-        return none("no view of the face shows the nose in front of the eyes (a hollow face?)", conf)
+        return none("what the detector saw is not a face: no view shows its nose in front of its eyes (a hollow mask, an animal)", conf)
     L = np.stack(lifts)
     if source == SOURCES[0]:
         P, P468, K = _consensus(L), _consensus(np.stack(lifts468)), None
