@@ -149,9 +149,10 @@ def ict_base(seed: int) -> StressCase:
 
 
 def ict_landmarks(V: np.ndarray, lm: np.ndarray) -> dict:
-    """Nose tip, the eyes' centres (the subject's right and left) and the chin from the 68
-    Multi-PIE landmarks (0-based: 30 nose tip, 36-41 right eye, 42-47 left eye, 8 chin)."""
-    return {"nose": V[lm[30]].copy(), "eye_right": V[lm[36:42]].mean(0), "eye_left": V[lm[42:48]].mean(0),
+    """Nose tip, the eyes (the subject's right and left: the midpoints of each eye's corners, which
+    a blink does not move) and the chin from the 68 Multi-PIE landmarks (0-based: 30 nose tip, 36
+    and 39 the right eye's corners, 42 and 45 the left's, 8 chin)."""
+    return {"nose": V[lm[30]].copy(), "eye_right": V[lm[[36, 39]]].mean(0), "eye_left": V[lm[[42, 45]]].mean(0),
             "chin": V[lm[8]].copy()}
 
 

@@ -128,9 +128,8 @@ def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=N
     sets: list[np.ndarray] = []
     seen: set = set()
     pos = {int(v): i for i, v in enumerate(loop)}
-    seated = np.bincount(np.asarray(F, np.int64).ravel(), minlength=len(V))[loop] >= 3
     for k in range(int(n) if count is None else min(int(count), int(n))):
-        c = _seated(loop, pos, seated, _split(V, loop, start, _BASE + k / (4.0 * n) + float(turn)))
+        c = _split(V, loop, start, _BASE + k / (4.0 * n) + float(turn))
         shift = 0
         while frozenset(c.tolist()) in seen and shift < len(loop):
             shift += 1
@@ -144,29 +143,6 @@ def corner_sets(V, F, n: int = 8, reference: int | None = None, front=None, up=N
         seen.add(frozenset(c.tolist()))
         sets.append(c)
     return sets
-
-
-def _seated(loop, pos, seated, c):
-    """The corners ``c``, each moved to the nearest boundary vertex (by position along the loop)
-    that has at least three triangles, where it has fewer and such a vertex is within an eighth of
-    the loop: a corner's triangles must open to a right angle, and on one or two (a split edge's
-    midpoint, a fan's tip) the map squeezes them flat; order and distinctness kept."""
-    if seated.all():
-        return c
-    m = len(loop)
-    out = [int(v) for v in c]
-    for j, v in enumerate(out):
-        i = pos[v]
-        if seated[i]:
-            continue
-        for d in range(1, m // 8 + 1):
-            cand = [(i + s_ * d) % m for s_ in (1, -1) if seated[(i + s_ * d) % m]]
-            cand = [q for q in cand if int(loop[q]) not in out]
-            if cand:
-                out[j] = int(loop[cand[0]])
-                break
-    rel = [(pos[v] - pos[out[0]]) % m for v in out]
-    return np.asarray(out) if len(set(out)) == 4 and rel == sorted(rel) else c
 
 
 def _uneven_set(loop, pos, base, seen):

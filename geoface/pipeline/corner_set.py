@@ -140,11 +140,13 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
 
 
 #: a default image whose face's eye line is further than this from level (degrees) is made again
-#: with the corner sets turned along the boundary (:func:`level_turn`)
-LEVEL_DEGREES = 1.0
+#: with the corner sets turned along the boundary (:func:`level_turn`), until it is within
+#: :data:`LEVEL_TARGET` (the images themselves are judged at ±3°)
+LEVEL_DEGREES = 1.5
+LEVEL_TARGET = 1.0
 
 
-def level_turn(tilt, first: float, *, tol: float = LEVEL_DEGREES, tries: int = 3) -> dict:
+def level_turn(tilt, first: float, *, tol: float = LEVEL_DEGREES, target: float = LEVEL_TARGET, tries: int = 3) -> dict:
     """The turn of the corner sets (a share of the boundary's length, :func:`geoface.param.corners.corner_sets`)
     that brings a face's eye line level in the default image: a boundary that is not
     mirror-symmetric about the face (a bust's shoulders, a coarse neck cut, a torso) and the
@@ -165,7 +167,7 @@ def level_turn(tilt, first: float, *, tol: float = LEVEL_DEGREES, tries: int = 3
             break
         if abs(y1) < best[0]:
             best = (abs(y1), x1, y1)
-        if abs(y1) <= 0.5 * tol or y1 == y0:
+        if abs(y1) <= target or y1 == y0:
             break
         x0, y0, x1 = x1, y1, x1 - y1 * (x1 - x0) / (y1 - y0)
         if abs(x1) > 0.125:  # more than an eighth of the boundary: not a small correction
@@ -178,8 +180,8 @@ def face_pixels(points, V, F, uv, N) -> dict:
     """Where face landmarks ``points (k, 3)`` (the 68 iBUG, NaN where unknown; or the detector's
     four key points) land in the ``N``² images of the map ``uv`` of ``(V, F)``: each at the closest
     point of the surface, carried through the map. ``{"pixels": [[x (column), y (row)] or None],
-    "eye_line_degrees": the line from the subject's right eye to the left against the image rows
-    (positive: the left eye higher), "center_offset": the eyes' and the mouth's centre's column
+    "eye_line_degrees": the line from the subject's right eye to the left (each eye the midpoint of
+    its corners) against the image rows (positive: the left eye higher), "center_offset": the eyes' and the mouth's centre's column
     from the image's middle, over the width}``."""
     from ..gimage.raster import uv_to_pixel
     from ..track.face3d import keypoints_of
@@ -194,6 +196,8 @@ def face_pixels(points, V, F, uv, N) -> dict:
         x, y = uv_to_pixel(q, N, True)
         px[ok] = np.column_stack([x, y])
     K = keypoints_of(px) if len(P) == 68 else px  # (right eye, left eye, nose, mouth) in pixels
+    if len(P) == 68:  # the eye line through the eyes' corners: a blink or a wink moves the lids, not them
+        K[0], K[1] = px[[36, 39]].mean(0), px[[42, 45]].mean(0)
     eye = float(np.degrees(np.arctan2(-(K[1, 1] - K[0, 1]), K[1, 0] - K[0, 0])))
     center = float((0.25 * (K[0, 0] + K[1, 0]) + 0.5 * K[3, 0]) / (N - 1) - 0.5)
     r = lambda v: None if not np.isfinite(v) else round(float(v), 3)  # noqa: E731
