@@ -275,3 +275,19 @@ def test_convert_without_the_report(tmp_path, capsys):
     out = capsys.readouterr().out
     assert (tmp_path / "g" / "position.png").is_file() and not (tmp_path / "g" / "reconstruction.obj").exists()
     assert "Hausdorff" not in out and "1 image set at 16x16" in out
+
+
+def test_inspect_reports_the_face_it_finds(capsys):
+    """`inspect` looks for the face: one line in the text (found, how, the frame), the 68
+    landmarks in 3D in the JSON; none on a shape without one, and `--no-face` skips the looking."""
+    path = shared_mesh("decimated-max.obj")
+    assert main(["inspect", str(path)]) == 0
+    line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("face ")]
+    assert len(line) == 1 and "found: 68 landmarks" in line[0] and "front" in line[0], line
+    assert main(["inspect", str(path), "--json"]) == 0
+    face = json.loads(capsys.readouterr().out)["face"]
+    assert face["found"] and len(face["points"]) == 68 and face["up"][1] > 0.95 and face["front"][2] < -0.95
+    assert main(["inspect", str(shared_mesh("spot.obj"))]) == 0
+    assert "face                not found: " in capsys.readouterr().out
+    assert main(["inspect", str(path), "--json", "--no-face"]) == 0
+    assert "face" not in json.loads(capsys.readouterr().out)

@@ -174,3 +174,31 @@ def test_a_mesh_with_needles_starts_on_intrinsic_flips_and_says_nothing_alarming
     assert "no flat metric" not in err and "fail" not in err and "stall" not in err
     plain = RicciFlowSolver(V, F)
     assert not plain.poor_triangulation and plain.solve(quiet=True).intrinsic_flips == 0
+
+
+def test_boundary_refinement_doubles_the_boundary_and_keeps_the_surface():
+    """Red-green refinement along the boundary: a disk stays a disk of the same area, its boundary
+    doubles each round, every new vertex is the midpoint of the edge it records, no triangle is
+    worse shaped than half its parent; the flow converges on the refined mesh with corners between
+    the old vertices."""
+    from geoface.mesh.core import boundary_loops, face_areas
+    from geoface.mesh.topology import topology_report
+    from geoface.param.intrinsic import corner_angles
+    from geoface.param.ricci import RicciFlowSolver
+    from geoface.param.ricci_mesh import refine_boundary_band
+    from geoface.synth import disk_grid
+
+    V, F = disk_grid(6)
+    n_b = len(boundary_loops(F)[0])
+    V2, F2, edges = refine_boundary_band(V, F)
+    assert topology_report(V2, F2).is_disk and len(boundary_loops(F2)[0]) == 2 * n_b
+    assert abs(face_areas(V2, F2).sum() - face_areas(V, F).sum()) < 1e-12 * face_areas(V, F).sum()
+    np.testing.assert_allclose(V2[len(V):], 0.5 * (V[edges[:, 0]] + V[edges[:, 1]]))
+    l = np.linalg.norm(V2[F2[:, [1, 2, 0]]] - V2[F2[:, [2, 0, 1]]], axis=2)
+    l0 = np.linalg.norm(V[F[:, [1, 2, 0]]] - V[F[:, [2, 0, 1]]], axis=2)
+    assert corner_angles(l).min() >= 0.5 * corner_angles(l0).min() - 1e-12
+    s = RicciFlowSolver(V, F)
+    added = s.refine_boundary(4 * n_b)
+    assert added > 0 and len(s.boundary) >= 4 * n_b and len(s.split_edges) == added
+    r = s.solve()
+    assert r.converged and len(r.V) == len(V) + added
