@@ -30,8 +30,8 @@ renders:
 
 A face counts as found when the refined view's detector score is at least ``min_confidence`` and
 the points look like a face in 3D: the nose in front of the eyes (a hollow mask, the inside of a
-face scan seen from behind, has it behind them) and the inner landmarks (or the four key points)
-within :data:`MAX_SHAPE_ERROR` of the ICT-FaceKit head's after the best similarity.
+face scan seen from behind, has it behind them) and the nose and eye corners (or the four key
+points) within :data:`MAX_SHAPE_ERROR` of the ICT-FaceKit head's after the best similarity.
 
 Because the refined views are placed from the face itself, a head turned any way gives the same
 renders up to resampling, and the same landmarks (``tests/track/test_scan.py``).
@@ -55,8 +55,9 @@ __all__ = ["ScanLandmarks", "scan_landmarks", "MIN_CONFIDENCE", "MAX_SHAPE_ERROR
 #: the refined frontal view's face-detector score a face must reach (renders of real heads seen
 #: from the front score 0.7-0.95; a sideways or face-up view finds nothing)
 MIN_CONFIDENCE = 0.5
-#: the inner landmarks' (or the four key points') RMS distance from the ICT-FaceKit head's after
-#: the best similarity, over the eyes' distance, above which what was found is not taken as a face
+#: the nose's and eye corners' (or the four key points') RMS distance from the ICT-FaceKit head's
+#: after the best similarity, over the eyes' distance, above which what was found is not taken as
+#: a face (faces: 0.02-0.1)
 MAX_SHAPE_ERROR = 0.2
 #: where the mosaic search finds no face, the second search's resolution over the first's
 FINE = 1.5
