@@ -42,22 +42,38 @@ def _worst(vals, fmt="{:+.1f}°"):
     return fmt.format(max(v, key=abs))
 
 
-def groups(rows):
+def groups(rows, merge_ict: bool = False):
+    """Rows by (head, kind); ``merge_ict``: the ICT heads of a kind on one row ("ict0–9"), each
+    head's turned copies still compared with its own unturned one."""
     out: dict = {}
     for r in rows:
-        out.setdefault((r["mesh"], r["kind"]), []).append(r)
+        mesh = r["mesh"]
+        if merge_ict and mesh.startswith("ict"):
+            ids = sorted(int(x["mesh"][3:]) for x in rows if x["mesh"].startswith("ict") and x["kind"] == r["kind"])
+            mesh = f"ict{ids[0]}–{ids[-1]}" if ids[0] != ids[-1] else f"ict{ids[0]}"
+        out.setdefault((mesh, r["kind"]), []).append(r)
     return out
 
 
-def table(rows) -> str:
+def _angles(rs):
+    """Each turned copy's up and front angle to its own unturned head's."""
+    base = {r["mesh"]: r for r in rs if r["rotation"] == 0}
+    ups, fronts = [], []
+    for r in rs:
+        b = base.get(r["mesh"])
+        if b is not None and r is not b:
+            ups.append(_deg(r["up"], b["up"]))
+            fronts.append(_deg(r["front"], b["front"]))
+    return ups, fronts
+
+
+def table(rows, merge_ict: bool = False) -> str:
     lines = ["| head | kind | cases | face found | how | worst up / front vs unturned | eye line, worst: found / true | "
              "face centre, worst: found / true | landmarks, mean mm: inner / all 68 | finding the face, s (median / max) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    for (mesh, kind), rs in groups(rows).items():
+    for (mesh, kind), rs in groups(rows, merge_ict).items():
         ok = [r for r in rs if r["ok"]]
-        base = next((r for r in ok if r["rotation"] == 0), None)
-        ups = [_deg(r["up"], base["up"]) for r in ok if base is not None and r is not base]
-        fronts = [_deg(r["front"], base["front"]) for r in ok if base is not None and r is not base]
+        ups, fronts = _angles(ok)
         hows = sorted({_cue(r["how"]) for r in ok})
         found = sum(r["face_found"] for r in ok)
         lm = [r for r in ok if r.get("landmark_mm_inner") is not None]
@@ -79,9 +95,8 @@ def summary(rows) -> str:
     g = groups(rows)
     within = 0
     for rs in g.values():
-        rs = [r for r in rs if r["ok"]]
-        base = next((r for r in rs if r["rotation"] == 0), None)
-        within += sum(1 for r in rs if base is not None and max(_deg(r["up"], base["up"]), _deg(r["front"], base["front"])) <= 2)
+        ups, fronts = _angles([r for r in rs if r["ok"]])
+        within += sum(1 for a, b in zip(ups, fronts) if max(a, b) <= 2)
     eye = [r for r in ok if r["eye_line_found"] is not None and abs(r["eye_line_found"]) <= 3]
     cen = [r for r in ok if r["center_found"] is not None and abs(r["center_found"]) <= 0.1]
     eye_t = [r for r in ok if r["eye_line_true"] is not None and abs(r["eye_line_true"]) <= 3]
@@ -90,7 +105,7 @@ def summary(rows) -> str:
     added = [r["seconds"] - r["seconds_without_looking"] for r in ok if r.get("seconds_without_looking") is not None]
     face = [r["face_seconds"] for r in ok if r.get("face_seconds") is not None]
     return "\n".join([
-        "| cases | converted | face found | frame within 2° of the unturned | eye line within ±3° (found / true) | "
+        "| cases | converted | face found | turned copies within 2° of the unturned | eye line within ±3° (found / true) | "
         "centre within 10% (found / true) | finding the face, s: median / max | convert with − without looking, s: median / max |",
         "|---|---|---|---|---|---|---|---|",
         f"| {len(rows)} | {len(ok)} | {sum(r['face_found'] for r in ok)} | {within} | {len(eye)} of {len(ok)} / {len(eye_t)} of {n_true} | "
@@ -102,11 +117,12 @@ def summary(rows) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("files", nargs="+", type=Path)
+    ap.add_argument("--merge-ict", action="store_true", help="the ICT heads of a kind on one row")
     a = ap.parse_args(argv)
     rows = load(a.files)
     print(summary(rows))
     print()
-    print(table(rows))
+    print(table(rows, a.merge_ict))
     return 0
 
 

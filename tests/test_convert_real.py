@@ -210,25 +210,32 @@ def test_up_is_found_from_the_neck_opening(tmp_path):
     m = convert(mesh, tmp_path / "auto", ConvertOptions(res=64, roi=h.face_mask, up="auto", reconstruct=False), quiet=True)
     assert np.dot(m["up"], [0, 0, 1]) > 0.9 and np.dot(m["front"], [0, -1, 0]) > 0.9
     ref = convert(Mesh(h.V, h.F), tmp_path / "y", ConvertOptions(res=64, roi=h.face_mask, reconstruct=False), quiet=True)
-    assert m["sets"][0]["corners"] == ref["sets"][0]["corners"]  # the same corners on the same surface
+    # the same corners on the same surface, to a vertex (each frame is its face's, found to a degree)
+    from geoface.mesh.core import boundary_loops
+    from geoface.repair import make_disk
+
+    loop = boundary_loops(make_disk(h.V, h.F, find_face=False).F)[0].tolist()
+    apart = [min(abs(loop.index(a) - loop.index(b)), len(loop) - abs(loop.index(a) - loop.index(b)))
+             for a, b in zip(m["sets"][0]["corners"], ref["sets"][0]["corners"]) if a in loop and b in loop]
+    assert len(apart) == 4 and max(apart) <= 1, (m["sets"][0]["corners"], ref["sets"][0]["corners"])
 
 
 def test_level_turn_finds_the_turn_that_levels_a_face_even_on_a_coarse_boundary():
     """The secant steps of ``level_turn`` on a tilt that a whole turn of the boundary takes once
-    round, offset by 7°: level within the target in a few tries; where corners move by whole
-    vertices of a 36-vertex boundary (10° steps) the best is kept and said (more than 2° off:
-    ``convert`` then refines the boundary)."""
+    round, offset by 7°: level within 0.5° in a few tries; where corners move by whole vertices of
+    a 36-vertex boundary (10° steps) the best is kept and said (more than 2° off: ``convert`` then
+    refines the boundary)."""
     from geoface.pipeline.corner_set import level_turn
 
     def tilt(turn):
         return 7.0 - 360.0 * turn
 
     r = level_turn(tilt, tilt(0.0))
-    assert abs(r["eye_line_after"]) <= 1.0 and r["tries"] <= 3 and abs(r["turn"] - 7.0 / 360) < 0.003
+    assert abs(r["eye_line_after"]) <= 0.5 and r["tries"] <= 3 and abs(r["turn"] - 7.0 / 360) < 0.003
 
     def coarse(turn):
         return 7.0 - 360.0 * round(turn * 36) / 36
 
     r = level_turn(coarse, coarse(0.0))
     assert abs(r["eye_line_after"]) == 3.0 and abs(r["turn"] - 1 / 36) < 1 / 72
-    assert level_turn(tilt, 1.2)["tries"] == 0  # within 1.5° already: no more maps
+    assert level_turn(tilt, 0.4)["tries"] == 0  # within 0.5° already: no more maps

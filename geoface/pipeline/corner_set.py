@@ -139,24 +139,25 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
     return V, roi, colors
 
 
-#: a default image whose face's eye line is further than this from level (degrees) is made again
-#: with the corner sets turned along the boundary (:func:`level_turn`), until it is within
-#: :data:`LEVEL_TARGET` (the images themselves are judged at ±3°)
-LEVEL_DEGREES = 1.5
-LEVEL_TARGET = 1.0
+#: the corner sets are turned until the face's eye line in the default image is within this many
+#: degrees of level (:func:`level_turn`; the images themselves are judged at ±3°)
+LEVEL_TARGET = 0.5
 
 
-def level_turn(tilt, first: float, *, tol: float = LEVEL_DEGREES, target: float = LEVEL_TARGET, tries: int = 3) -> dict:
+def level_turn(tilt, first: float, *, target: float = LEVEL_TARGET, tries: int = 3) -> dict:
     """The turn of the corner sets (a share of the boundary's length, :func:`geoface.param.corners.corner_sets`)
     that brings a face's eye line level in the default image: a boundary that is not
     mirror-symmetric about the face (a bust's shoulders, a coarse neck cut, a torso) and the
     measure's pull turn the face in the image, and turning the corners along the boundary turns it
     back (a whole turn of the boundary turns the image once round). ``tilt(turn)``: the eye line's
-    angle (degrees) in the final map of corner set 0 turned so, or None where it fails; ``first``:
-    ``tilt(0)``. Secant steps, at most ``tries`` more maps. ``{"turn", "eye_line_before",
-    "eye_line_after", "tries"}`` (turn 0 where the line was level already or no turn helped)."""
+    angle (degrees) in the final map of corner set 0 turned so, or None where it fails (a caller
+    that memoises it by the corners a turn picks makes a turn too small to move them free);
+    ``first``: ``tilt(0)``. Secant steps from the first prediction ``first / 360``, at most
+    ``tries``, while the line is more than ``target`` off: two heads that differ by a little
+    (a copy turned in space) get turns that differ by a little. ``{"turn", "eye_line_before",
+    "eye_line_after", "tries"}``."""
     out = {"turn": 0.0, "eye_line_before": first, "eye_line_after": first, "tries": 0}
-    if first is None or abs(first) <= tol:
+    if first is None or abs(first) <= target:
         return out
     best = (abs(first), 0.0, first)
     x0, y0, x1 = 0.0, first, first / 360.0

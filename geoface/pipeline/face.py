@@ -30,17 +30,23 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
     from .corner_set import face_pixels, map_set
 
     made: dict = {}
+    tilts: dict = {}
 
     def tilt(turn):
         c = corner_sets(solver.V, solver.F, n=8, front=front, up=up, count=1, turn=turn)[0]
+        key = corners_key(c)
+        if key in tilts:  # a turn too small to move a corner: the map made already
+            return tilts[key]
         st = {"corner_set": 0, "corners": [int(x) for x in c]}
         try:  # the first map is set 0's own: its iterations show with -v like any set's
             res = map_set(st, solver, c, V, roi, colors, opts, quiet if not made else True)
         except GeofaceError:
+            tilts[key] = None
             return None
-        made[corners_key(c)] = ({k: v for k, v in st.items() if k not in ("corner_set", "corners")}, res)
+        made[key] = ({k: v for k, v in st.items() if k not in ("corner_set", "corners")}, res)
         r, Vx, _, _, uv = res
-        return face_pixels(face["points"], Vx, r.F, uv, opts.res)["eye_line_degrees"]
+        tilts[key] = face_pixels(face["points"], Vx, r.F, uv, opts.res)["eye_line_degrees"]
+        return tilts[key]
 
     log("convert: levelling the face's eye line (corner set 0)", quiet=quiet, detail=True)
     level = level_turn(tilt, tilt(0.0))
@@ -50,6 +56,7 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
         added = solver.refine_boundary(LEVEL_BOUNDARY)
         if added:
             made.clear()
+            tilts.clear()
             level = level_turn(tilt, tilt(0.0))
     level["boundary_vertices_added"] = added
     face["metrics"]["level"] = level
