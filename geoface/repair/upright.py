@@ -145,8 +145,12 @@ def _from_face(V, F, Ps, face, op, kind, cues) -> UprightFrame:
     """The frame of the face found by looking, checked against the template and the opening."""
     up, front = unit(face.up), unit(face.front)
     cues.update(face_confidence=face.confidence, face_views=face.views, face_spread=face.spread,
-                face_shape_error=face.shape_error, face_source=face.source, face_seconds=face.seconds)
+                face_shape_error=face.shape_error, face_source=face.source, face_seconds=face.seconds,
+                **{f"face_mirror_{k}": (float(v) if np.isfinite(v) else None)
+                   for k, v in (("turn", face.mirror_turn), ("error", face.mirror_error))})
     found = f"{68 if face.source == 'face mesh' else 4} points"
+    if np.isfinite(face.mirror_turn):
+        found += f", yaw and roll from the mirror plane ({face.mirror_turn:.1f}°)"
     checks = []
     points = face.points if face.source == "face mesh" else face.keypoints
     fit = fit_head_template_from(Ps, points, face_only=kind == "face only")

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["INNER", "RIGID", "EYE_RIGHT", "EYE_LEFT", "face_frame", "keypoint_frame", "keypoints_of", "shape_error",
-           "nose_out", "eye_distance", "template_landmarks", "template_keypoints", "similarity", "TEMPLATE_FILE"]
+           "nose_out", "eye_distance", "template_landmarks", "template_keypoints", "similarity", "TEMPLATE_FILE",
+           "mirror_frame", "MIRROR_RADIUS", "MIRROR_MAX_TURN", "MIRROR_MAX_ERROR"]
 
 #: the iBUG landmarks that the frame and the shape check use: brows, nose, eyes, mouth (0-16, the
 #: jaw line, are contour points: where the cheek turns away from each view)
@@ -151,3 +152,80 @@ def nose_out(K, front) -> float:
     four key points ``K (4, 3)`` (a hollow face, seen from behind, has it negative)."""
     K = np.asarray(K, np.float64)
     return float((K[2] - 0.5 * (K[0] + K[1])) @ front) / max(float(np.linalg.norm(K[1] - K[0])), 1e-300)
+
+
+#: the surface within this many outer-eye-corner distances of the face's centre is mirrored
+#: (the face, the forehead, the cheeks: about 15 cm on an adult)
+MIRROR_RADIUS = 1.6
+#: the mirror plane is taken where it turns the landmarks' right by less than this (degrees;
+#: measured 0.1-5.6 on the heads here) ...
+MIRROR_MAX_TURN = 10.0
+#: ... and the mirrored surface lies this close to itself (the trimmed mean distance of the mirrored
+#: samples from the surface's tangent planes, over the radius: 0.01 is 1.5 mm on an adult's face;
+#: the heads here 0.00002-0.0053, the ICT heads with the strongest expressions the most)
+MIRROR_MAX_ERROR = 0.01
+#: the share of mirrored samples that the fit keeps (the rest: where the surface has no mirror
+#: image, an asymmetric expression, a cut, hair)
+MIRROR_KEEP = 0.7
+
+
+def mirror_frame(V, F, center, right, up, radius, *, samples: int = 20000, iterations: int = 30):
+    """The face's frame turned so that ``right`` is the normal of the surface's plane of mirror
+    symmetry near ``center``: ``(right, up, front, {"turn": degrees, "error": ...})``, or None where
+    the plane is not found (it turns the frame by more than :data:`MIRROR_MAX_TURN`, or the surface
+    is not symmetric about it: :data:`MIRROR_MAX_ERROR`).
+
+    A face's landmarks fix its frame to a few degrees, most loosely in yaw (a masked face's, or
+    where the face mesh guesses); the surface itself, mirrored about the face's midplane, fixes
+    yaw and roll to a fraction of a degree. Points sampled on the surface within ``radius`` of
+    ``center`` are mirrored about the plane (``right``, through ``center`` at first) and the plane
+    is fitted by Gauss-Newton steps on the mirrored points' distances to the tangent planes of
+    their nearest samples (a reflective ICP, point-to-plane, keeping the nearest
+    :data:`MIRROR_KEEP`). ``up`` keeps its pitch: it is made orthogonal to the new right."""
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    V, F = np.asarray(V, np.float64), np.asarray(F)
+    c, n = np.asarray(center, np.float64), _unit(np.asarray(right, np.float64))
+    near = np.linalg.norm(V - c, axis=1) <= 1.3 * radius
+    keep = near[F].any(1)
+    if keep.sum() < 10:
+        return None
+    m = trimesh.Trimesh(V, F[keep], process=False)
+    Y, fi = trimesh.sample.sample_surface(m, int(samples), seed=1)
+    NY = m.face_normals[fi]
+    X = Y[np.linalg.norm(Y - c, axis=1) <= radius][::5]
+    if len(X) < 50:
+        return None
+    tree = cKDTree(Y)
+    d = float(n @ c)
+    for _ in range(int(iterations)):
+        e1 = _unit(np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0]))
+        e2 = np.cross(n, e1)
+        s = X @ n - d
+        Xr = X - 2.0 * s[:, None] * n
+        j = tree.query(Xr)[1]
+        M = NY[j]
+        r = ((Xr - Y[j]) * M).sum(1)
+        ok = np.abs(r) <= np.quantile(np.abs(r), MIRROR_KEEP)
+        mn = M @ n
+        # d(residual) for n -> n + a e1 + b e2 and d -> d + dd
+        A = np.column_stack([-2.0 * (X @ e1) * mn - 2.0 * s * (M @ e1), -2.0 * (X @ e2) * mn - 2.0 * s * (M @ e2), 2.0 * mn])
+        a, b, dd = np.linalg.lstsq(A[ok], -r[ok], rcond=None)[0]
+        n1 = _unit(n + a * e1 + b * e2)
+        moved = float(np.degrees(np.arccos(np.clip(n1 @ n, -1.0, 1.0))))
+        n, d = n1, d + float(dd)
+        if moved < 0.02:
+            break
+    Xr = X - 2.0 * (X @ n - d)[:, None] * n
+    j = tree.query(Xr)[1]
+    dist = np.abs(((Xr - Y[j]) * NY[j]).sum(1))  # to the tangent planes: free of the samples' spacing
+    err = float(np.mean(np.sort(dist)[: max(1, int(MIRROR_KEEP * len(dist)))])) / max(float(radius), 1e-300)
+    right0 = _unit(np.asarray(right, np.float64))
+    if n @ right0 < 0:
+        n = -n
+    turn_deg = float(np.degrees(np.arccos(np.clip(n @ right0, -1.0, 1.0))))
+    if turn_deg > MIRROR_MAX_TURN or err > MIRROR_MAX_ERROR:
+        return None
+    u = _unit(np.asarray(up, np.float64) - (np.asarray(up, np.float64) @ n) * n)
+    return n, u, np.cross(n, u), {"turn": turn_deg, "error": err}

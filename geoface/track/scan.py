@@ -27,6 +27,10 @@ renders:
 3. **Consensus.** The face mesh runs on views turned about the face (left, right, above, below;
    ``views`` in all); every landmark is the median of its lifts over the views that see it, and
    the views' spread about that median (relative to the outer eye corners' distance) is reported.
+4. **Mirror.** The landmarks fix the frame to a few degrees, most loosely in yaw; the surface
+   about the face, mirrored about its midplane, fixes yaw and roll to a fraction of a degree
+   (:func:`geoface.track.face3d.mirror_frame`, a reflective ICP). Where the surface has no mirror
+   plane near the landmarks' (within 10°), the landmarks' frame is kept.
 
 A face counts as found when the refined view's detector score is at least ``min_confidence`` and
 the points look like a face in 3D: the nose in front of the eyes (a hollow mask, the inside of a
@@ -45,8 +49,8 @@ import numpy as np
 
 from geoface.errors import GeofaceError
 
-from .face3d import INNER, RIGID, eye_distance, face_frame, keypoint_frame, keypoints_of, nose_out, shape_error, similarity
-from .face3d import template_keypoints
+from .face3d import INNER, MIRROR_RADIUS, RIGID, eye_distance, face_frame, keypoint_frame, keypoints_of, mirror_frame
+from .face3d import nose_out, shape_error, similarity, template_keypoints
 from .look import STYLES, Looker, camera_at, lift, search_views, turn
 from .search import FACE_HALF, search, verified
 
@@ -89,7 +93,11 @@ class ScanLandmarks:
     face's frame (unit, right-handed), None when not found; ``views``: how many consensus views
     saw the face; ``spread``: their mean distance from the consensus points over the eyes'
     distance; ``shape_error``: the points' RMS distance from the ICT-FaceKit head's after the best
-    similarity, over the eyes' distance; ``why``: why no face was taken, when none was;
+    similarity, over the eyes' distance; ``mirror_turn``: how far (degrees) the surface's mirror
+    plane through the face turned the landmarks' frame (:func:`geoface.track.face3d.mirror_frame`;
+    NaN where the surface has none near the face, and the landmarks' frame is kept);
+    ``mirror_error``: the mirrored surface's trimmed distance from itself over the mirrored
+    ball's radius; ``why``: why no face was taken, when none was;
     ``seconds``: wall time; ``renders``: how many images were rendered."""
 
     found: bool
@@ -104,6 +112,8 @@ class ScanLandmarks:
     views: int = 0
     spread: float = float("nan")
     shape_error: float = float("nan")
+    mirror_turn: float = float("nan")
+    mirror_error: float = float("nan")
     why: str = ""
     seconds: float = 0.0
     renders: int = 0
@@ -111,7 +121,8 @@ class ScanLandmarks:
     def to_dict(self, *, points: bool = True) -> dict:
         """A JSON-ready summary (``points``: with the 68 landmarks and the key points; NaN as None)."""
         d = {"found": bool(self.found), "source": self.source, "confidence": round(float(self.confidence), 4),
-             "views": int(self.views), "spread": _num(self.spread), "shape_error": _num(self.shape_error), "why": self.why,
+             "views": int(self.views), "spread": _num(self.spread), "shape_error": _num(self.shape_error),
+             "mirror_turn": _num(self.mirror_turn), "mirror_error": _num(self.mirror_error), "why": self.why,
              "seconds": round(float(self.seconds), 3)}
         for k in ("right", "up", "front"):
             v = getattr(self, k)
@@ -254,9 +265,15 @@ def _scan_landmarks(V, F, resolution, search_resolution, views, min_confidence, 
         why = f"the points are not a face's (shape error {err:.2f} > {MAX_SHAPE_ERROR:g})"
     if why:
         return none(why, conf)
+    # yaw and roll from the surface's mirror plane through the face, where it has one
+    center = np.nanmean(ref[sel], axis=0)
+    mirrored = mirror_frame(V, F, center, right, up, MIRROR_RADIUS * scale * (1.0 if source == SOURCES[0] else 1.5))
+    mirror = {"turn": float("nan"), "error": float("nan")}
+    if mirrored is not None:
+        right, up, front, mirror = mirrored
     return ScanLandmarks(True, P, K, confidence=conf, mesh_points=P468, source=source, right=right, up=up, front=front,
-                         views=len(lifts), spread=spread, shape_error=err, seconds=time.perf_counter() - t0,
-                         renders=look.renders)
+                         views=len(lifts), spread=spread, shape_error=err, mirror_turn=mirror["turn"],
+                         mirror_error=mirror["error"], seconds=time.perf_counter() - t0, renders=look.renders)
 
 
 def _keypoint_shape_error(K) -> float:

@@ -16,6 +16,9 @@ FACE_SHARE = 0.5
 VERIFY = 10
 #: the refined views' half width over the face's height (nasion to chin)
 FACE_HALF = 1.25
+#: rolls of each view (degrees, before its four quarter turns) in the search one by one: the
+#: detector finds faces rolled by up to about 45 degrees, less on a coarse scan
+ROLLS = (0.0, 45.0)
 
 
 def search(look, res, *, mosaic: bool = True):
@@ -25,28 +28,43 @@ def search(look, res, *, mosaic: bool = True):
     small faces, and one call costs a quarter of four); else one by one."""
     c, radius, E = principal_frame(look.V, look.F)
     out = []
-    for d in search_views() @ E.T:
-        cam = camera_at(c, d, any_up(d), radius, res)
-        img, face, depth = look.render(cam)
-        if (face >= 0).mean() < 0.01:
-            continue
-        best: dict = {}
-        if mosaic:
-            tiles = np.zeros((2 * res, 2 * res, 3), np.uint8)
-            for k in range(4):
-                i, j = divmod(k, 2)
-                tiles[i * res:(i + 1) * res, j * res:(j + 1) * res] = np.rot90(img, k)
-            found = []
-            for score, kp, box in look.detect_all(tiles):
-                i, j = min(int((box[1] + 0.5 * box[3]) // res), 1), min(int((box[0] + 0.5 * box[2]) // res), 1)
-                found.append((2 * i + j, score, kp - np.array([j * res, i * res], np.float64), box))
-        else:
-            found = [(k, sc, kp, box) for k in range(4) for sc, kp, box in look.detect_all(np.ascontiguousarray(np.rot90(img, k)))]
-        for k, score, kp, box in found:
-            if k not in best or score > best[k][0]:
-                best[k] = (score, unrotate(kp, k, res), np.array([0.0, 0.0, box[2], box[3]]), cam, face, depth)
-        out += best.values()
+    for g in search_views():
+        # the view and its up are taken in the surface's principal frame: a turned copy is seen
+        # the same (up to resampling), not rolled by as much as 45 degrees between the four turns
+        d, up0 = E @ g, E @ any_up(g)
+        for roll in ROLLS if not mosaic else (0.0,):
+            out += _look_round(look, camera_at(c, d, _rolled(up0, d, roll), radius, res), res, mosaic)
     return sorted(out, key=lambda x: -x[0])
+
+
+def _rolled(up, d, degrees):
+    """``up`` turned by ``degrees`` about the view's direction ``d``."""
+    from geoface.rotations import rodrigues
+
+    return rodrigues(np.radians(degrees) * d) @ up
+
+
+def _look_round(look, cam, res, mosaic):
+    """The best face the detector finds on each quarter turn of one view's render."""
+    img, face, depth = look.render(cam)
+    if (face >= 0).mean() < 0.01:
+        return []
+    best: dict = {}
+    if mosaic:
+        tiles = np.zeros((2 * res, 2 * res, 3), np.uint8)
+        for k in range(4):
+            i, j = divmod(k, 2)
+            tiles[i * res:(i + 1) * res, j * res:(j + 1) * res] = np.rot90(img, k)
+        found = []
+        for score, kp, box in look.detect_all(tiles):
+            i, j = min(int((box[1] + 0.5 * box[3]) // res), 1), min(int((box[0] + 0.5 * box[2]) // res), 1)
+            found.append((2 * i + j, score, kp - np.array([j * res, i * res], np.float64), box))
+    else:
+        found = [(k, sc, kp, box) for k in range(4) for sc, kp, box in look.detect_all(np.ascontiguousarray(np.rot90(img, k)))]
+    for k, score, kp, box in found:
+        if k not in best or score > best[k][0]:
+            best[k] = (score, unrotate(kp, k, res), np.array([0.0, 0.0, box[2], box[3]]), cam, face, depth)
+    return list(best.values())
 
 
 def verified(look, found, res, *, tries: int = VERIFY):

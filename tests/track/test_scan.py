@@ -75,6 +75,45 @@ def test_the_frame_of_the_template_is_its_own_axes_and_turns_with_it():
     assert nose_out(K, f) > 0.3 and nose_out(K * [1, 1, -1], f) < 0
 
 
+def _bump(asymmetric=0.0, skew=0.0):
+    """A height field symmetric about the plane x = 0 (a ridge, a dome, a cubic slope along y),
+    plus ``asymmetric`` times a small bump on one side and ``skew`` times a cubic slope along x."""
+    V, F = square_grid(61, 2.0)
+    V = V - [1.0, 1.0, 0.0]
+    x, y = V[:, 0], V[:, 1]
+    V[:, 2] = (0.4 * np.exp(-(x**2) / 0.02 - (y - 0.2) ** 2 / 0.3) + 0.3 * np.exp(-(x**2 + y**2) / 0.5) + 0.1 * y**3
+               + asymmetric * np.exp(-((x - 0.5) ** 2 + y**2) / 0.02) + skew * (x + 0.5 * y) ** 3)
+    return V, F
+
+
+def test_the_mirror_plane_of_a_symmetric_surface_is_found_from_a_frame_off_by_degrees():
+    """A surface symmetric about x = 0 and turned at random; the frame handed in is turned 6° in
+    yaw and 4° in roll, and its centre is off the plane: the mirror plane gives right within 0.1°
+    of the true normal, and keeps the frame's pitch. A small bump on one side (a local asymmetry:
+    an expression) is left out of the fit; a surface skewed as a whole has no mirror plane, and
+    nothing is returned."""
+    from scipy.spatial.transform import Rotation
+
+    from geoface.rotations import rodrigues
+    from geoface.track.face3d import mirror_frame
+
+    R = Rotation.random(random_state=3).as_matrix()
+    V, F = _bump()
+    off = rodrigues(np.radians(4.0) * np.array([0.0, 0.0, 1.0])) @ rodrigues(np.radians(6.0) * np.array([0.0, 1.0, 0.0]))
+    right, up = off @ [1.0, 0.0, 0.0], off @ [0.0, 1.0, 0.0]
+    out = mirror_frame(V @ R.T, F, R @ [0.05, 0.1, 0.3], R @ right, R @ up, 0.8)
+    assert out is not None
+    r, u, f, info = out
+    assert _deg(R.T @ r, [1, 0, 0]) < 0.1, _deg(R.T @ r, [1, 0, 0])
+    assert 5 < info["turn"] < 9 and info["error"] < 1e-3, info
+    assert abs(r @ u) < 1e-9 and abs(np.linalg.det(np.column_stack([r, u, f])) - 1) < 1e-9
+    pitch = lambda up_, front_: np.degrees(np.arctan2(front_[1], front_[2]))  # noqa: E731
+    assert abs(pitch(R.T @ u, R.T @ f) - pitch(up, np.cross(right, up))) < 0.5
+    r, *_ = mirror_frame(*_bump(asymmetric=0.3), [0.05, 0.1, 0.3], right, up, 0.8)
+    assert _deg(r, [1, 0, 0]) < 0.2, _deg(r, [1, 0, 0])
+    assert mirror_frame(*_bump(skew=0.5), [0.05, 0.1, 0.3], right, up, 0.8) is None
+
+
 @pytest.fixture(scope="module")
 def ict():
     from geoface.synth.ict import ict_head, load_ict_model
@@ -119,7 +158,9 @@ def test_no_face_on_shapes_that_have_none():
 
 def test_a_masked_face_falls_back_to_the_detectors_key_points():
     """The low-poly ninja's face is masked below the eyes; asked for the detector's key points only,
-    the frame they give is within 6° of the face mesh's (the ninja head's, which the face mesh finds)."""
+    the frame they give is within 5° of the face mesh's (the ninja head's, which the face mesh
+    finds): both take yaw and roll from the surface's mirror plane, so they differ in pitch alone
+    (measured 3.9°; the mouth's key point lies on the mask)."""
     import sys
 
     from tests.helpers import REPO
@@ -132,4 +173,33 @@ def test_a_masked_face_falls_back_to_the_detectors_key_points():
     b = S.real_base("ninjaHead_Low.obj")
     a, k = scan_landmarks(b.V, b.F), scan_landmarks(b.V, b.F, source="face detector")
     assert a.found and k.found and k.source == "face detector" and np.isnan(k.points).all()
-    assert _deg(a.up, k.up) < 6 and _deg(a.front, k.front) < 6, (a.up, k.up, a.front, k.front)
+    assert a.mirror_turn < 10 and k.mirror_turn < 10 and a.mirror_error < 0.03 and k.mirror_error < 0.03
+    assert abs(np.cross(a.up, a.front) @ k.front) < 0.02  # the same right: the same mirror plane
+    assert _deg(a.up, k.up) < 5 and _deg(a.front, k.front) < 5, (a.up, k.up, a.front, k.front)
+
+
+def test_a_turned_copy_of_a_coarse_bust_is_seen_the_same():
+    """The Max Planck bust cut to 1K faces, a hard face for the detector (score 0.7), as given and
+    turned at random four times: the search's views and their up are taken in the surface's own
+    principal frame, so every copy finds the face, and the frames agree within half a degree (a
+    view rolled by up to 45° between the search's quarter turns missed this face in one of the
+    four turned copies)."""
+    import sys
+
+    from scipy.spatial.transform import Rotation
+
+    from tests.helpers import REPO
+
+    sys.path.insert(0, str(REPO / "data_tools"))
+    import make_stress_cases as S
+
+    from geoface.track.scan import scan_landmarks
+
+    b = S.decimated(S.real_base("decimated-max.obj"))
+    ref = scan_landmarks(b.V, b.F)
+    assert ref.found, ref.why
+    for seed in (1, 2, 3, 4):
+        R = Rotation.random(random_state=seed).as_matrix()
+        r = scan_landmarks(b.V @ R.T, b.F)
+        assert r.found, (seed, r.why)
+        assert _deg(R.T @ r.up, ref.up) < 1 and _deg(R.T @ r.front, ref.front) < 1, seed
