@@ -149,8 +149,7 @@ def _from_face(V, F, Ps, face, op, kind, cues) -> UprightFrame:
                 **{f"face_mirror_{k}": (float(v) if np.isfinite(v) else None)
                    for k, v in (("turn", face.mirror_turn), ("error", face.mirror_error))})
     found = f"{68 if face.source == 'face mesh' else 4} points"
-    if np.isfinite(face.mirror_turn):
-        found += f", yaw and roll from the mirror plane ({face.mirror_turn:.1f}°)"
+    mirror = f"; yaw and roll from its mirror plane, {face.mirror_turn:.1f}°" if np.isfinite(face.mirror_turn) else ""
     checks = []
     points = face.points if face.source == "face mesh" else face.keypoints
     fit = fit_head_template_from(Ps, points, face_only=kind == "face only")
@@ -176,7 +175,7 @@ def _from_face(V, F, Ps, face, op, kind, cues) -> UprightFrame:
             cues["opening_angle"] = a
             checks.append(f"the face's rim {'agrees' if a <= FACE_OPENING_DEGREES else 'differs'} ({a:.0f}°)")
     how = (f"the face ({found} from {face.views} views, score {face.confidence:.2f}, by the "
-           f"{face.source})" + (": " + ", ".join(checks) if checks else ""))
+           f"{face.source}{mirror})" + (": " + ", ".join(checks) if checks else ""))
     fig = standing_figure(Ps)
     if fig is not None and fig[1] <= FIGURE_FIT and fig[0] @ up > np.cos(np.radians(45.0)):
         # a standing figure whose face was found: up is the body's (its feet are cut level), the

@@ -16,9 +16,6 @@ FACE_SHARE = 0.5
 VERIFY = 10
 #: the refined views' half width over the face's height (nasion to chin)
 FACE_HALF = 1.25
-#: rolls of each view (degrees, before its four quarter turns) in the search one by one: the
-#: detector finds faces rolled by up to about 45 degrees, less on a coarse scan
-ROLLS = (0.0, 45.0)
 
 
 def search(look, res, *, mosaic: bool = True):
@@ -31,17 +28,8 @@ def search(look, res, *, mosaic: bool = True):
     for g in search_views():
         # the view and its up are taken in the surface's principal frame: a turned copy is seen
         # the same (up to resampling), not rolled by as much as 45 degrees between the four turns
-        d, up0 = E @ g, E @ any_up(g)
-        for roll in ROLLS if not mosaic else (0.0,):
-            out += _look_round(look, camera_at(c, d, _rolled(up0, d, roll), radius, res), res, mosaic)
+        out += _look_round(look, camera_at(c, E @ g, E @ any_up(g), radius, res), res, mosaic)
     return sorted(out, key=lambda x: -x[0])
-
-
-def _rolled(up, d, degrees):
-    """``up`` turned by ``degrees`` about the view's direction ``d``."""
-    from geoface.rotations import rodrigues
-
-    return rodrigues(np.radians(degrees) * d) @ up
 
 
 def _look_round(look, cam, res, mosaic):
