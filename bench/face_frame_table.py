@@ -93,10 +93,11 @@ def table(rows, merge_ict: bool = False) -> str:
 def summary(rows) -> str:
     ok = [r for r in rows if r["ok"]]
     g = groups(rows)
-    within = 0
+    within = turned = 0
     for rs in g.values():
         ups, fronts = _angles([r for r in rs if r["ok"]])
         within += sum(1 for a, b in zip(ups, fronts) if max(a, b) <= 2)
+        turned += len(ups)
     eye = [r for r in ok if r["eye_line_found"] is not None and abs(r["eye_line_found"]) <= 3]
     cen = [r for r in ok if r["center_found"] is not None and abs(r["center_found"]) <= 0.1]
     eye_t = [r for r in ok if r["eye_line_true"] is not None and abs(r["eye_line_true"]) <= 3]
@@ -108,7 +109,7 @@ def summary(rows) -> str:
         "| cases | converted | face found | turned copies within 2° of the unturned | eye line within ±3° (found / true) | "
         "centre within 10% (found / true) | finding the face, s: median / max | convert with − without looking, s: median / max |",
         "|---|---|---|---|---|---|---|---|",
-        f"| {len(rows)} | {len(ok)} | {sum(r['face_found'] for r in ok)} | {within} | {len(eye)} of {len(ok)} / {len(eye_t)} of {n_true} | "
+        f"| {len(rows)} | {len(ok)} | {sum(r['face_found'] for r in ok)} | {within} of {turned} | {len(eye)} of {len(ok)} / {len(eye_t)} of {n_true} | "
         f"{len(cen)} of {len(ok)} / {len(cen_t)} of {n_true} | "
         + (f"{np.median(face):.2f} / {max(face):.2f}" if face else "–") + " | "
         + (f"{np.median(added):.2f} / {max(added):.2f}" if added else "–") + " |"])

@@ -239,3 +239,25 @@ def test_level_turn_finds_the_turn_that_levels_a_face_even_on_a_coarse_boundary(
     r = level_turn(coarse, coarse(0.0))
     assert abs(r["eye_line_after"]) == 3.0 and abs(r["turn"] - 1 / 36) < 1 / 72
     assert level_turn(tilt, 0.4)["tries"] == 0  # within 0.5° already: no more maps
+
+
+def test_a_datasets_other_corner_sets_reuse_the_level_turn(tmp_path, monkeypatch):
+    """A dataset converts a mesh once per corner set (``corner_set=k``); the turn that levels the
+    face is found once (set 0's maps) and the other items take it: the same ``level`` record, and
+    one map each (not the levelling's maps again)."""
+    import geoface.pipeline.corner_set as cs
+    import geoface.pipeline.face as pf
+
+    mesh = load_mesh(shared_mesh("decimated-max.obj"))
+    opts = dict(res=32, preview=False, reconstruct=False)
+    first = convert(mesh, tmp_path / "a", ConvertOptions(corner_set=0, **opts), quiet=True)
+    assert first["face"]["level"]["tries"] >= 1, first["face"]["level"]
+    calls = []
+    real = cs.map_set
+    monkeypatch.setattr(cs, "map_set", lambda *a, **k: calls.append(1) or real(*a, **k))
+    other = convert(mesh, tmp_path / "b", ConvertOptions(corner_set=3, **opts), quiet=True)
+    assert other["face"]["level"] == first["face"]["level"] and len(calls) == 1, (len(calls), other["face"]["level"])
+    pf._LEVELS.clear()  # without the cache the levelling's maps are made again
+    calls.clear()
+    convert(mesh, tmp_path / "c", ConvertOptions(corner_set=3, **opts), quiet=True)
+    assert len(calls) >= 2, len(calls)

@@ -155,3 +155,21 @@ def test_synthetic_labels_are_deterministic_and_match_parameters():
             assert key in p, (p, name)
     assert len(seen) >= 6  # the set covers many expressions
     assert np.mean([lab["expression_name"] == "neutral" for lab in a]) < 0.4
+
+
+def test_an_option_added_since_a_folder_was_built_counts_as_its_default(tmp_path):
+    """A folder built before ``find_face`` existed (its ``options.json`` lacks it) resumes with
+    the default, and is refused with the other value."""
+    import json
+
+    from geoface.dataset import DatasetOptions, _record_options
+    from geoface.errors import GeofaceError
+
+    _record_options(tmp_path, DatasetOptions(res=16), rebuild=False)
+    old = json.loads((tmp_path / "options.json").read_text())
+    del old["find_face"]
+    (tmp_path / "options.json").write_text(json.dumps(old))
+    assert _record_options(tmp_path, DatasetOptions(res=16), rebuild=False) is False
+    (tmp_path / "options.json").write_text(json.dumps(old))
+    with pytest.raises(GeofaceError, match="find_face"):
+        _record_options(tmp_path, DatasetOptions(res=16, find_face=False), rebuild=False)

@@ -11,6 +11,24 @@ from .corner_set import level_turn
 
 __all__ = ["level_corners", "face_record", "corners_key", "COARSE_LEVEL_DEGREES", "LEVEL_BOUNDARY"]
 
+#: the last few meshes' level turns are kept (per process): a dataset converts each mesh once per
+#: corner set, and each item's corners are turned by the same set 0 map's eye line
+LEVEL_CACHE_SIZE = 8
+_LEVELS: dict = {}
+#: options that do not change the map of corner set 0 (the cache's key leaves them out)
+_NOT_THE_MAP = ("augment", "corner_set", "reconstruct", "preview", "metrics", "level", "find_face")
+
+
+def _level_key(solver, roi, face, opts) -> str:
+    import hashlib
+    from dataclasses import asdict
+
+    h = hashlib.sha1()
+    for a in (solver.V, solver.F, np.asarray(face["points"], np.float64)) + (() if roi is None else (np.asarray(roi),)):
+        h.update(np.ascontiguousarray(a).tobytes())
+    h.update(repr(sorted((k, repr(v)) for k, v in asdict(opts).items() if k not in _NOT_THE_MAP)).encode())
+    return h.hexdigest()
+
 
 def corners_key(corners) -> tuple:
     """A corner set as a dictionary key."""
@@ -26,9 +44,18 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
     (:meth:`geoface.param.ricci.RicciFlowSolver.refine_boundary`, to :data:`LEVEL_BOUNDARY`
     vertices: a corner moves by a 180th of the boundary, the image by 2°) and the turn sought
     again. The result goes into ``face["metrics"]["level"]``."""
+    import copy
+
     from ..param.corners import corner_sets
     from .corner_set import face_pixels, map_set
 
+    key0 = _level_key(solver, roi, face, opts)
+    if key0 in _LEVELS:  # this mesh levelled already (a dataset's other corner sets): the same turn
+        level = copy.deepcopy(_LEVELS[key0])
+        if level["boundary_vertices_added"]:
+            solver.refine_boundary(LEVEL_BOUNDARY)  # deterministic: the same boundary as then
+        face["metrics"]["level"] = level
+        return level["turn"], {}
     made: dict = {}
     tilts: dict = {}
 
@@ -60,6 +87,9 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
             level = level_turn(tilt, tilt(0.0))
     level["boundary_vertices_added"] = added
     face["metrics"]["level"] = level
+    _LEVELS[key0] = copy.deepcopy(level)
+    while len(_LEVELS) > LEVEL_CACHE_SIZE:
+        _LEVELS.pop(next(iter(_LEVELS)))
     keep = corners_key(corner_sets(solver.V, solver.F, n=8, front=front, up=up, count=1, turn=level["turn"])[0])
     return level["turn"], {k: v for k, v in made.items() if k == keep}
 
