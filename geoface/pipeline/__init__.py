@@ -84,8 +84,8 @@ class ConvertOptions:
     the eye line are the face's, and its landmarks go into ``metrics.json`` and ``meta.json``
     (default True; False: the shape's cues alone); level : where a face was found, turn the
     corner sets along the boundary until its eye line is level in the default image (corner set
-    0's final map; :func:`geoface.pipeline.corner_set.level_turn`: one more map where it is within
-    1° already, up to three more where not; default True).
+    0's final map; :func:`geoface.pipeline.corner_set.level_turn`: no more maps where it is within
+    0.5° already, up to three more where not, found once per mesh in a process; default True).
     """
 
     res: int = 512
