@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import MeshFormatError
+from ..errors import MeshFormatError, PointCloudError
 
 __all__ = ["referenced_files", "absolute_obj_indices", "read_off", "gltf_one_buffer"]
 
@@ -168,5 +168,7 @@ def read_off(path: Path) -> tuple:
         raise bad(f"cannot read {path.name} as OFF: {exc}") from None
     F = np.array(tris, np.int64).reshape(-1, 3)
     if len(F) == 0:
-        raise bad(f"{path.name} has {len(V)} vertices but no faces (a point cloud?)")
+        if len(V) == 0:
+            raise bad(f"{path.name} has no vertices and no faces")
+        raise PointCloudError(f"{path.name} is a point cloud ({len(V)} points, no triangles)")
     return V, F, colors

@@ -157,6 +157,10 @@ def load_points(path) -> tuple[np.ndarray, np.ndarray | None]:
         raise MeshFormatError(f"{path.name} holds no points")
     normals = None
     raw = getattr(loaded, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
-    if raw is not None and all(c in raw.dtype.names for c in ("nx", "ny", "nz")):
-        normals = np.column_stack([raw["nx"], raw["ny"], raw["nz"]]).astype(np.float64)
+    # a binary PLY's vertex columns are a structured array, an ASCII PLY's a dict of arrays
+    names = () if raw is None else (tuple(raw.keys()) if isinstance(raw, dict) else (raw.dtype.names or ()))
+    if all(c in names for c in ("nx", "ny", "nz")):
+        normals = np.column_stack([np.asarray(raw[c], np.float64).ravel() for c in ("nx", "ny", "nz")])
+        if normals.shape != P.shape:
+            normals = None
     return P, normals

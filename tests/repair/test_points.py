@@ -68,3 +68,69 @@ def test_convert_and_repair_take_a_point_cloud(tmp_path, capsys):
 def test_bad_points():
     with pytest.raises(GeofaceError, match=r"\(n, 3\)"):
         surface_from_points(np.zeros((30, 2)))
+
+
+def _write_cloud(path: Path, P, N=None):
+    """``P`` (and normals ``N``) as the file ``path`` names: PLY (ascii or binary by the stem's
+    end), OBJ (``v``/``vn``), OFF (no faces), XYZ (3 or 6 columns)."""
+    fmt = path.suffix.lower()
+    if fmt == ".ply":
+        binary = path.stem.endswith("bin")
+        props = ["x", "y", "z"] + (["nx", "ny", "nz"] if N is not None else [])
+        head = ("ply\nformat " + ("binary_little_endian" if binary else "ascii") + f" 1.0\nelement vertex {len(P)}\n"
+                + "".join(f"property float {p}\n" for p in props) + "end_header\n")
+        A = P if N is None else np.hstack([P, N])
+        with path.open("wb") as f:
+            f.write(head.encode())
+            if binary:
+                f.write(A.astype("<f4").tobytes())
+            else:
+                f.write("".join(" ".join(f"{x:.6f}" for x in row) + "\n" for row in A.astype(np.float32)).encode())
+    elif fmt == ".obj":
+        lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in P.astype(np.float32)]
+        path.write_text("\n".join(lines) + "\n")
+    elif fmt == ".off":
+        path.write_text(f"OFF\n{len(P)} 0 0\n" + "".join(f"{x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in P.astype(np.float32)))
+    else:
+        A = P if N is None else np.hstack([P, N])
+        np.savetxt(path, A.astype(np.float32), fmt="%.6f")
+
+
+def test_every_cloud_format_reads_the_same_points_and_normals(tmp_path):
+    """The vertices and normals of a real scan (face.obj, decimated) as ASCII and binary PLY, OBJ,
+    OFF and XYZ: the same points from every file (to float32), the same normals where the format
+    has them, and the same surface (to rounding) from those that carry normals (an ASCII PLY once crashed:
+    its columns are a dict, not a structured array)."""
+    import trimesh
+
+    from tests.helpers import shared_mesh
+
+    m = load_mesh(shared_mesh("face.obj"))
+    t = trimesh.Trimesh(m.V, m.F, process=False)
+    P, N = np.asarray(t.vertices[::10], np.float64), np.asarray(t.vertex_normals[::10], np.float64)
+    ref = P.astype(np.float32).astype(np.float64)
+    surfaces = {}
+    for name, with_normals in (("a.ply", True), ("abin.ply", True), ("a.xyz", True), ("a.obj", False), ("a.off", False),
+                               ("b.xyz", False)):
+        f = tmp_path / name
+        _write_cloud(f, P, N if with_normals else None)
+        Q, M = load_points(f)
+        np.testing.assert_allclose(Q, ref, atol=2e-5 * np.abs(ref).max(), err_msg=name)
+        assert (M is not None) == with_normals, name
+        if with_normals:
+            np.testing.assert_allclose(M, N, atol=1e-5, err_msg=name)
+            s = surface_from_points(Q, M)
+            surfaces[name] = (len(s.V), float(topology_report(s.V, s.F).surface_area))
+    counts, areas = {v[0] for v in surfaces.values()}, [v[1] for v in surfaces.values()]
+    assert len(counts) == 1 and max(areas) - min(areas) < 1e-5 * max(areas), surfaces  # float32 text vs binary
+
+
+def test_an_off_point_cloud_is_a_point_cloud(tmp_path):
+    """An OFF with vertices and no faces reads as a point cloud (the CLI reconstructs a surface),
+    not as a broken mesh."""
+    from geoface.errors import PointCloudError
+
+    f = tmp_path / "c.off"
+    _write_cloud(f, np.random.default_rng(0).normal(size=(40, 3)))
+    with pytest.raises(PointCloudError, match="point cloud"):
+        load_mesh(f)
