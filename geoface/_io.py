@@ -246,7 +246,33 @@ def atomic_write_text(target: str | os.PathLike, text: str) -> None:
 
 
 def _resolved(p) -> Path:
-    return Path(os.path.abspath(os.path.expanduser(str(p)))).resolve()
+    try:
+        return Path(os.path.abspath(os.path.expanduser(str(p)))).resolve()
+    except (RuntimeError, OSError) as e:  # Python raises RuntimeError for a loop of links
+        raise GeofaceError(f"{p}: a loop of symbolic links ({type(e).__name__})") from None
+
+
+def check_input(p) -> None:
+    """An input path the commands can read: a loop of symbolic links, a device, a FIFO or a socket
+    (which would block, or never end: ``/dev/zero``) is refused with one line. A path that does
+    not exist is left to the command (it names what it expected)."""
+    import stat
+
+    q = os.path.expanduser(str(p))
+    try:
+        st = os.stat(q)  # follows links: what the command would read
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        import errno
+
+        if e.errno == errno.ELOOP:
+            raise GeofaceError(f"{p}: a loop of symbolic links") from None
+        raise GeofaceError(f"{p}: cannot be read ({e.strerror})") from None
+    kind = next((name for test, name in ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                                         (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket")) if test(st.st_mode)), None)
+    if kind:
+        raise GeofaceError(f"{p} is {kind}, not a file or folder")
 
 
 def _inside(child: Path, parent: Path) -> bool:
@@ -288,6 +314,9 @@ def check_outputs(inputs=(), outputs=(), *, force: bool = False, resumable=()) -
     force : an existing output may be replaced
     resumable : outputs that may exist without ``force`` (a folder the command resumes)
     """
+    for p in inputs:
+        if p is not None:
+            check_input(p)
     ins = [(p, _resolved(p)) for p in inputs if p is not None]
     outs = [(p, _resolved(p)) for p in outputs if p is not None]
     for p, _ in outs:

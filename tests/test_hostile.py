@@ -59,6 +59,18 @@ def test_a_fifo_is_never_replaced(tmp_path):
     assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
 
 
+@pytest.mark.parametrize("verb", [("repair", "-o", "x.obj"), ("convert", "-o", "xo"), ("inspect",), ("track", "-o", "t.json")])
+def test_an_input_that_is_a_link_loop_a_device_or_a_fifo_is_one_line(tmp_path, verb):
+    """An input that is a loop of symbolic links, a link to /dev/zero or a FIFO: one line and exit 2
+    at once (not a traceback, not a read that never ends)."""
+    (tmp_path / "loop.obj").symlink_to("loop.obj")
+    (tmp_path / "zero.obj").symlink_to("/dev/zero")
+    os.mkfifo(tmp_path / "pipe.obj")
+    for name, why in (("loop.obj", "loop of symbolic links"), ("zero.obj", "character device"), ("pipe.obj", "FIFO")):
+        code, _, err = run(verb[0], name, *verb[1:], cwd=tmp_path)
+        assert one_line_error(code, err) and why in err, (verb, name, err)
+
+
 def test_files_an_input_references_are_never_outputs(tmp_path):
     """An OBJ whose MTL and texture are not named after it: neither may become an output,
     --force or not (the guard runs before any work)."""
