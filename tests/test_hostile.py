@@ -393,3 +393,26 @@ def test_one_vocabulary_for_up():
         assert np.allclose(as_axis(a), as_axis(b)) and np.allclose(as_axis(a), parse_up(b))
     with pytest.raises(GeofaceError):
         as_axis("w")
+
+
+@pytest.mark.parametrize("args,why", [
+    (("convert", "h.obj", "-o", "o", "--up", "y", "--front", "y"), "parallel"),
+    (("convert", "h.obj", "-o", "o", "--up", "y", "--front=-y"), "parallel"),
+    (("track", "h.obj", "-o", "t.json", "--smooth", "--fps", "inf"), "--fps"),
+    (("track", "h.obj", "-o", "t.json", "--fps", "0"), "--fps"),
+    (("track", "h.obj", "-o", "t.json", "--fps", "nan"), "--fps"),
+])
+def test_contradictory_or_infinite_options_are_one_line(tmp_path, args, why):
+    """Up and front along one axis, a frame rate of 0, inf or NaN: one line, exit 2, nothing written."""
+    _tet(tmp_path, "h.obj")
+    code, _, err = run(*args, cwd=tmp_path)
+    assert one_line_error(code, err) and why in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["h.obj"]
+
+
+def test_the_tracker_refuses_a_frame_rate_that_is_not_one(tmp_path):
+    from geoface.track import track_input
+
+    for bad in (0, -1, float("inf"), float("nan")):
+        with pytest.raises(GeofaceError, match="fps"):
+            track_input(tmp_path / "x.png", tmp_path / "t.json", fps=bad)

@@ -2,6 +2,8 @@
 tracker, for an image, a folder of frames, a video or a capture folder."""
 from __future__ import annotations
 
+from .._args import number
+
 from pathlib import Path
 
 from ..errors import GeofaceError
@@ -48,7 +50,7 @@ def register(sub, common) -> None:
     s.add_argument("--smooth", action="store_true",
                    help="videos and folders: also smooth the landmarks with a One Euro filter (no lag on fast motion; "
                         "MediaPipe's video mode already filters them, so the gain is small)")
-    s.add_argument("--fps", type=float, default=None, metavar="FPS",
+    s.add_argument("--fps", type=number(float, 0, 1000, lo_open=True), default=None, metavar="FPS",
                    help="frame rate of a folder of frames, for the smoothing (default: the video's, else 25)")
     s.add_argument("--no-masks", action="store_true", help="capture folders: keep the capture's own masks/ "
                                                            "(default: segment the person)")

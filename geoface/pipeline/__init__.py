@@ -142,9 +142,17 @@ class ConvertOptions:
             from ..repair.opening import as_axis
 
             try:
-                as_axis(self.front)
+                f = as_axis(self.front)
             except GeofaceError as e:
                 raise GeofaceError(f"front must be 'auto', an axis name or a 3-vector; got {self.front!r}") from e
+            if not (isinstance(self.up, str) and self.up == "auto"):
+                try:
+                    u = as_axis(self.up)
+                except GeofaceError as e:
+                    raise GeofaceError(f"up must be 'auto', an axis name or a 3-vector; got {self.up!r}") from e
+                if abs(float(np.dot(u, f))) > np.cos(np.radians(5.0)):
+                    raise GeofaceError(f"up {self.up!r} and front {self.front!r} are parallel: the front must be "
+                                       "across the up axis")
         if isinstance(self.roi, str) and self.roi not in ("face", "none"):
             raise GeofaceError(f"roi must be 'face', 'none' or a vertex mask; got {self.roi!r}")
         return self

@@ -336,6 +336,8 @@ def track_input(path, out_json, *, masks_dir=None, smooth: bool = False, fps: fl
     out_json = Path(out_json)
     if out_json.suffix.lower() != ".json":
         raise GeofaceError(f"{out_json}: the landmarks are written as JSON (name it .json)")
+    if fps is not None and not (isinstance(fps, (int, float)) and np.isfinite(fps) and 0 < fps <= 1000):
+        raise GeofaceError(f"fps must be a finite number in (0, 1000]; got {fps!r}")
     check_outputs([path], [out_json] + ([masks_dir] if masks_dir else []), force=overwrite)
     frames, names, rate = read_frames(path)
     rate = fps or rate or 25.0
