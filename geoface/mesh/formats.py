@@ -81,17 +81,22 @@ def gltf_one_buffer(path: Path, data: dict) -> tuple[bytes, dict]:
     return json.dumps(doc).encode("utf-8"), side
 
 
-def absolute_obj_indices(text: str) -> str | None:
+_OBJ_KIND = {"v": "vertex", "vt": "texture coordinate", "vn": "normal"}
+
+
+def absolute_obj_indices(text: str, name: str = "the OBJ") -> str | None:
     """``text`` with every negative (relative) OBJ index made absolute, or None when it has
     none.  In OBJ ``-1`` is the last vertex *defined so far*; trimesh reads it as the last of
-    the file, which is wrong as soon as vertices follow a face."""
+    the file, which is wrong as soon as vertices follow a face.  An index that points before the
+    first vertex (``-5`` after three) is a :class:`MeshFormatError` naming ``name`` and the line,
+    not an index that wraps round to the end."""
     import re
 
     if not re.search(r"^[ \t]*[fl][ \t][^\n]*(?<=[ \t/])-\d", text, re.M):
         return None
     counts = {"v": 0, "vt": 0, "vn": 0}
     out = []
-    for ln in text.splitlines():
+    for number, ln in enumerate(text.splitlines(), 1):
         w = ln.split()
         if w and w[0] in counts:
             counts[w[0]] += 1
@@ -102,9 +107,13 @@ def absolute_obj_indices(text: str) -> str | None:
                 for k, key in enumerate(("v", "vt", "vn")[: len(parts)]):
                     if parts[k].startswith("-"):
                         try:
-                            parts[k] = str(counts[key] + int(parts[k]) + 1)
+                            absolute = counts[key] + int(parts[k]) + 1
                         except ValueError:
-                            pass  # not a number: trimesh reports it
+                            continue  # not a number: trimesh reports it
+                        if absolute < 1:
+                            raise MeshFormatError(f"{name}, line {number}: index {parts[k]} points before the first "
+                                                  f"{_OBJ_KIND[key]} ({counts[key]} defined so far)")
+                        parts[k] = str(absolute)
                 toks.append("/".join(parts))
             ln = " ".join([w[0], *toks])
         out.append(ln)

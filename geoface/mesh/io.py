@@ -85,7 +85,7 @@ def load_mesh(path: str | os.PathLike, *, weld: bool = True) -> Mesh:
         _check_obj_indices(path, text)
         from .formats import absolute_obj_indices
 
-        fixed = absolute_obj_indices(text)
+        fixed = absolute_obj_indices(text, path.name)
         if fixed is not None:  # negative (relative) indices: trimesh counts them from the end of the file
             import io
 

@@ -249,3 +249,17 @@ def test_plain_obj_fast_path_on_a_real_scan_and_what_it_leaves_to_trimesh(monkey
                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n", "v 0 0 0 1 0 0\nv 1 0 0 1 0 0\nv 0 1 0 1 0 0\nf 1 2 3\n",
                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n"):
         assert io._plain_obj(text) is None
+
+
+def test_a_negative_obj_index_before_the_first_vertex_is_refused(tmp_path):
+    """``f -5 -6 -7`` after three vertices points before the file's first vertex: refused with the
+    line, not wrapped round to the end (it once read as one face); ``f -3 -2 -1`` is the triangle."""
+    from geoface.errors import MeshFormatError
+    from geoface.mesh.io import load_mesh
+
+    (tmp_path / "bad.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -5 -6 -7\n")
+    with pytest.raises(MeshFormatError, match=r"line 4: index -5 points before the first vertex"):
+        load_mesh(tmp_path / "bad.obj")
+    (tmp_path / "ok.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 5 5 5\n")
+    m = load_mesh(tmp_path / "ok.obj")
+    assert m.F.tolist() == [[0, 1, 2]] and len(m.V) == 3
