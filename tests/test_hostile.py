@@ -416,3 +416,17 @@ def test_the_tracker_refuses_a_frame_rate_that_is_not_one(tmp_path):
     for bad in (0, -1, float("inf"), float("nan")):
         with pytest.raises(GeofaceError, match="fps"):
             track_input(tmp_path / "x.png", tmp_path / "t.json", fps=bad)
+
+
+def test_two_frames_of_one_name_are_refused_before_their_masks_collide(tmp_path):
+    """A folder with 0000.png and 0000.jpg: their masks would both be 0000.png (one lost)."""
+    from geoface.images import save_image
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    img = np.zeros((32, 32, 3), np.uint8)
+    for name in ("0000.png", "0000.jpg", "0001.png"):
+        save_image(frames / name, img)
+    code, _, err = run("track", frames, "-o", tmp_path / "t.json", "--masks", tmp_path / "m")
+    assert one_line_error(code, err) and "'0000'" in err, err
+    assert not (tmp_path / "m").exists() and not (tmp_path / "t.json").exists()

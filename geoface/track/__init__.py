@@ -302,6 +302,12 @@ def read_frames(path) -> tuple[list, list, float | None]:
         files = sorted(f for f in p.iterdir() if f.suffix.lower() in _IMAGE_SUFFIXES and f.is_file())
         if not files:
             raise GeofaceError(f"{p}: no images ({', '.join(_IMAGE_SUFFIXES)}) in the folder")
+        stems: dict = {}
+        for f in files:  # each frame's outputs (its mask) are named by its stem
+            if f.stem in stems:
+                raise GeofaceError(f"{p}: two frames share the name {f.stem!r} ({stems[f.stem]}, {f.name}); "
+                                   "rename one")
+            stems[f.stem] = f.name
         frames = [_uint8(read_image(f)) for f in files]
         if len({f.shape for f in frames}) > 1:
             raise GeofaceError(f"{p}: the images are not all the same size")
