@@ -170,6 +170,10 @@ def area_error(F: np.ndarray, uv: np.ndarray, nu: np.ndarray) -> float:
     return float(np.mean(np.abs(np.log(np.maximum(va, 1e-300) / nu))))
 
 
+#: the largest ROI mass factor: beyond it the cells' masses span more than the linear solves hold
+MAX_LAM = 1e6
+
+
 class MeasurePreservingSolver:
     """Measure-preserving maps of one disk ``(V, F)``: the mesh is checked and its vertex areas
     and boundary found once; :meth:`solve` maps any starting ``uv`` (several corner sets, several
@@ -186,7 +190,19 @@ class MeasurePreservingSolver:
 
     def __init__(self, V, F, *, tol: float = 1e-3, fold_free: bool = True, linear_solver: str = "auto",
                  backend: str = "auto", quiet: bool | None = None):
+        from .linsolve import METHODS
+        from .power import BACKENDS
+
+        if not (isinstance(tol, (int, float)) and np.isfinite(tol) and 0 < tol < 1):
+            raise ParameterizationError(f"tol must be a number in (0, 1); got {tol!r}")
+        if backend not in BACKENDS:
+            raise ParameterizationError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
+        if linear_solver not in METHODS:
+            raise ParameterizationError(f"linear_solver must be one of {', '.join(METHODS)}; got {linear_solver!r}")
         V, F = check_mesh(V, F)
+        if not boundary_loops(F):
+            raise ParameterizationError("the mesh has no boundary (a closed surface): a measure-preserving map needs "
+                                        "a disk (geoface.repair.make_disk)")
         n = len(V)
         va = vertex_areas(V, F)
         used = np.zeros(n, bool)
@@ -212,8 +228,8 @@ class MeasurePreservingSolver:
         ``blend`` β > 0, ``ν_i^(1-β) · (uv area_i)^β`` (same total), ``uv`` the starting map;
         then times ``1 + γ f_i``, ``f`` the :func:`sharpness` and γ = ``feature``."""
         n = len(self.V)
-        if not (np.isfinite(lam) and lam > 0):
-            raise ParameterizationError(f"lam must be positive; got {lam}")
+        if not (np.isfinite(lam) and 0 < lam <= MAX_LAM):
+            raise ParameterizationError(f"lam must be in (0, {MAX_LAM:g}]; got {lam}")
         if not (np.isfinite(blend) and 0.0 <= blend < 1.0):
             raise ParameterizationError(f"blend must be in [0, 1); got {blend}")
         if not (np.isfinite(feature) and feature >= 0):
@@ -223,6 +239,8 @@ class MeasurePreservingSolver:
             roi = np.asarray(roi)
             if roi.shape != (n,):
                 raise ParameterizationError(f"roi must be a ({n},) vertex mask; got shape {roi.shape}")
+            if roi.dtype.kind not in "biu" and not (roi.dtype.kind == "f" and np.isin(roi, (0.0, 1.0)).all()):
+                raise ParameterizationError("roi must be a boolean vertex mask (or 0/1 values)")
             weight = np.where(roi.astype(bool), float(lam), 1.0)
         va = self.vertex_areas
         # a vertex whose triangles are all flat (the flow's intrinsic flips can leave a corner on
@@ -262,6 +280,10 @@ class MeasurePreservingSolver:
             raise ParameterizationError("uv must lie in the unit square (use RicciFlowResult.unit_square())")
         nu = self.masses(roi, lam, uv=uv, blend=blend, feature=feature)
         roi = None if roi is None else np.asarray(roi)
+        if h0 is not None:
+            h0 = np.asarray(h0, np.float64)
+            if h0.shape != (n,) or not np.isfinite(h0).all():
+                raise ParameterizationError(f"h0 must be a finite ({n},) array of heights; got shape {h0.shape}")
         self.warm_started = False
         if h0 is None and self._warm is not None and np.array_equal(self._warm[0], uv):
             h0, self.warm_started = self._warm[1], True

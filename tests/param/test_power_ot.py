@@ -553,3 +553,26 @@ def test_blend_keeps_the_band_at_the_cut_wide(head_map):
         share[beta] = m.roi_share
     assert p95[0.2] < p95[0.0] / 4
     assert 0.7 * share[0.0] < share[0.2] < share[0.0]
+
+
+def test_the_solver_refuses_arguments_that_cannot_be_solved(head_map):
+    """Every argument checked where it enters: a tolerance that is not one, an unknown backend or
+    linear solver, a closed surface, a mass factor beyond what the linear solves hold (1e300 once
+    reached CHOLMOD), a NaN or fractional ROI, heights of the wrong shape or NaN."""
+    from geoface.param.measure import MeasurePreservingSolver
+    from geoface.synth import sphere
+
+    h, r = head_map
+    uv = r.unit_square()
+    for kw in ({"tol": float("nan")}, {"tol": 0}, {"tol": -1}, {"backend": "bogus"}, {"linear_solver": "x"}):
+        with pytest.raises(ParameterizationError, match=next(iter(kw))):
+            MeasurePreservingSolver(h.V, r.F, **kw)
+    with pytest.raises(ParameterizationError, match="closed surface"):
+        MeasurePreservingSolver(*sphere(1.0, 2))
+    solver = MeasurePreservingSolver(h.V, r.F)
+    n = len(h.V)
+    bad_roi = np.where(h.face_mask, 1.0, np.nan)
+    for kw, what in (({"lam": 1e300}, "lam"), ({"roi": bad_roi}, "roi"), ({"roi": np.full(n, 0.5)}, "roi"),
+                     ({"h0": np.zeros(3)}, "h0"), ({"h0": np.full(n, np.nan)}, "h0")):
+        with pytest.raises(ParameterizationError, match=what):
+            solver.solve(uv, **kw)
