@@ -252,6 +252,34 @@ def _resolved(p) -> Path:
         raise GeofaceError(f"{p}: a loop of symbolic links ({type(e).__name__})") from None
 
 
+def check_tree(src, _seen: set | None = None) -> None:
+    """:func:`check_input` for the file or folder ``src`` and everything it holds, links followed:
+    a loop of links (a folder linking to itself or above), a device, a FIFO or a socket anywhere
+    inside is a :class:`GeofaceError`, before any work."""
+    src = Path(src)
+    check_input(src)
+    if src.is_dir():
+        real = os.path.realpath(src)
+        seen = set() if _seen is None else _seen
+        if real in seen:
+            raise GeofaceError(f"{src}: a link to a folder that holds it (a loop)")
+        seen.add(real)
+        for q in sorted(src.iterdir()):
+            check_tree(q, seen)
+        seen.discard(real)
+
+
+def copy_checked(src, dst) -> None:
+    """Copy the file or folder ``src`` to ``dst`` as what it holds (links to regular files and
+    folders followed), after :func:`check_tree`: ``shutil`` alone would copy ``/dev/zero`` until
+    the disk is full, or wait on a FIFO for ever."""
+    check_tree(src)
+    if Path(src).is_dir():
+        shutil.copytree(src, dst)
+    else:
+        shutil.copy2(src, dst)
+
+
 def check_input(p) -> None:
     """An input path the commands can read: a loop of symbolic links, a device, a FIFO or a socket
     (which would block, or never end: ``/dev/zero``) is refused with one line. A path that does

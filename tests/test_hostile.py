@@ -430,3 +430,25 @@ def test_two_frames_of_one_name_are_refused_before_their_masks_collide(tmp_path)
     code, _, err = run("track", frames, "-o", tmp_path / "t.json", "--masks", tmp_path / "m")
     assert one_line_error(code, err) and "'0000'" in err, err
     assert not (tmp_path / "m").exists() and not (tmp_path / "t.json").exists()
+
+
+@pytest.mark.parametrize("bad", ["zero", "fifo", "loop"])
+def test_a_capture_holding_a_device_a_fifo_or_a_folder_loop_is_one_line(tmp_path, bad):
+    """``ln -s /dev/zero cap/zero.bin; geoface track cap -o t`` once copied zeros until the disk was
+    full; a FIFO would block for ever; a folder linking to its capture loops. One line, exit 2,
+    nothing written, at once."""
+    from geoface.images import save_image
+
+    cap = tmp_path / "cap"
+    (cap / "frames").mkdir(parents=True)
+    save_image(cap / "frames" / "0000.png", np.zeros((32, 32, 3), np.uint8))
+    if bad == "zero":
+        (cap / "zero.bin").symlink_to("/dev/zero")
+    elif bad == "fifo":
+        os.mkfifo(cap / "pipe")
+    else:
+        (cap / "frames" / "up").symlink_to(cap)
+    p = subprocess.run([sys.executable, "-m", "geoface", "--quiet", "track", str(cap), "-o", str(tmp_path / "t")],
+                       capture_output=True, text=True, timeout=60)
+    assert one_line_error(p.returncode, p.stderr), p.stderr
+    assert not (tmp_path / "t").exists()

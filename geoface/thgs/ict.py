@@ -214,7 +214,9 @@ def perturb_capture(src, dst, perturb: tuple, seed: int = 0) -> Path:
     tmp = dst.with_name(f".{dst.name}.tmp")
     if tmp.exists():
         shutil.rmtree(tmp)
-    shutil.copytree(src, tmp)
+    from .._io import copy_checked
+
+    copy_checked(src, tmp)
     with np.load(truth, allow_pickle=False) as z:
         rot, transl, expr = z["rot"], z["transl"], z["expr"]
     rot, transl = _perturbed(rot, transl, deg, mm, np.random.default_rng([seed, 7202]))

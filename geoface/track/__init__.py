@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import shutil
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -373,11 +372,12 @@ def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, heads
     ``keep_originals``: keep the replaced ``landmarks.json`` and ``masks/`` too, as
     ``landmarks_true.json`` and ``masks_true/`` (a renderer's truth, for evaluation). ``out_dir``
     may be ``capture_dir`` itself (with ``overwrite``): the folder is replaced when complete."""
-    from geoface._io import output_folder
+    from geoface._io import check_tree, copy_checked, output_folder
     from geoface.landmarks import IBUG68_NAMES
     from geoface.images import read_image, save_image
 
     src = Path(capture_dir)
+    check_tree(src)  # what it holds is copied: no loop, device or FIFO inside (before the tracking)
     files = sorted((src / "frames").glob("*.png"))
     if not files:
         raise GeofaceError(f"{src}/frames holds no PNG frames")
@@ -401,9 +401,9 @@ def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, heads
             if {"landmarks.json": True, "masks": masks, "hmd_masks": headset}.get(p.name):  # replaced below
                 true = p.name.replace(".json", "_true.json") if p.suffix else p.name + "_true"
                 if not ((src / true).exists() or (p.name != "hmd_masks" and not keep_originals)):
-                    (shutil.copytree if p.is_dir() else shutil.copy2)(p, tmp / true)  # the truth, kept once
+                    copy_checked(p, tmp / true)  # the truth, kept once
                 continue
-            (shutil.copytree if p.is_dir() else shutil.copy2)(p, tmp / p.name)
+            copy_checked(p, tmp / p.name)
         for sub, ms in (("hmd_masks", hmd), ("masks", tr.masks if masks else None)):
             if ms is not None:
                 (tmp / sub).mkdir()
