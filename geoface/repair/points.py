@@ -75,17 +75,26 @@ def surface_from_points(P, normals=None, *, depth: int | None = None, k: int = 1
     P = np.asarray(P, np.float64)
     if P.ndim != 2 or P.shape[1] != 3:
         raise InvalidMeshError(f"points must be an (n, 3) array; got shape {P.shape}")
-    keep = np.isfinite(P).all(1)
-    if not keep.all():
-        log(f"points: {int((~keep).sum())} non-finite points dropped", quiet=quiet)
-    P = P[keep]
+    bad = ~np.isfinite(P).all(1)
+    if bad.any():
+        raise InvalidMeshError(f"{int(bad.sum())} of {len(P)} points have coordinates that are not finite "
+                               f"(the first: point {int(np.flatnonzero(bad)[0])})")
     if len(np.unique(P, axis=0)) < 20:
-        raise InvalidMeshError(f"a point cloud needs at least 20 distinct points for a surface; got {len(P)}")
+        raise InvalidMeshError(f"a point cloud needs at least 20 distinct points for a surface; got {len(np.unique(P, axis=0))}")
+    sv = np.linalg.svd(P - P.mean(0), compute_uv=False)
+    if sv[1] <= 1e-9 * sv[0]:
+        raise InvalidMeshError(f"the {len(P)} points lie on a line: no surface")
+    if sv[2] <= 1e-9 * sv[0]:
+        raise InvalidMeshError(f"the {len(P)} points lie in a plane: no surface with an inside")
     N = None
     if normals is not None:
-        N = np.asarray(normals, np.float64)[keep]
+        N = np.asarray(normals, np.float64)
+        if N.shape != P.shape:
+            raise InvalidMeshError(f"normals must be an array like the points, {P.shape}; got {N.shape}")
+        if not np.isfinite(N).all():
+            raise InvalidMeshError(f"{int((~np.isfinite(N).all(1)).sum())} of {len(P)} normals are not finite")
         length = np.linalg.norm(N, axis=1)
-        if N.shape != P.shape or not np.isfinite(N).all() or (length < 1e-12).mean() > 0.01:
+        if (length < 1e-12).mean() > 0.01:
             N = None  # unusable normals: estimate them
         else:
             N = N / np.maximum(length, 1e-12)[:, None]
