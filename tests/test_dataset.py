@@ -173,3 +173,24 @@ def test_an_option_added_since_a_folder_was_built_counts_as_its_default(tmp_path
     (tmp_path / "options.json").write_text(json.dumps(old))
     with pytest.raises(GeofaceError, match="find_face"):
         _record_options(tmp_path, DatasetOptions(res=16, find_face=False), rebuild=False)
+
+
+def test_a_build_that_fails_before_any_item_leaves_nothing(heads, tmp_path, monkeypatch):
+    """An unreachable scheduler (the executor fails) into a new folder: the folder is gone again;
+    a folder whose manifest is binary: refused before its options.json is written."""
+    import geoface.dataset as D
+    from geoface.errors import GeofaceError
+
+    def unreachable(workers, scheduler):
+        raise GeofaceError("cannot connect to the Dask scheduler tcp://127.0.0.1:9")
+
+    monkeypatch.setattr(D, "executor", unreachable)
+    with pytest.raises(GeofaceError, match="scheduler"):
+        D.build_dataset(heads, tmp_path / "new", D.DatasetOptions(res=16, augment=1), scheduler="tcp://127.0.0.1:9", quiet=True)
+    assert not (tmp_path / "new").exists()
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "manifest.jsonl").write_bytes(b"\xff\xfe\x00binary")
+    with pytest.raises(GeofaceError, match="not a text file"):
+        D.build_dataset(heads, old, D.DatasetOptions(res=16, augment=1), workers=1, quiet=True)
+    assert sorted(p.name for p in old.iterdir()) == ["manifest.jsonl"]

@@ -329,7 +329,25 @@ def _build(sources, out_dir, opts: DatasetOptions, lab: dict | None, source: dic
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise GeofaceError(f"output path exists and is not a folder: {out}")
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
+    try:
+        return _build_into(out, sources, opts, lab, source, workers=workers, scheduler=scheduler,
+                           retry_failed=retry_failed, rebuild=rebuild, quiet=quiet, what=what, before=before)
+    except BaseException:
+        # a build that failed before any item (an unreachable scheduler, a full disk) leaves no
+        # folder of its own making behind: only its records would be in it
+        if created and not any(p.is_dir() for p in out.iterdir()):
+            import shutil
+
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def _build_into(out: Path, sources, opts: DatasetOptions, lab: dict | None, source: dict | None, *, workers, scheduler,
+                retry_failed: bool, rebuild: bool, quiet, what: str, before=None) -> dict:
+    if not rebuild and (out / MANIFEST).is_file():
+        read_manifest(out)  # an unreadable manifest is refused before anything is written
     changed = _record_options(out, opts, rebuild, source)
     if before is not None:
         before()
