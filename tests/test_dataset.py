@@ -194,3 +194,22 @@ def test_a_build_that_fails_before_any_item_leaves_nothing(heads, tmp_path, monk
     with pytest.raises(GeofaceError, match="not a text file"):
         D.build_dataset(heads, old, D.DatasetOptions(res=16, augment=1), workers=1, quiet=True)
     assert sorted(p.name for p in old.iterdir()) == ["manifest.jsonl"]
+
+
+def test_a_second_build_into_the_same_folder_is_refused_while_the_first_runs(heads, tmp_path):
+    """Two builds into one folder once both exited 0 with every manifest row twice: the folder is
+    locked for a build (flock on the folder), so while one holds it another is one line; after it,
+    the build runs."""
+    import os
+
+    import geoface.dataset as D
+
+    out = tmp_path / "ds"
+    out.mkdir()
+    held = D._lock_folder(out)  # as a running build holds it
+    try:
+        with pytest.raises(GeofaceError, match="another dataset build is writing into"):
+            build_dataset(heads, out, DatasetOptions(res=16, augment=1, find_face=False), workers=1, quiet=True)
+    finally:
+        os.close(held)
+    assert build_dataset(heads, out, DatasetOptions(res=16, augment=1, find_face=False), workers=1, quiet=True)["done"] > 0

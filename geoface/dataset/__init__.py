@@ -331,6 +331,7 @@ def _build(sources, out_dir, opts: DatasetOptions, lab: dict | None, source: dic
         raise GeofaceError(f"output path exists and is not a folder: {out}")
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
+    lock = _lock_folder(out)
     try:
         return _build_into(out, sources, opts, lab, source, workers=workers, scheduler=scheduler,
                            retry_failed=retry_failed, rebuild=rebuild, quiet=quiet, what=what, before=before)
@@ -342,6 +343,27 @@ def _build(sources, out_dir, opts: DatasetOptions, lab: dict | None, source: dic
 
             shutil.rmtree(out, ignore_errors=True)
         raise
+    finally:
+        if lock is not None:
+            os.close(lock)  # the lock goes with the descriptor
+
+
+def _lock_folder(out: Path):
+    """An exclusive lock on the dataset folder itself (``flock`` on its descriptor: no lock file to
+    leave behind) for the whole build; a second build into the same folder is refused with one
+    line instead of writing every manifest row twice. None where the system has no ``flock``."""
+    try:
+        import fcntl
+    except ImportError:  # not a POSIX system
+        return None
+    fd = os.open(out, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        raise GeofaceError(f"another dataset build is writing into {out}; wait for it to finish or build into "
+                           "another folder") from None
+    return fd
 
 
 def _build_into(out: Path, sources, opts: DatasetOptions, lab: dict | None, source: dict | None, *, workers, scheduler,
