@@ -452,3 +452,15 @@ def test_a_capture_holding_a_device_a_fifo_or_a_folder_loop_is_one_line(tmp_path
                        capture_output=True, text=True, timeout=60)
     assert one_line_error(p.returncode, p.stderr), p.stderr
     assert not (tmp_path / "t").exists()
+
+
+def test_a_screenshot_over_the_meta_file_or_not_an_image_is_refused(tmp_path):
+    """``view scan.obj --meta scan.json --screenshot scan.json --force`` once reached OpenCV with a
+    JSON path: the screenshot must be an image path, and --meta is an input no output replaces."""
+    _tet(tmp_path, "h.obj")
+    (tmp_path / "m.json").write_text("{}")
+    (tmp_path / "m.png").write_text("{}")
+    for meta, shot, why in (("m.json", "m.json", ".png or .jpg"), ("m.png", "m.png", "input")):
+        code, _, err = run("view", "h.obj", "--meta", meta, "--screenshot", shot, "--force", cwd=tmp_path)
+        assert one_line_error(code, err) and why in err, err
+    assert (tmp_path / "m.json").read_text() == "{}" and (tmp_path / "m.png").read_text() == "{}"

@@ -385,9 +385,11 @@ def cmd_view(args) -> int:
                            "or --web) to look at it another way")
     if movie is not None and Path(movie).suffix.lower() != ".mp4":
         raise GeofaceError(f"--turntable: an .mp4 path; got {movie}")
+    if shot is not None and Path(shot).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        raise GeofaceError(f"--screenshot: a .png or .jpg path; got {shot}")
     path = Path(args.file[0])
     if shot is not None or movie is not None:
-        guard_outputs(args, [path], [shot or movie])
+        guard_outputs(args, [path, getattr(args, "meta", None)], [shot or movie])
     from ..webview.items import item_kind
 
     if path.is_file() and item_kind(path) == "splat":  # Gaussian splats: our rasterizer, off-screen
