@@ -464,3 +464,32 @@ def test_a_screenshot_over_the_meta_file_or_not_an_image_is_refused(tmp_path):
         code, _, err = run("view", "h.obj", "--meta", meta, "--screenshot", shot, "--force", cwd=tmp_path)
         assert one_line_error(code, err) and why in err, err
     assert (tmp_path / "m.json").read_text() == "{}" and (tmp_path / "m.png").read_text() == "{}"
+
+
+def test_an_interrupt_as_a_command_returns_is_no_traceback(monkeypatch, capsys):
+    """Ctrl-C landing as a command finishes (talk animate, hmd remove) once printed a
+    KeyboardInterrupt traceback and exited 0: the run ends as the command did, quietly; one that
+    lands while it works is "interrupted", 130."""
+    import argparse
+
+    import geoface.cli as cli
+
+    def finished_then_interrupted(args):
+        return 0
+
+    class Late:  # the interrupt arrives as the handlers are being restored
+        def __enter__(self):
+            return []
+
+        def __exit__(self, *exc):
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr("geoface.cli.interrupt.deferred_interrupts", lambda: Late())
+    args = argparse.Namespace(func=finished_then_interrupted, command="x", what=None)
+    assert cli._run(args) == 0
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    assert cli._run(argparse.Namespace(func=interrupted, command="x", what=None)) == 130
+    assert "Traceback" not in capsys.readouterr().err

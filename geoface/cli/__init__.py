@@ -82,6 +82,19 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args) -> int:
+    done: list = []  # the command's exit code, once it has returned (its outputs complete)
+    try:
+        return _run_guarded(args, done)
+    except KeyboardInterrupt:
+        # a signal in the window after the command returned, before the handlers are restored:
+        # the outputs are complete, so the run ends as the command did (no traceback)
+        if done:
+            return done[0]
+        print("geoface: interrupted", file=sys.stderr)
+        return 130
+
+
+def _run_guarded(args, done: list) -> int:
     from .interrupt import deferred_interrupts
 
     with deferred_interrupts() as got:
@@ -90,7 +103,8 @@ def _run(args) -> int:
                 warnings.simplefilter("always", GeofaceWarning)
                 warnings.showwarning = _show_warning
                 guard_by_table(args)
-                return int(args.func(args) or 0)
+                done.append(int(args.func(args) or 0))
+            return done[0]
         except GeofaceError as exc:
             print(f"geoface: error: {one_line(exc)}", file=sys.stderr)
             return 2
@@ -100,6 +114,8 @@ def _run(args) -> int:
         except KeyboardInterrupt:  # SIGTERM unwinds like Ctrl-C, so temporary outputs are removed
             import signal
 
+            if done:  # it landed as the command returned: the outputs are complete
+                return done[0]
             terminated = bool(got) and got[0] == signal.SIGTERM
             print("geoface: terminated" if terminated else "geoface: interrupted", file=sys.stderr)
             return 143 if terminated else 130
