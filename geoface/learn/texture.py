@@ -159,13 +159,10 @@ class TextureModel(torch.nn.Module):
         (tmp / "config.json").write_text(json.dumps(self.cfg.to_dict(), indent=2), encoding="utf-8")
         save_file({k: v.detach().cpu().contiguous() for k, v in self.state_dict().items()},
                   str(tmp / "model.safetensors"))
-        from .._io import chmod_tree
+        from .._io import _replace_dir, chmod_tree
 
         chmod_tree(tmp)  # the user's umask (safetensors writes 0600)
-        if out_dir.exists():
-            import shutil
-            shutil.rmtree(out_dir)
-        os.replace(tmp, out_dir)
+        _replace_dir(tmp, out_dir)  # an old folder replaced whole; a link (with --force) replaced itself
 
     @classmethod
     def load(cls, model_dir) -> "TextureModel":

@@ -117,3 +117,18 @@ def test_corrupt_model_is_one_line_exit_2(tmp_path, capsys):
                  "-o", str(tmp_path / "o")]) == 2
     assert "corrupt" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_model_saved_over_a_link_replaces_the_link_and_leaves_no_temporary(tmp_path):
+    """``texture train -o LINK --force`` trained, then failed on "Cannot call rmtree on a symbolic
+    link" and left ``.LINK.tmp/``: the link itself is replaced (its target untouched), nothing left."""
+    from geoface.learn.texture import TextureModel, TextureTrainConfig
+
+    target = tmp_path / "theirs"
+    target.mkdir()
+    (target / "keep.txt").write_text("mine")
+    link = tmp_path / "m2"
+    link.symlink_to(target)
+    TextureModel(TextureTrainConfig()).save(link)
+    assert not link.is_symlink() and (link / "model.safetensors").is_file()
+    assert (target / "keep.txt").read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["m2", "theirs"]
