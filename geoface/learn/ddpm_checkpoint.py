@@ -119,6 +119,10 @@ def load_run(run_dir: str | os.PathLike, use_ema: bool = True, text_encoder=None
     if text_encoder is None:
         from .text import make_text_encoder
         text_encoder = make_text_encoder(cfg.text_encoder, max_length=cfg.text_max_length)
+    dim = getattr(text_encoder, "dim", None)
+    if dim is not None and int(dim) != int(cfg.cross_attention_dim):
+        raise CheckpointError(f"{ckpt / 'config.json'}: the text encoder {cfg.text_encoder!r} gives {int(dim)}-dimensional "
+                              f"embeddings, the model was trained on {int(cfg.cross_attention_dim)} (cross_attention_dim)")
     return DiffusionRun(cfg, unet, text_encoder, state, stats)
 
 

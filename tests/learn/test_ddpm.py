@@ -1,3 +1,5 @@
+import json
+
 import pytest
 
 torch = pytest.importorskip("torch")
@@ -88,6 +90,13 @@ def test_corrupt_checkpoint_errors(gimage_dataset, tmp_path):
     run = tmp_path / "run"
     train(gimage_dataset, run, tiny(steps=2), quiet=True)
     ck = run / "checkpoint"
+    # a config whose text encoder is not the one the weights were trained with (hash:16 over
+    # hash:8): refused at loading, not a shape error at sampling
+    cfg = json.loads((ck / "config.json").read_text())
+    (ck / "config.json").write_text(json.dumps(dict(cfg, text_encoder="hash:16")))
+    with pytest.raises(CheckpointError, match="16-dimensional"):
+        load_run(run)
+    (ck / "config.json").write_text(json.dumps(cfg))
     data = (ck / "ema.safetensors").read_bytes()
     (ck / "ema.safetensors").write_bytes(data[: len(data) // 2])
     with pytest.raises(CheckpointError, match="corrupt or truncated"):
