@@ -493,3 +493,19 @@ def test_an_interrupt_as_a_command_returns_is_no_traceback(monkeypatch, capsys):
 
     assert cli._run(argparse.Namespace(func=interrupted, command="x", what=None)) == 130
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_a_huge_photo_is_refused_before_it_is_decoded(tmp_path):
+    """A 16000² PNG once ran the tracker out of memory (numpy's _ArrayMemoryError): its header is
+    read first, and more than 100 megapixels is one line."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 16000, 16000, 8, 2, 0, 0, 0))
+           + chunk(b"IDAT", zlib.compress(b"\x00" * 100)) + chunk(b"IEND", b""))
+    (tmp_path / "huge.png").write_bytes(png)
+    code, _, err = run("track", "huge.png", "-o", "t.json", cwd=tmp_path)
+    assert one_line_error(code, err) and "16000x16000" in err, err

@@ -111,6 +111,9 @@ def _run_guarded(args, done: list) -> int:
         except OSError as exc:
             print(one_line(f"geoface: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": ")), file=sys.stderr)
             return 2
+        except MemoryError as exc:  # numpy's _ArrayMemoryError included: an input far larger than the machine
+            print(one_line(f"geoface: error: out of memory ({exc or 'an input too large for this machine'})"), file=sys.stderr)
+            return 2
         except KeyboardInterrupt:  # SIGTERM unwinds like Ctrl-C, so temporary outputs are removed
             import signal
 

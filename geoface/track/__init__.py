@@ -291,6 +291,11 @@ _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 _VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v")
 
 
+#: the largest photo the tracker decodes (about 100 megapixels: a medium-format camera's); the
+#: face mesh looks at 256² crops, so more only costs memory
+TRACK_MAX_PIXELS = 10_000 * 10_000
+
+
 def read_frames(path) -> tuple[list, list, float | None]:
     """(frames as (H, W, 3) uint8 RGB, their names, the frame rate or None) of an image file, a
     folder of images (sorted by name) or a video file (decoded by imageio-ffmpeg's ffmpeg)."""
@@ -307,6 +312,10 @@ def read_frames(path) -> tuple[list, list, float | None]:
                 raise GeofaceError(f"{p}: two frames share the name {f.stem!r} ({stems[f.stem]}, {f.name}); "
                                    "rename one")
             stems[f.stem] = f.name
+        from geoface._io import image_size
+
+        for f in files:
+            image_size(f, max_pixels=TRACK_MAX_PIXELS)
         frames = [_uint8(read_image(f)) for f in files]
         if len({f.shape for f in frames}) > 1:
             raise GeofaceError(f"{p}: the images are not all the same size")
@@ -319,6 +328,9 @@ def read_frames(path) -> tuple[list, list, float | None]:
         frames, fps = read_video(p)
         return list(frames), [f"{k:06d}" for k in range(len(frames))], fps
     if p.suffix.lower() in _IMAGE_SUFFIXES:
+        from geoface._io import image_size
+
+        image_size(p, max_pixels=TRACK_MAX_PIXELS)  # a photo, not a poster: refused before decoding
         return [_uint8(read_image(p))], [p.name], None
     raise GeofaceError(f"{p}: not an image ({', '.join(_IMAGE_SUFFIXES)}), a video ({', '.join(_VIDEO_SUFFIXES)}) "
                        "or a folder of images")
