@@ -135,7 +135,10 @@ class TextureTrainConfig:
                 raise CheckpointError(f"{where}: field 'nets' must be a JSON object; got {v!r}")
             return TextureNetConfig.from_dict(v, where=f"{where} (nets)")
 
-        return config_from_dict(cls, d, where=where, unknown="ignore", convert_nested={"nets": nets})
+        # a key the config does not have is a typo or another model's file: refused, naming it
+        # ("version" is checked by the loader)
+        body = {k: v for k, v in d.items() if k != "version"} if isinstance(d, dict) else d
+        return config_from_dict(cls, body, where=where, unknown="error", convert_nested={"nets": nets})
 
 
 class TextureModel(torch.nn.Module):

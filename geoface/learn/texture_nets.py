@@ -157,7 +157,7 @@ class TextureNetConfig:
 
         # models saved before the options existed refine every band and read absolute tone
         return config_from_dict(cls, {"hfdr_band": "full", "gde_tone": "absolute", "hash_mode": "input", **d},
-                                where=where, unknown="ignore")
+                                where=where, unknown="error")
 
 
 class NormalUVPredictor(nn.Module):

@@ -132,3 +132,18 @@ def test_a_model_saved_over_a_link_replaces_the_link_and_leaves_no_temporary(tmp
     TextureModel(TextureTrainConfig()).save(link)
     assert not link.is_symlink() and (link / "model.safetensors").is_file()
     assert (target / "keep.txt").read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["m2", "theirs"]
+
+
+def test_an_unknown_key_in_a_texture_models_config_is_refused(tmp_path):
+    """A key the config does not have (a typo, another model's file) once loaded silently."""
+    from geoface.errors import CheckpointError
+    from geoface.learn.texture import TextureModel, TextureTrainConfig
+
+    d = tmp_path / "m"
+    TextureModel(TextureTrainConfig()).save(d)
+    assert TextureModel.load(d) is not None
+    cfg = json.loads((d / "config.json").read_text())
+    for bad in (dict(cfg, lerning_rate=0.1), dict(cfg, nets=dict(cfg["nets"], widths=[1]))):
+        (d / "config.json").write_text(json.dumps(bad))
+        with pytest.raises(CheckpointError, match="unknown fields"):
+            TextureModel.load(d)

@@ -2,6 +2,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from geoface.errors import CheckpointError  # noqa: E402
 from geoface.learn.errors import LearnError  # noqa: E402
 from geoface.learn.texture_nets import (GAMMA, GDE, HFDR, NormalUVPredictor, TextureNetConfig,  # noqa: E402
                                         UNet, map_loss, pack_maps)
@@ -51,7 +52,9 @@ def test_hash_encoding_can_be_switched_off():
     off = GDE(TextureNetConfig(**{**CFG.to_dict(), "use_hash": False}))
     assert off.hash is None and off.net.inc.net[0].in_channels == 8
     assert GDE(TextureNetConfig(**{**CFG.to_dict(), "hash_mode": "input"})).net.inc.net[0].in_channels == 16
-    assert TextureNetConfig.from_dict({**CFG.to_dict(), "unknown": 1}) == CFG
+    assert TextureNetConfig.from_dict(CFG.to_dict()) == CFG
+    with pytest.raises(CheckpointError, match="unknown fields"):  # a typo or another model's key: refused
+        TextureNetConfig.from_dict({**CFG.to_dict(), "unknown": 1})
 
 
 def test_hfdr_starts_as_the_guidance():
