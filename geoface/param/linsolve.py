@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..errors import InvalidMeshError
+from ..errors import InvalidMeshError, ParameterizationError
 
 METHODS = ("auto", "cholmod", "splu")
 
@@ -44,6 +44,20 @@ class SPDSolver:
         self._factor = None
 
     def solve(self, A: sp.spmatrix, b: np.ndarray) -> np.ndarray:
+        """``A x = b``. A matrix the factorisation fails on (CHOLMOD: not positive definite;
+        SuperLU: singular) is a :class:`ParameterizationError`, not the library's own exception
+        (callers that fall back on another step catch it as before)."""
+        try:
+            return self._solve(A, b)
+        except (RuntimeError, ArithmeticError) as e:
+            raise ParameterizationError(f"the sparse factorisation failed ({type(e).__name__}: "
+                                        f"{str(e).splitlines()[0] if str(e) else 'no detail'})") from None
+        except Exception as e:
+            if type(e).__module__.startswith("sksparse"):
+                raise ParameterizationError(f"the sparse Cholesky factorisation failed ({type(e).__name__})") from None
+            raise
+
+    def _solve(self, A: sp.spmatrix, b: np.ndarray) -> np.ndarray:
         if self.method == "cholmod":
             from sksparse.cholmod import cholesky
 

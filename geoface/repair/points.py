@@ -155,6 +155,10 @@ def load_points(path) -> tuple[np.ndarray, np.ndarray | None]:
         if a.shape[1] not in (3, 6):
             raise MeshFormatError(f"{path.name}: rows of 3 (x y z) or 6 (x y z nx ny nz) numbers expected; got {a.shape[1]}")
         return a[:, :3], (a[:, 3:6] if a.shape[1] == 6 else None)
+    if path.suffix.lower() in (".obj", ".off"):
+        text_cloud = _text_cloud(path)
+        if text_cloud is not None:
+            return text_cloud
     import trimesh
 
     try:
@@ -173,3 +177,37 @@ def load_points(path) -> tuple[np.ndarray, np.ndarray | None]:
         if normals.shape != P.shape:
             normals = None
     return P, normals
+
+
+def _text_cloud(path: Path):
+    """``(points, normals or None)`` of an OBJ or OFF point cloud with its normals: an OBJ whose
+    ``vn`` lines are as many as its ``v`` lines (a point cloud's exporters write them in step),
+    a ``NOFF`` (or ``CNOFF``) whose rows carry them; None where the file has no normals (trimesh
+    reads it) or faces."""
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as e:
+        raise MeshFormatError(f"cannot read {path.name}: {e}") from None
+    rows = [ln.split("#", 1)[0].split() for ln in text.splitlines()]
+    rows = [r for r in rows if r]
+    try:
+        if path.suffix.lower() == ".obj":
+            if any(r[0] == "f" for r in rows):
+                return None
+            v = [r[1:4] for r in rows if r[0] == "v"]
+            vn = [r[1:4] for r in rows if r[0] == "vn"]
+            if not v or len(vn) != len(v):
+                return None
+            return np.array(v, np.float64), np.array(vn, np.float64)
+        head = rows[0][0] if rows else ""
+        if not head.endswith("OFF") or "N" not in head.replace("OFF", "") or len(rows) < 2:
+            return None
+        nv, nf = int(rows[1][0]), int(rows[1][1])
+        if nf:
+            return None
+        A = np.array([r[:6] for r in rows[2:2 + nv]], np.float64)
+        if A.shape != (nv, 6):
+            raise ValueError(f"{nv} rows of x y z nx ny nz expected")
+        return A[:, :3], A[:, 3:6]
+    except (ValueError, IndexError) as e:
+        raise MeshFormatError(f"cannot read {path.name} as a point cloud: {e}") from None

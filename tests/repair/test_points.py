@@ -99,18 +99,21 @@ def _write_cloud(path: Path, P, N=None):
                 f.write("".join(" ".join(f"{x:.6f}" for x in row) + "\n" for row in A.astype(np.float32)).encode())
     elif fmt == ".obj":
         lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in P.astype(np.float32)]
+        lines += [] if N is None else [f"vn {x:.6f} {y:.6f} {z:.6f}" for x, y, z in N.astype(np.float32)]
         path.write_text("\n".join(lines) + "\n")
     elif fmt == ".off":
-        path.write_text(f"OFF\n{len(P)} 0 0\n" + "".join(f"{x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in P.astype(np.float32)))
+        A = P if N is None else np.hstack([P, N])
+        path.write_text(("NOFF" if N is not None else "OFF") + f"\n{len(P)} 0 0\n"
+                        + "".join(" ".join(f"{x:.6f}" for x in row) + "\n" for row in A.astype(np.float32)))
     else:
         A = P if N is None else np.hstack([P, N])
         np.savetxt(path, A.astype(np.float32), fmt="%.6f")
 
 
 def test_every_cloud_format_reads_the_same_points_and_normals(tmp_path):
-    """The vertices and normals of a real scan (face.obj, decimated) as ASCII and binary PLY, OBJ,
-    OFF and XYZ: the same points from every file (to float32), the same normals where the format
-    has them, and the same surface (to rounding) from the ASCII and the binary PLY (the ASCII once crashed:
+    """The vertices and normals of a real scan (face.obj, decimated) as ASCII and binary PLY, OBJ
+    (``vn`` in step with ``v``), NOFF and XYZ, and without normals: the same points from every file (to float32), the same normals where the format
+    has them, hence the same surface (to rounding; made from two of them) (an ASCII PLY once crashed:
     its columns are a dict, not a structured array)."""
     import trimesh
 
@@ -121,8 +124,8 @@ def test_every_cloud_format_reads_the_same_points_and_normals(tmp_path):
     P, N = np.asarray(t.vertices[::20], np.float64), np.asarray(t.vertex_normals[::20], np.float64)
     ref = P.astype(np.float32).astype(np.float64)
     surfaces = {}
-    for name, with_normals in (("a.ply", True), ("abin.ply", True), ("a.xyz", True), ("a.obj", False), ("a.off", False),
-                               ("b.xyz", False)):
+    for name, with_normals in (("a.ply", True), ("abin.ply", True), ("a.xyz", True), ("a.obj", True), ("a.off", True),
+                               ("b.obj", False), ("b.off", False), ("b.xyz", False)):
         f = tmp_path / name
         _write_cloud(f, P, N if with_normals else None)
         Q, M = load_points(f)
@@ -130,7 +133,7 @@ def test_every_cloud_format_reads_the_same_points_and_normals(tmp_path):
         assert (M is not None) == with_normals, name
         if with_normals:
             np.testing.assert_allclose(M, N, atol=1e-5, err_msg=name)
-        if name.endswith(".ply"):  # the two that once differed: ASCII and binary
+        if name in ("a.ply", "a.off"):  # the rest agree with these to float32 rounding
             s = surface_from_points(Q, M, depth=6)
             surfaces[name] = (len(s.V), float(topology_report(s.V, s.F).surface_area))
     counts, areas = {v[0] for v in surfaces.values()}, [v[1] for v in surfaces.values()]
