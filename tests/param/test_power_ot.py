@@ -576,3 +576,20 @@ def test_the_solver_refuses_arguments_that_cannot_be_solved(head_map):
                      ({"h0": np.zeros(3)}, "h0"), ({"h0": np.full(n, np.nan)}, "h0")):
         with pytest.raises(ParameterizationError, match=what):
             solver.solve(uv, **kw)
+
+
+@pytest.mark.parametrize("method", ["cholmod", "splu"])
+def test_a_failed_factorisation_is_a_parameterization_error(method):
+    """CHOLMOD's NotPositiveDefiniteError and SuperLU's singular factor reach callers as
+    ParameterizationError (a GeofaceError: one line at the command line), not as the library's own."""
+    import scipy.sparse as sp
+
+    from geoface.param.linsolve import SPDSolver, cholmod_available
+
+    if method == "cholmod" and not cholmod_available():
+        pytest.skip("scikit-sparse is not installed")
+    bad = sp.csc_matrix(np.array([[1.0, 2.0], [2.0, 1.0]])) if method == "cholmod" else sp.csc_matrix((2, 2))
+    with pytest.raises(ParameterizationError, match="factorisation failed"):
+        SPDSolver(method).solve(bad, np.ones(2))
+    good = sp.csc_matrix(np.array([[2.0, 1.0], [1.0, 2.0]]))
+    np.testing.assert_allclose(SPDSolver(method).solve(good, np.ones(2)), [1 / 3, 1 / 3])
