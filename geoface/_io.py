@@ -22,7 +22,8 @@ from pathlib import Path
 from .errors import GeofaceError
 
 __all__ = ["atomic_path", "atomic_dir", "atomic_write_text", "check_outputs", "default_mode", "OutputError",
-           "clean_stale_temporaries", "image_size", "occupied", "MAX_IMAGE_PIXELS"]
+           "clean_stale_temporaries", "image_size", "occupied", "MAX_IMAGE_PIXELS", "replace_dir", "check_input",
+           "check_tree", "copy_checked"]
 
 #: the largest image geoface decodes (a 16384^2 geometry image); a header claiming more is refused
 MAX_IMAGE_PIXELS = 16384 * 16384
@@ -184,7 +185,7 @@ def atomic_dir(target: str | os.PathLike, *, overwrite: bool = False):
     try:
         yield tmp
         chmod_tree(tmp)
-        _replace_dir(tmp, target)
+        replace_dir(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -209,7 +210,7 @@ def chmod_tree(root: Path) -> None:
                 os.chmod(p, fmode)
 
 
-def _replace_dir(tmp: Path, folder: Path) -> None:
+def replace_dir(tmp: Path, folder: Path) -> None:
     """Move the finished folder ``tmp`` onto ``folder``, replacing an old one."""
     old = None
     if folder.is_symlink():  # (only with --force: check_outputs refuses a link otherwise) replace the link itself

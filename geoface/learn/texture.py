@@ -162,10 +162,10 @@ class TextureModel(torch.nn.Module):
         (tmp / "config.json").write_text(json.dumps(self.cfg.to_dict(), indent=2), encoding="utf-8")
         save_file({k: v.detach().cpu().contiguous() for k, v in self.state_dict().items()},
                   str(tmp / "model.safetensors"))
-        from .._io import _replace_dir, chmod_tree
+        from .._io import replace_dir, chmod_tree
 
         chmod_tree(tmp)  # the user's umask (safetensors writes 0600)
-        _replace_dir(tmp, out_dir)  # an old folder replaced whole; a link (with --force) replaced itself
+        replace_dir(tmp, out_dir)  # an old folder replaced whole; a link (with --force) replaced itself
 
     @classmethod
     def load(cls, model_dir) -> "TextureModel":
