@@ -42,6 +42,11 @@ class CheckpointError(GeofaceError):
     inconsistent, or a field of its config has the wrong type or range."""
 
 
+class CaptureError(GeofaceError):
+    """A capture folder (frames, landmarks, camera, poses, ...) or a clip that cannot be read or made
+    (:mod:`geoface.capture`)."""
+
+
 class MissingDependencyError(GeofaceError, ImportError):
     """An optional dependency needed by the requested feature is not installed."""
 

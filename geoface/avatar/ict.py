@@ -149,6 +149,7 @@ class ICTPerson:
         from geoface.camera import Camera, look_at
         from geoface.skin.render import ict_eyes, ict_source, random_lights, skin_maps, unweld_uv
         from geoface.avatar.capture import headset_mesh
+        from geoface.synth.ict import neck_pivot, upper_split
 
         if supersample < 1 or res < 16:
             raise SplatError(f"need res >= 16 and supersample >= 1; got {res}, {supersample}")
@@ -173,11 +174,10 @@ class ICTPerson:
         self.solids = [(lab[self.src] == k, c, s) for k, (c, s) in _SOLIDS.items()]
         L0 = V0[rest.landmarks]
         y_eye = float(L0[36:48, 1].mean())
-        y_nose = float(L0[30, 1])
-        self.y_split = y_eye - 0.4 * (y_eye - y_nose)
-        self.front = float(V0[lab <= 1, 2].max())
         chin = L0[8]
-        self.pivot = np.array([0.0, chin[1] - 0.04, float(V0[lab == 2, 2].mean())])  # the neck
+        self.y_split = upper_split(V0, rest.landmarks)
+        self.front = float(V0[lab <= 1, 2].max())
+        self.pivot = neck_pivot(V0, rest.landmarks, lab)  # the neck
         target = np.array([0.0, 0.5 * (y_eye + chin[1]) + 0.01, float(L0[:, 2].mean())])
         self.cam = cam = look_at(target + [0, 0, 0.45], target, width=res, height=res, fov_y_deg=36.0)
         self.ss = ss = int(supersample)

@@ -41,8 +41,9 @@ import numpy as np
 from geoface.camera import Camera, look_at
 from geoface.splat.errors import SplatError
 from geoface.images import save_image
-from geoface.avatar.capture import (camera_from_json, camera_to_json, euler_rotation, headset_mesh, read_landmarks,
-                                    stack_frames)
+from geoface.avatar.capture import euler_rotation, headset_mesh
+from geoface.capture import Capture, write_camera, write_head_poses, write_landmarks
+from geoface.errors import CaptureError
 
 __all__ = ["HMDVideo", "load_video", "lower_face_box", "crop_lower_face", "make_synthetic_hmd", "LOWER_FACE_LANDMARKS", "UPPER_EXPRESSIONS", "expressions_from_drivers", "frame_input"]
 
@@ -106,66 +107,31 @@ class HMDVideo:
 
 
 def load_video(folder, *, need_mesh: bool = False, frames: slice | None = None) -> HMDVideo:
-    """Load a video folder (format in the module doc); every problem is a one-line SplatError."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise SplatError(f"{folder}: not a folder")
-    paths = sorted((folder / "frames").glob("*.png"))
-    if not paths:
-        raise SplatError(f"{folder}: no frames/*.png")
-    if frames is not None:
-        paths = paths[frames]
-    for name in ("landmarks.json", "camera.json", "meta.json"):
-        if not (folder / name).is_file():
-            raise SplatError(f"{folder}: missing {name}")
+    """Load a video folder (format in the module doc; read through :class:`geoface.capture.Capture`);
+    every problem is a one-line CaptureError."""
+    cap = Capture(folder, frames=frames)
+    cap.require("landmarks.json", "camera.json", "meta.json")
+    cam = cap.camera()
+    meta = cap.meta(need=True)
     try:
-        cam = camera_from_json(folder / "camera.json")
-        meta = json.loads((folder / "meta.json").read_text())
         y_split = float(meta["y_split"])
     except (ValueError, KeyError, TypeError) as e:
-        raise SplatError(f"{folder}: malformed json ({type(e).__name__}: {e})") from None
-    all_paths = sorted((folder / "frames").glob("*.png"))
-    pts, names = read_landmarks(folder / "landmarks.json", len(all_paths))
-    missing = [n for n in LOWER_FACE_LANDMARKS if n not in names]
+        raise CaptureError(f"{cap.path}/meta.json: needs y_split, the upper/lower split in world metres "
+                           f"({type(e).__name__}: {e})") from None
+    lm = cap.landmarks()
+    missing = [n for n in LOWER_FACE_LANDMARKS if n not in lm.names]
     if missing:
-        raise SplatError(f"{folder}/landmarks.json: missing landmarks {missing}")
-    if frames is not None:
-        pts = pts[frames]
-    imgs = stack_frames(paths)
-    if imgs.shape[1:3] != (cam.height, cam.width):
-        raise SplatError(f"{folder}: frames are {imgs.shape[2]}×{imgs.shape[1]} but camera.json says "
-                         f"{cam.width}×{cam.height}")
-
-    def optional(sub, rgb):
-        ps = [folder / sub / p.name for p in paths]
-        if not all(p.is_file() for p in ps):
-            return None
-        a = stack_frames(ps, rgb)
-        if a.shape[1:3] != imgs.shape[1:3]:
-            raise SplatError(f"{folder}/{sub}: images differ in size from frames/")
-        return a
-
-    masks = optional("masks", False)
+        raise CaptureError(f"{cap.path}/landmarks.json: missing landmarks {missing}")
+    imgs = cap.frames()
+    masks = cap.masks()
     masks = (masks > 0.5) if masks is not None else imgs.max(-1) > 0
-    hmd = optional("hmd_masks", False)
-    hmd_true = optional("hmd_masks_true", False)
-    mesh = next((folder / n for n in ("head.ply", "head.obj") if (folder / n).is_file()), None)
+    hmd = cap.images("hmd_masks")
+    hmd_true = cap.images("hmd_masks_true")
+    mesh = cap.head_mesh()
     if need_mesh and mesh is None:
-        raise SplatError(f"{folder}: a registration folder needs head.ply or head.obj (the canonical head)")
-    poses = None
-    if (folder / "head_poses.npz").is_file():
-        try:
-            with np.load(folder / "head_poses.npz", allow_pickle=False) as d:
-                R, t, piv = (np.asarray(d[k], np.float64) for k in ("R", "t", "pivot"))
-        except (OSError, KeyError, ValueError) as e:
-            raise SplatError(f"{folder}/head_poses.npz: needs R [T, 3, 3], t [T, 3], pivot [3] ({e})") from None
-        n_all = len(all_paths)
-        if R.shape != (n_all, 3, 3) or t.shape != (n_all, 3) or piv.shape != (3,) or not np.isfinite(R).all():
-            raise SplatError(f"{folder}/head_poses.npz: shapes R {R.shape}, t {t.shape}, pivot {piv.shape} "
-                             f"do not fit {n_all} frames")
-        poses = (R, t, piv) if frames is None else (R[frames], t[frames], piv)
-    return HMDVideo(imgs, masks, pts, names, cam, y_split, None if hmd is None else hmd > 0.5,
-                    optional("gt", True), mesh, poses, optional("gt_static_upper", True),
+        raise CaptureError(f"{cap.path}: a registration folder needs head.ply or head.obj (the canonical head)")
+    return HMDVideo(imgs, masks, lm.points, lm.names, cam, y_split, None if hmd is None else hmd > 0.5,
+                    cap.images("gt", True), mesh, cap.head_poses(), cap.images("gt_static_upper", True),
                     None if hmd_true is None else hmd_true > 0.5)
 
 
@@ -319,9 +285,9 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
     from geoface.mesh.io import save_mesh
 
     for which, d in dirs.items():
-        (d / "landmarks.json").write_text(json.dumps({"names": names, "points": lm_pts[which]}))
-        np.savez(d / "head_poses.npz", R=np.stack(Rs[which]), t=np.stack(ts[which]), pivot=pivot)
-        (d / "camera.json").write_text(json.dumps(camera_to_json(cam)))
+        write_landmarks(d, lm_pts[which], names)
+        write_head_poses(d, np.stack(Rs[which]), np.stack(ts[which]), pivot)
+        write_camera(d, cam)
         (d / "meta.json").write_text(json.dumps({"y_split": y_split, "up": [0, 1, 0], "source": "procedural head",
                                                  "seed": seed, "n_vertices": n_vertices, "frames": log[which]}))
     save_mesh(dirs["registration"] / "head.ply", V=neutral.V, F=neutral.F, colors=neutral.colors)

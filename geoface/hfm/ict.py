@@ -29,13 +29,13 @@ Units are metres.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from geoface.splat.errors import SplatError
 from geoface.images import save_image
+from geoface.capture import write_camera, write_head_poses, write_landmarks, write_meta
 from geoface.avatar.ict import ICTPerson, arkit_curves, head_motion, is_upper_blendshape
 
 __all__ = ["make_ict_hmd"]
@@ -55,7 +55,7 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
     range of motion, :func:`arkit_curves`; 0: none, the expressions are free throughout)."""
     from geoface.mesh.io import save_mesh
     from geoface.progress import progress
-    from geoface.avatar.capture import IBUG68_NAMES, IBUG68_LOWER, euler_rotation, camera_to_json
+    from geoface.avatar.capture import IBUG68_NAMES, IBUG68_LOWER, euler_rotation
 
     usage_frames = max(5, frames // 4) if usage_frames is None else int(usage_frames)
     if frames < 5 or usage_frames < 1:
@@ -110,14 +110,14 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
             save_image(d / "gt_static_upper" / name, g)
     for which, d in dirs.items():
         names = list(IBUG68_NAMES) if which == "registration" else [IBUG68_NAMES[i] for i in lower_idx]
-        (d / "landmarks.json").write_text(json.dumps({"names": names, "points": lm_pts[which]}))
-        np.savez(d / "head_poses.npz", R=np.stack(poses[which][0]), t=np.stack(poses[which][1]), pivot=pivot)
-        (d / "camera.json").write_text(json.dumps(camera_to_json(cam)))
-        (d / "meta.json").write_text(json.dumps({
+        write_landmarks(d, lm_pts[which], names)
+        write_head_poses(d, np.stack(poses[which][0]), np.stack(poses[which][1]), pivot)
+        write_camera(d, cam)
+        write_meta(d, {
             "y_split": y_split, "up": [0, 1, 0], "source": "ICT-FaceKit", "seed": seed, "fps": fps,
             "identity": [round(float(x), 5) for x in ident], "rom_seconds": rom if which == "registration" else 0.0,
             "lights": [a.tolist() for a in person.lights],
-            "upper_blendshapes": sorted(n for n in exprs[0] if is_upper_blendshape(n)), "frames": log[which]}))
+            "upper_blendshapes": sorted(n for n in exprs[0] if is_upper_blendshape(n)), "frames": log[which]})
     Vi, Fi, Ci = person.init_mesh(gaussians)
     save_mesh(dirs["registration"] / "head.ply", V=Vi, F=Fi, colors=Ci)
     return dirs["registration"], dirs["usage"]

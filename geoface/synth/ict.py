@@ -345,6 +345,23 @@ def load_ict_model(path: str | os.PathLike | None = None) -> ICTFaceModel:
     return _load(str(find_model(path)))
 
 
+def neck_pivot(V, landmarks, labels) -> np.ndarray:
+    """The point a head turns about (the neck: 4 cm below the chin, midway back through the head,
+    on the mid-plane), for a head ``V`` (metres, canonical) of the model's parts with its 68
+    ``landmarks`` and region ``labels``: where the avatars' captures turn the ICT head."""
+    V = np.asarray(V, np.float64)
+    chin = V[landmarks[8]]
+    return np.array([0.0, chin[1] - 0.04, float(V[np.asarray(labels) == 2, 2].mean())])
+
+
+def upper_split(V, landmarks) -> float:
+    """The height (y, in ``V``'s units) that divides the face under a headset from the face below
+    it: 40% of the way from the eyes down to the nose tip."""
+    L = np.asarray(V, np.float64)[landmarks]
+    y_eye, y_nose = float(L[36:48, 1].mean()), float(L[30, 1])
+    return y_eye - 0.4 * (y_eye - y_nose)
+
+
 def random_expression(rng: np.random.Generator, names, *, count: int = 3, strength: float = 1.0) -> dict:
     """``count`` different blendshapes with weights uniform in ``[0, strength]``."""
     names = list(names)

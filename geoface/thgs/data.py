@@ -41,7 +41,9 @@ import numpy as np
 from geoface.camera import Camera, look_at
 from geoface.splat.errors import SplatError
 from geoface.images import save_image
-from geoface.avatar.capture import IBUG68_NAMES, camera_from_json, stack_frames, camera_to_json, read_landmarks
+from geoface.avatar.capture import IBUG68_NAMES, camera_from_json, read_landmarks
+from geoface.capture import Capture, write_camera
+from geoface.errors import CaptureError
 from geoface.avatar.template import Template
 
 __all__ = ["TalkingData", "load_talking", "load_tracked", "make_synthetic_talking", "speech_like",
@@ -98,34 +100,31 @@ def load_tracked(path, n_joints: int, n_expr: int) -> tuple[np.ndarray, np.ndarr
 
 
 def load_talking(folder) -> TalkingData:
+    """Load a talking-capture folder (module doc; read through :class:`geoface.capture.Capture`);
+    every problem is a one-line CaptureError."""
     from geoface.avatar.audio import audio_features
 
-    folder = Path(folder)
-    paths = sorted((folder / "frames").glob("*.png"))
-    if not paths:
-        raise SplatError(f"{folder}: no frames/*.png")
-    for name in ("camera.json", "template.npz", "poses.npz", "meta.json"):
-        if not (folder / name).is_file():
-            raise SplatError(f"{folder}: missing {name}")
+    cap = Capture(folder)
+    cap.require("camera.json", "template.npz", "poses.npz", "meta.json")
+    cam = cap.camera()
+    meta = cap.meta(need=True)
     try:
-        cam = camera_from_json(folder / "camera.json")
-        meta = json.loads((folder / "meta.json").read_text())
         fps = float(meta["fps"])
     except (ValueError, KeyError, TypeError) as e:
-        raise SplatError(f"{folder}: malformed camera.json/meta.json ({type(e).__name__}: {e})") from None
-    tpl = Template.load(folder / "template.npz")
-    rot, transl, expr = load_poses(folder / "poses.npz", len(tpl.joints), tpl.n_expr, len(paths))
-    tracked = load_tracked(folder / "poses.npz", len(tpl.joints), tpl.n_expr)
-    src = folder / "features.npy" if (folder / "features.npy").is_file() else folder / "audio.wav"
-    if not src.is_file():
-        raise SplatError(f"{folder}: needs audio.wav or features.npy")
-    A = audio_features(src, len(paths), fps)
-    imgs = stack_frames(paths)
-    if imgs.shape[1:3] != (cam.height, cam.width):
-        raise SplatError(f"{folder}: frames are {imgs.shape[2]}×{imgs.shape[1]}, camera.json says {cam.width}×{cam.height}")
-    meta["_folder"] = str(folder)
-    lm = read_landmarks(folder / "landmarks.json", len(paths)) if (folder / "landmarks.json").is_file() else (None, None)
-    return TalkingData(imgs, cam, tpl, rot, transl, expr, A, fps, meta, *tracked, *lm)
+        raise CaptureError(f"{cap.path}/meta.json: needs fps ({type(e).__name__}: {e})") from None
+    tpl = Template.load(cap.path / "template.npz")
+    rot, transl, expr = load_poses(cap.path / "poses.npz", len(tpl.joints), tpl.n_expr, len(cap))
+    tracked = load_tracked(cap.path / "poses.npz", len(tpl.joints), tpl.n_expr)
+    src = cap.path / "features.npy" if cap.has("features.npy") else cap.audio()
+    if src is None:
+        raise CaptureError(f"{cap.path}: needs audio.wav or features.npy (a clip without sound: "
+                           "`geoface capture --audio WAV` gives it one)")
+    A = audio_features(src, len(cap), fps)
+    imgs = cap.frames()
+    meta["_folder"] = str(cap.path)
+    lm = cap.landmarks() if cap.has("landmarks.json") else None
+    return TalkingData(imgs, cam, tpl, rot, transl, expr, A, fps, meta, *tracked,
+                       *((None, None) if lm is None else (lm.points, lm.names)))
 
 
 def fit_head_poses(folder, *, names=None) -> dict:
@@ -293,7 +292,7 @@ def make_synthetic_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res:
     np.savez(out / "poses.npz", rot=rot, transl=transl, expr=expr, tracked_joints=np.arange(J) != tpl.jaw,
              tracked_expr=np.array([n != "pucker" for n in names]))
     tpl.save(out / "template.npz")
-    (out / "camera.json").write_text(json.dumps(camera_to_json(cam)))
+    write_camera(out, cam)
     (out / "meta.json").write_text(json.dumps({"fps": fps, "source": "procedural template", "seed": seed,
                                                "jaw_open": jaw_open.tolist(), "pucker": pucker.tolist(),
                                                "envelope": fr(env).tolist()}))

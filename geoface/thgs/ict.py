@@ -31,6 +31,7 @@ import numpy as np
 from geoface.splat.errors import SplatError
 from geoface.images import save_image
 from geoface.avatar.capture import IBUG68_NAMES
+from geoface.capture import write_camera, write_landmarks
 
 __all__ = ["ict_template", "make_ict_talking", "perturb_capture", "is_mouth_blendshape", "JOINT_NAMES"]
 
@@ -240,7 +241,7 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
     from scipy.spatial.transform import Rotation
 
     from geoface.progress import progress
-    from geoface.avatar.capture import euler_rotation, camera_to_json
+    from geoface.avatar.capture import euler_rotation
     from geoface.avatar.ict import ICTPerson, head_motion, arkit_curves
     from geoface.thgs.data import speech_like
 
@@ -282,11 +283,11 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
         expr[k] = [0.0 if is_mouth_blendshape(n) else curves[k].get(n, 0.0) for n in names]
         jaw.append(curves[k].get("jawOpen", 0.0))
     np.savez(out / "poses_true.npz", rot=rot, transl=transl, expr=expr)
-    (out / "landmarks.json").write_text(json.dumps({"names": list(IBUG68_NAMES), "points": marks}))
+    write_landmarks(out, marks, IBUG68_NAMES)
     rot, transl = _perturbed(rot, transl, deg, mm, np.random.default_rng([seed, 7202]))
     np.savez(out / "poses.npz", rot=rot, transl=transl, expr=expr, **tracked_dofs(names))
     tpl.save(out / "template.npz")
-    (out / "camera.json").write_text(json.dumps(camera_to_json(person.cam)))
+    write_camera(out, person.cam)
     (out / "meta.json").write_text(json.dumps({
         "fps": fps, "source": "ICT-FaceKit", "seed": seed, "identity": [round(float(v), 5) for v in person.ident],
         "expression_names": names, "tracked_expressions": [n for n in names if not is_mouth_blendshape(n)],

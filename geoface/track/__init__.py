@@ -346,7 +346,8 @@ def track_input(path, out_json, *, masks_dir=None, smooth: bool = False, fps: fl
     :func:`one_euro` at ``fps`` (default: the video's, else 25); MediaPipe's video mode already
     filters its landmarks, and on rendered talking people the extra filter takes off 4 % of the
     jitter at no cost in accuracy (``bench/bench_track.py``), so it is off by default."""
-    from geoface._io import atomic_write_text, check_outputs, output_folder
+    from geoface._io import check_outputs, output_folder
+    from geoface.capture import write_landmarks
     from geoface.images import save_image
     from geoface.landmarks import IBUG68_NAMES
 
@@ -366,10 +367,10 @@ def track_input(path, out_json, *, masks_dir=None, smooth: bool = False, fps: fl
         with output_folder(Path(masks_dir), overwrite) as tmp:
             for n, m in zip(names, tr.masks):
                 save_image(tmp / (Path(n).stem + ".png"), (m > 0.5).astype(np.uint8) * 255, atomic=False)
-    doc = {"names": list(IBUG68_NAMES), "points": np.round(tr.landmarks, 3).tolist(), "tracker": TRACKER,
-           "found": [bool(x) for x in tr.found], "confidence": [round(float(c), 4) for c in tr.confidence],
-           "frames": names, "image_size": [W, H], "fps": rate if video else None, "smoothed": tr.smoothed}
-    atomic_write_text(out_json, json.dumps(doc))
+    out_json.parent.mkdir(parents=True, exist_ok=True)
+    write_landmarks(out_json.parent, tr.landmarks, IBUG68_NAMES, found=tr.found, confidence=tr.confidence,
+                    tracker=TRACKER, name=out_json.name,
+                    extra={"frames": names, "image_size": [W, H], "fps": rate if video else None, "smoothed": tr.smoothed})
     return tr
 
 
@@ -385,6 +386,7 @@ def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, heads
     ``landmarks_true.json`` and ``masks_true/`` (a renderer's truth, for evaluation). ``out_dir``
     may be ``capture_dir`` itself (with ``overwrite``): the folder is replaced when complete."""
     from geoface._io import check_tree, copy_checked, output_folder
+    from geoface.capture import write_dense, write_landmarks
     from geoface.landmarks import IBUG68_NAMES
     from geoface.images import read_image, save_image
 
@@ -410,6 +412,8 @@ def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, heads
     hmd = headset_masks(frames) if headset else None
     with output_folder(Path(out_dir), overwrite) as tmp:
         for p in src.iterdir():
+            if p.name == "landmarks_dense.npz":  # the tracker's own, written below
+                continue
             if {"landmarks.json": True, "masks": masks, "hmd_masks": headset}.get(p.name):  # replaced below
                 true = p.name.replace(".json", "_true.json") if p.suffix else p.name + "_true"
                 if not ((src / true).exists() or (p.name != "hmd_masks" and not keep_originals)):
@@ -421,7 +425,7 @@ def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, heads
                 (tmp / sub).mkdir()
                 for f, m in zip(files, ms):
                     save_image(tmp / sub / f.name, (m > 0.5).astype(np.uint8) * 255, atomic=False)
-        doc = {"names": names, "points": np.round(tr.landmarks[:, cols], 3).tolist(), "tracker": TRACKER,
-               "found": [bool(x) for x in tr.found]}
-        (tmp / "landmarks.json").write_text(json.dumps(doc))
+        conf = face_confidence(frames, quiet=quiet)
+        write_landmarks(tmp, tr.landmarks[:, cols], names, found=tr.found, confidence=conf, tracker=TRACKER)
+        write_dense(tmp, tr.mesh, tr.found, conf)
     return tr

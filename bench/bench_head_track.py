@@ -1,0 +1,144 @@
+"""The ICT head track (``geoface.track.head_track``) where the truth is known: ICT-FaceKit people
+rendered talking, as ``talk synth`` renders them (``geoface.avatar.ict``: lit skin, eyes, teeth;
+speech-driven jaw and lips, emotions, blinks; head motion about the neck with camera shake),
+tracked from their pixels alone (MediaPipe's face mesh in video mode → the fit). Beside it,
+today's head poses: PnP with a robust loss on the 68 iBUG points MediaPipe gives
+(``geoface.avatar.head_pose.solve_poses``) onto the person's *true* 68 landmark vertices and the
+*true* camera (what ``talk train --fit-poses`` and HFM-GS's registration do) — an oracle head and
+camera the track does without.
+
+Per person and method, one JSON line: head rotation error (degrees, mean / p95 / max; the angle
+of R_tracked R_trueᵀ in camera coordinates), translation error (mm, the face centre's —
+the mean of the 68 landmark vertices — position in camera coordinates), expression weights'
+correlation with the truth (Pearson over frames, averaged over the blendshapes that move more
+than 0.05), vertex error of the tracked head against the true one (mm over the face's vertices,
+mean and p95), and the fit's frames per second. ``--focal known`` gives the tracker the true
+focal length; ``estimated`` (default) lets it find it.
+
+Seeds: 11, 12 validation (where the settings were chosen), 13, 14, 15 test.
+
+    python bench/bench_head_track.py [--seeds 13 14 15] [--res 512] [--seconds 4] [--out FILE]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def render_person(seed: int, res: int, seconds: float, fps: float = 25.0):
+    """Frames and the truth of one talking ICT person (the generator of ``talk synth``)."""
+    from geoface.avatar.ict import ICTPerson, arkit_curves, head_motion
+    from geoface.rotations import euler_rotation
+    from geoface.thgs.data import speech_like
+
+    rng = np.random.default_rng([seed, 7201])
+    person = ICTPerson(rng, res=res, supersample=2)
+    T = int(seconds * fps)
+    _, env, _ = speech_like(seconds, 16000, int(rng.integers(1 << 31)))
+    at = np.clip(((np.arange(T) + 0.5) / fps * 16000).astype(int) - 640, 0, len(env) - 1)
+    curves = arkit_curves(T, rng, fps=fps, loudness=env[at], emote=0.5)
+    ang, tr = head_motion(T, rng, fps, 2.0, 1.0, 0)  # twice talk synth's motion: ±20° yaw, ±10° pitch
+    frames, Vcam, Rcam = [], [], []
+    cam = person.cam
+    for k in range(T):
+        R = euler_rotation(*ang[k])
+        V, rgb, alpha, _ = person.render(curves[k], R, tr[k])
+        frames.append(np.round(np.clip(rgb * (alpha[..., None] > 0.5), 0, 1) * 255).astype(np.uint8))
+        Vcam.append(V @ cam.R.T + cam.t)
+        Rcam.append(cam.R @ R)
+    names = person.model.expression_names
+    E = np.array([[c.get(n, 0.0) for n in names] for c in curves])
+    return person, frames, np.stack(Vcam), np.stack(Rcam), E
+
+
+def angle_deg(Ra, Rb):
+    c = (np.einsum("tij,tij->t", Ra, Rb) - 1) / 2
+    return np.degrees(np.arccos(np.clip(c, -1, 1)))
+
+
+def scores(person, Vtrue, Rtrue, Etrue, Rfit, Vfit, Efit=None):
+    lm = person.rest.landmarks
+    face = person.rest.labels == 0
+    rot = angle_deg(Rfit, Rtrue)
+    ctr = np.linalg.norm(Vfit[:, lm].mean(1) - Vtrue[:, lm].mean(1), axis=1) * 1000
+    out = {"rot_mean_deg": rot.mean(), "rot_p95_deg": np.percentile(rot, 95), "rot_max_deg": rot.max(),
+           "trans_mean_mm": ctr.mean(), "trans_p95_mm": np.percentile(ctr, 95)}
+    if Vfit.shape[1] == Vtrue.shape[1]:
+        ve = np.linalg.norm(Vfit[:, face] - Vtrue[:, face], axis=-1) * 1000
+        out.update(vertex_mean_mm=ve.mean(), vertex_p95_mm=np.percentile(ve, 95))
+    if Efit is not None:
+        moving = Etrue.std(0) > 0.05
+        cs = [np.corrcoef(Efit[:, j], Etrue[:, j])[0, 1] for j in np.flatnonzero(moving)]
+        out.update(expr_corr=float(np.nanmean(cs)), expr_moving=int(moving.sum()))
+    return {k: round(float(v), 4) if isinstance(v, float) else v for k, v in out.items()}
+
+
+def pnp68(person, frames_pts68, Vtrue):
+    """Today's poses: robust PnP of the true 68 landmark vertices (frame 0's canonical head) onto
+    the tracked 68 points, through the true camera."""
+    from geoface.avatar.head_pose import solve_poses
+
+    V0 = person.V0  # canonical (rest) head, metres; the track poses it about the pivot
+    L = V0[person.rest.landmarks]
+    from geoface.avatar.head_pose import STABLE_NAMES  # noqa: F401  (the same rigid subset THGS uses)
+    from geoface.landmarks import IBUG68_NAMES
+
+    keep = [IBUG68_NAMES.index(n) for n in STABLE_NAMES]
+    sol = solve_poses(person.cam, L[keep], frames_pts68[:, keep], person.pivot)
+    Rw = sol["R"]
+    Rcam = np.einsum("ij,tjk->tik", person.cam.R, Rw)
+    Vw = np.einsum("tij,kj->tki", Rw, V0 - person.pivot) + person.pivot + sol["t"][:, None]
+    return Rcam, Vw @ person.cam.R.T + person.cam.t
+
+
+def main(argv=None) -> int:
+    from geoface.track import facemesh_points, ibug68_from_mediapipe
+    from geoface.track.head_track import TrackSettings, fit_head_track
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[13, 14, 15])
+    ap.add_argument("--res", type=int, default=512)
+    ap.add_argument("--seconds", type=float, default=4.0)
+    ap.add_argument("--focal", choices=("estimated", "known"), default="estimated")
+    ap.add_argument("--settings", default="{}", help="TrackSettings overrides as JSON")
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args(argv)
+    settings = TrackSettings(**json.loads(a.settings))
+    lines = []
+    for seed in a.seeds:
+        person, frames, Vtrue, Rtrue, Etrue = render_person(seed, a.res, a.seconds)
+        pts = facemesh_points(frames, video=True, quiet=True)
+        t0 = time.perf_counter()
+        tr = fit_head_track(pts, (a.res, a.res), focal=person.cam.fx if a.focal == "known" else None,
+                            settings=settings, quiet=True)
+        sec = time.perf_counter() - t0
+        Vfit = np.stack([tr.posed(k) for k in range(len(tr))])
+        split = "val" if seed in (11, 12) else "test"
+        base = {"seed": seed, "split": split, "res": a.res, "frames": len(frames), "focal": a.focal}
+        r = scores(person, Vtrue, Rtrue, Etrue, tr.R, Vfit, tr.expressions)
+        lines.append({**base, "method": "ict_head_track", **r, "fit_fps": round(len(frames) / sec, 1),
+                      "focal_px": round(tr.focal, 1), "true_focal_px": round(person.cam.fx, 1),
+                      "residual_px": round(float(np.nanmedian(tr.residual_px)), 3)})
+        idx, w = ibug68_from_mediapipe()
+        p68 = np.einsum("tkjd,kj->tkd", pts[:, idx], w)
+        Rp, Vp = pnp68(person, p68, Vtrue)
+        lines.append({**base, "method": "pnp68_true_head_true_camera", **scores(person, Vtrue, Rtrue, Etrue, Rp, Vp)})
+        for line in lines[-2:]:
+            print(json.dumps(line), flush=True)
+    if a.out:
+        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+        with open(a.out, "a") as fh:
+            for line in lines:
+                fh.write(json.dumps(line) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
