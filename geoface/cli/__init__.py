@@ -46,9 +46,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .geometry_parser import register as register_geometry
     from .synth import register as register_synth
     from .track import register as register_track
+    from .capture import register as register_capture
 
     for register in (register_geometry, register_dataset, register_ddpm, register_splat, register_hmd, register_talk,
-                     register_texture, register_track, register_synth):
+                     register_texture, register_track, register_capture, register_synth):
         register(sub, common)
     return p
 

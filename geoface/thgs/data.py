@@ -105,16 +105,22 @@ def load_talking(folder) -> TalkingData:
     from geoface.avatar.audio import audio_features
 
     cap = Capture(folder)
-    cap.require("camera.json", "template.npz", "poses.npz", "meta.json")
+    cap.require("camera.json", "meta.json")
     cam = cap.camera()
     meta = cap.meta(need=True)
     try:
         fps = float(meta["fps"])
     except (ValueError, KeyError, TypeError) as e:
         raise CaptureError(f"{cap.path}/meta.json: needs fps ({type(e).__name__}: {e})") from None
-    tpl = Template.load(cap.path / "template.npz")
-    rot, transl, expr = load_poses(cap.path / "poses.npz", len(tpl.joints), tpl.n_expr, len(cap))
-    tracked = load_tracked(cap.path / "poses.npz", len(tpl.joints), tpl.n_expr)
+    if cap.has("template.npz") or cap.has("poses.npz"):  # a synthetic capture: its own template and poses
+        cap.require("template.npz", "poses.npz")
+        tpl = Template.load(cap.path / "template.npz")
+        rot, transl, expr = load_poses(cap.path / "poses.npz", len(tpl.joints), tpl.n_expr, len(cap))
+        tracked = load_tracked(cap.path / "poses.npz", len(tpl.joints), tpl.n_expr)
+    else:  # a real clip's capture: the tracked ICT head is the template, its track the poses
+        from geoface.thgs.ict import capture_template
+
+        tpl, rot, transl, expr, *tracked = capture_template(cap)
     src = cap.path / "features.npy" if cap.has("features.npy") else cap.audio()
     if src is None:
         raise CaptureError(f"{cap.path}: needs audio.wav or features.npy (a clip without sound: "

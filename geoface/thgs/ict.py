@@ -33,7 +33,7 @@ from geoface.images import save_image
 from geoface.avatar.capture import IBUG68_NAMES
 from geoface.capture import write_camera, write_landmarks
 
-__all__ = ["ict_template", "make_ict_talking", "perturb_capture", "is_mouth_blendshape", "JOINT_NAMES"]
+__all__ = ["ict_template", "capture_template", "make_ict_talking", "perturb_capture", "is_mouth_blendshape", "JOINT_NAMES"]
 
 JOINT_NAMES = ("root", "neck", "head", "jaw", "eye_L", "eye_R")
 _PARENTS = (-1, 0, 1, 2, 2, 2)
@@ -149,6 +149,43 @@ def ict_template(person, n_vertices: int = 6000):
     tpl = Template(V, F, joints, np.array(_PARENTS), W, basis, w_head > 0.5, np.stack([lo, hi]),
                    list(JOINT_NAMES), jaw=3, landmark_names=list(IBUG68_NAMES), landmark_vertices=lmk_v)
     return tpl, {"jaw_rotvec": rv.tolist(), "expression_names": names}
+
+
+def capture_template(cap, n_vertices: int = 6000):
+    """The THGS inputs of a capture that ``geoface capture`` made from a real clip (a tracked ICT
+    head: ``meta.json``'s ``ict_identity``, ``expressions.npz``, ``head_poses.npz``): the person's
+    ICT identity as a skinned template (:func:`ict_template`) and, per frame, the tracked head pose
+    as the root joint's rotation and translation and the tracked expressions of the upper face
+    and cheeks; the mouth is left to the audio, as in :func:`make_ict_talking`. Returns
+    ``(template, rot [T, J, 3], transl [T, 3], expr [T, K], tracked_joints [J], tracked_expr [K])``."""
+    from scipy.spatial.transform import Rotation
+
+    from geoface.avatar.ict import ICTPerson
+    from geoface.errors import CaptureError
+
+    meta = cap.meta(need=True)
+    ex, poses = cap.expressions(), cap.head_poses()
+    if "ict_identity" not in meta or ex is None or poses is None:
+        raise CaptureError(f"{cap.path}: a talking capture needs template.npz and poses.npz, or the tracked ICT head "
+                           "that `geoface capture` writes (meta.json's ict_identity, expressions.npz, head_poses.npz)")
+    ident = np.asarray(meta["ict_identity"], np.float64)
+    person = ICTPerson(np.random.default_rng(0), identity=ident, res=64, map_res=64, supersample=1)
+    R, t, piv = poses
+    if np.abs(piv - person.pivot).max() > 1e-4:
+        raise CaptureError(f"{cap.path}/head_poses.npz: its pivot {np.round(piv, 4).tolist()} is not the tracked "
+                           f"head's neck {np.round(person.pivot, 4).tolist()}")
+    tpl, info = ict_template(person, n_vertices)
+    names = info["expression_names"]
+    W, wn = ex
+    T = len(R)
+    rot = np.zeros((T, len(JOINT_NAMES), 3))
+    rot[:, 0] = Rotation.from_matrix(R).as_rotvec()
+    expr = np.zeros((T, len(names)))
+    for j, n in enumerate(names):
+        if n in wn and not is_mouth_blendshape(n):
+            expr[:, j] = W[:, wn.index(n)]
+    d = tracked_dofs(names)
+    return tpl, rot, np.asarray(t, np.float64), expr, d["tracked_joints"], d["tracked_expr"]
 
 
 def lips_box(person) -> np.ndarray:
