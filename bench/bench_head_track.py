@@ -12,12 +12,13 @@ of R_tracked R_trueᵀ in camera coordinates), translation error (mm, the face c
 the mean of the 68 landmark vertices — position in camera coordinates), expression weights'
 correlation with the truth (Pearson over frames, averaged over the blendshapes that move more
 than 0.05), vertex error of the tracked head against the true one (mm over the face's vertices,
-mean and p95), and the fit's frames per second. ``--focal known`` gives the tracker the true
-focal length; ``estimated`` (default) lets it find it.
+mean and p95), and frames per second. Each fit twice: with the focal length estimated, and
+known (the true one given). ``--refine``: also the photometric refinement after the landmark fit
+(``refine_photometric``), with the photometric error before and after.
 
 Seeds: 11, 12 validation (where the settings were chosen), 13, 14, 15 test.
 
-    python bench/bench_head_track.py [--seeds 13 14 15] [--res 512] [--seconds 4] [--out FILE]
+    python bench/bench_head_track.py [--seeds 11 12 13 14 15] [--res 512] [--seconds 3] [--refine] [--out FILE]
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ def render_person(seed: int, res: int, seconds: float, fps: float = 25.0):
     """Frames and the truth of one talking ICT person (the generator of ``talk synth``)."""
     from geoface.avatar.ict import ICTPerson, arkit_curves, head_motion
     from geoface.rotations import euler_rotation
-    from geoface.thgs.data import speech_like
+    from geoface.avatar.audio import speech_like
 
     rng = np.random.default_rng([seed, 7201])
     person = ICTPerson(rng, res=res, supersample=2)
@@ -100,13 +101,14 @@ def pnp68(person, frames_pts68, Vtrue):
 
 def main(argv=None) -> int:
     from geoface.track import facemesh_points, ibug68_from_mediapipe
+    from geoface.track.head_refine import refine_photometric
     from geoface.track.head_track import TrackSettings, fit_head_track
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[13, 14, 15])
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--seconds", type=float, default=4.0)
-    ap.add_argument("--focal", choices=("estimated", "known"), default="estimated")
+    ap.add_argument("--refine", action="store_true", help="also the photometric refinement")
     ap.add_argument("--settings", default="{}", help="TrackSettings overrides as JSON")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
@@ -115,23 +117,35 @@ def main(argv=None) -> int:
     for seed in a.seeds:
         person, frames, Vtrue, Rtrue, Etrue = render_person(seed, a.res, a.seconds)
         pts = facemesh_points(frames, video=True, quiet=True)
-        t0 = time.perf_counter()
-        tr = fit_head_track(pts, (a.res, a.res), focal=person.cam.fx if a.focal == "known" else None,
-                            settings=settings, quiet=True)
-        sec = time.perf_counter() - t0
-        Vfit = np.stack([tr.posed(k) for k in range(len(tr))])
         split = "val" if seed in (11, 12) else "test"
-        base = {"seed": seed, "split": split, "res": a.res, "frames": len(frames), "focal": a.focal}
-        r = scores(person, Vtrue, Rtrue, Etrue, tr.R, Vfit, tr.expressions)
-        lines.append({**base, "method": "ict_head_track", **r, "fit_fps": round(len(frames) / sec, 1),
-                      "focal_px": round(tr.focal, 1), "true_focal_px": round(person.cam.fx, 1),
-                      "residual_px": round(float(np.nanmedian(tr.residual_px)), 3)})
+        base = {"seed": seed, "split": split, "res": a.res, "frames": len(frames)}
+        rgb = np.stack(frames).astype(np.float32) / 255.0
+        masks = (rgb.max(-1) > 0).astype(np.float32)
+        for focal in ("estimated", "known"):
+            t0 = time.perf_counter()
+            tr = fit_head_track(pts, (a.res, a.res), focal=person.cam.fx if focal == "known" else None,
+                                settings=settings, quiet=True)
+            sec = time.perf_counter() - t0
+            fits = [("ict_head_track", tr, sec, {})]
+            if a.refine:
+                t0 = time.perf_counter()
+                tr2, ref = refine_photometric(tr, rgb, masks, pts, quiet=True)
+                fits.append(("ict_head_track_refined", tr2, sec + time.perf_counter() - t0,
+                             {"photo_err_before": round(float(np.nanmean(ref.before)), 4),
+                              "photo_err_after": round(float(np.nanmean(ref.after)), 4)}))
+            for method, t_, s_, extra in fits:
+                Vfit = np.stack([t_.posed(k) for k in range(len(t_))])
+                r = scores(person, Vtrue, Rtrue, Etrue, t_.R, Vfit, t_.expressions)
+                lines.append({**base, "method": method, "focal": focal, **r, "fps": round(len(frames) / s_, 2),
+                              "focal_px": round(t_.focal, 1), "true_focal_px": round(person.cam.fx, 1),
+                              "residual_px": round(float(np.nanmedian(t_.residual_px)), 3), **extra})
+                print(json.dumps(lines[-1]), flush=True)
         idx, w = ibug68_from_mediapipe()
         p68 = np.einsum("tkjd,kj->tkd", pts[:, idx], w)
         Rp, Vp = pnp68(person, p68, Vtrue)
-        lines.append({**base, "method": "pnp68_true_head_true_camera", **scores(person, Vtrue, Rtrue, Etrue, Rp, Vp)})
-        for line in lines[-2:]:
-            print(json.dumps(line), flush=True)
+        lines.append({**base, "method": "pnp68_true_head_true_camera", "focal": "known",
+                      **scores(person, Vtrue, Rtrue, Etrue, Rp, Vp)})
+        print(json.dumps(lines[-1]), flush=True)
     if a.out:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         with open(a.out, "a") as fh:

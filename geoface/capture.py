@@ -277,7 +277,8 @@ class Capture:
         except (OSError, KeyError, ValueError) as e:
             raise CaptureError(f"{p}: needs points [T, 468, 2], found [T], confidence [T] ({type(e).__name__})") from None
         if pts.shape != (self.n_all, 468, 2) or found.shape != (self.n_all,) or conf.shape != (self.n_all,):
-            raise CaptureError(f"{p}: shapes {pts.shape}, {found.shape}, {conf.shape} do not fit {self.n_all} frames")
+            raise CaptureError(f"{p}: shapes {pts.shape}, {found.shape}, {conf.shape}; need [{self.n_all}, 468, 2], "
+                               f"[{self.n_all}], [{self.n_all}]")
         return self._cut(pts.astype(np.float64)), self._cut(found.astype(bool)), self._cut(conf.astype(np.float64))
 
     def camera(self) -> Camera:

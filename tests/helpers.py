@@ -50,3 +50,28 @@ def planar_grid(n: int = 21):
     inner = np.ones(len(uv), bool)
     inner[boundary_loops(F)[0]] = False
     return F, uv, inner
+
+
+_VIDEO_DIRS = [os.environ.get("GEOFACE_SHARED_VIDEOS"), REPO.parent / "shared" / "data" / "videos"]
+
+
+def shared_video(name: str) -> Path:
+    """A real clip of ``../shared/data/videos`` (never copied into the repository: its terms keep
+    it there); the test is skipped where the folder is absent."""
+    for d in _VIDEO_DIRS:
+        if d and (Path(d) / name).is_file():
+            return Path(d) / name
+    pytest.skip(f"shared video {name} not available (set GEOFACE_SHARED_VIDEOS)")
+
+
+def short_clip(name: str, out: Path, seconds: float = 1.0) -> Path:
+    """The first ``seconds`` of a shared clip, with its sound, as an MP4 in ``out``."""
+    import subprocess
+
+    from geoface.video import ffmpeg_exe
+
+    src = shared_video(name)
+    dst = Path(out) / f"{Path(name).stem}_{seconds:g}s.mp4"
+    subprocess.run([ffmpeg_exe(), "-nostdin", "-v", "error", "-y", "-i", str(src), "-t", str(seconds), "-c:v", "libx264",
+                    "-pix_fmt", "yuv420p", "-c:a", "aac", str(dst)], check=True)
+    return dst

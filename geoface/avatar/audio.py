@@ -16,7 +16,7 @@ import numpy as np
 
 from geoface.splat.errors import SplatError
 
-__all__ = ["read_wav", "log_mel", "audio_features", "envelope", "audio_context"]
+__all__ = ["read_wav", "log_mel", "audio_features", "envelope", "audio_context", "speech_like"]
 
 #: sample rates read_wav accepts (log-mel features need at least ~100 samples per 10 ms hop)
 MIN_SAMPLE_RATE = 8000
@@ -137,3 +137,43 @@ def audio_context(features, window: int) -> np.ndarray:
         return A
     idx = np.clip(np.arange(len(A))[:, None] + np.arange(-window, window + 1)[None], 0, len(A) - 1)
     return A[idx].reshape(len(A), -1)
+
+
+def speech_like(seconds: float, sr: int = 16000, seed: int = 0):
+    """A speech-like signal: (samples, loudness envelope at sr, per-sample roundedness 0..1)."""
+    rng = np.random.default_rng(seed)
+    n = int(seconds * sr)
+    t = np.arange(n) / sr
+    env = np.zeros(n)
+    rnd = np.zeros(n)
+    f1 = np.full(n, 500.0)
+    pos = 0.2
+    while pos < seconds - 0.2:
+        if rng.random() < 0.15:  # a pause
+            pos += rng.uniform(0.25, 0.5)
+            continue
+        dur = rng.uniform(0.16, 0.3)
+        a, b = int(pos * sr), int(min(pos + dur, seconds) * sr)
+        u = np.linspace(0, 1, b - a)
+        env[a:b] = np.maximum(env[a:b], rng.uniform(0.5, 1.0) * np.sin(np.pi * u) ** 1.5)
+        o = rng.random() < 0.35
+        rnd[a:b] = np.maximum(rnd[a:b], (1.0 if o else 0.0) * np.sin(np.pi * u))
+        f1[a:b] = 450.0 if o else rng.uniform(650, 800)
+        pos += dur + rng.uniform(0.02, 0.08)
+    f0 = 120 + 15 * np.sin(2 * np.pi * 0.7 * t)
+    phase = np.cumsum(2 * np.pi * f0 / sr)
+    src = np.sign(np.sin(phase)) * 0.5 + 0.1 * rng.normal(size=n)  # buzz + breath
+    from scipy.signal import lfilter
+
+    out = np.zeros(n)
+    blk = sr // 100
+    for s in range(0, n, blk):  # time-varying two-formant resonator, 10 ms blocks
+        seg = src[s:s + blk]
+        y = np.zeros_like(seg)
+        for F, bw in ((f1[s], 90.0), (1200.0 + 600 * (1 - rnd[s]), 120.0)):
+            r = np.exp(-np.pi * bw / sr)
+            a = [1, -2 * r * np.cos(2 * np.pi * F / sr), r * r]
+            y += lfilter([1 - r], a, seg)
+        out[s:s + blk] = y
+    out = out / (np.abs(out).max() + 1e-9) * env
+    return out.astype(np.float32), env, rnd

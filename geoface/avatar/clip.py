@@ -73,7 +73,8 @@ def face_crops(points, found, *, fps: float, margin: float = 1.9, smooth_seconds
     ok = np.asarray(found, bool) & np.isfinite(P).all((1, 2))
     if not ok.any():
         raise CaptureError("no face found in any frame: nothing to crop")
-    lo, hi = np.nanmin(P[:, list(_OVAL)], 1), np.nanmax(P[:, list(_OVAL)], 1)
+    Q = np.where(ok[:, None, None], P[:, list(_OVAL)], 0.0)
+    lo, hi = Q.min(1), Q.max(1)
     c = (lo + hi) / 2
     size = (hi - lo).max(1)
     t = np.arange(len(P))

@@ -280,7 +280,7 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
     from geoface.progress import progress
     from geoface.avatar.capture import euler_rotation
     from geoface.avatar.ict import ICTPerson, head_motion, arkit_curves
-    from geoface.thgs.data import speech_like
+    from geoface.avatar.audio import speech_like
 
     deg, mm = (float(x) for x in perturb)
     if seconds * fps < 5 or not (deg >= 0 and mm >= 0):

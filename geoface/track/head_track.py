@@ -10,16 +10,21 @@ Where each face-mesh point sits on the ICT head is a table that ships with geofa
 ICT-FaceKit people: a triangle of the model's face and barycentric weights per point, and a
 confidence from how consistently MediaPipe puts the point there).
 
-The objective, minimised by Adam over the whole clip at once (torch, float64):
+The objective, minimised over the whole clip at once by Levenberg–Marquardt with the Schur
+complement on the shared unknowns, as bundle adjustment is (:mod:`geoface.track.head_solver`):
 
 * data: a Cauchy (Lorentzian) loss of each point's reprojection error, scaled by the face's
   size in the frame (``scale`` × the distance between the face mesh's cheek points), weighted by the
   table's confidence; frames without a face have none;
 * priors: identity weights N(0, 1) (``w_identity``), expression weights L1 towards 0
-  (``w_expression``: sparse, as ARKit weights are), the focal length log-normal about its
-  initial value (``w_focal``);
-* temporal smoothness: squared frame-to-frame differences of expressions, rotations and
-  translations (``w_smooth``; a video's frames are not independent photos).
+  (``w_expression``: sparse, as ARKit weights are) and within [0, 1], the focal length
+  log-normal about its initial value (``w_focal``);
+* temporal smoothness: squared differences of each frame's expressions, rotation and translation
+  from its neighbours' (``w_smooth``; a video's frames are not independent photos).
+
+MediaPipe's points slide over the face as it turns (the outline most): the table also holds, per
+point, an offset on the head as a quadratic in the direction the camera sees the head from
+(:func:`view_offsets`), fitted with the table.
 
 It starts from OpenCV's PnP of the mean head on each frame (at the focal length given, or 1.2 ×
 the image's larger side), first fits pose and focal alone, then everything. Rotations are
@@ -39,8 +44,9 @@ from pathlib import Path
 import numpy as np
 
 from geoface.errors import GeofaceError
+from geoface.track.head_solver import LM as _LM
 
-__all__ = ["HeadTrack", "fit_head_track", "mediapipe_on_ict", "TrackSettings", "CM_TO_M", "ICT_TRACK_PARTS"]
+__all__ = ["HeadTrack", "fit_head_track", "mediapipe_on_ict", "view_offsets", "TrackSettings", "CM_TO_M", "ICT_TRACK_PARTS"]
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +55,7 @@ CM_TO_M = 0.01
 ICT_TRACK_PARTS = ("skin", "eyes", "teeth", "mouth")
 _TABLE = Path(__file__).parents[1] / "data" / "mediapipe_ict.json"
 #: MediaPipe face-mesh indices of the cheeks' outermost points (the face's width in a frame)
-_CHEEKS = (234, 454)
+CHEEKS = (234, 454)
 
 
 @lru_cache(maxsize=1)
@@ -113,13 +119,13 @@ class HeadTrack:
 
     def neutral(self) -> np.ndarray:
         """The person's expressionless head (metres, canonical), vertices of :data:`ICT_TRACK_PARTS`."""
-        v = _model_view()
+        v = model_view()
         a = np.asarray(self.identity, np.float64)
         return (v.neutral + np.tensordot(a, v.identity_modes[: len(a)], axes=1)) * CM_TO_M
 
     def canonical(self, frame: int) -> np.ndarray:
         """Frame ``frame``'s head with its expression, canonical pose (metres)."""
-        v = _model_view()
+        v = model_view()
         return self.neutral() + np.tensordot(self.expressions[frame], v.expression_modes, axes=1) * CM_TO_M
 
     def posed(self, frame: int) -> np.ndarray:
@@ -138,17 +144,17 @@ class HeadTrack:
         return np.stack(out) if frame is None else out[0]
 
 
-def _model_view():
+def model_view():
     from geoface.synth.ict import load_ict_model
 
     return load_ict_model().view(ICT_TRACK_PARTS)
 
 
 @lru_cache(maxsize=1)
-def _bases():
+def point_bases():
     """(mean (468, 3), identity (100, 468, 3), expression (53, 468, 3)) at the table's points, metres."""
 
-    v = _model_view()
+    v = model_view()
     tab = mediapipe_on_ict()
     if tab["model_vertices"] != len(v.neutral):
         raise GeofaceError(f"{_TABLE}: made for an ICT head of {tab['model_vertices']} vertices; this one has "
@@ -176,14 +182,14 @@ def view_offsets(R, t, centre) -> np.ndarray:
 
 
 def _point_basis(track: HeadTrack) -> np.ndarray:
-    mean, Bid, Bex = _bases()
+    mean, Bid, Bex = point_bases()
     a = np.asarray(track.identity, np.float64)
     base = mean + np.tensordot(a, Bid[: len(a)], axes=1)
     return (base[None] + np.einsum("te,ekd->tkd", track.expressions, Bex)
             + view_offsets(track.R, track.t, mean.mean(0)))
 
 
-def _pnp(P3, p2, focal, centre):
+def pnp(P3, p2, focal, centre):
     """OpenCV's PnP: (R, t) of ``P3`` seen at ``p2``; None where it fails."""
     import cv2
 
@@ -230,14 +236,14 @@ def fit_head_track(points, image_size, *, found=None, focal: float | None = None
     if focal_init is not None and not (np.isfinite(focal_init) and focal_init > 0):
         raise GeofaceError(f"head track: focal_init must be a positive number of pixels; got {focal_init!r}")
     f0 = float(focal) if focal is not None else float(focal_init or 1.2 * max(W, H))
-    mean, Bid, Bex = _bases()
+    mean, Bid, Bex = point_bases()
     n_id = int(min(max(s.n_identity, 0), len(Bid)))
     conf = mediapipe_on_ict()["confidence"] * use
     # PnP on each frame with a face; the others take the nearest found frame's pose
     R0, t0v = np.zeros((T, 3, 3)), np.zeros((T, 3))
     good = np.zeros(T, bool)
     for k in np.flatnonzero(ok):
-        r = _pnp(mean[use], P[k, use], f0, centre)
+        r = pnp(mean[use], P[k, use], f0, centre)
         if r is not None:
             R0[k], t0v[k] = r
             good[k] = True
@@ -248,10 +254,11 @@ def fit_head_track(points, image_size, *, found=None, focal: float | None = None
         j = gi[np.argmin(np.abs(gi - k))]
         R0[k], t0v[k] = R0[j], t0v[j]
     ok &= good
-    width = np.linalg.norm(P[:, _CHEEKS[0]] - P[:, _CHEEKS[1]], axis=-1)
+    width = np.linalg.norm(P[:, CHEEKS[0]] - P[:, CHEEKS[1]], axis=-1)
     width = np.where(ok, width, np.nanmedian(width[ok]))
 
-    lm = _LM(P, ok, use, conf, width, f0, centre, R0, t0v, mean, Bid[:n_id], Bex, s, estimate_focal=focal is None)
+    lm = _LM(P, ok, use, conf, width, f0, centre, R0, t0v, mean, Bid[:n_id], Bex, s, estimate_focal=focal is None,
+             offsets=view_offsets)
     bar = StepProgress(s.rigid_iterations + s.iterations, "fitting the head", quiet=quiet)
     try:
         lm.run(s.rigid_iterations, full=False, bar=bar)
@@ -267,217 +274,6 @@ def fit_head_track(points, image_size, *, found=None, focal: float | None = None
     return HeadTrack(identity=a.copy(), expressions=E.copy(), expression_names=tuple(_model_names()), R=R.copy(),
                      t=t.copy(), focal=float(f0 * np.exp(logf)), centre=centre, image_size=(W, H), found=ok,
                      residual_px=resid, seconds=time.perf_counter() - t0, settings=s)
-
-
-def _skew(v):
-    """(..., 3) → (..., 3, 3) cross-product matrices."""
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1), np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
-
-
-def _expmap(w):
-    """(T, 3) rotation vectors → (T, 3, 3) (Rodrigues)."""
-    th = np.linalg.norm(w, axis=-1)[:, None, None]
-    K = _skew(w / np.maximum(th[..., 0], 1e-15))
-    return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * (K @ K)
-
-
-def _logmap(R):
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(R).as_rotvec()
-
-
-class _LM:
-    """Levenberg–Marquardt over the clip, as in bundle adjustment: per frame a block of 59
-    unknowns (rotation update, translation, 53 expression weights), shared by all frames the
-    identity weights and the focal length's logarithm; each step solves the normal equations by
-    the Schur complement on the shared block (frames are independent given it). The Cauchy loss
-    by iteratively reweighted least squares; the expression bounds by projection; the temporal
-    smoothness pulls each frame towards the mean of its neighbours at the current iterate."""
-
-    NF = 59
-
-    def __init__(self, P, ok, use, conf, width, f0, centre, R0, t0, mean, Bid, Bex, s, *, estimate_focal):
-        self.P, self.ok, self.s = np.nan_to_num(P), ok, s
-        self.f0, self.c = f0, np.asarray(centre, np.float64)
-        self.mean, self.Bid, self.Bex = mean, Bid, Bex
-        self.nid, self.ne = len(Bid), len(Bex)
-        self.est_f = estimate_focal
-        self.Wpt = ok[:, None] * (conf * use)[None]  # (T, K)
-        self.norm = max(float(self.Wpt.sum()), 1e-9)
-        self.sc2 = (s.scale * width) ** 2  # (T,)
-        self.depth = float(np.median(t0[ok, 2]))
-        T = len(P)
-        self.state = (np.zeros(self.nid), 0.0, np.zeros((T, self.ne)), R0.copy(), t0.copy())
-        self.lam = 1e-3
-
-    def project(self, st):
-        a, logf, E, R, t = st
-        X = ((self.mean + np.tensordot(a, self.Bid, axes=1))[None] + np.einsum("te,ekd->tkd", E, self.Bex)
-             + view_offsets(R, t, self.mean.mean(0)))
-        Xc = np.einsum("tij,tkj->tki", R, X) + t[:, None]
-        z = np.maximum(Xc[..., 2], 1e-6)
-        f = self.f0 * np.exp(logf)
-        return X, Xc, f * Xc[..., :2] / z[..., None] + self.c
-
-    def _neighbours(self, A):
-        """The mean of each frame's neighbours (one neighbour at the ends)."""
-        out = np.empty_like(A)
-        if len(A) == 1:
-            return A.copy()
-        out[1:-1] = 0.5 * (A[:-2] + A[2:])
-        out[0], out[-1] = A[1], A[-2]
-        return out
-
-    def cost(self, st, full):
-        a, logf, E, R, t = st
-        _, _, uv = self.project(st)
-        s2 = ((uv - self.P) ** 2).sum(-1) / self.sc2[:, None]
-        c = float((self.Wpt * np.log1p(s2)).sum()) / self.norm
-        s, T = self.s, len(E)
-        c += s.w_focal * logf ** 2
-        ws = s.w_smooth / T
-        Rn = self._neighbours_rot(R)
-        c += ws * float((_logmap(np.einsum("tij,tkj->tik", R, Rn)) ** 2).sum())
-        c += ws * float((((t - self._neighbours(t)) / self.depth) ** 2).sum())
-        if full:
-            c += s.w_identity * float(a @ a) + s.w_expression * float(E.sum()) / T
-            c += ws * float(((E - self._neighbours(E)) ** 2).sum())
-        return c
-
-    def _neighbours_rot(self, R):
-        from scipy.spatial.transform import Rotation
-
-        if len(R) == 1:
-            return R.copy()
-        q = Rotation.from_matrix(R).as_quat()
-        q = q * np.sign((q * q[np.r_[0, np.arange(len(q) - 1)]]).sum(1))[:, None]  # one hemisphere
-        qs = self._neighbours(q)
-        return Rotation.from_quat(qs / np.linalg.norm(qs, axis=1, keepdims=True)).as_matrix()
-
-    def step_system(self, st, full):
-        """Normal equations: (H_ff (T, 59, 59), H_fs (T, 59, S), H_ss (S, S), g_f (T, 59), g_s (S,))."""
-        a, logf, E, R, t = st
-        s, T, K = self.s, len(E), self.P.shape[1]
-        S = self.nid + 1
-        X, Xc, uv = self.project(st)
-        r = uv - self.P  # (T, K, 2)
-        s2 = (r ** 2).sum(-1) / self.sc2[:, None]
-        w = 2 * self.Wpt / (1 + s2) / self.sc2[:, None] / self.norm  # IRLS weights (T, K)
-        f = self.f0 * np.exp(logf)
-        z = np.maximum(Xc[..., 2], 1e-6)
-        A = np.zeros((T, K, 2, 3))
-        A[..., 0, 0] = A[..., 1, 1] = f / z
-        A[..., 0, 2] = -f * Xc[..., 0] / z ** 2
-        A[..., 1, 2] = -f * Xc[..., 1] / z ** 2
-        Hff = np.zeros((T, self.NF, self.NF))
-        Hfs = np.zeros((T, self.NF, S))
-        Hss = np.zeros((S, S))
-        gf = np.zeros((T, self.NF))
-        gs = np.zeros(S)
-        RX = Xc - t[:, None]
-        for lo in range(0, T, 16):  # frames in chunks (the Jacobians are 468 × 2 × 160 per frame)
-            sl = slice(lo, min(lo + 16, T))
-            Ac = A[sl]
-            n = Ac.shape[0]
-            RBe = np.einsum("tjl,ekl->tkje", R[sl], self.Bex, optimize=True)  # (n, K, 3, 53)
-            RBi = np.einsum("tjl,ekl->tkje", R[sl], self.Bid, optimize=True)  # (n, K, 3, nid)
-            J = np.empty((n, K, 2, self.NF + S))
-            J[..., 0:3] = -Ac @ _skew(RX[sl])
-            J[..., 3:6] = Ac
-            J[..., 6:self.NF] = Ac @ RBe
-            J[..., self.NF:self.NF + self.nid] = Ac @ RBi
-            J[..., -1] = uv[sl] - self.c
-            J = J.reshape(n, 2 * K, self.NF + S)
-            wr = np.repeat(w[sl], 2, axis=1)  # (n, 2K)
-            Jw = J * wr[..., None]
-            H = Jw.transpose(0, 2, 1) @ J  # (n, 59 + S, 59 + S)
-            g = np.einsum("tra,tr->ta", Jw, r[sl].reshape(n, 2 * K))
-            Hff[sl] = H[:, :self.NF, :self.NF]
-            Hfs[sl] = H[:, :self.NF, self.NF:]
-            Hss += H[:, self.NF:, self.NF:].sum(0)
-            gf[sl] = g[:, :self.NF]
-            gs += g[:, self.NF:].sum(0)
-        ws = 2 * s.w_smooth / T
-        # smoothness towards the neighbours' mean (the neighbours held at the current iterate)
-        dr = _logmap(np.einsum("tij,tkj->tik", R, self._neighbours_rot(R)))
-        gf[:, 0:3] += ws * dr
-        gf[:, 3:6] += ws * (t - self._neighbours(t)) / self.depth ** 2
-        idx = np.arange(6)
-        Hff[:, idx[:3], idx[:3]] += ws
-        Hff[:, idx[3:], idx[3:]] += ws / self.depth ** 2
-        gs[self.nid] += 2 * s.w_focal * logf
-        Hss[self.nid, self.nid] += 2 * s.w_focal
-        if full:
-            gf[:, 6:] += s.w_expression / T + ws * (E - self._neighbours(E))
-            Hff[:, np.arange(6, self.NF), np.arange(6, self.NF)] += ws
-            gs[:self.nid] += 2 * s.w_identity * a
-            Hss[np.arange(self.nid), np.arange(self.nid)] += 2 * s.w_identity
-        return Hff, Hfs, Hss, gf, gs
-
-    def solve(self, sys_, full):
-        Hff, Hfs, Hss, gf, gs = (x.copy() for x in sys_)
-        active_f = np.ones(self.NF, bool)
-        active_s = np.ones(len(gs), bool)
-        if not full:
-            active_f[6:] = False
-            active_s[:self.nid] = False
-        if not self.est_f:
-            active_s[self.nid] = False
-        for H, g, act in ((Hff, gf, active_f), (None, None, None)):
-            if H is None:
-                break
-            H[:, ~act, :] = 0
-            H[:, :, ~act] = 0
-            H[:, ~act, ~act] = 1
-            g[:, ~act] = 0
-        Hfs[:, ~active_f, :] = 0
-        Hfs[:, :, ~active_s] = 0
-        Hss[~active_s, :] = 0
-        Hss[:, ~active_s] = 0
-        Hss[~active_s, ~active_s] = 1
-        gs[~active_s] = 0
-        d = np.arange(self.NF)
-        Hff[:, d, d] += self.lam * Hff[:, d, d] + 1e-12
-        ds = np.arange(len(gs))
-        Hss[ds, ds] += self.lam * Hss[ds, ds] + 1e-12
-        Y = np.linalg.solve(Hff, np.concatenate([Hfs, gf[..., None]], -1))  # H_ff⁻¹ [H_fs | g_f]
-        Sc = Hss - np.einsum("tfa,tfb->ab", Hfs, Y[..., :-1])
-        rhs = -gs + np.einsum("tfa,tf->a", Hfs, Y[..., -1])
-        xs = np.linalg.solve(Sc, rhs)
-        xf = -Y[..., -1] - np.einsum("tfa,a->tf", Y[..., :-1], xs)
-        return xf, xs
-
-    def apply(self, st, xf, xs):
-        a, logf, E, R, t = st
-        return (a + xs[:self.nid], logf + float(xs[self.nid]), np.clip(E + xf[:, 6:], 0.0, 1.0),
-                _expmap(xf[:, :3]) @ R, t + xf[:, 3:6])
-
-    def run(self, iterations: int, *, full: bool, bar) -> None:
-        c = self.cost(self.state, full)
-        done = 0
-        while done < iterations:
-            sys_ = self.step_system(self.state, full)
-            for _ in range(8):
-                xf, xs = self.solve(sys_, full)
-                cand = self.apply(self.state, xf, xs)
-                cc = self.cost(cand, full)
-                done += 1
-                bar.update(1)
-                if cc < c:
-                    self.lam = max(self.lam / 3, 1e-7)
-                    break
-                self.lam = min(self.lam * 5, 1e7)
-            else:
-                bar.update(max(iterations - done, 0))
-                return
-            improved = c - cc
-            self.state, c = cand, cc
-            if improved < 1e-9 * max(c, 1e-12):
-                bar.update(max(iterations - done, 0))
-                return
 
 
 def _model_names():
