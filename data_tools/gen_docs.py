@@ -22,7 +22,7 @@ GENERATED_PAGES = ("index.md", "cli_reference.md", "changelog.md", "license.md",
 #: what its ``__all__`` exports
 LAYERS = [
     ("Foundations", ["geoface", "geoface.errors", "geoface.tol", "geoface.progress", "geoface.video", "geoface.images",
-                     "geoface.rotations", "geoface.camera", "geoface.landmarks"]),
+                     "geoface.rotations", "geoface.camera", "geoface.landmarks", "geoface.capture"]),
     ("Geometry", ["geoface.mesh", "geoface.synth", "geoface.repair", "geoface.param", "geoface.gimage", "geoface.uvmap"]),
     ("Pipelines", ["geoface.pipeline", "geoface.dataset"]),
     ("Pictures", ["geoface.viz", "geoface.webview"]),

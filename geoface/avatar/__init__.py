@@ -1,5 +1,5 @@
-"""What both avatars (:mod:`geoface.hfm`, :mod:`geoface.thgs`) share: the capture folder
-(frames, camera, landmarks), audio features, head pose from landmarks, kinematics and templates
+"""What both avatars (:mod:`geoface.hfm`, :mod:`geoface.thgs`) share: captures made from a real
+clip (:func:`capture_clip`, ``geoface capture``), the capture folder (frames, camera, landmarks), audio features, head pose from landmarks, kinematics and templates
 (skinned heads), per-frame pose corrections, model folders, and the ICT-FaceKit person their
 synthetic captures render.
 
@@ -11,7 +11,8 @@ from geoface._lazy import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports("geoface.avatar", {
     "audio_context": "audio", "audio_features": "audio", "envelope": "audio", "log_mel": "audio",
-    "read_wav": "audio", "IBUG68_LOWER": "geoface.landmarks", "IBUG68_NAMES": "geoface.landmarks", "IBUG68_RIGID": "geoface.landmarks",
+    "read_wav": "audio", "speech_like": "audio", "capture_clip": "clip", "write_overlay": "clip", "capture_head": "clip",
+    "ClipCapture": "clip", "Capture": "geoface.capture", "IBUG68_LOWER": "geoface.landmarks", "IBUG68_NAMES": "geoface.landmarks", "IBUG68_RIGID": "geoface.landmarks",
     "camera_from_json": "capture", "camera_to_json": "capture", "euler_rotation": "capture",
     "headset_mesh": "capture", "read_landmarks": "capture", "stack_frames": "capture",
     "write_frame": "capture", "FrameCorrections": "corrections",
