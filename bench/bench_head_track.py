@@ -14,7 +14,7 @@ correlation with the truth (Pearson over frames, averaged over the blendshapes t
 than 0.05), vertex error of the tracked head against the true one (mm over the face's vertices,
 mean and p95), and frames per second. Each fit twice: with the focal length estimated, and
 known (the true one given). ``--refine``: also the photometric refinement after the landmark fit
-(``refine_photometric``), with the photometric error before and after.
+with the focal length estimated (``refine_photometric``), with the photometric error before and after.
 
 Seeds: 11, 12 validation (where the settings were chosen), 13, 14, 15 test.
 
@@ -127,7 +127,7 @@ def main(argv=None) -> int:
                                 settings=settings, quiet=True)
             sec = time.perf_counter() - t0
             fits = [("ict_head_track", tr, sec, {})]
-            if a.refine:
+            if a.refine and focal == "estimated":
                 t0 = time.perf_counter()
                 tr2, ref = refine_photometric(tr, rgb, masks, pts, quiet=True)
                 fits.append(("ict_head_track_refined", tr2, sec + time.perf_counter() - t0,

@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+
+from geoface.errors import CaptureError
 import torch
 
 from geoface.camera import look_at
@@ -516,7 +518,7 @@ def test_landmarks_without_names_are_the_ibug_68(ict_capture, tmp_path):
     (d / "landmarks.json").write_text(json.dumps({"points": lm["points"]}))
     assert load_video(d).names == list(IBUG68_NAMES)
     (d / "landmarks.json").write_text(json.dumps({"names": lm["names"][:10], "points": lm["points"]}))
-    with pytest.raises(SplatError, match="10 names but 68 points"):
+    with pytest.raises(CaptureError, match="10 names but 68 points"):
         load_video(d)
 
 

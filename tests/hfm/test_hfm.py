@@ -567,24 +567,26 @@ def test_lower_face_crop_contains_the_mouth():
 def test_loader_errors(videos, tmp_path):
     import shutil
 
+    from geoface.errors import CaptureError
+
     reg, _ = videos
-    with pytest.raises(SplatError, match="no frames"):
+    with pytest.raises(CaptureError, match="no frames"):
         load_video(tmp_path)
     bad = tmp_path / "bad"
     shutil.copytree(reg, bad)
     n = len(list((bad / "frames").glob("*.png")))
     (bad / "landmarks.json").write_text(json.dumps({"names": ["nose_tip"], "points": [[[0, 0]]] * n}))
-    with pytest.raises(SplatError, match="missing landmarks"):
+    with pytest.raises(CaptureError, match="missing landmarks"):
         load_video(bad)
     (bad / "landmarks.json").write_text(json.dumps({"names": ["nose_tip"], "points": []}))
-    with pytest.raises(SplatError, match="points must be"):
+    with pytest.raises(CaptureError, match="points must be"):
         load_video(bad)
     shutil.rmtree(bad)
     shutil.copytree(reg, bad)
     cam = json.loads((bad / "camera.json").read_text())
     cam["width"] = 100
     (bad / "camera.json").write_text(json.dumps(cam))
-    with pytest.raises(SplatError, match="camera.json"):
+    with pytest.raises(CaptureError, match="camera.json"):
         load_video(bad)
 
 

@@ -4,6 +4,8 @@ import json
 import numpy as np
 import pytest
 
+from geoface.errors import CaptureError
+
 torch = pytest.importorskip("torch")
 
 from geoface.avatar.ict import ICTPerson  # noqa: E402
@@ -225,7 +227,7 @@ def test_template_vertices_sit_on_the_landmarks_and_project_onto_the_capture_s_p
     assert 0 <= loss0 < far
     bad = tmp_path / "talk" / "landmarks.json"
     bad.write_text(json.dumps({"points": [[[0, 0]]]}))
-    with pytest.raises(SplatError, match="landmarks"):
+    with pytest.raises(CaptureError, match="landmarks"):
         load_talking(d)
 
 
