@@ -238,12 +238,13 @@ def _extract_audio(video: Path, wav: Path) -> bool:
 
 def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None, fps: float | None = None,
                  audio=None, head_vertices: int = 6000, overlay: bool = True, margin: float = 1.9,
-                 settings=None, overwrite: bool = False, quiet: bool | None = None) -> ClipCapture:
+                 refine: bool = False, settings=None, overwrite: bool = False, quiet: bool | None = None) -> ClipCapture:
     """Make the capture folder ``out_dir`` of the clip ``source`` (a video file or a folder of
     frames); module doc. ``res``: the crops' side in pixels; ``focal``: the camera's focal length
     in the video's pixels when known (else fitted); ``fps``: a folder's frame rate (default 25);
     ``audio``: a WAV to use as the clip's sound (a silent clip, or better sound);
-    ``head_vertices``: the head mesh's size (one Gaussian per vertex for HFM-GS)."""
+    ``head_vertices``: the head mesh's size (one Gaussian per vertex for HFM-GS); ``refine``: refine
+    the track against the pixels (:func:`geoface.track.head_refine.refine_photometric`; slower)."""
     import shutil
     import time
 
@@ -302,6 +303,13 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
     track = fit_head_track(pts, (int(res), int(res)), found=found, focal=None if focal is None else focal * scale,
                            focal_init=1.2 * max(W0, H0) * scale, settings=settings, quiet=quiet)
     secs["head_track"] = track.seconds
+    photo = None
+    if refine:
+        from geoface.track.head_refine import refine_photometric
+
+        track, ref = refine_photometric(track, crops.astype(np.float32) / 255.0, masks, pts, quiet=quiet)
+        secs["refine"] = ref.seconds
+        photo = [round(float(np.nanmean(ref.before)), 4), round(float(np.nanmean(ref.after)), 4)]
     t0 = time.perf_counter()
     model = load_ict_model()
     view = model.view(ICT_TRACK_PARTS)
@@ -369,6 +377,7 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
             "y_split": upper_split(neutral, view.landmarks), "up": [0, 1, 0],
             "ict_identity": [round(float(x), 6) for x in track.identity], "ict_parts": list(ICT_TRACK_PARTS),
             "focal_px": track.focal, "focal_given": focal is not None, "found": int(found.sum()),
+            "refined": bool(refine), "photometric_error_before_after": photo,
             "residual_px": [None if not np.isfinite(x) else round(float(x), 3) for x in track.residual_px],
             "tracker": {"landmarks": TRACKER, "head": "ICT-FaceKit fit to MediaPipe's 468 points (geoface.track.head_track)"},
             "seconds": {k: round(v, 2) for k, v in secs.items()}})

@@ -12,13 +12,14 @@ def cmd_capture(args) -> int:
     from ..progress import args_quiet
 
     r = capture_clip(args.input, args.output, res=args.res, focal=args.focal, fps=args.fps, audio=args.audio,
-                     head_vertices=args.head_vertices, overlay=not args.no_overlay, margin=args.margin,
+                     head_vertices=args.head_vertices, overlay=not args.no_overlay, margin=args.margin, refine=args.refine,
                      overwrite=args.force, quiet=args_quiet(args))
     missing = r.frames - r.found
     sound = "sound in audio.wav" if r.audio else "no sound (give one with --audio WAV for `talk train`)"
     print(f"{Path(args.input)} -> {r.folder}: {r.frames} frames at {r.fps:g} fps, {args.res}² crops of "
           f"{r.side:.0f} px; a face on {r.found}" + (f" ({missing} from the track)" if missing else "")
-          + f"; ICT head tracked at {r.frames / max(r.seconds['head_track'], 1e-9):.1f} frames/s, "
+          + f"; ICT head tracked at {r.frames / max(r.seconds['head_track'], 1e-9):.1f} frames/s"
+          + (f" and refined at {r.frames / max(r.seconds['refine'], 1e-9):.1f}" if 'refine' in r.seconds else "") + ", "
           f"median reprojection {r.residual_px:.2f} px, focal {r.focal:.0f} px; {sound}"
           + ("" if args.no_overlay else f"; watch {r.folder / 'overlay.mp4'}"))
     return 0
@@ -47,5 +48,8 @@ def register(sub, common) -> None:
                    help="vertices of head.ply, the person's head (HFM-GS starts one Gaussian on each; default: 6000)")
     s.add_argument("--margin", type=number(float, 1, 6), default=1.9, metavar="X",
                    help="the crop's side in face sizes (default: 1.9: the head and a little of the shoulders)")
+    s.add_argument("--refine", action="store_true",
+                   help="refine the head track against the pixels (the face's colours matched frame by frame; "
+                        "about 1 frame/s on 2 cores; docs/video.md has what it gains)")
     s.add_argument("--no-overlay", action="store_true", help="do not draw overlay.mp4 (the tracked head over the frames)")
     s.set_defaults(func=cmd_capture)
