@@ -386,19 +386,18 @@ def track_capture(capture_dir, out_dir, *, masks: bool = True, names=None, heads
     ``landmarks_true.json`` and ``masks_true/`` (a renderer's truth, for evaluation). ``out_dir``
     may be ``capture_dir`` itself (with ``overwrite``): the folder is replaced when complete."""
     from geoface._io import check_tree, copy_checked, output_folder
-    from geoface.capture import write_dense, write_landmarks
+    from geoface.capture import Capture, write_dense, write_landmarks
     from geoface.landmarks import IBUG68_NAMES
     from geoface.images import read_image, save_image
 
     src = Path(capture_dir)
     check_tree(src)  # what it holds is copied: no loop, device or FIFO inside (before the tracking)
-    files = sorted((src / "frames").glob("*.png"))
-    if not files:
-        raise GeofaceError(f"{src}/frames holds no PNG frames")
-    if names is None and (src / "landmarks.json").is_file():
+    cap = Capture(src)  # the one reader of capture folders
+    files = cap.frame_paths
+    if names is None and cap.has("landmarks.json"):
         try:
-            names = json.loads((src / "landmarks.json").read_text()).get("names")
-        except (OSError, ValueError):
+            names = cap.landmarks().names
+        except GeofaceError:  # the capture's own landmarks are replaced: a broken file only loses its names
             names = None
     names = list(IBUG68_NAMES) if names is None else [str(n) for n in names]
     unknown = sorted(set(names) - set(IBUG68_NAMES))

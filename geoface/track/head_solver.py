@@ -42,6 +42,8 @@ class LM:
         self.f0, self.c = f0, np.asarray(centre, np.float64)
         self.mean, self.Bid, self.Bex = mean, Bid, Bex
         self.nid, self.ne = len(Bid), len(Bex)
+        self.Bex_k = np.ascontiguousarray(Bex.transpose(1, 2, 0))  # (K, 3, 53)
+        self.Bid_k = np.ascontiguousarray(Bid.transpose(1, 2, 0))  # (K, 3, nid)
         self.est_f = estimate_focal
         self.Wpt = ok[:, None] * (conf * use)[None]  # (T, K)
         self.norm = max(float(self.Wpt.sum()), 1e-9)
@@ -116,23 +118,36 @@ class LM:
         gf = np.zeros((T, self.NF))
         gs = np.zeros(S)
         RX = Xc - t[:, None]
-        for lo in range(0, T, 16):  # frames in chunks (the Jacobians are 468 × 2 × 160 per frame)
-            sl = slice(lo, min(lo + 16, T))
+        # the columns this stage solves for: the rigid stage only pose and focal length
+        cols = np.r_[0:self.NF + S] if full else np.r_[0:6, self.NF + self.nid]
+        nc = len(cols)
+        for lo in range(0, T, 32):  # frames in chunks (the Jacobians are 468 × 2 × 160 per frame)
+            sl = slice(lo, min(lo + 32, T))
             Ac = A[sl]
             n = Ac.shape[0]
-            RBe = np.einsum("tjl,ekl->tkje", R[sl], self.Bex, optimize=True)  # (n, K, 3, 53)
-            RBi = np.einsum("tjl,ekl->tkje", R[sl], self.Bid, optimize=True)  # (n, K, 3, nid)
-            J = np.empty((n, K, 2, self.NF + S))
+            J = np.empty((n, K, 2, self.NF + S)) if full else np.empty((n, K, 2, nc))
             J[..., 0:3] = -Ac @ _skew(RX[sl])
             J[..., 3:6] = Ac
-            J[..., 6:self.NF] = Ac @ RBe
-            J[..., self.NF:self.NF + self.nid] = Ac @ RBi
             J[..., -1] = uv[sl] - self.c
-            J = J.reshape(n, 2 * K, self.NF + S)
+            if full:
+                # A R (per frame), then per point a (2n × 3) @ (3 × modes) product: one batched
+                # matrix product over the 468 points instead of 468·n tiny ones
+                AR = (Ac @ R[sl][:, None]).transpose(1, 0, 2, 3).reshape(K, 2 * n, 3)
+                J[..., 6:self.NF] = (AR @ self.Bex_k).reshape(K, n, 2, -1).transpose(1, 0, 2, 3)
+                if self.nid:
+                    J[..., self.NF:self.NF + self.nid] = (AR @ self.Bid_k).reshape(K, n, 2, -1).transpose(1, 0, 2, 3)
+            J = J.reshape(n, 2 * K, J.shape[-1])
             wr = np.repeat(w[sl], 2, axis=1)  # (n, 2K)
             Jw = J * wr[..., None]
-            H = Jw.transpose(0, 2, 1) @ J  # (n, 59 + S, 59 + S)
-            g = np.einsum("tra,tr->ta", Jw, r[sl].reshape(n, 2 * K))
+            gc = np.einsum("tra,tr->ta", Jw, r[sl].reshape(n, 2 * K))
+            # the Gauss–Newton matrix in single precision (half the time; its rounding is far below
+            # the damping's share, and the step is solved in double)
+            J32, Jw32 = J.astype(np.float32), Jw.astype(np.float32)
+            Hc = (Jw32.transpose(0, 2, 1) @ J32).astype(np.float64)  # (n, nc, nc)
+            H = np.zeros((n, self.NF + S, self.NF + S))
+            g = np.zeros((n, self.NF + S))
+            H[:, cols[:, None], cols[None, :]] = Hc
+            g[:, cols] = gc
             Hff[sl] = H[:, :self.NF, :self.NF]
             Hfs[sl] = H[:, :self.NF, self.NF:]
             Hss += H[:, self.NF:, self.NF:].sum(0)

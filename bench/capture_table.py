@@ -1,0 +1,78 @@
+"""The tables of docs/video.md from the results files (test people's means for the ICT renders;
+one row per clip for the real clips).
+
+    python bench/capture_table.py [--ict bench/results/head_track/ict_512.jsonl]
+                                  [--clips bench/results/capture/clips_512.jsonl]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+NAMES = {("pnp68_true_head_true_camera", "known"): "PnP on MediaPipe's 68, true head and camera (today; oracle)",
+         ("ict_head_track", "estimated"): "**ICT head track**, focal fitted",
+         ("ict_head_track", "known"): "ICT head track, focal given",
+         ("ict_head_track_refined", "estimated"): "ICT head track + pixels, focal fitted"}
+COLS = ("rot_mean_deg", "rot_p95_deg", "trans_mean_mm", "vertex_mean_mm", "vertex_p95_mm", "expr_corr", "fps")
+
+
+def ict_table(path: Path, split: str = "test") -> str:
+    rows = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+    rows = [r for r in rows if r["split"] == split]
+    by = defaultdict(list)
+    for r in rows:
+        by[(r["method"], r.get("focal", "known"))].append(r)
+    seeds = sorted({r["seed"] for r in rows})
+    out = [f"| {split} people {', '.join(map(str, seeds))} | rotation mean / p95 ° | translation mean mm | "
+           "vertices mean / p95 mm | expression r | frames/s |", "|---|---|---|---|---|---|"]
+
+    def m(rs, k):
+        v = [r[k] for r in rs if r.get(k) is not None]
+        return sum(v) / len(v) if v else None
+
+    for key, name in NAMES.items():
+        rs = by.get(key)
+        if not rs:
+            continue
+        e = m(rs, "expr_corr")
+        f = m(rs, "fps")
+        out.append(f"| {name} | {m(rs, 'rot_mean_deg'):.2f} / {m(rs, 'rot_p95_deg'):.2f} | {m(rs, 'trans_mean_mm'):.1f} | "
+                   f"{m(rs, 'vertex_mean_mm'):.1f} / {m(rs, 'vertex_p95_mm'):.1f} | "
+                   f"{'—' if e is None else f'{e:.2f}'} | {'—' if f is None else f'{f:.1f}'} |")
+    return "\n".join(out)
+
+
+def clips_table(path: Path) -> str:
+    rows = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+    by = defaultdict(dict)
+    for r in rows:
+        by[r["clip"]][r["what"]] = r
+    out = ["| clip | frames (face found) | held-out points: track mean / p95 px | baseline (mean head, PnP) mean / p95 px | "
+           "photometric error before → after refinement (frames) |", "|---|---|---|---|---|"]
+    for clip, d in by.items():
+        c, h, p = d.get("capture", {}), d.get("held_out_points", {}), d.get("photometric_refinement")
+        ref = f"{p['photo_err_before']:.3f} → {p['photo_err_after']:.3f} ({p['frames']})" if p else "—"
+        out.append(f"| {clip} | {c.get('frames')} ({c.get('found')}) | {h['track_mean_px']:.2f} / {h['track_p95_px']:.2f} | "
+                   f"{h['baseline_mean_px']:.2f} / {h['baseline_p95_px']:.2f} | {ref} |")
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ict", default=str(ROOT / "bench/results/head_track/ict_512.jsonl"))
+    ap.add_argument("--clips", default=str(ROOT / "bench/results/capture/clips_512.jsonl"))
+    a = ap.parse_args(argv)
+    if Path(a.ict).is_file():
+        print(ict_table(Path(a.ict)), "\n")
+        print(ict_table(Path(a.ict), "val"), "\n")
+    if Path(a.clips).is_file():
+        print(clips_table(Path(a.clips)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
