@@ -23,7 +23,7 @@ import numpy as np
 from ._lazy import lazy_import
 from .errors import GeofaceError
 
-__all__ = ["write_video", "read_video", "probe_video", "ffmpeg_exe"]
+__all__ = ["write_video", "read_video", "iter_video", "video_rate", "probe_video", "ffmpeg_exe"]
 
 
 def ffmpeg_exe() -> str:
@@ -128,30 +128,47 @@ def _last_line(fh) -> str:
     return lines[-1][:300] if lines else ""
 
 
-def read_video(path, *, max_frames: int = 100_000) -> tuple[np.ndarray, float]:
-    """(frames ``(T, H, W, 3)`` uint8 RGB, frames per second) of a video file, decoded by the
-    ffmpeg of imageio-ffmpeg. A file ffmpeg cannot read, or one of more than ``max_frames``
-    frames, is a one-line :class:`GeofaceError`."""
+def iter_video(path, *, max_frames: int = 100_000):
+    """The frames of a video file one by one, ``(H, W, 3)`` uint8 RGB, decoded by the ffmpeg of
+    imageio-ffmpeg (a clip longer than memory streams through). A file ffmpeg cannot read, or one
+    of more than ``max_frames`` frames, is a one-line :class:`GeofaceError`."""
     path = Path(path)
     if not path.is_file():
         raise GeofaceError(f"{path}: no such video")
     iio = lazy_import("imageio_ffmpeg", "reading videos (pip install 'geoface[video]')")
-    frames = []
+    n = 0
     try:
         gen = iio.read_frames(str(path), pix_fmt="rgb24")
         meta = next(gen)
         w, h = (int(x) for x in meta["size"])
         for buf in gen:
-            if len(frames) >= max_frames:
+            if n >= max_frames:
                 gen.close()
                 raise GeofaceError(f"{path}: more than {max_frames} frames")
-            frames.append(np.frombuffer(buf, np.uint8).reshape(h, w, 3))
+            n += 1
+            yield np.frombuffer(buf, np.uint8).reshape(h, w, 3)
     except (RuntimeError, OSError, StopIteration, KeyError, ValueError) as e:
         raise GeofaceError(f"{path}: not a video ffmpeg can read ({str(e).strip().splitlines()[-1][:200] if str(e).strip() else type(e).__name__})") from None
-    if not frames:
+    if n == 0:
         raise GeofaceError(f"{path}: the video has no frames")
-    fps = float(meta.get("fps") or 25.0)
-    return np.stack(frames), fps
+
+
+def video_rate(path) -> float:
+    """Frames per second of a video file (its container's, as ffmpeg reports it; 25 when it gives none)."""
+    iio = lazy_import("imageio_ffmpeg", "reading videos (pip install 'geoface[video]')")
+    try:
+        gen = iio.read_frames(str(path), pix_fmt="rgb24")
+        meta = next(gen)
+        gen.close()
+    except (RuntimeError, OSError, StopIteration, KeyError, ValueError) as e:
+        raise GeofaceError(f"{path}: not a video ffmpeg can read ({type(e).__name__})") from None
+    return float(meta.get("fps") or 25.0)
+
+
+def read_video(path, *, max_frames: int = 100_000) -> tuple[np.ndarray, float]:
+    """(frames ``(T, H, W, 3)`` uint8 RGB, frames per second) of a video file (:func:`iter_video`)."""
+    frames = list(iter_video(path, max_frames=max_frames))
+    return np.stack(frames), video_rate(path)
 
 
 def probe_video(path) -> dict:

@@ -88,11 +88,12 @@ def face_crops(points, found, *, fps: float, margin: float = 1.9, smooth_seconds
 
 
 def crop_frames(frames, boxes, res: int) -> np.ndarray:
-    """The crops ``(T, res, res, 3)`` uint8 of ``frames`` at ``boxes`` (:func:`face_crops`), by an
-    area-averaging resampling (OpenCV); outside the picture is black."""
+    """The crops ``(T, res, res, 3)`` uint8 of ``frames`` (any iterable: a video streams through)
+    at ``boxes (T, 3)`` (:func:`face_crops`), by an area-averaging resampling (OpenCV); outside the
+    picture is black."""
     import cv2
 
-    out = np.zeros((len(frames), res, res, 3), np.uint8)
+    out = np.zeros((len(boxes), res, res, 3), np.uint8)
     for k, (f, (cx, cy, side)) in enumerate(zip(frames, boxes)):
         s = res / side
         M = np.array([[s, 0, res / 2 - s * cx], [0, s, res / 2 - s * cy]])
@@ -256,7 +257,8 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
     from geoface.mesh.io import save_mesh
     from geoface.progress import progress
     from geoface.synth.ict import load_ict_model, neck_pivot, upper_split
-    from geoface.track import TRACKER, face_confidence, facemesh_points, ibug68_from_mediapipe, person_masks, read_frames
+    from geoface.track import (TRACKER, FrameSource, face_confidence, facemesh_points, ibug68_from_mediapipe,
+                               person_masks)
     from geoface.track.head_track import ICT_TRACK_PARTS, fit_head_track
 
     src, out = Path(source), Path(out_dir)
@@ -278,20 +280,21 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
     check_outputs(ins, [out], force=overwrite)
     secs = {}
     t0 = time.perf_counter()
-    frames, names, rate = read_frames(src)
-    if len(frames) < 2:
-        raise CaptureError(f"{src}: a capture needs a clip (2 frames or more); got {len(frames)}")
-    rate = float(fps or rate or 25.0)
-    H0, W0 = frames[0].shape[:2]
+    source = FrameSource(src)  # decoded afresh for each pass: a long clip never sits in memory whole
+    names = source.names
+    if len(source) < 2:
+        raise CaptureError(f"{src}: a capture needs a clip (2 frames or more); got {len(source)}")
+    rate = float(fps or source.fps or 25.0)
+    W0, H0 = source.size
     secs["decode"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    dense = facemesh_points(frames, video=True, quiet=quiet)
+    dense = facemesh_points(source, video=True, total=len(source), quiet=quiet)
     found = np.isfinite(dense).all((1, 2))
     if not found.any():
-        raise CaptureError(f"{src}: no face found in any of the {len(frames)} frames")
+        raise CaptureError(f"{src}: no face found in any of the {len(dense)} frames")
+    names = names[:len(dense)]  # a container that claimed more frames than it holds
     boxes = face_crops(dense, found, fps=rate, margin=margin)
-    crops = crop_frames(frames, boxes, int(res))
-    del frames
+    crops = crop_frames(progress(source, "cropping", total=len(source), quiet=quiet, unit="frames"), boxes, int(res))
     pts = _to_crop(dense, boxes, int(res))
     secs["landmarks"] = time.perf_counter() - t0
     t0 = time.perf_counter()

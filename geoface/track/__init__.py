@@ -33,7 +33,7 @@ import numpy as np
 
 from geoface.errors import GeofaceError, MissingDependencyError
 
-__all__ = ["Tracking", "track_frames", "track_capture", "track_input", "read_frames", "ibug68_from_mediapipe", "TRACKER",
+__all__ = ["Tracking", "track_frames", "track_capture", "track_input", "read_frames", "FrameSource", "ibug68_from_mediapipe", "TRACKER",
            "facemesh_points", "face_confidence", "headset_masks", "one_euro", "SMOOTHING"]
 
 #: the tracker named in the landmarks files it writes
@@ -97,25 +97,36 @@ def _uint8(img) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
-def _each_frame(make_graph, frames, description: str, quiet):
-    """``(frame as uint8, the graph's result)`` for each of ``frames``, with a progress bar. The
-    graph's chatter comes while it is built and first run: both happen with fd 2 held."""
+def _each_frame(make_graph, frames, description: str, quiet, total: int | None = None):
+    """``(frame as uint8, the graph's result)`` for each of ``frames`` (any iterable: a video
+    streams through), with a progress bar. The graph's chatter comes while it is built and first
+    run: both happen with fd 2 held."""
     from geoface.progress import progress
 
-    frames = [_uint8(f) for f in frames]
-    if not frames:
+    it = iter(frames)
+    try:
+        first_frame = _uint8(next(it))
+    except StopIteration:
         return
     with quiet_native_stderr():
         graph = make_graph()
-        first = graph.process(frames[0])
+        first = graph.process(first_frame)
+
+    def every():
+        yield first_frame
+        for f in it:
+            yield _uint8(f)
+
+    n = total if total is not None else (len(frames) if hasattr(frames, "__len__") else None)
     try:
-        for k, a in enumerate(progress(frames, description, quiet=quiet, unit="frames")):
+        for k, a in enumerate(progress(every(), description, total=n, quiet=quiet, unit="frames")):
             yield a, first if k == 0 else graph.process(a)
     finally:
         graph.close()
 
 
-def facemesh_points(frames, *, video: bool = True, irises: bool = False, quiet: bool | None = None) -> np.ndarray:
+def facemesh_points(frames, *, video: bool = True, irises: bool = False, total: int | None = None,
+                    quiet: bool | None = None) -> np.ndarray:
     """MediaPipe's 468 face-mesh points of each frame in pixels, ``(T, 468, 2)`` (NaN where no
     face is found); with ``irises`` its attention model's 478 (the last ten: the irises' centres and
     rims), ``(T, 478, 2)``. ``video``: track from frame to frame (MediaPipe's video mode). The
@@ -128,7 +139,7 @@ def facemesh_points(frames, *, video: bool = True, irises: bool = False, quiet: 
                                                min_detection_confidence=0.5, min_tracking_confidence=0.5)
 
     out = []
-    for a, r in _each_frame(graph, frames, "tracking the face", quiet):
+    for a, r in _each_frame(graph, frames, "tracking the face", quiet, total):
         if not r.multi_face_landmarks:
             out.append(np.full((n, 2), np.nan))
             continue
@@ -334,6 +345,67 @@ def read_frames(path) -> tuple[list, list, float | None]:
         return [_uint8(read_image(p))], [p.name], None
     raise GeofaceError(f"{p}: not an image ({', '.join(_IMAGE_SUFFIXES)}), a video ({', '.join(_VIDEO_SUFFIXES)}) "
                        "or a folder of images")
+
+
+class FrameSource:
+    """The frames of a video file or a folder of images, decoded afresh each time it is iterated
+    (a long clip never sits in memory whole): ``names``, ``fps`` (the video's, else None),
+    ``size`` (W, H), ``len()``."""
+
+    def __init__(self, path):
+        from geoface.images import read_image
+
+        p = Path(path)
+        self.path = p
+        if p.is_dir():
+            frames_check = read_frames  # the folder's checks (names, sizes) without decoding it twice
+            files = sorted(f for f in p.iterdir() if f.suffix.lower() in _IMAGE_SUFFIXES and f.is_file())
+            if not files:
+                frames_check(p)  # the one-line error
+            from geoface._io import image_size
+
+            sizes = {image_size(f, max_pixels=TRACK_MAX_PIXELS) for f in files}
+            stems = [f.stem for f in files]
+            if len(set(stems)) != len(stems):
+                frames_check(p)
+            self.files, self.names, self.fps = files, [f.name for f in files], None
+            first = _uint8(read_image(files[0]))
+            if None not in sizes and len(sizes) > 1:
+                raise GeofaceError(f"{p}: the images are not all the same size")
+            self.size = (first.shape[1], first.shape[0])
+            self._n = len(files)
+        elif p.is_file() and p.suffix.lower() in _VIDEO_SUFFIXES:
+            from geoface.video import iter_video, video_rate
+
+            self.files, self.fps = None, video_rate(p)
+            first = next(iter_video(p))
+            self.size = (first.shape[1], first.shape[0])
+            from geoface.video import probe_video
+
+            self._n = int(probe_video(p)["frames"])  # counted by ffmpeg without decoding
+            self.names = [f"{k:06d}" for k in range(self._n)]
+        elif p.is_file() and p.suffix.lower() in _IMAGE_SUFFIXES:
+            raise GeofaceError(f"{p}: one image; a clip is a video or a folder of frames")
+        else:
+            read_frames(p)  # the one-line error for anything else
+            raise GeofaceError(f"{p}: not a video or a folder of frames")
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __iter__(self):
+        if self.files is None:
+            from geoface.video import iter_video
+
+            yield from iter_video(self.path)
+            return
+        from geoface.images import read_image
+
+        for f in self.files:
+            a = _uint8(read_image(f))
+            if (a.shape[1], a.shape[0]) != self.size:
+                raise GeofaceError(f"{f}: {a.shape[1]}×{a.shape[0]}, not {self.size[0]}×{self.size[1]} as the first frame")
+            yield a
 
 
 def track_input(path, out_json, *, masks_dir=None, smooth: bool = False, fps: float | None = None,

@@ -94,7 +94,10 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
 
     def visible(k):
         Vc = posed_all(k)
-        face, _, depth = rasterize_mesh(Vc, Fskin, cam)
+        # only the triangles that face the camera can hide a face vertex (half the z-buffer's work)
+        P0 = Vc[Fskin[:, 0]]
+        front = (np.cross(Vc[Fskin[:, 1]] - P0, Vc[Fskin[:, 2]] - P0) * P0).sum(1) < 0
+        face, _, depth = rasterize_mesh(Vc, Fskin[front], cam)
         Xs = Vc[samp]
         uv = np.stack([f * Xs[:, 0] / Xs[:, 2] + cx, f * Xs[:, 1] / Xs[:, 2] + cy], 1)
         H, W = depth.shape
