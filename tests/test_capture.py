@@ -198,3 +198,37 @@ def test_refining_against_the_pixels_matches_the_face_better(clip_capture):
     # it moves the head by little: the landmarks keep it in place
     ang = np.degrees(np.arccos(np.clip((np.einsum("tij,tij->t", out.R, tr.R) - 1) / 2, -1, 1)))
     assert ang.max() < 5.0
+
+
+def test_capture_refuses_what_is_not_a_clip_before_tracking(tmp_path):
+    from geoface.avatar.clip import capture_clip
+    from geoface.errors import GeofaceError
+    from geoface.images import save_image
+
+    (tmp_path / "one").mkdir()
+    save_image(tmp_path / "one" / "a.png", np.zeros((8, 8, 3), np.uint8))
+    with pytest.raises(GeofaceError, match="2 frames or more"):
+        capture_clip(tmp_path / "one", tmp_path / "o1", quiet=True)
+    (tmp_path / "fake.mp4").write_text("not a video")
+    with pytest.raises(GeofaceError, match="not a video ffmpeg can read") as e:
+        capture_clip(tmp_path / "fake.mp4", tmp_path / "o2", quiet=True)
+    assert "\n" not in str(e.value)
+    save_image(tmp_path / "photo.png", np.zeros((8, 8, 3), np.uint8))
+    with pytest.raises(GeofaceError, match="one image"):
+        capture_clip(tmp_path / "photo.png", tmp_path / "o3", quiet=True)
+    with pytest.raises(GeofaceError, match="res"):
+        capture_clip(tmp_path / "one", tmp_path / "o4", res=8, quiet=True)
+    assert not any((tmp_path / f"o{k}").exists() for k in range(1, 5))
+
+
+def test_a_frames_folder_streams_and_refuses_a_frame_of_another_size(tmp_path):
+    from geoface.images import save_image
+    from geoface.track import FrameSource
+
+    for k in range(3):
+        save_image(tmp_path / f"{k:03d}.png", np.full((6, 8, 3), 40 * k, np.uint8))
+    src = FrameSource(tmp_path)
+    assert len(src) == 3 and src.size == (8, 6) and [int(f[0, 0, 0]) for f in src] == [0, 40, 80]
+    save_image(tmp_path / "003.png", np.zeros((8, 8, 3), np.uint8))
+    with pytest.raises(Exception, match="same size|not 8×6"):
+        list(FrameSource(tmp_path))
