@@ -40,12 +40,14 @@ def main(argv=None) -> int:
     ap.add_argument("--refine-frames", type=int, default=90)
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
-    lines = []
     work = Path(tempfile.mkdtemp(prefix="geoface_clips_"))
 
-    def emit(d):
-        lines.append(d)
+    def emit(d):  # each line as it comes, to stdout and the results file
         print(json.dumps(d), flush=True)
+        if a.out:
+            Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+            with open(a.out, "a") as fh:
+                fh.write(json.dumps(d) + "\n")
 
     for name in CLIPS:
         src = Path(a.videos) / name
@@ -91,11 +93,6 @@ def main(argv=None) -> int:
                   "photo_err_before": round(float(np.nanmean(ref.before)), 4),
                   "photo_err_after": round(float(np.nanmean(ref.after)), 4),
                   "frames_improved": int(np.sum(ref.after < ref.before)), "fps": round(n / sec, 2)})
-    if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        with open(a.out, "a") as fh:
-            for line in lines:
-                fh.write(json.dumps(line) + "\n")
     return 0
 
 

@@ -113,7 +113,13 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     settings = TrackSettings(**json.loads(a.settings))
-    lines = []
+
+    def emit(d):  # each line as it comes, to stdout and the results file
+        print(json.dumps(d), flush=True)
+        if a.out:
+            Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+            with open(a.out, "a") as fh:
+                fh.write(json.dumps(d) + "\n")
     for seed in a.seeds:
         person, frames, Vtrue, Rtrue, Etrue = render_person(seed, a.res, a.seconds)
         pts = facemesh_points(frames, video=True, quiet=True)
@@ -136,21 +142,14 @@ def main(argv=None) -> int:
             for method, t_, s_, extra in fits:
                 Vfit = np.stack([t_.posed(k) for k in range(len(t_))])
                 r = scores(person, Vtrue, Rtrue, Etrue, t_.R, Vfit, t_.expressions)
-                lines.append({**base, "method": method, "focal": focal, **r, "fps": round(len(frames) / s_, 2),
-                              "focal_px": round(t_.focal, 1), "true_focal_px": round(person.cam.fx, 1),
-                              "residual_px": round(float(np.nanmedian(t_.residual_px)), 3), **extra})
-                print(json.dumps(lines[-1]), flush=True)
+                emit({**base, "method": method, "focal": focal, **r, "fps": round(len(frames) / s_, 2),
+                      "focal_px": round(t_.focal, 1), "true_focal_px": round(person.cam.fx, 1),
+                      "residual_px": round(float(np.nanmedian(t_.residual_px)), 3), **extra})
         idx, w = ibug68_from_mediapipe()
         p68 = np.einsum("tkjd,kj->tkd", pts[:, idx], w)
         Rp, Vp = pnp68(person, p68, Vtrue)
-        lines.append({**base, "method": "pnp68_true_head_true_camera", "focal": "known",
-                      **scores(person, Vtrue, Rtrue, Etrue, Rp, Vp)})
-        print(json.dumps(lines[-1]), flush=True)
-    if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        with open(a.out, "a") as fh:
-            for line in lines:
-                fh.write(json.dumps(line) + "\n")
+        emit({**base, "method": "pnp68_true_head_true_camera", "focal": "known",
+              **scores(person, Vtrue, Rtrue, Etrue, Rp, Vp)})
     return 0
 
 
