@@ -14,7 +14,6 @@ One JSON line per clip and measurement.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -24,6 +23,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
 CLIPS = ("woman_blue_backdrop.mp4", "man_closeup.mp4", "selfie_glasses.mp4")
 
 
@@ -42,12 +42,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="geoface_clips_"))
 
-    def emit(d):  # each line as it comes, to stdout and the results file
-        print(json.dumps(d), flush=True)
-        if a.out:
-            Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-            with open(a.out, "a") as fh:
-                fh.write(json.dumps(d) + "\n")
+    from _results import emitter
+
+    emit = emitter(a.out)
 
     for name in CLIPS:
         src = Path(a.videos) / name

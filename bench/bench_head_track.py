@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def render_person(seed: int, res: int, seconds: float, fps: float = 25.0):
@@ -114,12 +115,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     settings = TrackSettings(**json.loads(a.settings))
 
-    def emit(d):  # each line as it comes, to stdout and the results file
-        print(json.dumps(d), flush=True)
-        if a.out:
-            Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-            with open(a.out, "a") as fh:
-                fh.write(json.dumps(d) + "\n")
+    from _results import emitter
+
+    emit = emitter(a.out)
     for seed in a.seeds:
         person, frames, Vtrue, Rtrue, Etrue = render_person(seed, a.res, a.seconds)
         pts = facemesh_points(frames, video=True, quiet=True)
