@@ -5,7 +5,8 @@ face widths) of held-out face-mesh points (every fifth of MediaPipe's 468, left 
 — beside a trivial baseline: the mean ICT head posed by PnP on the same points (no identity, no
 expression). With ``--refine``, the photometric refinement on the clip's first ``--refine-frames``
 frames: the photometric error (mean absolute RGB difference over the visible face, after each
-frame's gain and offset) before and after, and its frames per second.
+frame's gain and offset) before and after, and its frames per second. ``--speed``: only the
+capture's seconds per stage, without the overlay (run on a quiet machine for the timings).
 
 One JSON line per clip and measurement.
 
@@ -38,6 +39,8 @@ def main(argv=None) -> int:
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--refine", action="store_true")
     ap.add_argument("--refine-frames", type=int, default=90)
+    ap.add_argument("--speed", action="store_true",
+                    help="only the seconds per stage (no overlay, no held-out fit): for timing on a quiet machine")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="geoface_clips_"))
@@ -49,12 +52,14 @@ def main(argv=None) -> int:
     for name in CLIPS:
         src = Path(a.videos) / name
         t0 = time.perf_counter()
-        r = capture_clip(src, work / Path(name).stem, res=a.res, quiet=True)
+        r = capture_clip(src, work / Path(name).stem, res=a.res, overlay=not a.speed, quiet=True)
         wall = time.perf_counter() - t0
-        emit({"clip": name, "what": "capture", "res": a.res, "frames": r.frames, "found": r.found, "fps_video": r.fps,
+        emit({"clip": name, "what": "speed" if a.speed else "capture", "res": a.res, "frames": r.frames, "found": r.found, "fps_video": r.fps,
               "wall_s": round(wall, 1), "seconds": {k: round(v, 1) for k, v in r.seconds.items()},
               "head_track_fps": round(r.frames / r.seconds["head_track"], 1), "residual_px": round(r.residual_px, 3),
               "focal_px": round(r.focal, 1), "crop_side_px": round(r.side, 1)})
+        if a.speed:
+            continue
         cap = Capture(r.folder)
         pts, found, _ = cap.dense()
         use = np.ones(468, bool)
