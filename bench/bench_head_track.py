@@ -8,7 +8,9 @@ today's head poses: PnP with a robust loss on the 68 iBUG points MediaPipe gives
 camera the track does without.
 
 Per person and method, one JSON line: head rotation error (degrees, mean / p95 / max; the angle
-of R_tracked R_trueᵀ in camera coordinates), translation error (mm, the face centre's —
+of R_tracked R_trueᵀ in camera coordinates; and "aligned": after the clip's one constant rotation
+between the fitted and the true head's own frames, which identity and pose trade and the avatar's
+head mesh carries with it), translation error (mm, the face centre's —
 the mean of the 68 landmark vertices — position in camera coordinates), expression weights'
 correlation with the truth (Pearson over frames, averaged over the blendshapes that move more
 than 0.05), vertex error of the tracked head against the true one (mm over the face's vertices,
@@ -69,8 +71,15 @@ def scores(person, Vtrue, Rtrue, Etrue, Rfit, Vfit, Efit=None):
     lm = person.rest.landmarks
     face = person.rest.labels == 0
     rot = angle_deg(Rfit, Rtrue)
+    # the same after the clip's one constant rotation (the fitted head's own frame against the true
+    # head's: a tilt that identity and pose trade, which the avatar's head mesh carries with it)
+    from scipy.spatial.transform import Rotation
+
+    off = Rotation.from_matrix(np.einsum("tij,tkj->tik", Rfit, Rtrue)).mean().as_matrix()
+    rot_aligned = angle_deg(np.einsum("ji,tjk->tik", off, Rfit), Rtrue)
     ctr = np.linalg.norm(Vfit[:, lm].mean(1) - Vtrue[:, lm].mean(1), axis=1) * 1000
     out = {"rot_mean_deg": rot.mean(), "rot_p95_deg": np.percentile(rot, 95), "rot_max_deg": rot.max(),
+           "rot_aligned_mean_deg": rot_aligned.mean(), "rot_aligned_p95_deg": np.percentile(rot_aligned, 95),
            "trans_mean_mm": ctr.mean(), "trans_p95_mm": np.percentile(ctr, 95)}
     if Vfit.shape[1] == Vtrue.shape[1]:
         ve = np.linalg.norm(Vfit[:, face] - Vtrue[:, face], axis=-1) * 1000
