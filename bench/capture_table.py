@@ -17,7 +17,6 @@ NAMES = {("pnp68_true_head_true_camera", "known"): "PnP on MediaPipe's 68, true 
          ("ict_head_track", "estimated"): "**ICT head track**, focal fitted",
          ("ict_head_track", "known"): "ICT head track, focal given",
          ("ict_head_track_refined", "estimated"): "ICT head track + pixels, focal fitted"}
-COLS = ("rot_mean_deg", "rot_p95_deg", "trans_mean_mm", "vertex_mean_mm", "vertex_p95_mm", "expr_corr", "fps")
 
 
 def ict_table(path: Path, split: str = "test") -> str:
@@ -27,8 +26,8 @@ def ict_table(path: Path, split: str = "test") -> str:
     for r in rows:
         by[(r["method"], r.get("focal", "known"))].append(r)
     seeds = sorted({r["seed"] for r in rows})
-    out = [f"| {split} people {', '.join(map(str, seeds))} | rotation mean / p95 ° | translation mean mm | "
-           "vertices mean / p95 mm | expression r | frames/s |", "|---|---|---|---|---|---|"]
+    out = [f"| {split} people {', '.join(map(str, seeds))} | rotation mean / p95 ° | rotation after the constant offset, "
+           "mean / p95 ° | translation mean mm | vertices mean / p95 mm | expression r |", "|---|---|---|---|---|---|"]
 
     def m(rs, k):
         v = [r[k] for r in rs if r.get(k) is not None]
@@ -39,10 +38,11 @@ def ict_table(path: Path, split: str = "test") -> str:
         if not rs:
             continue
         e = m(rs, "expr_corr")
-        f = m(rs, "fps")
-        out.append(f"| {name} | {m(rs, 'rot_mean_deg'):.2f} / {m(rs, 'rot_p95_deg'):.2f} | {m(rs, 'trans_mean_mm'):.1f} | "
-                   f"{m(rs, 'vertex_mean_mm'):.1f} / {m(rs, 'vertex_p95_mm'):.1f} | "
-                   f"{'—' if e is None else f'{e:.2f}'} | {'—' if f is None else f'{f:.1f}'} |")
+        al = m(rs, "rot_aligned_mean_deg")
+        al = "—" if al is None else f"{al:.2f} / {m(rs, 'rot_aligned_p95_deg'):.2f}"
+        out.append(f"| {name} | {m(rs, 'rot_mean_deg'):.2f} / {m(rs, 'rot_p95_deg'):.2f} | {al} | "
+                   f"{m(rs, 'trans_mean_mm'):.1f} | {m(rs, 'vertex_mean_mm'):.1f} / {m(rs, 'vertex_p95_mm'):.1f} | "
+                   f"{'—' if e is None else f'{e:.2f}'} |")
     return "\n".join(out)
 
 
@@ -61,16 +61,31 @@ def clips_table(path: Path) -> str:
     return "\n".join(out)
 
 
+def speed_table(path: Path) -> str:
+    rows = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+    out = ["| clip | frames | decode + face mesh + masks s | head track s (frames/s) | head mesh s | written s | "
+           "wall s |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        sec = r["seconds"]
+        out.append(f"| {r['clip']} | {r['frames']} | {sec['decode'] + sec['landmarks'] + sec['masks']:.1f} | "
+                   f"{sec['head_track']:.1f} ({r['head_track_fps']:.1f}) | {sec['head_mesh']:.1f} | {sec['write']:.1f} | "
+                   f"{r['wall_s']:.1f} |")
+    return "\n".join(out)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ict", default=str(ROOT / "bench/results/head_track/ict_512.jsonl"))
     ap.add_argument("--clips", default=str(ROOT / "bench/results/capture/clips_512.jsonl"))
+    ap.add_argument("--speed", default=str(ROOT / "bench/results/capture/speed_512.jsonl"))
     a = ap.parse_args(argv)
     if Path(a.ict).is_file():
         print(ict_table(Path(a.ict)), "\n")
         print(ict_table(Path(a.ict), "val"), "\n")
     if Path(a.clips).is_file():
-        print(clips_table(Path(a.clips)))
+        print(clips_table(Path(a.clips)), "\n")
+    if Path(a.speed).is_file():
+        print(speed_table(Path(a.speed)))
     return 0
 
 
