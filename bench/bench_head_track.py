@@ -18,9 +18,9 @@ mean and p95), and frames per second. Each fit twice: with the focal length esti
 known (the true one given). ``--refine``: also the photometric refinement after the landmark fit
 with the focal length estimated (``refine_photometric``), with the photometric error before and after.
 
-Seeds: 11, 12 validation (where the settings were chosen), 13, 14, 15 test.
+Seeds: 11 validation (where the refinement's weights were chosen), 13, 14, 15 test.
 
-    python bench/bench_head_track.py [--seeds 11 12 13 14 15] [--res 512] [--seconds 3] [--refine] [--out FILE]
+    python bench/bench_head_track.py [--seeds 11 13 14 15] [--res 512] [--seconds 3] [--refine] [--out FILE]
 """
 from __future__ import annotations
 
