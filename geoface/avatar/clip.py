@@ -307,10 +307,11 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
                            focal_init=1.2 * max(W0, H0) * scale, settings=settings, quiet=quiet)
     secs["head_track"] = track.seconds
     photo = None
+    rgb = crops.astype(np.float32) / 255.0
     if refine:
         from geoface.track.head_refine import refine_photometric
 
-        track, ref = refine_photometric(track, crops.astype(np.float32) / 255.0, masks, pts, quiet=quiet)
+        track, ref = refine_photometric(track, rgb, masks, pts, quiet=quiet)
         secs["refine"] = ref.seconds
         photo = [round(float(np.nanmean(ref.before)), 4), round(float(np.nanmean(ref.after)), 4)]
     t0 = time.perf_counter()
@@ -330,7 +331,6 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
         proj = track.points()
         lm68[~found] = np.einsum("tkjd,kj->tkd", proj[~found][:, idx], w)
     # the head's colours from the frames, then decimated for the avatars
-    rgb = crops.astype(np.float32) / 255.0
 
     def posed(k):
         return track.posed(k)

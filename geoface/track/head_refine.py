@@ -61,6 +61,7 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
     import time
 
     from scipy.ndimage import gaussian_filter
+    from scipy.spatial.transform import Rotation
 
     from geoface.mesh.core import vertex_normals
     from geoface.mesh.raster import rasterize_mesh
@@ -148,8 +149,6 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
                 imgs = np.stack([gaussian_filter(fr, (sigma, sigma, 0)) for fr in frames]) if sigma > 0 else frames
                 gy, gx = np.gradient(imgs, axis=(1, 2))
                 E_nb, t_nb = E.copy(), tt.copy()
-                from scipy.spatial.transform import Rotation
-
                 q = Rotation.from_matrix(R).as_quat()
                 for k in range(T):
                     vis, _ = visible(k)

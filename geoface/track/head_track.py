@@ -74,8 +74,8 @@ def mediapipe_on_ict() -> dict:
 
 @dataclass(frozen=True)
 class TrackSettings:
-    """The fit's knobs (module doc); the defaults were chosen on rendered validation people
-    (``bench/bench_head_track.py``)."""
+    """The fit's knobs (module doc); the defaults were tried on the rendered validation person of
+    ``bench/bench_head_track.py`` (person 11)."""
 
     n_identity: int = 40
     iterations: int = 30
