@@ -42,9 +42,18 @@ class CheckpointError(GeofaceError):
     inconsistent, or a field of its config has the wrong type or range."""
 
 
-class CaptureError(GeofaceError):
+class AvatarError(GeofaceError):
+    """Bad input to the avatars (HFM-GS, THGS and what they share): their options, their model
+    folders, what drives them; a capture's problems are its subclass :class:`CaptureError`."""
+
+
+class CaptureError(AvatarError):
     """A capture folder (frames, landmarks, camera, poses, ...) or a clip that cannot be read or made
     (:mod:`geoface.capture`)."""
+
+
+class ModelFolderError(AvatarError, CheckpointError):
+    """A saved avatar model folder that cannot be read (a :class:`CheckpointError` too)."""
 
 
 class MissingDependencyError(GeofaceError, ImportError):

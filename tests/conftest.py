@@ -59,3 +59,17 @@ def fin():
     a, b = F[5, 0], F[5, 1]
     top = (V[a] + V[b]) / 2 + np.array([0.0, 0.0, 0.5])
     return np.vstack([V, top]), np.vstack([F, [[a, b, len(V)]]])
+
+
+@pytest.fixture(scope="session")
+def clip_capture(tmp_path_factory):
+    """One second of a real clip (``woman_blue_backdrop.mp4``, ../shared) made into a capture at
+    160² once per test run: ``(ClipCapture, the clip's path)``; tests only read it."""
+    pytest.importorskip("mediapipe")
+    from geoface.avatar.clip import capture_clip
+    from tests.helpers import short_clip
+
+    work = tmp_path_factory.mktemp("clip")
+    clip = short_clip("woman_blue_backdrop.mp4", work, seconds=1.0)
+    return capture_clip(clip, work / "cap", res=160, head_vertices=1500, quiet=True), clip
+

@@ -10,7 +10,6 @@ from geoface.camera import Camera
 from geoface.capture import (Capture, write_camera, write_dense, write_expressions, write_frame, write_head_poses,
                              write_landmarks, write_meta)
 from geoface.errors import CaptureError
-from tests.helpers import short_clip
 
 
 def _folder(tmp_path, T=3, size=16):
@@ -101,16 +100,6 @@ def test_face_crops_follow_the_face_smoothly_and_keep_it_whole():
         cx, cy, s = boxes[k]
         q = pts[k, list(_OVAL)]
         assert (np.abs(q[:, 0] - cx) < s / 2).all() and (np.abs(q[:, 1] - cy) < s / 2).all()
-
-
-@pytest.fixture(scope="module")
-def clip_capture(tmp_path_factory):
-    pytest.importorskip("mediapipe")
-    from geoface.avatar.clip import capture_clip
-
-    work = tmp_path_factory.mktemp("clip")
-    clip = short_clip("woman_blue_backdrop.mp4", work, seconds=1.0)
-    return capture_clip(clip, work / "cap", res=160, head_vertices=1500, quiet=True), clip
 
 
 def test_a_real_clip_becomes_a_capture_both_avatars_read(clip_capture):

@@ -15,7 +15,7 @@ RANKS = {
     "errors": 0, "tol": 0.1, "rotations": 0.11, "camera": 0.12, "landmarks": 0.13, "images": 0.16, "_io": 0.15, "capture": 0.17, "_args": 0.2, "_lazy": 0.2, "progress": 0.3, "video": 0.4, "": 0.5,
     "mesh": 1, "synth": 2, "track": 2.2, "repair": 2.5, "param": 3, "gimage": 4, "uvmap": 5, "viz_arrays": 5.49, "viz": 5.5,
     "pipeline": 6, "dataset": 6.5, "nn": 7, "skin": 7.5, "learn": 8, "splat": 8,
-    "avatar": 8.1, "hfm": 8.3, "thgs": 8.3, "drive": 8.4, "hfm.cli": 8.45, "thgs.cli": 8.45, "webview": 8.5, "cli": 9, "__main__": 10,
+    "avatar": 8.1, "hfm": 8.3, "thgs": 8.3, "drive": 8.4, "webview": 8.5, "cli": 9, "__main__": 10,
 }
 GEOMETRY_CORE = ("mesh", "repair", "param", "gimage", "uvmap")
 
@@ -27,11 +27,8 @@ def _module_name(path: Path, root: Path = PKG) -> tuple[str, bool]:
 
 
 def _top(name: str) -> str:
-    """The layer of a module: its top-level package, or a subpackage module with a rank of its
-    own (an avatar's command line sits above the driving code that its ``export`` verb calls)."""
+    """The layer of a module: its top-level package (every ``geoface`` verb lives in ``cli``)."""
     parts = name.split(".")
-    if len(parts) > 2 and ".".join(parts[1:3]) in RANKS:
-        return ".".join(parts[1:3])
     return parts[1] if len(parts) > 1 else ""
 
 

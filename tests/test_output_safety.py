@@ -361,7 +361,7 @@ def test_bad_audio_and_template_are_one_line(tmp_path):
     import wave
 
     from geoface.avatar.audio import read_wav
-    from geoface.splat.errors import SplatError
+    from geoface.errors import AvatarError
     from geoface.avatar.template import Template
 
     def write_wav(path, rate, n):
@@ -373,18 +373,18 @@ def test_bad_audio_and_template_are_one_line(tmp_path):
 
     w = tmp_path / "slow.wav"
     write_wav(w, 1, 100)
-    with pytest.raises(SplatError, match="sample rate 1 Hz"):
+    with pytest.raises(AvatarError, match="sample rate 1 Hz"):
         read_wav(w)
     good = tmp_path / "good.wav"
     write_wav(good, 16000, 16000)
     cut = tmp_path / "cut.wav"
     cut.write_bytes(good.read_bytes()[:30])
-    with pytest.raises(SplatError, match="not a readable WAV"):
+    with pytest.raises(AvatarError, match="not a readable WAV"):
         read_wav(cut)
     npz = tmp_path / "template.npz"
     np.savez(npz, V=np.zeros((3, 3)), F=np.zeros((1, 3), int))
     (tmp_path / "cut.npz").write_bytes(npz.read_bytes()[:40])
-    with pytest.raises(SplatError, match="not a geoface template"):
+    with pytest.raises(AvatarError, match="not a geoface template"):
         Template.load(tmp_path / "cut.npz")
 
 

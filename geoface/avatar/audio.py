@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 
 __all__ = ["read_wav", "log_mel", "audio_features", "envelope", "audio_context", "speech_like"]
 
@@ -35,19 +35,19 @@ def read_wav(path) -> tuple[np.ndarray, int]:
             warnings.simplefilter("ignore")  # scipy warns on chunks it skips
             sr, x = wavfile.read(str(path))
     except (OSError, ValueError, EOFError, IndexError, TypeError, struct.error) as e:
-        raise SplatError(f"{path}: not a readable WAV file ({type(e).__name__}: {e})") from None
+        raise AvatarError(f"{path}: not a readable WAV file ({type(e).__name__}: {e})") from None
     if not MIN_SAMPLE_RATE <= int(sr) <= MAX_SAMPLE_RATE:
-        raise SplatError(f"{path}: sample rate {sr} Hz; speech needs {MIN_SAMPLE_RATE}..{MAX_SAMPLE_RATE} Hz")
+        raise AvatarError(f"{path}: sample rate {sr} Hz; speech needs {MIN_SAMPLE_RATE}..{MAX_SAMPLE_RATE} Hz")
     x = np.asarray(x)
     if x.dtype.kind not in "iuf":
-        raise SplatError(f"{path}: unsupported sample format {x.dtype}")
+        raise AvatarError(f"{path}: unsupported sample format {x.dtype}")
     if np.issubdtype(x.dtype, np.integer):
         x = x.astype(np.float64) / float(np.iinfo(x.dtype).max)
     x = x.astype(np.float64)
     if x.ndim == 2:
         x = x.mean(1)
     if x.ndim != 1 or len(x) == 0 or not np.isfinite(x).all():
-        raise SplatError(f"{path}: empty or non-finite audio")
+        raise AvatarError(f"{path}: empty or non-finite audio")
     return x, int(sr)
 
 
@@ -91,10 +91,10 @@ def audio_features(path_or_array, n_frames: int, fps: float, *, sr: int | None =
                     with np.load(p, allow_pickle=False) as d:
                         A = d["features"]
             except (OSError, KeyError, ValueError) as e:
-                raise SplatError(f"{p}: cannot read features ({type(e).__name__}: {e})") from None
+                raise AvatarError(f"{p}: cannot read features ({type(e).__name__}: {e})") from None
             A = np.asarray(A, np.float64)
             if A.ndim != 2 or len(A) < 1 or not np.isfinite(A).all():
-                raise SplatError(f"{p}: features must be a finite (T, D) array; got {A.shape}")
+                raise AvatarError(f"{p}: features must be a finite (T, D) array; got {A.shape}")
             if len(A) != n_frames:
                 t = np.linspace(0, len(A) - 1, n_frames)
                 A = np.stack([np.interp(t, np.arange(len(A)), A[:, j]) for j in range(A.shape[1])], 1)
@@ -102,7 +102,7 @@ def audio_features(path_or_array, n_frames: int, fps: float, *, sr: int | None =
         x, sr = read_wav(p)
     else:
         if sr is None:
-            raise SplatError("sr is required with a sample array")
+            raise AvatarError("sr is required with a sample array")
         x = np.asarray(path_or_array, np.float64)
     S, hop = log_mel(x, sr, n_mels)
     t_win = (np.arange(len(S)) + 0.5) * hop
@@ -130,9 +130,9 @@ def audio_context(features, window: int) -> np.ndarray:
     frame's spectrum says less about the mouth than its neighbours' do."""
     A = np.asarray(features, dtype=np.float32)
     if A.ndim != 2:
-        raise SplatError(f"audio features must be (frames, D); got shape {A.shape}")
+        raise AvatarError(f"audio features must be (frames, D); got shape {A.shape}")
     if window < 0:
-        raise SplatError(f"the audio window must be >= 0 frames; got {window}")
+        raise AvatarError(f"the audio window must be >= 0 frames; got {window}")
     if window == 0 or not len(A):
         return A
     idx = np.clip(np.arange(len(A))[:, None] + np.arange(-window, window + 1)[None], 0, len(A) - 1)

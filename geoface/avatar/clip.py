@@ -38,7 +38,7 @@ __all__ = ["capture_clip", "ClipCapture", "face_crops", "crop_frames", "head_col
 log = logging.getLogger(__name__)
 
 #: MediaPipe face-mesh points that bound the face (its outline)
-_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152, 148, 176, 149,
+FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152, 148, 176, 149,
          150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109)
 
 
@@ -73,7 +73,7 @@ def face_crops(points, found, *, fps: float, margin: float = 1.9, smooth_seconds
     ok = np.asarray(found, bool) & np.isfinite(P).all((1, 2))
     if not ok.any():
         raise CaptureError("no face found in any frame: nothing to crop")
-    Q = np.where(ok[:, None, None], P[:, list(_OVAL)], 0.0)
+    Q = np.where(ok[:, None, None], P[:, list(FACE_OVAL)], 0.0)
     lo, hi = Q.min(1), Q.max(1)
     c = (lo + hi) / 2
     size = (hi - lo).max(1)

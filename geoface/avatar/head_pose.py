@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.rotations import rodrigues, rotation_vector  # noqa: F401  (re-exported)
 
 __all__ = ["landmarks_on_mesh", "solve_poses", "triangulate", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
@@ -86,7 +86,7 @@ def solve_poses(camera, points3d, points2d, pivot, *, init=None, scale_px: float
     (rms over the points within 3 × ``scale_px`` of their landmark).  Each frame starts from the
     previous frame's solution (``init`` = (R, t) for frame 0, default the identity); NaN
     landmarks are skipped.  ``weights`` [K] (> 0): each point's weight in the least squares
-    (e.g. :func:`rigidity_weights`), default equal.  Raises SplatError when a frame has fewer
+    (e.g. :func:`rigidity_weights`), default equal.  Raises AvatarError when a frame has fewer
     than 4 points."""
     from scipy.optimize import least_squares
 
@@ -94,7 +94,7 @@ def solve_poses(camera, points3d, points2d, pivot, *, init=None, scale_px: float
     obs = np.asarray(points2d, np.float64)
     w = np.ones(len(P)) if weights is None else np.asarray(weights, np.float64)
     if w.shape != (len(P),) or not (np.isfinite(w).all() and (w > 0).all()):
-        raise SplatError(f"solve_poses: weights must be {len(P)} positive numbers")
+        raise AvatarError(f"solve_poses: weights must be {len(P)} positive numbers")
     sw = np.sqrt(w)
     piv = np.asarray(pivot, np.float64)
     T = len(obs)
@@ -104,7 +104,7 @@ def solve_poses(camera, points3d, points2d, pivot, *, init=None, scale_px: float
     for f in range(T):
         ok = np.isfinite(obs[f]).all(1) & np.isfinite(P).all(1)
         if ok.sum() < 4:
-            raise SplatError(f"frame {f}: only {int(ok.sum())} usable landmarks for the head pose (need 4)")
+            raise AvatarError(f"frame {f}: only {int(ok.sum())} usable landmarks for the head pose (need 4)")
         Q, q, wk = P[ok] - piv, obs[f][ok], sw[ok, None]
 
         def resid(x):
@@ -179,7 +179,7 @@ def poses_from_landmarks(video, mesh_V, mesh_F, *, indices=None, fit_names=None)
     placed, P_all = canonical_landmarks(video, mesh_V, mesh_F)
     use = [names[i] for i in indices if names[i] in placed]
     if len(use) < 4:
-        raise SplatError(f"only {len(use)} of frame 0's landmarks fall on the head mesh: cannot fit head poses "
+        raise AvatarError(f"only {len(use)} of frame 0's landmarks fall on the head mesh: cannot fit head poses "
                          "(is head.ply in frame 0's pose, and camera.json right?)")
     pivot = P_all[[placed.index(n) for n in use]].mean(0)
     outline = [n for n in placed if n.startswith("jaw_")] if tuple(names) == tuple(IBUG68_NAMES) else []
@@ -194,7 +194,7 @@ def poses_from_landmarks(video, mesh_V, mesh_F, *, indices=None, fit_names=None)
     if fit_names is not None:
         use = [n for n in names if n in fit_names and n in placed]
         if len(use) < 4:
-            raise SplatError(f"only {len(use)} of the landmarks to fit the head poses to fall on the head mesh (need 4)")
+            raise AvatarError(f"only {len(use)} of the landmarks to fit the head poses to fall on the head mesh (need 4)")
     P3 = P_all[[placed.index(n) for n in use]]
     out = solve_poses(video.camera, P3, video.landmarks[:, [names.index(n) for n in use]], pivot)
     out.update(points3d=P3, names=use, all_names=placed, all_points3d=P_all)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 
 __all__ = ["arkit_curves", "ICTPerson", "ICT_PARTS", "is_upper_blendshape", "head_motion"]
 
@@ -59,7 +59,7 @@ def arkit_curves(T: int, rng, *, fps: float = 25.0, loudness=None, talk: float =
     if loudness is not None:
         loud = np.asarray(loudness, np.float64)
         if loud.shape != (T,):
-            raise SplatError(f"loudness must have one value per frame ({T}); got shape {loud.shape}")
+            raise AvatarError(f"loudness must have one value per frame ({T}); got shape {loud.shape}")
         syl = np.clip(loud / max(float(np.percentile(loud, 95)), 1e-9), 0, 1.2)
         on = np.clip(_smooth(syl, 0.25 * fps) * 3, 0, 1)
     else:
@@ -152,7 +152,7 @@ class ICTPerson:
         from geoface.synth.ict import neck_pivot, upper_split
 
         if supersample < 1 or res < 16:
-            raise SplatError(f"need res >= 16 and supersample >= 1; got {res}, {supersample}")
+            raise AvatarError(f"need res >= 16 and supersample >= 1; got {res}, {supersample}")
         model, regions = ict_source(map_res)
         if identity is None:
             ident = rng.standard_normal(model.n_identities)
@@ -160,7 +160,7 @@ class ICTPerson:
             ident = np.zeros(model.n_identities)
             given = np.asarray(identity, np.float64).ravel()
             if len(given) > model.n_identities or not np.isfinite(given).all():
-                raise SplatError(f"identity: up to {model.n_identities} finite weights; got {len(given)}")
+                raise AvatarError(f"identity: up to {model.n_identities} finite weights; got {len(given)}")
             ident[:len(given)] = given
         self.model, self.ident = model, ident
         self.rest = rest = model.head(identity=ident, parts=ICT_PARTS)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 
 __all__ = ["Template", "procedural_template", "load_smplx", "SMPLX_SHAPE_DIM"]
 
@@ -83,11 +83,11 @@ class Template:
         ]
         for ok, msg in checks:
             if not ok:
-                raise SplatError(f"template: {msg}")
+                raise AvatarError(f"template: {msg}")
         if not np.isfinite(self.V).all() or not np.isfinite(self.weights).all():
-            raise SplatError("template: non-finite vertices or weights")
+            raise AvatarError("template: non-finite vertices or weights")
         if (self.weights < -1e-9).any() or not np.allclose(self.weights.sum(1), 1.0, atol=1e-6):
-            raise SplatError("template: skinning weights must be non-negative and sum to 1 per vertex")
+            raise AvatarError("template: skinning weights must be non-negative and sum to 1 per vertex")
 
     @property
     def n_expr(self) -> int:
@@ -107,7 +107,7 @@ class Template:
                 return cls(d["V"], d["F"], d["joints"], d["parents"], d["weights"], d["expr_basis"],
                            d["head_mask"], d["mouth_box"], [str(s) for s in d["joint_names"]], int(d["jaw"]), *lm)
         except (OSError, KeyError, ValueError, EOFError, TypeError, IndexError, zipfile.BadZipFile) as e:
-            raise SplatError(f"{path}: not a geoface template ({type(e).__name__}: {e})") from None
+            raise AvatarError(f"{path}: not a geoface template ({type(e).__name__}: {e})") from None
 
 
 def smoothstep(x):
@@ -156,7 +156,7 @@ def load_smplx(path, n_expr: int = 10) -> Template:
     """An SMPL-X model file (.npz) as a Template (module doc)."""
     path = Path(path)
     if path.suffix.lower() == ".pkl":
-        raise SplatError(f"{path}: pickle model files are not read (unsafe); use the .npz release of SMPL-X")
+        raise AvatarError(f"{path}: pickle model files are not read (unsafe); use the .npz release of SMPL-X")
     try:
         with np.load(path, allow_pickle=False) as d:
             V = np.asarray(d["v_template"], np.float64)
@@ -166,16 +166,16 @@ def load_smplx(path, n_expr: int = 10) -> Template:
             W = np.asarray(d["weights"], np.float64)
             sd = np.asarray(d["shapedirs"], np.float64)
     except (OSError, KeyError, ValueError) as e:
-        raise SplatError(f"{path}: not an SMPL-X model file ({type(e).__name__}: {e})") from None
+        raise AvatarError(f"{path}: not an SMPL-X model file ({type(e).__name__}: {e})") from None
     if Jreg.ndim != 2 or Jreg.shape[1] != len(V):
-        raise SplatError(f"{path}: J_regressor must be (J, {len(V)}); got {Jreg.shape}")
+        raise AvatarError(f"{path}: J_regressor must be (J, {len(V)}); got {Jreg.shape}")
     J = Jreg.shape[0]
     if kin.shape != (2, J):
-        raise SplatError(f"{path}: kintree_table must be (2, {J}); got {kin.shape}")
+        raise AvatarError(f"{path}: kintree_table must be (2, {J}); got {kin.shape}")
     parents = kin[0].copy()
     parents[0] = -1
     if sd.ndim != 3 or sd.shape[:2] != (len(V), 3) or sd.shape[2] <= SMPLX_SHAPE_DIM:
-        raise SplatError(f"{path}: shapedirs must be ({len(V)}, 3, >{SMPLX_SHAPE_DIM}) with expression directions")
+        raise AvatarError(f"{path}: shapedirs must be ({len(V)}, 3, >{SMPLX_SHAPE_DIM}) with expression directions")
     E = np.moveaxis(sd[:, :, SMPLX_SHAPE_DIM:SMPLX_SHAPE_DIM + n_expr], 2, 0)
     joints = Jreg @ V
     head_j = [j for j in SMPLX_HEAD_JOINTS if j < J]

@@ -37,11 +37,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser = lambda *a, **k: _add(*a, parents=[common], **k)  # every verb accepts -q
 
     # each group registers its own verbs; argparse only: torch loads inside the neural commands
-    from ..hfm.cli import register as register_hmd
-    from ..learn.cli import register as register_ddpm
-    from ..learn.texture_cli import register as register_texture
-    from ..splat.cli import register as register_splat
-    from ..thgs.cli import register as register_talk
+    from .ddpm import register as register_ddpm
+    from .hmd import register as register_hmd
+    from .splat import register as register_splat
+    from .talk import register as register_talk
+    from .texture import register as register_texture
     from .dataset import register as register_dataset
     from .geometry_parser import register as register_geometry
     from .synth import register as register_synth

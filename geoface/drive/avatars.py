@@ -15,122 +15,53 @@ video), the Gaussians it gives at each frame, and their export as standard 3DGS 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
 
-from geoface.splat.errors import SplatError
+from geoface.avatar.model_dir import AvatarDrive, AvatarModel
+from geoface.errors import AvatarError
 
-__all__ = ["AvatarDrive", "avatar_drive", "avatar_kind", "export_frames", "parse_frames", "splat_turntable"]
-
-
-@dataclass
-class AvatarDrive:
-    """A trained avatar and what drives it: ``gaussians(t)`` for t in ``range(n_frames)``;
-    ``frames`` (uint8 [T, H, W, 3]) are the video's own frames when there is a video."""
-
-    n_frames: int
-    fps: float
-    what: str
-    model_kind: str
-    _gaussians: Callable
-    frames: np.ndarray | None = None
-
-    @torch.no_grad()
-    def gaussians(self, t: int):
-        if not 0 <= int(t) < self.n_frames:
-            raise SplatError(f"frame {t} is outside 0..{self.n_frames - 1}")
-        return self._gaussians(int(t))
+__all__ = ["AvatarDrive", "AvatarModel", "avatar_drive", "avatar_class", "avatar_formats", "avatar_kind",
+           "export_frames", "parse_frames", "splat_turntable"]
 
 
-def avatar_kind(model_dir) -> str:
-    """"thgs" or "hfm" from the model folder's config.json (a SplatError otherwise)."""
+def avatar_formats() -> dict[str, type[AvatarModel]]:
+    """Every avatar model class by the ``format`` its ``config.json`` names."""
+    from geoface.hfm.avatar import HFMAvatar
+    from geoface.thgs.avatar import THGSAvatar
+
+    return {cls.FORMAT: cls for cls in (HFMAvatar, THGSAvatar)}
+
+
+def avatar_class(model_dir) -> type[AvatarModel]:
+    """The model class of the folder ``model_dir`` (its config.json's ``format``)."""
     cfg = Path(model_dir) / "config.json"
     try:
         fmt = json.loads(cfg.read_text(encoding="utf-8")).get("format")
     except (OSError, ValueError, AttributeError):
-        raise SplatError(f"{model_dir}: not a model folder (no readable config.json)") from None
-    kinds = {"geoface-thgs": "thgs", "geoface-hfm-gs": "hfm"}
-    if fmt not in kinds:
-        raise SplatError(f"{model_dir}: not an avatar model (format {fmt!r}; expected a `talk train` or `hmd train` folder)")
-    return kinds[fmt]
+        raise AvatarError(f"{model_dir}: not a model folder (no readable config.json)") from None
+    formats = avatar_formats()
+    if fmt not in formats:
+        raise AvatarError(f"{model_dir}: not an avatar model (format {fmt!r}; expected one of {sorted(formats)}: a "
+                          "`talk train` or `hmd train` folder)")
+    return formats[fmt]
 
 
-def _uint8(frames) -> np.ndarray:
-    return np.round(np.clip(np.asarray(frames, np.float32), 0, 1) * 255).astype(np.uint8)
+def avatar_kind(model_dir) -> str:
+    """The avatar's ``KIND`` ("thgs" or "hfm") from the model folder's config.json."""
+    return avatar_class(model_dir).KIND
 
 
 def avatar_drive(model_dir, source, *, fps: float = 25.0, model=None) -> AvatarDrive:
-    """Load the avatar in ``model_dir`` (or use ``model``) and what drives it (``source``)."""
-    kind = avatar_kind(model_dir)
-    if source is None and kind == "thgs":  # the rest pose, silent, neutral: one frame
-        from geoface.thgs.inference import load_thgs
-
-        m = model or load_thgs(model_dir)
-        J, K = len(m.template.joints), m.template.n_expr
-        return AvatarDrive(1, float(fps), "nothing (the rest pose)", "thgs",
-                           lambda t: m(np.zeros((J, 3)), np.zeros(3), np.zeros(K), m.audio_ref.clone()))
-    if source is None:
-        raise SplatError(f"{model_dir}: a headset-removal avatar is driven by a usage folder; give one")
-    source = Path(source)
-    if not source.exists():
-        raise SplatError(f"{source}: no such file or folder to drive the avatar")
-    if kind == "thgs":
-        from geoface.thgs.inference import load_thgs
-
-        return _thgs_drive(model or load_thgs(model_dir), source, fps)
-    from geoface.hfm.io import load_hfm
-
-    return _hfm_drive(model or load_hfm(model_dir), source)
-
-
-def _thgs_drive(model, source: Path, fps: float) -> AvatarDrive:
-    from geoface.avatar.audio import audio_features, read_wav
-
-    J, K = len(model.template.joints), model.template.n_expr
-    frames = None
-    if source.is_dir():
-        from geoface.thgs.data import load_talking
-
-        data = load_talking(source)
-        rot, transl, expr, audio = data.rot, data.transl, data.expr, data.audio
-        frames, fps, what = _uint8(data.frames), float(data.fps), f"the video in {source.name}"
-    elif source.suffix.lower() == ".wav":
-        x, sr = read_wav(source)
-        T = max(1, int(len(x) / sr * fps))
-        audio = audio_features(source, T, fps)
-        rot, transl, expr, what = np.zeros((T, J, 3)), np.zeros((T, 3)), np.zeros((T, K)), source.name
-    else:
-        raise SplatError(f"{source}: a talking avatar is driven by a WAV or a `talk synth` data folder")
-    if audio.shape[1] != model.audio_dim:
-        raise SplatError(f"{source}: {audio.shape[1]} audio features per frame; the model was trained on "
-                         f"{model.audio_dim}")
-    audio = model.audio_input(audio)
-
-    def g(t):
-        return model(rot[t], transl[t], expr[t], audio[t])
-
-    return AvatarDrive(len(rot), float(fps), what, "thgs", g, frames)
-
-
-def _hfm_drive(model, source: Path) -> AvatarDrive:
-    from geoface.hfm.data import frame_input, load_video
-    from geoface.hfm.train import frame_pose
-
-    if not source.is_dir():
-        raise SplatError(f"{source}: an HMD avatar is driven by a usage folder (`hmd synth` writes one)")
-    video = load_video(source)
-    boxes = video.boxes()
-    meta = json.loads((source / "meta.json").read_text(encoding="utf-8"))
-
-    def g(t):
-        return model(*frame_input(video, t, model.cfg.crop, boxes), frame_pose(video, t))
-
-    return AvatarDrive(len(video), float(meta.get("fps", 25.0)), f"the headset video in {source.name}", "hfm", g,
-                       _uint8(video.frames))
+    """Load the avatar in ``model_dir`` (or use ``model``, a loaded network of its kind) and what
+    drives it (``source``; None: the rest pose, where the avatar has one)."""
+    cls = avatar_class(model_dir)
+    model = cls(model) if model is not None else cls.load(model_dir)
+    if source is not None and not Path(source).exists():
+        raise AvatarError(f"{source}: no such file or folder to drive the avatar")
+    return model.drive(None if source is None else Path(source), fps=fps)
 
 
 def parse_frames(text: str | None, n_frames: int) -> list[int]:
@@ -140,16 +71,16 @@ def parse_frames(text: str | None, n_frames: int) -> list[int]:
     try:
         parts = [None if p == "" else int(p) for p in text.split(":")]
     except ValueError:
-        raise SplatError(f"--frames: a frame, a range A:B[:STEP] or 'all'; got {text!r}") from None
+        raise AvatarError(f"--frames: a frame, a range A:B[:STEP] or 'all'; got {text!r}") from None
     if len(parts) == 1:
         if not 0 <= parts[0] < n_frames:
-            raise SplatError(f"--frames: frame {parts[0]} is outside 0..{n_frames - 1}")
+            raise AvatarError(f"--frames: frame {parts[0]} is outside 0..{n_frames - 1}")
         return parts
     if len(parts) > 3 or (len(parts) == 3 and parts[2] is not None and parts[2] <= 0):
-        raise SplatError(f"--frames: a frame, a range A:B[:STEP] or 'all'; got {text!r}")
+        raise AvatarError(f"--frames: a frame, a range A:B[:STEP] or 'all'; got {text!r}")
     idx = list(range(n_frames))[slice(*parts)]
     if not idx:
-        raise SplatError(f"--frames {text!r} selects none of the {n_frames} frames")
+        raise AvatarError(f"--frames {text!r} selects none of the {n_frames} frames")
     return idx
 
 
@@ -161,11 +92,11 @@ def export_frames(drive: AvatarDrive, out, frames=None) -> list[Path]:
 
     idx = list(range(drive.n_frames)) if frames is None else [int(t) for t in frames]
     if not idx:
-        raise SplatError("no frames to export")
+        raise AvatarError("no frames to export")
     out = Path(out)
     single = out.suffix.lower() == ".ply"
     if single and len(idx) != 1:
-        raise SplatError(f"{out}: one .ply holds one frame; give a folder for {len(idx)} frames")
+        raise AvatarError(f"{out}: one .ply holds one frame; give a folder for {len(idx)} frames")
     paths = []
     for t in idx:
         gt = drive.gaussians(t)

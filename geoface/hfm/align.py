@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 
 __all__ = ["align_poses"]
 
@@ -38,9 +38,9 @@ def align_poses(model, video, pose, *, steps: int = 20, lr: float = 2e-3, transl
     from geoface.splat.rasterizer import rasterize
 
     if video.hmd_masks is None:
-        raise SplatError("aligning the poses with the image needs the usage folder's hmd_masks/ (which pixels to match)")
+        raise AvatarError("aligning the poses with the image needs the usage folder's hmd_masks/ (which pixels to match)")
     if steps < 1 or not lr > 0 or smooth < 0:
-        raise SplatError(f"pose alignment: steps >= 1, lr > 0, smooth >= 0; got {steps}, {lr}, {smooth}")
+        raise AvatarError(f"pose alignment: steps >= 1, lr > 0, smooth >= 0; got {steps}, {lr}, {smooth}")
     R0, t0, piv = (np.asarray(a, dtype=np.float64) for a in pose)
     dev = model.center.device
     f32 = dict(dtype=torch.float32, device=dev)

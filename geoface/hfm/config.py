@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 
 
 ABLATIONS = {
@@ -84,43 +84,43 @@ class HFMConfig:
         for name in ("latent_dim", "crop", "enc_width", "hidden", "emb_dim", "feat_dim", "n_keys",
                      "k_upsample", "iters", "key_every"):
             if int(getattr(self, name)) < 1:
-                raise SplatError(f"HFMConfig.{name} must be >= 1; got {getattr(self, name)!r}")
+                raise AvatarError(f"HFMConfig.{name} must be >= 1; got {getattr(self, name)!r}")
         if self.crop % 32:
-            raise SplatError(f"HFMConfig.crop must be a multiple of 32 (five stride-2 convolutions); got {self.crop}")
+            raise AvatarError(f"HFMConfig.crop must be a multiple of 32 (five stride-2 convolutions); got {self.crop}")
         if self.mapping_heads not in (1, 3):
-            raise SplatError(f"HFMConfig.mapping_heads must be 1 or 3; got {self.mapping_heads!r}")
+            raise AvatarError(f"HFMConfig.mapping_heads must be 1 or 3; got {self.mapping_heads!r}")
         if self.unmapped_upper not in ("shared", "separate"):
-            raise SplatError(f"HFMConfig.unmapped_upper must be 'shared' or 'separate'; got {self.unmapped_upper!r}")
+            raise AvatarError(f"HFMConfig.unmapped_upper must be 'shared' or 'separate'; got {self.unmapped_upper!r}")
         if self.upsample not in ("params", "features"):
-            raise SplatError(f"HFMConfig.upsample must be 'params' or 'features'; got {self.upsample!r}")
+            raise AvatarError(f"HFMConfig.upsample must be 'params' or 'features'; got {self.upsample!r}")
         if self.lower_keys not in ("sample", "top"):
-            raise SplatError(f"HFMConfig.lower_keys must be 'sample' or 'top'; got {self.lower_keys!r}")
+            raise AvatarError(f"HFMConfig.lower_keys must be 'sample' or 'top'; got {self.lower_keys!r}")
         if self.margin < 0 or self.split_margin < 0:
-            raise SplatError(f"HFMConfig.margin and split_margin must be >= 0; got {self.margin}, {self.split_margin}")
+            raise AvatarError(f"HFMConfig.margin and split_margin must be >= 0; got {self.margin}, {self.split_margin}")
         if self.pose_calibration < 0 or self.pose_calibration_ridge < 0 or self.pose_calibration_expressions < 0:
-            raise SplatError(f"HFMConfig.pose_calibration, pose_calibration_ridge and pose_calibration_expressions must be "
+            raise AvatarError(f"HFMConfig.pose_calibration, pose_calibration_ridge and pose_calibration_expressions must be "
                              f">= 0; got {self.pose_calibration}, {self.pose_calibration_ridge}, {self.pose_calibration_expressions}")
         if self.pose_align < 0:
-            raise SplatError(f"HFMConfig.pose_align is a number of steps per frame, >= 0; got {self.pose_align!r}")
+            raise AvatarError(f"HFMConfig.pose_align is a number of steps per frame, >= 0; got {self.pose_align!r}")
         if not self.headset_pose_ridge >= 0:
-            raise SplatError(f"HFMConfig.headset_pose_ridge must be >= 0; got {self.headset_pose_ridge!r}")
+            raise AvatarError(f"HFMConfig.headset_pose_ridge must be >= 0; got {self.headset_pose_ridge!r}")
         if self.registration_landmarks not in ("rigid", "stable", "lower"):
-            raise SplatError("HFMConfig.registration_landmarks must be 'rigid', 'stable' or 'lower'; "
+            raise AvatarError("HFMConfig.registration_landmarks must be 'rigid', 'stable' or 'lower'; "
                              f"got {self.registration_landmarks!r}")
         if self.usage_landmarks not in ("lower", "stable"):
-            raise SplatError(f"HFMConfig.usage_landmarks must be 'lower' or 'stable'; got {self.usage_landmarks!r}")
+            raise AvatarError(f"HFMConfig.usage_landmarks must be 'lower' or 'stable'; got {self.usage_landmarks!r}")
         if self.gm_input not in ("x", "xsr"):
-            raise SplatError(f"HFMConfig.gm_input must be 'x' or 'xsr'; got {self.gm_input!r}")
+            raise AvatarError(f"HFMConfig.gm_input must be 'x' or 'xsr'; got {self.gm_input!r}")
         if self.pm_per_component and not self.feature_mapping:
-            raise SplatError("HFMConfig.pm_per_component needs feature_mapping (MLP_pm)")
+            raise AvatarError("HFMConfig.pm_per_component needs feature_mapping (MLP_pm)")
         if not self.lr_pose > 0:
-            raise SplatError(f"HFMConfig.lr_pose must be > 0; got {self.lr_pose!r}")
+            raise AvatarError(f"HFMConfig.lr_pose must be > 0; got {self.lr_pose!r}")
         if not 0 < self.map_norm_momentum <= 1:
-            raise SplatError(f"HFMConfig.map_norm_momentum must be in (0, 1]; got {self.map_norm_momentum}")
+            raise AvatarError(f"HFMConfig.map_norm_momentum must be in (0, 1]; got {self.map_norm_momentum}")
         if not 0 <= self.warmup < 1:
-            raise SplatError(f"HFMConfig.warmup is a fraction of iters in [0, 1); got {self.warmup}")
+            raise AvatarError(f"HFMConfig.warmup is a fraction of iters in [0, 1); got {self.warmup}")
         if not 0 <= self.ema < 1:
-            raise SplatError(f"HFMConfig.ema is a decay per step in [0, 1); got {self.ema}")
+            raise AvatarError(f"HFMConfig.ema is a decay per step in [0, 1); got {self.ema}")
 
     @property
     def usage_fit_names(self) -> tuple:
@@ -137,6 +137,6 @@ class HFMConfig:
     def from_dict(cls, d: dict, where: str = "HFM config") -> "HFMConfig":
         from geoface.nn.config import config_from_dict
 
-        from geoface.splat.errors import ModelFolderError
+        from geoface.errors import ModelFolderError
 
         return config_from_dict(cls, d, where=where, error=ModelFolderError)

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from geoface.camera import Camera, look_at
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.images import save_image
 from geoface.avatar.capture import euler_rotation, headset_mesh
 from geoface.capture import Capture, write_camera, write_head_poses, write_landmarks
@@ -212,7 +212,7 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
     from geoface.synth.head import HeadModel
 
     if frames < 5 or not 0 < heldout < 1:
-        raise SplatError(f"need frames >= 5 and 0 < heldout < 1; got {frames}, {heldout}")
+        raise AvatarError(f"need frames >= 5 and 0 < heldout < 1; got {frames}, {heldout}")
     out = Path(out)
     rng = np.random.default_rng(seed)
     model = HeadModel(n_vertices=n_vertices, seed=seed)

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.avatar.head_pose import project_points, rodrigues, rotation_vector
 
 __all__ = ["headset_centroids", "headset_components", "fit_headset", "refine_with_headset", "headset_poses"]
@@ -48,7 +48,7 @@ def headset_centroids(masks, min_pixels: int = 20) -> np.ndarray:
     headset's)."""
     M = np.asarray(masks, bool)
     if M.ndim != 3:
-        raise SplatError(f"headset masks must be [T, H, W]; got shape {M.shape}")
+        raise AvatarError(f"headset masks must be [T, H, W]; got shape {M.shape}")
     out = np.full((len(M), 2), np.nan)
     for f, m in enumerate(M):
         if m.sum() < min_pixels or m[0].any() or m[-1].any() or m[:, 0].any() or m[:, -1].any():
@@ -89,14 +89,14 @@ def fit_headset(camera, R, t, pivot, centroids, init, *, scores=None, ridge: flo
     headset; ``view``: fit the view map ``A``; ``ridge``: B's penalty, per score standard deviation,
     against one pixel of misfit in every frame; ``prior_px_per_m``: the pull of ``init`` (pixels
     per metre).  Returns ``{"anchor": c [3], "view": A [2, 2] or None, "expression": B [2, k] or
-    None, "rms_px": the misfit}``.  Raises SplatError with fewer than 6 usable centroids."""
+    None, "rms_px": the misfit}``.  Raises AvatarError with fewer than 6 usable centroids."""
     from scipy.optimize import least_squares
 
     R, t, piv = (np.asarray(a, np.float64) for a in (R, t, pivot))
     m = np.asarray(centroids, np.float64)
     ok = np.isfinite(m).all(1)
     if ok.sum() < 6:
-        raise SplatError(f"the headset masks give {int(ok.sum())} usable centroids (need 6)")
+        raise AvatarError(f"the headset masks give {int(ok.sum())} usable centroids (need 6)")
     R, t, m = R[ok], t[ok], m[ok]
     c0 = np.asarray(init, np.float64)
     Z = None if scores is None else np.asarray(scores, np.float64)[ok]
@@ -167,7 +167,7 @@ def headset_poses(camera, R, t, pivot, points3d, centroids, init, scores, *, wei
     model fitted with the expression ``scores`` [T, k] (:func:`fit_headset`; ``init``: a head
     point near the headset), then each frame's pose moved so that the predicted centroid moves by
     what the expressions did to it (``−B z``; frames whose mask is cut off are corrected too).  The
-    leading :func:`headset_components` scores are used; SplatError when the masks are too few.
+    leading :func:`headset_components` scores are used; AvatarError when the masks are too few.
     Returns (R, t, info: the model's misfit, usable frames, mean and largest correction in
     pixels)."""
     R, t, piv = (np.asarray(a, np.float64) for a in (R, t, pivot))
@@ -175,7 +175,7 @@ def headset_poses(camera, R, t, pivot, points3d, centroids, init, scores, *, wei
     whole = int(np.isfinite(cen).all(1).sum())
     k = headset_components(whole, np.shape(scores)[1])
     if k < 1:
-        raise SplatError(f"{whole} whole headset masks are too few for the headset's model (need 18)")
+        raise AvatarError(f"{whole} whole headset masks are too few for the headset's model (need 18)")
     Z = np.asarray(scores, np.float64)[:, :k]
     h = fit_headset(camera, R, t, piv, cen, init, scores=Z, ridge=ridge)
     shift = -Z @ h["expression"].T

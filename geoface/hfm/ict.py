@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.images import save_image
 from geoface.capture import write_camera, write_head_poses, write_landmarks, write_meta
 from geoface.avatar.ict import ICTPerson, arkit_curves, head_motion, is_upper_blendshape
@@ -59,9 +59,9 @@ def make_ict_hmd(out, *, frames: int = 200, usage_frames: int | None = None, res
 
     usage_frames = max(5, frames // 4) if usage_frames is None else int(usage_frames)
     if frames < 5 or usage_frames < 1:
-        raise SplatError(f"need frames >= 5 and usage_frames >= 1; got {frames}, {usage_frames}")
+        raise AvatarError(f"need frames >= 5 and usage_frames >= 1; got {frames}, {usage_frames}")
     if not (0 <= rom and 0.2 + rom <= frames / fps):
-        raise SplatError(f"the range of motion ({rom} s) must fit in the registration video ({frames / fps - 0.2:.1f} s after "
+        raise AvatarError(f"the range of motion ({rom} s) must fit in the registration video ({frames / fps - 0.2:.1f} s after "
                          "its first 0.2 s)")
     out = Path(out)
     rng = np.random.default_rng([seed, 7101])

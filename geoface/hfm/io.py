@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.splat.gaussians import Gaussians
 from geoface.hfm.model import HFMConfig, HFMModel
 from geoface.avatar.model_dir import read_model_dir, write_model_dir
@@ -27,7 +27,7 @@ def save_registration_poses(out_dir, R, t, pivot) -> None:
 
 def load_registration_poses(model_dir, n_frames: int | None = None):
     """(R, t, pivot) saved by :func:`save_registration_poses`, or None when the folder has none."""
-    from geoface.splat.errors import ModelFolderError
+    from geoface.errors import ModelFolderError
 
     path = Path(model_dir) / REGISTRATION_POSES
     if not path.is_file():
@@ -44,7 +44,7 @@ def load_registration_poses(model_dir, n_frames: int | None = None):
 
 
 def save_hfm(model: HFMModel, out_dir) -> None:
-    meta = {"format": "geoface-hfm-gs", "version": 1, "config": model.cfg.to_dict(),
+    meta = {"format": HFMModel.FORMAT, "version": 1, "config": model.cfg.to_dict(),
             "y_split": model.y_split, "n_gaussians": len(model.gaussians)}
     if getattr(model, "landmarks3d", None):
         meta["landmarks3d"] = model.landmarks3d
@@ -54,8 +54,8 @@ def save_hfm(model: HFMModel, out_dir) -> None:
 
 
 def load_hfm(model_dir) -> HFMModel:
-    """Load a model folder; any problem is a one-line SplatError."""
-    d, meta, sd = read_model_dir(model_dir, "geoface-hfm-gs", "HFM-GS")
+    """Load a model folder; any problem is a one-line AvatarError."""
+    d, meta, sd = read_model_dir(model_dir, HFMModel.FORMAT, "HFM-GS")
     conf = dict(meta["config"])
     conf.setdefault("map_norm", False)  # folders written before the field read p_L raw
     conf.setdefault("detach_lower", False)  # and trained the lower networks through the mapping
@@ -69,7 +69,7 @@ def load_hfm(model_dir) -> HFMModel:
     if not conf.get("gaussian_mapping", True):  # before the field: the unmapped upper face had its own MLP
         conf.setdefault("unmapped_upper", "separate" if any(k.startswith("mlp_up.") for k in sd) else "shared")
     cfg = HFMConfig.from_dict(conf, where=f"{d}/config.json")
-    from geoface.splat.errors import ModelFolderError
+    from geoface.errors import ModelFolderError
 
     y_split = meta.get("y_split")
     if isinstance(y_split, bool) or not isinstance(y_split, (int, float)) or not math.isfinite(y_split):
@@ -83,10 +83,10 @@ def load_hfm(model_dir) -> HFMModel:
                       sd["gaussians.opacity_logits"], sd["gaussians.colors"], sd.get("gaussians.parent"))
         model = HFMModel(g, cfg, meta["y_split"], sd["center"], sd["scale"])
         model.load_state_dict(sd, strict=True)
-    except (KeyError, RuntimeError, SplatError) as e:
-        raise SplatError(f"{d}: model weights do not match config.json ({str(e).splitlines()[0][:160]})") from None
+    except (KeyError, RuntimeError, AvatarError) as e:
+        raise AvatarError(f"{d}: model weights do not match config.json ({str(e).splitlines()[0][:160]})") from None
     if n != meta.get("n_gaussians", n):
-        raise SplatError(f"{d}: {n} Gaussians in the weights, config.json says {meta['n_gaussians']}")
+        raise AvatarError(f"{d}: {n} Gaussians in the weights, config.json says {meta['n_gaussians']}")
     lm = meta.get("landmarks3d")
     if lm is not None:
         try:
@@ -106,7 +106,7 @@ def _read_calibration(cal, d):
     """config.json's ``pose_calibration`` checked for shape (None stays None)."""
     if cal is None:
         return None
-    from geoface.splat.errors import ModelFolderError
+    from geoface.errors import ModelFolderError
 
     try:
         fit, names = [str(n) for n in cal["fit_names"]], [str(n) for n in cal["names"]]

@@ -7,7 +7,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat
 from geoface.hfm.blocks import (DeformHeads, ImageEncoder, axis_angle_to_quat, farthest_point_sampling,
                                       inverse_distance_weights, mlp, posenc)
@@ -21,6 +21,11 @@ from geoface.hfm.config import HFMConfig
 # ----------------------------------------------------------------------------- the model
 class HFMModel(nn.Module):
     """Canonical Gaussians + E_img + the deformation and mapping networks (module doc)."""
+
+    #: the ``format`` of its config.json and its verb group (the avatar contract, :class:`geoface.hfm.avatar.HFMAvatar`)
+    FORMAT = "geoface-hfm-gs"
+    KIND = "hfm"
+
 
     def __init__(self, gaussians: Gaussians, cfg: HFMConfig, y_split: float, center=None, scale=None):
         super().__init__()
@@ -243,7 +248,7 @@ class HFMModel(nn.Module):
         extra = []
         if self.cfg.map_theta:
             if theta is None:
-                raise SplatError("this model's MLP_mapping reads θ (map_theta): pass theta")
+                raise AvatarError("this model's MLP_mapping reads θ (map_theta): pass theta")
             extra = [theta.expand(len(eU), -1)]
         if self.cfg.pm_per_component and self.cfg.mapping_heads == 3:
             F, m = self.cfg.feat_dim, self.mlp_mapping
@@ -370,5 +375,5 @@ def select_keys(model: HFMModel, X: Tensor, iu: Tensor, il: Tensor, n_keys: int,
         gen = torch.Generator().manual_seed(int(seed))
         pick = torch.multinomial(corr.double().cpu(), n_keys, replacement=False, generator=gen).to(il.device)
     else:
-        raise SplatError(f"lower keys: 'sample' or 'top', not {lower!r}")
+        raise AvatarError(f"lower keys: 'sample' or 'top', not {lower!r}")
     return ku, il[pick.sort().values]

@@ -10,7 +10,7 @@ import torch
 from torch import Tensor, nn
 
 from geoface.splat.density import DensityConfig, make_optimizer
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.splat.gaussians import Gaussians
 from geoface.nn.average import WeightAverage
 from geoface.hfm.blocks import SegregationStrategy, boundary_loss
@@ -46,11 +46,11 @@ class VGGPerceptual(nn.Module):
         own = self.features.state_dict()
         missing = [k for k in own if k not in sd]
         if missing:
-            raise SplatError(f"{weights}: not VGG-16 feature weights (missing {missing[:3]})")
+            raise AvatarError(f"{weights}: not VGG-16 feature weights (missing {missing[:3]})")
         try:
             self.features.load_state_dict({k: sd[k] for k in own})
         except RuntimeError as e:
-            raise SplatError(f"{weights}: VGG-16 weights of the wrong shape ({str(e).splitlines()[0]})") from None
+            raise AvatarError(f"{weights}: VGG-16 weights of the wrong shape ({str(e).splitlines()[0]})") from None
         self.requires_grad_(False)
         self.register_buffer("mean", torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1))
         self.register_buffer("std", torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1))
@@ -85,7 +85,7 @@ def _head_mesh(video):
     from geoface.mesh.io import load_mesh
 
     if video.mesh_path is None:
-        raise SplatError("the registration folder has no head mesh (head.ply / head.obj)")
+        raise AvatarError("the registration folder has no head mesh (head.ply / head.obj)")
     return load_mesh(video.mesh_path)
 
 
@@ -100,9 +100,9 @@ def registration_poses(video, poses: str = "auto", log=None, mesh=None, fit: str
     (those a headset leaves visible, :data:`~geoface.avatar.head_pose.LOWER_RIGID_NAMES`, as the usage
     video's poses are fitted)."""
     if poses not in ("auto", "file", "landmarks"):
-        raise SplatError(f"poses must be 'auto', 'file' or 'landmarks'; got {poses!r}")
+        raise AvatarError(f"poses must be 'auto', 'file' or 'landmarks'; got {poses!r}")
     if poses == "file" and video.poses is None:
-        raise SplatError("--poses file: the registration folder has no head_poses.npz")
+        raise AvatarError("--poses file: the registration folder has no head_poses.npz")
     from geoface.avatar.head_pose import LOWER_RIGID_NAMES, STABLE_NAMES, canonical_landmarks, poses_from_landmarks
 
     m = mesh if mesh is not None else _head_mesh(video)
@@ -111,7 +111,7 @@ def registration_poses(video, poses: str = "auto", log=None, mesh=None, fit: str
         names, P = canonical_landmarks(video, m.V, m.F, (R[0], t[0], p))
         return {"poses": "file", "landmarks3d": {"names": names, "points": P.round(7).tolist()}}
     if fit not in ("rigid", "stable", "lower"):
-        raise SplatError(f"registration landmarks must be 'rigid', 'stable' or 'lower'; got {fit!r}")
+        raise AvatarError(f"registration landmarks must be 'rigid', 'stable' or 'lower'; got {fit!r}")
     stable = None
     if fit == "stable" and set(STABLE_NAMES) <= set(video.names):  # else (not the iBUG 68) as "rigid"
         stable = [video.names.index(n) for n in STABLE_NAMES]
@@ -166,12 +166,12 @@ def build_model(video, cfg: HFMConfig, mesh=None) -> HFMModel:
     m = mesh if mesh is not None else _head_mesh(video)
     C = getattr(m, "colors", None)
     if C is None:
-        raise SplatError(f"{video.mesh_path}: the head mesh needs vertex colours")
+        raise AvatarError(f"{video.mesh_path}: the head mesh needs vertex colours")
     g = Gaussians.from_mesh(m.V, m.F, np.clip(np.asarray(C)[:, :3], 0, 1), opacity=cfg.init_opacity)
     y_t = cfg.y_split if cfg.y_split is not None else video.y_split
     lo, hi = float(m.V[:, 1].min()), float(m.V[:, 1].max())
     if not (isinstance(y_t, (int, float)) and lo < float(y_t) < hi):
-        raise SplatError(f"y_split {y_t!r} must lie within the head's height ({lo:.4g} .. {hi:.4g}, the mesh's y): "
+        raise AvatarError(f"y_split {y_t!r} must lie within the head's height ({lo:.4g} .. {hi:.4g}, the mesh's y): "
                          "it divides the upper face (under the headset) from the lower")
     return HFMModel(g, cfg, y_t)
 
@@ -202,7 +202,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     model.landmarks3d = pose_info.pop("landmarks3d")  # for the usage video's landmarks (hfm_usage.usage_poses)
     from geoface.nn.config import resolve_device
 
-    dev = resolve_device(device, SplatError) or "cpu"
+    dev = resolve_device(device, AvatarError) or "cpu"
     model.to(dev)
     refine = _PoseRefinement(video, model, cfg, dev) if cfg.pose_refine and pose_info["poses"] == "landmarks" else None
     targets = None

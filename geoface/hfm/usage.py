@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.hfm.data import frame_input
 from geoface.hfm.model import HFMModel
 from geoface.hfm.train import frame_pose
@@ -45,10 +45,10 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     from geoface.avatar.head_pose import apply_lower_calibration, calibration_scores
 
     if source not in POSE_SOURCES:
-        raise SplatError(f"poses must be one of {POSE_SOURCES}; got {source!r}")
+        raise AvatarError(f"poses must be one of {POSE_SOURCES}; got {source!r}")
     if source == "file" or (source == "auto" and video.poses is not None):
         if video.poses is None:
-            raise SplatError("poses 'file': the usage folder has no head_poses.npz")
+            raise AvatarError("poses 'file': the usage folder has no head_poses.npz")
         return video.poses, "file"
     if source == "image":
         return None, "image"
@@ -101,7 +101,7 @@ def _lower_fit(model: HFMModel, video, need: bool = False):
         rigid = [n for n in video.names if n in fit_set and n in known]
         use = rigid if rigid else [n for n in video.names if n in known]
     if need and len(use) < 4:
-        raise SplatError(f"poses 'landmarks': {len(use)} of the usage landmarks are known on the head (need 4; "
+        raise AvatarError(f"poses 'landmarks': {len(use)} of the usage landmarks are known on the head (need 4; "
                          "the model keeps the registration landmarks since this version)")
     if len(use) < 4:
         return None
@@ -251,7 +251,7 @@ def evaluate_hmd(model: HFMModel, video, poses: str = "auto") -> dict:
     fitted to the landmarks, also how far the usage expressions lie beyond the registration's
     (:func:`expression_coverage`; ``expression_beyond`` etc.)."""
     if video.gt is None or video.hmd_masks is None:
-        raise SplatError("evaluation needs gt/ and hmd_masks/ in the usage folder")
+        raise AvatarError("evaluation needs gt/ and hmd_masks/ in the usage folder")
     R, times, source = _remove(model, video, None, None, True, poses)
     out = hmd_metrics(R, video)
     out["poses"] = source
@@ -269,9 +269,9 @@ def hmd_metrics(R: np.ndarray, video) -> dict:
     from geoface.splat.fit import psnr, ssim_masked
 
     if video.gt is None or video.hmd_masks is None:
-        raise SplatError("evaluation needs gt/ and hmd_masks/ in the usage folder")
+        raise AvatarError("evaluation needs gt/ and hmd_masks/ in the usage folder")
     if R.shape != video.gt.shape:
-        raise SplatError(f"renders {R.shape} do not match the usage frames {video.gt.shape}")
+        raise AvatarError(f"renders {R.shape} do not match the usage frames {video.gt.shape}")
     face = video.gt.max(-1) > 0
     rest = video.gt_static_upper
     hidden = video.hmd_masks if video.hmd_masks_true is None else video.hmd_masks_true  # score where it truly hides
@@ -299,3 +299,26 @@ def hmd_metrics(R: np.ndarray, video) -> dict:
     if rest is not None:
         out["expression_frames"] = len(rows["psnr_expression"])
     return out
+
+
+def drive_hfm(model: HFMModel, source, *, fps: float = 25.0):
+    """:meth:`HFMModel.drive`: the avatar frame by frame, driven by the usage folder ``source``
+    (each frame's lower-face crop; the folder's own frames shown beside)."""
+    import json
+
+    from geoface.avatar.model_dir import AvatarDrive, uint8_frames
+    from geoface.hfm.data import load_video
+
+    if source is None or not Path(source).is_dir():
+        raise AvatarError(f"{source}: a headset-removal avatar is driven by a usage folder (`hmd synth` writes one)")
+    source = Path(source)
+    video = load_video(source)
+    boxes = video.boxes()
+    meta = json.loads((source / "meta.json").read_text(encoding="utf-8")) if (source / "meta.json").is_file() else {}
+
+    def g(t):
+        return model(*frame_input(video, t, model.cfg.crop, boxes), frame_pose(video, t))
+
+    return AvatarDrive(len(video), float(meta.get("fps", fps)), f"the headset video in {source.name}", model.KIND, g,
+                       uint8_frames(video.frames))
+

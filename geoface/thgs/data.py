@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from geoface.camera import Camera, look_at
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.images import save_image
 from geoface.avatar.capture import IBUG68_NAMES, camera_from_json, read_landmarks
 from geoface.capture import Capture, write_camera
@@ -76,15 +76,15 @@ def load_poses(path, n_joints: int, n_expr: int, n_frames: int | None = None):
         with np.load(path, allow_pickle=False) as d:
             rot, transl, expr = (np.asarray(d[k], np.float64) for k in ("rot", "transl", "expr"))
     except (OSError, KeyError, ValueError) as e:
-        raise SplatError(f"{path}: poses need rot [T, J, 3], transl [T, 3], expr [T, K] ({type(e).__name__}: {e})") from None
+        raise AvatarError(f"{path}: poses need rot [T, J, 3], transl [T, 3], expr [T, K] ({type(e).__name__}: {e})") from None
     T = len(rot)
     if rot.shape != (T, n_joints, 3) or transl.shape != (T, 3) or expr.shape != (T, n_expr):
-        raise SplatError(f"{path}: shapes rot {rot.shape}, transl {transl.shape}, expr {expr.shape} do not fit a "
+        raise AvatarError(f"{path}: shapes rot {rot.shape}, transl {transl.shape}, expr {expr.shape} do not fit a "
                          f"template with {n_joints} joints and {n_expr} expressions")
     if n_frames is not None and T != n_frames:
-        raise SplatError(f"{path}: {T} poses for {n_frames} frames")
+        raise AvatarError(f"{path}: {T} poses for {n_frames} frames")
     if not (np.isfinite(rot).all() and np.isfinite(transl).all() and np.isfinite(expr).all()):
-        raise SplatError(f"{path}: non-finite poses")
+        raise AvatarError(f"{path}: non-finite poses")
     return rot, transl, expr
 
 
@@ -95,7 +95,7 @@ def load_tracked(path, n_joints: int, n_expr: int) -> tuple[np.ndarray, np.ndarr
         for key, n in (("tracked_joints", n_joints), ("tracked_expr", n_expr)):
             m = np.asarray(d[key]) if key in d.files else np.ones(n, bool)
             if m.shape != (n,) or m.dtype != bool:
-                raise SplatError(f"{path}: {key} must be a bool array of {n}; got {m.dtype} {m.shape}")
+                raise AvatarError(f"{path}: {key} must be a bool array of {n}; got {m.dtype} {m.shape}")
             out.append(m)
     return out[0], out[1]
 
@@ -151,7 +151,7 @@ def fit_head_poses(folder, *, names=None) -> dict:
     folder = Path(folder)
     for name in ("camera.json", "template.npz", "poses.npz", "landmarks.json"):
         if not (folder / name).is_file():
-            raise SplatError(f"{folder}: missing {name} (head poses are fitted to a tracker's landmarks.json)")
+            raise AvatarError(f"{folder}: missing {name} (head poses are fitted to a tracker's landmarks.json)")
     tpl = Template.load(folder / "template.npz")
     cam = camera_from_json(folder / "camera.json")
     with np.load(folder / "poses.npz", allow_pickle=False) as z:
@@ -160,7 +160,7 @@ def fit_head_poses(folder, *, names=None) -> dict:
     lm, lm_names = read_landmarks(folder / "landmarks.json", len(rot))
     names = [n for n in (STABLE_NAMES if names is None else names) if n in lm_names and n in tpl.landmark_names]
     if len(names) < 4:
-        raise SplatError(f"{folder}: only {len(names)} landmarks both in landmarks.json and on the template "
+        raise AvatarError(f"{folder}: only {len(names)} landmarks both in landmarks.json and on the template "
                          "(template landmark_names): cannot fit head poses (need 4)")
     P = tpl.V[[int(tpl.landmark_vertices[tpl.landmark_names.index(n)]) for n in names]]
     sol = solve_poses(cam, P, lm[:, [lm_names.index(n) for n in names]], tpl.joints[0])  # from the rest pose

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.avatar.kinematics import joint_transforms
 from geoface.thgs.model import THGSModel, lbs
 from geoface.thgs.train import train_heldout_split
@@ -137,7 +137,7 @@ def evaluate_thgs(model: THGSModel, data, heldout: float | None = None) -> dict:
     h = model.cfg.heldout if heldout is None else heldout
     _, te = train_heldout_split(len(data), h)
     if len(te) < 2:
-        raise SplatError("evaluation needs at least two held-out frames")
+        raise AvatarError("evaluation needs at least two held-out frames")
     R, times = render_frames(model, data.camera, data.rot, data.transl, data.expr, data.audio, te)
     rows = {"psnr": [], "ssim": [], "psnr_mouth": []}
     lips = data.meta.get("lips_box")

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.images import save_image
 from geoface.avatar.capture import IBUG68_NAMES
 from geoface.capture import write_camera, write_landmarks
@@ -245,10 +245,10 @@ def perturb_capture(src, dst, perturb: tuple, seed: int = 0) -> Path:
     src, dst = Path(src), Path(dst)
     truth = src / "poses_true.npz"
     if not truth.is_file():
-        raise SplatError(f"{src}: no poses_true.npz (a capture from make_ict_talking)")
+        raise AvatarError(f"{src}: no poses_true.npz (a capture from make_ict_talking)")
     deg, mm = (float(x) for x in perturb)
     if not (deg >= 0 and mm >= 0):
-        raise SplatError(f"perturbations must be >= 0; got {perturb}")
+        raise AvatarError(f"perturbations must be >= 0; got {perturb}")
     tmp = dst.with_name(f".{dst.name}.tmp")
     if tmp.exists():
         shutil.rmtree(tmp)
@@ -284,7 +284,7 @@ def make_ict_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res: int =
 
     deg, mm = (float(x) for x in perturb)
     if seconds * fps < 5 or not (deg >= 0 and mm >= 0):
-        raise SplatError(f"need at least 5 frames and perturbations >= 0; got {seconds} s at {fps} fps, {perturb}")
+        raise AvatarError(f"need at least 5 frames and perturbations >= 0; got {seconds} s at {fps} fps, {perturb}")
     out = Path(out)
     (out / "frames").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng([seed, 7201])

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.splat.gaussians import Gaussians
 from geoface.thgs.model import THGSConfig, THGSModel
 
@@ -17,7 +17,7 @@ from geoface.thgs.model import THGSConfig, THGSModel
 def save_thgs(model: THGSModel, out_dir) -> None:
     from geoface.avatar.model_dir import write_model_dir
 
-    out = write_model_dir(out_dir, model, {"format": "geoface-thgs", "version": 1, "config": asdict(model.cfg),
+    out = write_model_dir(out_dir, model, {"format": THGSModel.FORMAT, "version": 1, "config": asdict(model.cfg),
                                            "audio_dim": int(model.audio_dim),
                                            "n_frames": int(model.d_rot.shape[0])})
     model.template.save(out / "template.npz")
@@ -27,9 +27,9 @@ def load_thgs(model_dir) -> THGSModel:
     from geoface.avatar.model_dir import load_model_state, read_model_config
     from geoface.avatar.template import Template
 
-    from geoface.splat.errors import ModelFolderError
+    from geoface.errors import ModelFolderError
 
-    d, meta = read_model_config(model_dir, "geoface-thgs", "THGS")
+    d, meta = read_model_config(model_dir, THGSModel.FORMAT, "THGS")
     cfg = THGSConfig.from_dict(meta["config"], where=f"{d}/config.json")
     for key in ("audio_dim", "n_frames"):
         if isinstance(meta.get(key), bool) or not isinstance(meta.get(key), int) or meta[key] < 0:
@@ -45,7 +45,7 @@ def load_thgs(model_dir) -> THGSModel:
         sd.setdefault("tracked_expr", model.tracked_expr)
         model.load_state_dict(sd, strict=True)
     except (KeyError, RuntimeError) as e:
-        raise SplatError(f"{d}: weights do not match config.json ({str(e).splitlines()[0][:160]})") from None
+        raise AvatarError(f"{d}: weights do not match config.json ({str(e).splitlines()[0][:160]})") from None
     model.eval()
     model._dir = str(d)
     return model
@@ -87,19 +87,57 @@ def animate(model: THGSModel, audio_path, out_dir=None, *, poses=None, fps: floa
         rot, transl, expr = load_poses(poses, J, K)
         T = len(rot) if T is None else min(T, len(rot))
     elif T is None:
-        raise SplatError("with precomputed audio features give --poses (they fix the frame count)")
+        raise AvatarError("with precomputed audio features give --poses (they fix the frame count)")
     A = audio_features(p, T, fps)
     if A.shape[1] != model.audio_dim:
-        raise SplatError(f"{p}: {A.shape[1]} audio features per frame; the model was trained on {model.audio_dim}")
+        raise AvatarError(f"{p}: {A.shape[1]} audio features per frame; the model was trained on {model.audio_dim}")
     if poses is None:
         rot, transl, expr = np.zeros((T, J, 3)), np.zeros((T, 3)), np.zeros((T, K))
     if camera is None:
         cam_path = Path(getattr(model, "_dir", "")) / "camera.json"
         if not cam_path.is_file():
-            raise SplatError("no camera: the model folder has no camera.json")
+            raise AvatarError("no camera: the model folder has no camera.json")
         camera = camera_from_json(cam_path)
     frames, times = render_frames(model, camera, rot[:T], transl[:T], expr[:T], A)
     if out_dir is not None:
         for t, img in enumerate(frames):
             write_frame(out_dir, t, img)
     return frames, times
+
+
+def drive_thgs(model: THGSModel, source, *, fps: float = 25.0):
+    """:meth:`THGSModel.drive`: the avatar frame by frame, driven by a WAV (rest pose, neutral
+    expression, the speech moves the mouth), a talking data folder (its tracked poses, expressions
+    and speech, and its frames to compare with), or nothing (``None``: one frame at rest, silent)."""
+    from geoface.avatar.audio import audio_features, read_wav
+    from geoface.avatar.model_dir import AvatarDrive, uint8_frames
+
+    J, K = len(model.template.joints), model.template.n_expr
+    if source is None:
+        return AvatarDrive(1, float(fps), "nothing (the rest pose)", model.KIND,
+                           lambda t: model(np.zeros((J, 3)), np.zeros(3), np.zeros(K), model.audio_ref.clone()))
+    source = Path(source)
+    frames = None
+    if source.is_dir():
+        from geoface.thgs.data import load_talking
+
+        data = load_talking(source)
+        rot, transl, expr, audio = data.rot, data.transl, data.expr, data.audio
+        frames, fps, what = uint8_frames(data.frames), float(data.fps), f"the video in {source.name}"
+    elif source.suffix.lower() == ".wav":
+        x, sr = read_wav(source)
+        T = max(1, int(len(x) / sr * fps))
+        audio = audio_features(source, T, fps)
+        rot, transl, expr, what = np.zeros((T, J, 3)), np.zeros((T, 3)), np.zeros((T, K)), source.name
+    else:
+        raise AvatarError(f"{source}: a talking avatar is driven by a WAV or a talking data folder")
+    if audio.shape[1] != model.audio_dim:
+        raise AvatarError(f"{source}: {audio.shape[1]} audio features per frame; the model was trained on "
+                          f"{model.audio_dim}")
+    audio = model.audio_input(audio)
+
+    def g(t):
+        return model(rot[t], transl[t], expr[t], audio[t])
+
+    return AvatarDrive(len(rot), float(fps), what, model.KIND, g, frames)
+

@@ -34,7 +34,7 @@ import torch
 from torch import Tensor, nn
 
 from geoface.mesh.core import vertex_normals
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.splat.gaussians import Gaussians, GaussianTensors, quat_mul, quat_to_rotmat, rotmat_to_quat_torch
 from geoface.avatar.kinematics import axis_angle_to_matrix, joint_transforms
 from geoface.thgs.blocks import AudioArticulation, ExpressionBlendshapes, SpatialAudioAttention, VoxelSkinning, lbs, mouth_gaussians
@@ -97,11 +97,11 @@ class THGSConfig:
 
     def __post_init__(self):
         if self.audio_window < 0:
-            raise SplatError(f"THGSConfig.audio_window must be >= 0 frames; got {self.audio_window}")
+            raise AvatarError(f"THGSConfig.audio_window must be >= 0 frames; got {self.audio_window}")
         if not (self.lr_pose > 0 and self.pose_decay >= 1):
-            raise SplatError(f"THGSConfig: need lr_pose > 0 and pose_decay >= 1; got {self.lr_pose}, {self.pose_decay}")
+            raise AvatarError(f"THGSConfig: need lr_pose > 0 and pose_decay >= 1; got {self.lr_pose}, {self.pose_decay}")
         if self.iters < 1 or self.voxel_res < 2 or not 0 <= self.heldout < 1:
-            raise SplatError(f"bad THGS config: iters={self.iters}, voxel_res={self.voxel_res}, heldout={self.heldout}")
+            raise AvatarError(f"bad THGS config: iters={self.iters}, voxel_res={self.voxel_res}, heldout={self.heldout}")
 
     def stages(self) -> tuple[int, ...]:
         s = self.iters / PAPER_ITERS if self.stage_scale is None else self.stage_scale
@@ -111,7 +111,7 @@ class THGSConfig:
     def from_dict(cls, d, where: str = "THGS config"):
         from geoface.nn.config import config_from_dict
 
-        from geoface.splat.errors import ModelFolderError
+        from geoface.errors import ModelFolderError
 
         # saved before the audio articulation: none; before landmarks_pose: the landmarks moved the poses;
         # before audio_window: one frame's features; before pose_decay: a constant rate
@@ -122,6 +122,11 @@ class THGSConfig:
 
 class THGSModel(nn.Module):
     """Gaussians bound to template vertices, posed by voxel LBS, with LEB and SAAM (module doc)."""
+
+    #: the ``format`` of its config.json and its verb group (the avatar contract, :class:`geoface.thgs.avatar.THGSAvatar`)
+    FORMAT = "geoface-thgs"
+    KIND = "thgs"
+
 
     def __init__(self, tpl, cfg: THGSConfig, audio_dim: int, n_frames: int = 0, gaussians: Gaussians | None = None):
         super().__init__()
@@ -211,7 +216,7 @@ class THGSModel(nn.Module):
         """For each template vertex in ``vertices``, the indices of the Gaussians bound to it."""
         out = [torch.nonzero(self.gaussians.parent == int(v))[:, 0] for v in vertices]
         if not all(len(i) for i in out):
-            raise SplatError("no Gaussian is bound to one of the vertices " + str([int(v) for v in vertices]))
+            raise AvatarError("no Gaussian is bound to one of the vertices " + str([int(v) for v in vertices]))
         return out
 
     def vertex_loss(self) -> Tensor:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.avatar.corrections import FrameCorrections
 from geoface.thgs.model import THGSConfig, THGSModel
 from geoface.thgs.inference import save_thgs
@@ -46,7 +46,7 @@ def train_thgs(data_dir, out_dir, cfg: THGSConfig | None = None, *, progress=Non
     model.audio_scale.copy_(A[tr].std(0).clamp_min(1e-3))
     model.tracked_joints.copy_(torch.as_tensor(data.tracked_joints))
     model.tracked_expr.copy_(torch.as_tensor(data.tracked_expr))
-    dev = resolve_device(device, SplatError) or "cpu"
+    dev = resolve_device(device, AvatarError) or "cpu"
     model.to(dev)
     A = A.to(dev)
     g = model.gaussians

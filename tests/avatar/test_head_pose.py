@@ -11,7 +11,7 @@ from geoface.errors import CaptureError
 import torch
 
 from geoface.camera import look_at
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.avatar.head_pose import (landmarks_on_mesh, poses_from_landmarks, rodrigues, rotation_vector, solve_poses,
                                      triangulate)
 from geoface.hfm.data import LOWER_FACE_LANDMARKS, load_video
@@ -78,7 +78,7 @@ def test_pnp_recovers_poses_through_noise_and_moving_points():
     assert (fit["inliers"] == 17).all() and np.median(fit["rms_px"]) < 1.0
     plain = solve_poses(cam, P, obs, piv, scale_px=1e6)
     assert np.mean([_angle_deg(Rs[f], plain["R"][f]) for f in range(T)]) > 2 * np.mean(err)
-    with pytest.raises(SplatError, match="need 4"):
+    with pytest.raises(AvatarError, match="need 4"):
         solve_poses(cam, P[:3], obs[:, :3], piv)
 
 
@@ -148,7 +148,7 @@ def test_range_of_motion_opens_the_registration_with_each_emotion_at_full_weight
     after = t >= 3.7
     for k in free[0]:
         assert np.array_equal(w(free, k)[after], w(rom, k)[after]), k
-    with pytest.raises(SplatError, match="range of motion"):
+    with pytest.raises(AvatarError, match="range of motion"):
         make_ict_hmd("unused", frames=20, rom=1.0, quiet=True)
 
 
@@ -273,7 +273,7 @@ def test_rigidity_weights_favour_the_points_that_stay_and_the_weighted_fit_tilts
     assert "fit_weights" not in calibrate_lower_poses(cam, names, P, obs, names, (R, t, piv), fit_names=names,
                                                       feature_names=names, components=4)
     for bad in (w[:5], -w, w * np.nan):
-        with pytest.raises(SplatError, match="weights"):
+        with pytest.raises(AvatarError, match="weights"):
             solve_poses(cam, P, obs2[:2], piv, weights=bad)
 
 
@@ -299,7 +299,7 @@ def test_poses_fitted_to_the_landmarks_below_a_headset(ict_capture):
         e = low["t"][f] - ((piv - R[f] @ piv + t[f]) - (p - R[f] @ p))
         assert np.linalg.norm(e[:2]) < 3e-3
     assert max(_angle_deg(a, b) for a, b in zip(low["R"], rigid["R"])) > 1e-3
-    with pytest.raises(SplatError, match="need 4"):
+    with pytest.raises(AvatarError, match="need 4"):
         poses_from_landmarks(v, m.V, m.F, fit_names=("nose_tip", "jaw_00"))
 
 
@@ -382,7 +382,7 @@ def test_hfm_without_a_pose_file_learns_the_pose_from_the_crop(ict_capture, tmp_
     conf = json.loads((tmp_path / "m" / "config.json").read_text())
     conf["pose_calibration"]["weights"] = conf["pose_calibration"]["weights"][:-1]
     (tmp_path / "m" / "config.json").write_text(json.dumps(conf))
-    with pytest.raises(SplatError, match="pose_calibration is malformed"):
+    with pytest.raises(AvatarError, match="pose_calibration is malformed"):
         load_hfm(tmp_path / "m")
     # the default calibration weighs the landmarks (saved and loaded with it); the usage fit uses
     # the weights, and equal weights give other poses
@@ -403,7 +403,7 @@ def test_hfm_without_a_pose_file_learns_the_pose_from_the_crop(ict_capture, tmp_
     conf = json.loads((tmp_path / "mw" / "config.json").read_text())
     conf["pose_calibration"]["fit_weights"][0] = -1.0
     (tmp_path / "mw" / "config.json").write_text(json.dumps(conf))
-    with pytest.raises(SplatError, match="fit_weights"):
+    with pytest.raises(AvatarError, match="fit_weights"):
         load_hfm(tmp_path / "mw")
     ev = evaluate_hmd(m, video, poses="landmarks")
     assert 5 < ev["psnr_face"] < 60 and ev["poses"] == "landmarks"
@@ -445,7 +445,7 @@ def test_hfm_without_a_pose_file_learns_the_pose_from_the_crop(ict_capture, tmp_
     conf = json.loads((tmp_path / "m2c" / "config.json").read_text())
     conf["pose_calibration"]["score_sd"] = [1.0] * 3
     (tmp_path / "m2c" / "config.json").write_text(json.dumps(conf))
-    with pytest.raises(SplatError, match="score_sd"):
+    with pytest.raises(AvatarError, match="score_sd"):
         load_hfm(tmp_path / "m2c")
     # usage_landmarks "stable": the calibration and the usage poses use the 8 stable lower landmarks;
     # a calibration learned on the other set is not applied to them (the uncalibrated fit instead)
@@ -465,7 +465,7 @@ def test_hfm_without_a_pose_file_learns_the_pose_from_the_crop(ict_capture, tmp_
     for f in range(len(video)):
         assert _angle_deg(Rt[f], R8[f]) < 1.5
     m.cfg, m.pose_calibration = replace(m.cfg, usage_landmarks="lower"), cal
-    with pytest.raises(SplatError, match="usage_landmarks"):
+    with pytest.raises(AvatarError, match="usage_landmarks"):
         HFMConfig(usage_landmarks="upper")
     # headset_pose: with 18 whole headset masks (the three frames six times) the calibrated poses
     # are also moved by the headset's silhouette, within what the landmarks allow; with three the
@@ -482,9 +482,9 @@ def test_hfm_without_a_pose_file_learns_the_pose_from_the_crop(ict_capture, tmp_
     assert usage_poses(m, video, "landmarks")[1] == "landmarks"
     m.cfg = replace(m.cfg, headset_pose=False)
     m.landmarks3d = None
-    with pytest.raises(SplatError, match="need 4"):
+    with pytest.raises(AvatarError, match="need 4"):
         usage_poses(m, video, "landmarks")
-    with pytest.raises(SplatError, match="no head_poses.npz"):
+    with pytest.raises(AvatarError, match="no head_poses.npz"):
         (reg / "head_poses.npz").rename(tmp_path / "hp.npz")
         try:
             train_hfm(reg, tmp_path / "m2", cfg, progress=False, log=None, poses="file")
@@ -642,10 +642,10 @@ def test_training_corrects_the_landmark_poses_saves_them_and_calibrates_to_them(
     assert np.allclose(p, fit["pivot"]) and 1e-3 < max(moved) < 2.0
     m = load_hfm(tmp_path / "m")
     assert m.cfg.pose_refine and m.pose_calibration is not None  # learned from the corrected poses
-    with pytest.raises(SplatError, match="registration poses of this model"):
+    with pytest.raises(AvatarError, match="registration poses of this model"):
         load_registration_poses(tmp_path / "m", len(v) + 1)
     np.savez(tmp_path / "m" / "registration_poses.npz", R=R[:, :2], t=t, pivot=p)
-    with pytest.raises(SplatError, match="registration poses of this model"):
+    with pytest.raises(AvatarError, match="registration poses of this model"):
         load_registration_poses(tmp_path / "m")
     # trained again into the folder without corrections: the stale file goes
     train_hfm(reg, tmp_path / "m", HFMConfig(iters=2, densify=False, n_keys=64, crop=64), progress=False, log=None,

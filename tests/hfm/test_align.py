@@ -11,7 +11,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from geoface.avatar.corrections import corrected_pose
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.hfm import HFMConfig, load_hfm, save_hfm, train_hfm
 from geoface.hfm.align import align_poses
 from geoface.hfm.data import frame_input, load_video
@@ -76,9 +76,9 @@ def test_translation_is_learned_only_when_asked_and_smoothing_keeps_a_constant(r
 
 def test_errors(rendered):
     model, video, _ = rendered
-    with pytest.raises(SplatError, match="hmd_masks"):
+    with pytest.raises(AvatarError, match="hmd_masks"):
         align_poses(model, replace(video, hmd_masks=None), video.poses)
-    with pytest.raises(SplatError, match="steps"):
+    with pytest.raises(AvatarError, match="steps"):
         align_poses(model, video, video.poses, steps=0)
 
 

@@ -4,7 +4,7 @@ expression shifts."""
 import numpy as np
 import pytest
 
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.avatar.head_pose import project_points, rodrigues
 from geoface.hfm.headset_pose import fit_headset, headset_centroids, headset_components, headset_poses
 
@@ -78,7 +78,7 @@ def test_headset_centroids_of_a_drawn_box_and_what_is_left_out():
     m[2, 10:13, 10:13] = True  # too small
     c2 = headset_centroids(m)
     assert np.isnan(c2[1]).all() and np.isnan(c2[2]).all() and np.allclose(c2[[0, 3]], c[[0, 3]])
-    with pytest.raises(SplatError, match=r"\[T, H, W\]"):
+    with pytest.raises(AvatarError, match=r"\[T, H, W\]"):
         headset_centroids(masks[0])
     assert headset_components(50, 8) == 8 and headset_components(30, 8) == 4 and headset_components(17, 8) == 0
 
@@ -92,7 +92,7 @@ def test_the_headset_model_follows_the_silhouette_in_the_true_poses():
     assert h["rms_px"] < 0.12 and h["expression"] is None
     assert np.linalg.norm(h["anchor"][:2] - _box()[1::2].mean(0)[:2]) < 0.003  # on the box's axis
     assert fit_headset(cam, R, t, piv, cen, INIT, view=False)["rms_px"] > 2 * h["rms_px"]
-    with pytest.raises(SplatError, match="usable centroids"):
+    with pytest.raises(AvatarError, match="usable centroids"):
         fit_headset(cam, R[:5], t[:5], piv, cen[:5], INIT)
 
 
@@ -110,5 +110,5 @@ def test_headset_corrects_what_an_unseen_expression_did_to_the_landmark_poses():
         # right poses stay nearly right: what the expression map takes up from noise is small
         R3, t3, _ = headset_poses(cam, R, t, piv, P, headset_centroids(masks), INIT, Z)
         assert _err_px(cam, R, t, R3, t3, piv, _box()[1::2]) < 0.12
-    with pytest.raises(SplatError, match="too few"):
+    with pytest.raises(AvatarError, match="too few"):
         headset_poses(cam, R[:17], t[:17], piv, P, headset_centroids(masks[:17]), INIT, Z[:17])

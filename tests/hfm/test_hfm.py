@@ -12,7 +12,7 @@ import torch
 from scipy import ndimage
 
 from geoface.splat.density import DensityConfig
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.splat.gaussians import Gaussians
 from geoface.hfm import (ABLATIONS, HFMConfig, HFMModel, SegregationStrategy, VGGPerceptual, WeightAverage, select_keys,
                                boundary_loss, evaluate_hmd, farthest_point_sampling, hmd_metrics,
@@ -107,9 +107,9 @@ def test_lower_keys_are_drawn_in_proportion_to_correlation_weight():
     assert rate[light].mean() > 0.05
     _, top = select_keys(m, X, iu, il, 512, 0, "top")
     assert not bool(torch.isin(il[light], top).any())
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         select_keys(m, X, iu, il, 512, 0, "largest")
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         HFMConfig(lower_keys="largest")
 
 
@@ -240,7 +240,7 @@ def test_mapping_heads_decode_each_parameter_as_eq_2_does(tmp_path):
     del meta["config"]["mapping_heads"]
     (tmp_path / "old" / "config.json").write_text(json.dumps(meta))
     assert load_hfm(tmp_path / "old").cfg.mapping_heads == 1
-    with pytest.raises(SplatError, match="mapping_heads"):
+    with pytest.raises(AvatarError, match="mapping_heads"):
         HFMConfig(mapping_heads=2)
 
 
@@ -383,7 +383,7 @@ def test_without_the_mapping_one_deformation_field_moves_both_halves():
     up = sep.upper_mask()
     assert torch.allclose(d.means[~up], X[~up] + pl[~up, :3] * sep.scale * 0.1, atol=1e-6)
     assert not torch.allclose(d.means[up], X[up] + pl[up, :3] * sep.scale * 0.1, atol=1e-4)
-    with pytest.raises(SplatError, match="unmapped_upper"):
+    with pytest.raises(AvatarError, match="unmapped_upper"):
         HFMConfig(unmapped_upper="own")
 
 
@@ -414,20 +414,20 @@ def test_without_the_pose_residual_the_pose_read_from_the_crop_is_the_pose():
     R = torch.tensor([[math.cos(0.2), 0, math.sin(0.2)], [0, 1, 0], [-math.sin(0.2), 0, math.cos(0.2)]])
     assert torch.allclose(read.means, (still.means - c) @ R.T + c + t * s * 0.1, atol=1e-6)
     assert torch.allclose(still.means, m.gaussians.means, atol=1e-6)  # zero last layers: no deformation
-    with pytest.raises(SplatError, match="registration_landmarks"):
+    with pytest.raises(AvatarError, match="registration_landmarks"):
         HFMConfig(registration_landmarks="upper")
 
 
 def test_encoder_shapes_and_config_errors():
     m = _model(200)
     assert m.encoder(torch.rand(2, 3, 128, 128)).shape == (2, 128)
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         HFMConfig(crop=100)
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         HFMConfig.from_dict({"bogus": 1})
-    with pytest.raises(SplatError, match="map_norm_momentum"):
+    with pytest.raises(AvatarError, match="map_norm_momentum"):
         HFMConfig(map_norm_momentum=0)
-    with pytest.raises(SplatError, match="upsample"):
+    with pytest.raises(AvatarError, match="upsample"):
         HFMConfig(upsample="keys")
 
 
@@ -450,10 +450,10 @@ def test_vgg_perceptual_from_local_weights(tmp_path):
     assert float(vgg(a, a)) == 0.0
     assert float(vgg(a, a.flip(-1))) > 0
     (tmp_path / "bad.safetensors").write_bytes(b"not weights")
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         VGGPerceptual(tmp_path / "bad.safetensors")
     save_file({"features.0.weight": torch.zeros(3)}, str(tmp_path / "other.safetensors"))
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         VGGPerceptual(tmp_path / "other.safetensors")
 
 
@@ -517,7 +517,7 @@ def test_expression_region_metrics():
     half = gt.copy()
     half[0, 3:7, 5:10] += 0.05  # halfway to the truth: 6 dB better than the rest pose
     assert hmd_metrics(half, v)["psnr_expression"] == pytest.approx(26.02, abs=0.01)
-    with pytest.raises(SplatError, match="do not match"):
+    with pytest.raises(AvatarError, match="do not match"):
         hmd_metrics(gt[:, :10], v)
 
 
@@ -609,7 +609,7 @@ def test_a_few_training_steps_lower_the_loss_save_load_and_evaluate(videos, tmp_
         assert torch.equal(m(crop).means, m2(crop).means)
     # a corrupt checkpoint is a one-line error
     (tmp_path / "m" / "model.safetensors").write_bytes(b"\0" * 64)
-    with pytest.raises(SplatError, match="cannot read weights"):
+    with pytest.raises(AvatarError, match="cannot read weights"):
         load_hfm(tmp_path / "m")
 
 
@@ -628,12 +628,12 @@ def test_static_warm_up_freezes_the_networks_then_trains_them(videos, tmp_path):
     # without warm-up the networks train from the first step
     info0 = train_hfm(reg, tmp_path / "w0", replace(cfg, iters=3, warmup=0.0), progress=False, log=None)
     assert all(r["nets"] for r in info0["history"]) and info0["warmup_steps"] == 0
-    with pytest.raises(SplatError, match="warmup"):
+    with pytest.raises(AvatarError, match="warmup"):
         HFMConfig(warmup=1.0)
 
 
 def test_ema_must_be_below_one():
-    with pytest.raises(SplatError, match="ema"):
+    with pytest.raises(AvatarError, match="ema"):
         HFMConfig(ema=1.0)
 
 
@@ -713,13 +713,13 @@ def test_save_load_round_trip_with_sampling_keys(tmp_path):
     cfg = json.loads((tmp_path / "config.json").read_text())
     cfg["n_gaussians"] = 7
     (tmp_path / "config.json").write_text(json.dumps(cfg))
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         load_hfm(tmp_path)
 
 
 def test_cli_end_to_end_and_errors(videos, tmp_path, capsys):
     from geoface.cli import main
-    from geoface.hfm.cli import ABLATION_NAMES
+    from geoface.cli.hmd import ABLATION_NAMES
 
     assert set(ABLATION_NAMES) == set(ABLATIONS)
     reg, use = videos
@@ -855,7 +855,7 @@ def test_paper_elements_start_at_identity_and_reach_the_upper_face():
             mod[-1].weight.zero_()
             mod[-1].bias.zero_()
     assert torch.allclose(_mapped_upper(plain, theta), _mapped_upper(plain, 2 * theta), atol=1e-7)
-    with pytest.raises(SplatError, match="theta"):
+    with pytest.raises(AvatarError, match="theta"):
         m.decode_upper(m.embed(X0[:5]), torch.zeros(5, m.cfg.feat_dim))
 
 
@@ -895,9 +895,9 @@ def test_pm_per_component_heads_read_only_their_own_component():
         assert torch.allclose(fU[:, :2 * F], gU[:, :2 * F]) and not torch.allclose(fU[:, 2 * F:], gU[:, 2 * F:])
         pa, pb = m.decode_upper(E[up], fU), m.decode_upper(E[up], gU)
         assert torch.allclose(pa[:, :6], pb[:, :6]) and not torch.allclose(pa[:, 6:], pb[:, 6:])
-    with pytest.raises(SplatError, match="feature_mapping"):
+    with pytest.raises(AvatarError, match="feature_mapping"):
         HFMConfig(pm_per_component=True, feature_mapping=False)
-    with pytest.raises(SplatError, match="gm_input"):
+    with pytest.raises(AvatarError, match="gm_input"):
         HFMConfig(gm_input="xs")
-    with pytest.raises(SplatError, match="split_margin"):
+    with pytest.raises(AvatarError, match="split_margin"):
         HFMConfig(split_margin=-1)

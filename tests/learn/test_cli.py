@@ -7,7 +7,7 @@ pytest.importorskip("diffusers")
 
 
 def _parser():
-    from geoface.learn.cli import register
+    from geoface.cli.ddpm import register
     p = argparse.ArgumentParser()
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS)

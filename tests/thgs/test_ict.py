@@ -13,7 +13,7 @@ from geoface.avatar.kinematics import joint_transforms  # noqa: E402
 from geoface.thgs.eval import head_pose_errors  # noqa: E402
 from geoface.thgs.ict import (JOINT_NAMES, ict_template, is_mouth_blendshape, make_ict_talking,  # noqa: E402
                                     perturb_capture)
-from geoface.splat.errors import SplatError  # noqa: E402
+from geoface.errors import AvatarError  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -149,7 +149,7 @@ def test_talking_capture_lets_the_audio_drive_the_mouth_and_perturbs_tracking(tm
     assert abs(e["rot_deg_mean"] - 3.0) < 1e-6 and abs(e["rot_deg_max"] - 3.0) < 1e-6
     # 5 mm of translation and a 3° turn about the neck, ~10 cm below the head's centre
     assert 2.0 < e["mm_mean"] < 5.0 + 0.15 * 1000 * np.radians(3.0)
-    with pytest.raises(SplatError, match="poses_true"):
+    with pytest.raises(AvatarError, match="poses_true"):
         perturb_capture(tmp_path / "pert_missing", tmp_path / "x", (1, 1))
 
 
@@ -163,7 +163,7 @@ def test_cli_talk_synth_ict_with_perturbed_tracking_trains_and_reports_pose_erro
     assert main(["talk", "train", str(d), "-o", str(tmp_path / "m"), "--iters", "3", "--heldout", "0.2", "-q"]) == 0
     from geoface.thgs.model import THGSConfig
     from geoface.thgs.inference import load_thgs
-    from geoface.thgs.cli import THGS_AUDIO_WINDOW, THGS_LANDMARK_WEIGHT, THGS_LR_POSE, THGS_POSE_DECAY
+    from geoface.cli.talk import THGS_AUDIO_WINDOW, THGS_LANDMARK_WEIGHT, THGS_LR_POSE, THGS_POSE_DECAY
 
     assert THGS_LANDMARK_WEIGHT == THGSConfig().lambda_landmarks == load_thgs(tmp_path / "m").cfg.lambda_landmarks
     assert THGS_AUDIO_WINDOW == THGSConfig().audio_window == load_thgs(tmp_path / "m").cfg.audio_window
@@ -203,7 +203,7 @@ def test_template_vertices_sit_on_the_landmarks_and_project_onto_the_capture_s_p
     back = Template.load(tmp_path / "t.npz")
     assert back.landmark_names == tpl.landmark_names
     np.testing.assert_array_equal(back.landmark_vertices, tpl.landmark_vertices)
-    with pytest.raises(SplatError, match="landmark"):
+    with pytest.raises(AvatarError, match="landmark"):
         Template(tpl.V, tpl.F, tpl.joints, tpl.parents, tpl.weights, tpl.expr_basis, tpl.head_mask, tpl.mouth_box,
                  tpl.joint_names, tpl.jaw, ["a", "b"], [0, len(tpl.V)])
     # a capture: at rest-mouth frames the posed template lands on the tracker's points

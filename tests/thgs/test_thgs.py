@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from geoface.avatar.audio import audio_features, envelope, log_mel
-from geoface.splat.errors import SplatError
+from geoface.errors import AvatarError
 from geoface.avatar.template import Template, load_smplx, procedural_template
 from geoface.thgs.model import AudioArticulation, ExpressionBlendshapes, SpatialAudioAttention, THGSConfig, THGSModel, VoxelSkinning, axis_angle_to_matrix, joint_transforms, lbs
 from geoface.thgs.inference import load_thgs
@@ -86,7 +86,7 @@ def test_gaussians_of_finds_each_vertex_gaussians_and_refuses_an_unbound_vertex(
     g.parent[[3, 5]] = 7  # vertices 3 and 5 lose their Gaussian to vertex 7
     a, b = m.gaussians_of([7, 2])
     assert a.tolist() == [3, 5, 7] and b.tolist() == [2]
-    with pytest.raises(SplatError, match="no Gaussian is bound"):
+    with pytest.raises(AvatarError, match="no Gaussian is bound"):
         m.gaussians_of([2, 3])
 
 
@@ -178,7 +178,7 @@ def test_log_mel_peaks_at_the_tone_and_frames_follow_loudness(tmp_path):
     B = audio_features(tmp_path / "f.npy", 19, 25.0)
     assert B.shape == (19, 2) and np.isclose(B[-1, 1], 19.0)
     (tmp_path / "bad.wav").write_bytes(b"RIFF0000")
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         audio_features(tmp_path / "bad.wav", 5, 25.0)
 
 
@@ -201,10 +201,10 @@ def test_smplx_loader_on_a_small_file_in_the_same_format(tmp_path):
     assert t.parents[0] == -1 and list(t.parents[1:]) == list(range(J - 1))
     assert np.allclose(t.expr_basis, np.moveaxis(sd[:, :, 300:], 2, 0))
     assert t.jaw == 22
-    with pytest.raises(SplatError, match="pickle"):
+    with pytest.raises(AvatarError, match="pickle"):
         load_smplx(tmp_path / "SMPLX.pkl")
     np.savez(tmp_path / "broken.npz", v_template=V)
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         load_smplx(tmp_path / "broken.npz")
 
 
@@ -214,7 +214,7 @@ def test_template_validation_and_round_trip(tpl, tmp_path):
     assert np.array_equal(t2.F, tpl.F) and t2.joint_names == tpl.joint_names and t2.jaw == tpl.jaw
     bad = tpl.weights.copy()
     bad[0] *= 2
-    with pytest.raises(SplatError, match="sum to 1"):
+    with pytest.raises(AvatarError, match="sum to 1"):
         Template(tpl.V, tpl.F, tpl.joints, tpl.parents, bad, tpl.expr_basis, tpl.head_mask, tpl.mouth_box,
                  tpl.joint_names)
     assert np.allclose(tpl.weights.sum(1), 1)
@@ -314,7 +314,7 @@ def test_a_few_training_steps_lower_the_loss_and_round_trip(talk_dir, tmp_path):
     ev = evaluate_thgs(m, d)
     assert ev["frames"] == 10 and 5 < ev["psnr"] < 60 and -1 <= ev["lipsync_corr"] <= 1
     (tmp_path / "m" / "model.safetensors").write_bytes(b"junk")
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         load_thgs(tmp_path / "m")
 
 
@@ -416,7 +416,7 @@ def test_tracked_masks_default_to_all_and_reject_bad_shapes(tmp_path):
     assert tj.all() and te.all() and tj.shape == (4,) and te.shape == (5,)
     for bad in ({"tracked_joints": np.ones(3, bool)}, {"tracked_expr": np.ones(5, np.int64)}):
         np.savez(p, rot=np.zeros((2, 4, 3)), transl=np.zeros((2, 3)), expr=np.zeros((2, 5)), **bad)
-        with pytest.raises(SplatError, match="tracked_"):
+        with pytest.raises(AvatarError, match="tracked_"):
             load_tracked(p, 4, 5)
 
 
@@ -429,9 +429,9 @@ def test_audio_context_stacks_the_neighbouring_frames_and_repeats_the_ends():
     assert np.array_equal(C[1], np.r_[A[0], A[1], A[2]]) and np.array_equal(C[0], np.r_[A[0], A[0], A[1]])
     assert np.array_equal(C[3], np.r_[A[2], A[3], A[3]])
     assert np.array_equal(audio_context(A, 0), A)
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         audio_context(A, -1)
-    with pytest.raises(SplatError):
+    with pytest.raises(AvatarError):
         audio_context(A[0], 1)
 
 
@@ -457,7 +457,7 @@ def test_audio_window_trains_saves_and_drives_with_the_neighbouring_frames(talk_
     assert np.abs(r0 - r1).max() > 1e-4
     ev = evaluate_thgs(m, d)
     assert 5 < ev["psnr"] < 60
-    with pytest.raises(SplatError, match="audio_window must be >= 0"):
+    with pytest.raises(AvatarError, match="audio_window must be >= 0"):
         THGSConfig(audio_window=-1)
     # the default reads two frames each side; a folder saved before the option read one frame
     assert THGSConfig().audio_window == 2 and THGSConfig.from_dict({}).audio_window == 0
@@ -476,7 +476,7 @@ def test_pose_decay_lets_the_corrections_settle_and_is_checked(talk_dir, tmp_pat
     tr = slice(0, 40)
     size = {k: float(v[tr][:, d.tracked_joints].abs().mean()) for k, v in got.items()}
     assert size[100.0] < 0.6 * size[1.0] and size[100.0] > 0
-    with pytest.raises(SplatError, match="pose_decay"):
+    with pytest.raises(AvatarError, match="pose_decay"):
         THGSConfig(pose_decay=0.5)
     assert THGSConfig.from_dict({"iters": 10}).pose_decay == 1.0  # folders saved before the option
 
@@ -485,7 +485,7 @@ def test_device_cuda_without_a_gpu_is_one_line(talk_dir, tmp_path, monkeypatch, 
     from geoface.cli import main
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    with pytest.raises(SplatError, match="no CUDA"):
+    with pytest.raises(AvatarError, match="no CUDA"):
         train_thgs(talk_dir, tmp_path / "m", THGSConfig(iters=2), progress=False, device="cuda")
     assert main(["talk", "train", str(talk_dir), "-o", str(tmp_path / "m"), "--iters", "2", "--device", "cuda"]) == 2
     err = capsys.readouterr().err.strip().splitlines()

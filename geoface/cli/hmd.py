@@ -263,7 +263,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     _add_usage_pose_options(r)
     r.add_argument("--no-composite", action="store_true", help="write the avatar renders, not frames with the HMD region replaced")
     r.set_defaults(func=cmd_hmd_remove)
-    from geoface.drive.cli import add_export_parser
+    from geoface.cli.export import add_export_parser
 
     add_export_parser(hs, common, "the registered avatar's", "a usage folder (its frames drive the avatar)", True)
     e = hs.add_parser("eval", parents=[common], help="PSNR/SSIM (whole face, occluded region) and FPS on a usage folder with gt/")

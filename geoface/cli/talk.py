@@ -182,7 +182,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     a.add_argument("--video", default=None, metavar="OUT.mp4",
                    help="write an H.264 MP4 at --fps, with the speech when --audio is a WAV")
     a.set_defaults(func=cmd_talk_animate)
-    from geoface.drive.cli import add_export_parser
+    from geoface.cli.export import add_export_parser
 
     add_export_parser(hs, common, "the talking avatar's",
                       "a WAV (rest pose) or a `talk synth` folder (its poses); default: the rest pose, silent", False)

@@ -1,0 +1,111 @@
+"""The real-clip protocol (geoface.avatar.protocol) on one second of a real clip: the time split,
+the headset drawn at the tracked pose, the baselines and the scorer."""
+from __future__ import annotations
+
+import json
+import wave
+
+import numpy as np
+import pytest
+
+from geoface.avatar import protocol as P
+from geoface.capture import Capture, read_landmarks
+from geoface.errors import CaptureError, GeofaceError
+
+
+@pytest.fixture(scope="module")
+def split(clip_capture, tmp_path_factory):
+    r, _ = clip_capture
+    return P.split_capture(r.folder, tmp_path_factory.mktemp("split") / "s", quiet=True)
+
+
+def _seconds(wav):
+    with wave.open(str(wav)) as w:
+        return w.getnframes() / w.getframerate()
+
+
+def test_the_split_is_by_time_and_keeps_the_upper_face_out_of_the_test_inputs(split, clip_capture):
+    r, _ = clip_capture
+    assert (split.n_train, split.n_test) == (24, 6)  # round(30 · 0.8), as THGS holds out
+    tr, te = Capture(split.train), Capture(split.test)
+    assert len(tr) == 24 and len(te) == 6
+    full = Capture(r.folder)
+    # the training frames are the first 24 frames, unchanged; gt/ the last 6
+    assert np.array_equal(tr.frames()[[0, 23]], full.frames()[[0, 23]])
+    assert np.array_equal(te.images("gt", rgb=True), full.frames()[24:])
+    R, t, _ = full.head_poses()
+    assert np.allclose(te.head_poses()[0], R[24:]) and np.allclose(tr.head_poses()[1], t[:24])
+    # the test inputs: the 43 landmarks below a headset, no eye, brow or nose-bridge point; the
+    # rest (and the tracked expressions) only in truth/, which the scorer reads
+    names = te.landmarks().names
+    assert len(names) == 43 and not any(n.startswith(("eye_", "brow_", "nose_bridge")) for n in names)
+    assert not te.has("expressions.npz") and not te.has("landmarks_dense.npz")
+    assert read_landmarks(split.test / P.TRUTH / "landmarks.json", 6)[0].shape == (6, 68, 2)
+    # the sound cut to the same frames
+    fps = full.meta()["fps"]
+    assert _seconds(split.train / "audio.wav") == pytest.approx(24 / fps, abs=2e-3)
+    assert _seconds(split.test / "audio.wav") == pytest.approx(6 / fps, abs=2e-3)
+    meta = json.loads((split.test / "meta.json").read_text())
+    assert meta["split"] == "test" and meta["split_frames"] == [24, 30] and len(meta["crop_boxes"]) == 6
+
+
+def test_the_headset_hides_the_eyes_and_not_the_mouth(split):
+    """Pixels: the eyes under the headset's mask, dark grey there; the mouth and chin visible and
+    the frame untouched off the mask."""
+    te = Capture(split.test)
+    shown, gt, hmd = te.frames(), te.images("gt", rgb=True), te.images("hmd_masks") > 0.5
+    pts, _ = read_landmarks(split.test / P.TRUTH / "landmarks.json", 6)
+    for j in range(6):
+        for k in (37, 44, 21, 22):  # eyelids, brows' inner ends
+            x, y = np.floor(pts[j, k]).astype(int)
+            assert hmd[j, y, x], (j, k)
+        for k in (51, 57, 8):  # lips, chin
+            x, y = np.floor(pts[j, k]).astype(int)
+            assert not hmd[j, y, x], (j, k)
+        under = shown[j][hmd[j]]
+        assert under.max() < 0.25 and np.ptp(under.mean(0)) < 0.05  # a grey, dark
+        assert np.array_equal(shown[j][~hmd[j]], gt[j][~hmd[j]])
+        assert 0.05 < hmd[j].mean() < 0.4
+
+
+def test_the_nearest_frame_of_a_frame_is_itself_unwarped(split):
+    """The baseline against its own training frames: each picks itself and the warp through the
+    tracked head is the identity (a wrong pose composition or projection would move it)."""
+    from geoface.splat.fit import psnr
+
+    out, pick = P.nearest_frame(split.train, split.train)
+    assert np.array_equal(pick, np.arange(24))
+    frames = Capture(split.train).frames()
+    assert min(psnr(out[j], frames[j]) for j in range(0, 24, 5)) > 38
+
+
+def test_the_baselines_and_the_scorer(split):
+    te = Capture(split.test)
+    gt = te.images("gt", rgb=True)
+    regs = P.regions(split.test)
+    assert set(regs) == {"person", "face", "mouth", "occluded"}
+    assert (regs["face"] <= regs["person"]).all() and (regs["occluded"] <= regs["person"]).all()
+    assert all(regs[k].any(axis=(1, 2)).all() for k in regs)
+    # PSNR of known noise: −20 log10 σ
+    rng = np.random.default_rng(0)
+    s = P.score_regions(np.clip(gt + rng.normal(0, 0.02, gt.shape), 0, 1).astype(np.float32), gt, regs)
+    for k in ("face", "mouth", "occluded"):
+        assert s[f"psnr_{k}"] == pytest.approx(34.0, abs=0.6) and len(s[f"psnr_{k}_frames"]) == 6
+    nf, pick = P.nearest_frame(split.train, split.test)
+    mf = P.mean_face(split.train, 6)
+    assert nf.shape == mf.shape == gt.shape and (pick < 24).all()
+    a, b = P.score_regions(nf, gt, regs), P.score_regions(mf, gt, regs)
+    # a second of one person: the nearest frame is close, the mean face blurred
+    assert a["psnr_face"] > b["psnr_face"] + 2 and a["psnr_face"] > 24
+
+
+def test_what_cannot_be_split_is_refused(clip_capture, split, tmp_path):
+    r, _ = clip_capture
+    with pytest.raises(GeofaceError, match="exists"):
+        P.split_capture(r.folder, split.train.parent, quiet=True)
+    with pytest.raises(CaptureError, match="test fraction"):
+        P.split_capture(r.folder, tmp_path / "x", test=0.0, quiet=True)
+    with pytest.raises(CaptureError, match="leaves 1 to test"):
+        P.split_index(5, 0.2)
+    with pytest.raises(CaptureError, match="missing expressions.npz"):  # no head track: not a `geoface capture` folder
+        P.split_capture(split.test, tmp_path / "y", quiet=True)
