@@ -38,7 +38,7 @@ import numpy as np
 
 from geoface.errors import CaptureError
 
-__all__ = ["TEST_FRACTION", "ClipSplit", "split_index", "split_capture", "headset_frames", "nearest_frame",
+__all__ = ["TEST_FRACTION", "ClipSplit", "split_index", "split_capture", "usage_from_capture", "headset_frames", "nearest_frame",
            "mean_face", "regions", "score_regions", "HEADSET_RGB"]
 
 #: the last fraction of a clip's frames that tests (the papers: 20 %)
@@ -130,70 +130,101 @@ def _neutral(posed, R0, t0, piv):
     return (posed(0) - piv - t0) @ R0 + piv
 
 
+def _write_part(cap, d: Path, sl: slice, *, usage: bool, shown=None, hmd=None, gt: bool = False, extra=None,
+                quiet=None) -> None:
+    """The frames ``sl`` of the capture ``cap`` as a registration folder, or as a usage folder
+    (``usage``: ``shown`` frames, ``hmd`` masks, the landmarks below a headset; the rest of the
+    landmarks and the expressions in ``truth/`` and the real frames in ``gt/`` when ``gt``)."""
+    from geoface.capture import (Capture, write_camera, write_dense, write_expressions, write_frame,
+                                 write_head_poses, write_landmarks, write_meta)
+    from geoface.landmarks import IBUG68_LOWER, IBUG68_NAMES
+    from geoface.progress import progress
+
+    part = Capture(cap.path, frames=sl)
+    n = cap.n_all
+    meta = cap.meta(need=True)
+    fps = float(meta.get("fps", 25.0))
+    d.mkdir()
+    rgb = part.frames()
+    masks = part.masks()
+    shown = rgb if shown is None else shown
+    for j in progress(range(len(part)), f"writing the {d.name} frames", total=len(part), quiet=quiet, unit="frames"):
+        write_frame(d, j, shown[j])
+        if masks is not None:
+            write_frame(d, j, masks[j], "masks")
+        if gt:
+            write_frame(d, j, rgb[j], "gt")
+        if hmd is not None:
+            write_frame(d, j, hmd[j].astype(np.float32), "hmd_masks")
+    lm = part.landmarks()
+    kw = dict(found=lm.found, confidence=lm.confidence, tracker=lm.tracker)
+    truth = d / TRUTH if usage else d
+    if usage:  # what a tracker sees below a headset; the rest is kept for scoring
+        keep = [lm.names.index(IBUG68_NAMES[i]) for i in IBUG68_LOWER]
+        write_landmarks(d, lm.points[:, keep], [lm.names[i] for i in keep], **kw)
+        truth.mkdir()
+    write_landmarks(truth, lm.points, lm.names, **kw)
+    dense = part.dense()
+    if dense is not None:
+        write_dense(truth, *dense)
+    write_camera(d, part.camera())
+    write_head_poses(d, *part.head_poses())
+    write_expressions(truth, *part.expressions())
+    m = {kk: (v[sl] if isinstance(v, list) and len(v) == n else v) for kk, v in meta.items()}
+    m.update(extra or {})
+    write_meta(d, m)
+    if cap.head_mesh() is not None:
+        shutil.copyfile(cap.head_mesh(), d / cap.head_mesh().name)
+    if cap.audio() is not None:
+        _cut_wav(cap.audio(), d / "audio.wav", sl.start / fps, sl.stop / fps)
+
+
+def _need_track(folder):
+    from geoface.capture import Capture
+
+    cap = Capture(folder)
+    cap.require("camera.json", "landmarks.json", "head_poses.npz", "expressions.npz", "meta.json",
+                why="`geoface capture` writes it")
+    return cap
+
+
 def split_capture(folder, out, *, test: float = TEST_FRACTION, overwrite: bool = False,
                   quiet: bool | None = None) -> ClipSplit:
     """Write ``out/train`` and ``out/test`` (module doc) from the capture ``folder`` that
     ``geoface capture`` wrote; returns where they are and how many frames each has."""
     from geoface._io import atomic_dir, check_outputs
-    from geoface.capture import (Capture, write_camera, write_dense, write_expressions, write_head_poses,
-                                 write_landmarks, write_meta, write_frame)
-    from geoface.landmarks import IBUG68_LOWER, IBUG68_NAMES
-    from geoface.progress import progress
+    from geoface.capture import Capture
 
-    cap = Capture(folder)
-    cap.require("camera.json", "landmarks.json", "head_poses.npz", "expressions.npz", "meta.json",
-                why="`geoface capture` writes it")
+    cap = _need_track(folder)
     out = Path(out)
     check_outputs([cap.path], [out], force=overwrite)
     n = len(cap)
     k = split_index(n, test)
-    meta = cap.meta(need=True)
-    fps = float(meta.get("fps", 25.0))
     with atomic_dir(out, overwrite=overwrite) as tmp:
         for name, sl in (("train", slice(0, k)), ("test", slice(k, n))):
-            part = Capture(folder, frames=sl)
-            d = tmp / name
-            d.mkdir()
-            idx = range(sl.start, sl.stop)
-            rgb = part.frames()
-            masks = part.masks()
-            if name == "test":
-                shown, hmd = headset_frames(folder, rgb, idx)
+            extra = dict(split=name, split_frames=[sl.start, sl.stop], split_of=str(cap.path), test_fraction=test)
+            if name == "train":
+                _write_part(cap, tmp / name, sl, usage=False, extra=extra, quiet=quiet)
             else:
-                shown, hmd = rgb, None
-            for j in progress(range(len(part)), f"writing the {name} frames", total=len(part), quiet=quiet,
-                              unit="frames"):
-                write_frame(d, j, shown[j])
-                if masks is not None:
-                    write_frame(d, j, masks[j], "masks")
-                if name == "test":
-                    write_frame(d, j, rgb[j], "gt")
-                    write_frame(d, j, hmd[j].astype(np.float32), "hmd_masks")
-            lm = part.landmarks()
-            full = (lm.points, lm.names)
-            if name == "test":  # what a tracker sees below a headset; the rest is kept for scoring
-                keep = [lm.names.index(IBUG68_NAMES[i]) for i in IBUG68_LOWER]
-                write_landmarks(d, lm.points[:, keep], [lm.names[i] for i in keep], found=lm.found,
-                                confidence=lm.confidence, tracker=lm.tracker)
-                (d / TRUTH).mkdir()
-                write_landmarks(d / TRUTH, *full, found=lm.found, confidence=lm.confidence, tracker=lm.tracker)
-            else:
-                write_landmarks(d, *full, found=lm.found, confidence=lm.confidence, tracker=lm.tracker)
-            dense = part.dense()
-            if dense is not None:
-                write_dense(d / TRUTH if name == "test" else d, *dense)
-            write_camera(d, part.camera())
-            write_head_poses(d, *part.head_poses())
-            W, names = part.expressions()
-            write_expressions(d / TRUTH if name == "test" else d, W, names)
-            m = {kk: (v[sl] if isinstance(v, list) and len(v) == n else v) for kk, v in meta.items()}
-            m.update(split=name, split_frames=[sl.start, sl.stop], split_of=str(cap.path), test_fraction=test)
-            write_meta(d, m)
-            if cap.head_mesh() is not None:
-                shutil.copyfile(cap.head_mesh(), d / cap.head_mesh().name)
-            if cap.audio() is not None:
-                _cut_wav(cap.audio(), d / "audio.wav", sl.start / fps, sl.stop / fps)
+                shown, hmd = headset_frames(folder, Capture(folder, frames=sl).frames(), range(sl.start, sl.stop))
+                _write_part(cap, tmp / name, sl, usage=True, shown=shown, hmd=hmd, gt=True, extra=extra, quiet=quiet)
     return ClipSplit(out / "train", out / "test", k, n - k)
+
+
+def usage_from_capture(folder, out, *, quiet: bool | None = None) -> Path:
+    """A usage folder ``out`` from the capture of a real headset video (``geoface capture`` on it):
+    its frames as they are, the headset's pixels segmented from them
+    (:func:`geoface.track.headset_masks`: grey or black plastic), the landmarks below the headset,
+    the tracked head poses. What ``geoface hmd remove MODEL VIDEO`` makes before it restores the
+    face."""
+    from geoface.track import headset_masks
+
+    cap = _need_track(folder)
+    hmd = headset_masks(np.round(cap.frames() * 255).astype(np.uint8))
+    out = Path(out)
+    _write_part(cap, out, slice(0, len(cap)), usage=True, hmd=hmd, extra={"headset": "segmented from the frames"},
+                quiet=quiet)
+    return out
 
 
 def _lower_shape(points: np.ndarray) -> np.ndarray:

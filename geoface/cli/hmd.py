@@ -114,16 +114,36 @@ def _load_for_usage(args):
 
 
 def cmd_hmd_remove(args) -> int:
-    from geoface.hfm import remove_hmd
-
     if args.output is None and args.video is None:
         raise GeofaceError("say where the frames go: -o OUT_DIR (PNG frames) and/or --video OUT.mp4")
     if args.video is not None and Path(args.video).suffix.lower() != ".mp4":
         raise GeofaceError(f"--video: an .mp4 path; got {args.video}")
     model = _load_for_usage(args)
+    src = Path(args.usage_dir)
+    if not src.is_file():
+        return _remove_folder(args, model, src, str(src))
+    # a headset video: captured first (face crops, landmarks below the headset, head track, the
+    # headset segmented from the pixels) into a temporary usage folder
+    import tempfile
+
+    from geoface._io import check_input
+    from geoface.avatar.clip import capture_clip
+    from geoface.avatar.protocol import usage_from_capture
+
+    check_input(src)
+    quiet = args_quiet(args)
+    res = args.res or (model.registration_size or (512, 512))[0]
+    with tempfile.TemporaryDirectory(prefix="geoface_hmd_") as td:
+        capture_clip(src, Path(td) / "capture", res=res, overlay=False, quiet=quiet)
+        usage = usage_from_capture(Path(td) / "capture", Path(td) / "usage", quiet=quiet)
+        return _remove_folder(args, model, usage, str(src))
+
+
+def _remove_folder(args, model, usage_dir: Path, shown_as: str) -> int:
+    from geoface.hfm import remove_hmd
     from geoface.hfm.data import load_video
 
-    video = load_video(args.usage_dir)
+    video = load_video(usage_dir)
     out = None if args.output is None else Path(args.output)
     composite = not args.no_composite
     from geoface._io import output_folder
@@ -140,15 +160,15 @@ def cmd_hmd_remove(args) -> int:
             frames = (np.where(video.hmd_masks[t][..., None], renders[t], video.frames[t]) for t in range(len(renders)))
         else:
             frames = iter(renders)
-        wav = Path(args.usage_dir) / "audio.wav"
+        wav = usage_dir / "audio.wav"
         import json
 
-        meta = json.loads((Path(args.usage_dir) / "meta.json").read_text(encoding="utf-8"))
+        meta = json.loads((usage_dir / "meta.json").read_text(encoding="utf-8"))
         write_video(frames, args.video, fps=args.fps or float(meta.get("fps", 25.0)),
                     audio=wav if wav.is_file() else None)
         where.append(str(args.video))
     med = float(np.median(times))
-    print(f"{args.usage_dir} -> {' and '.join(where)}: {len(times)} frames, {1 / med:.1f} FPS "
+    print(f"{shown_as} -> {' and '.join(where)}: {len(times)} frames, {1 / med:.1f} FPS "
           f"(median {1000 * med:.1f} ms per frame: crop, encode, deform, render)")
     return 0
 
@@ -255,9 +275,13 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.set_defaults(func=cmd_hmd_train)
     r = hs.add_parser("remove", parents=[common], help="restore the full face in a headset video (streams, reports FPS)")
     r.add_argument("model_dir", metavar="MODEL_DIR")
-    r.add_argument("usage_dir", metavar="USAGE_DIR")
+    r.add_argument("usage_dir", metavar="USAGE_DIR|VIDEO",
+                   help="a usage folder, or a headset video (captured first: face crops, the landmarks below the "
+                        "headset, the head track, the headset segmented from the pixels: grey or black plastic)")
     r.add_argument("-o", "--output", default=None, metavar="OUT_DIR", help="write the frames as OUT_DIR/frames/*.png")
-    r.add_argument("--video", default=None, metavar="OUT.mp4", help="write an H.264 MP4 (with USAGE_DIR/audio.wav if any)")
+    r.add_argument("--video", default=None, metavar="OUT.mp4", help="write an H.264 MP4 (with the sound, if any)")
+    r.add_argument("--res", type=number(int, 16, 4096), default=None,
+                   help="VIDEO: the crops' side in pixels (default: the registration frames')")
     r.add_argument("--fps", type=number(float, 0.1, 240), default=None,
                    help="frame rate of the video (default: the usage folder's, else 25)")
     _add_usage_pose_options(r)

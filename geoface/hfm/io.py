@@ -48,6 +48,8 @@ def save_hfm(model: HFMModel, out_dir) -> None:
             "y_split": model.y_split, "n_gaussians": len(model.gaussians)}
     if getattr(model, "landmarks3d", None):
         meta["landmarks3d"] = model.landmarks3d
+    if getattr(model, "registration_size", None):  # the frames' size it learned from (a headset video's default)
+        meta["registration_size"] = [int(v) for v in model.registration_size]
     if getattr(model, "pose_calibration", None):
         meta["pose_calibration"] = model.pose_calibration
     write_model_dir(out_dir, model, meta)
@@ -72,6 +74,9 @@ def load_hfm(model_dir) -> HFMModel:
     from geoface.errors import ModelFolderError
 
     y_split = meta.get("y_split")
+    size = meta.get("registration_size")
+    if size is not None and not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
+        raise ModelFolderError(f"{d}/config.json: registration_size must be [width, height]; got {size!r}")
     if isinstance(y_split, bool) or not isinstance(y_split, (int, float)) or not math.isfinite(y_split):
         raise ModelFolderError(f"{d}/config.json: y_split must be a number; got {y_split!r}")
     n_meta = meta.get("n_gaussians")
@@ -99,6 +104,7 @@ def load_hfm(model_dir) -> HFMModel:
     model.pose_calibration = _read_calibration(meta.get("pose_calibration"), d)
     model.eval()
     model.refresh_keys()
+    model.registration_size = tuple(size) if size is not None else None
     return model
 
 

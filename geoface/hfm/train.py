@@ -200,6 +200,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     pose_info = registration_poses(video, poses, log, mesh, fit=cfg.registration_landmarks)
     model = build_model(video, cfg, mesh)
     model.landmarks3d = pose_info.pop("landmarks3d")  # for the usage video's landmarks (hfm_usage.usage_poses)
+    model.registration_size = (video.camera.width, video.camera.height)
     from geoface.nn.config import resolve_device
 
     dev = resolve_device(device, AvatarError) or "cpu"

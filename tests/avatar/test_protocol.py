@@ -109,3 +109,35 @@ def test_what_cannot_be_split_is_refused(clip_capture, split, tmp_path):
         P.split_index(5, 0.2)
     with pytest.raises(CaptureError, match="missing expressions.npz"):  # no head track: not a `geoface capture` folder
         P.split_capture(split.test, tmp_path / "y", quiet=True)
+
+
+def test_hmd_remove_takes_a_headset_video(split, tmp_path, capsys):
+    """A model registered on the training frames restores the face in an MP4 of the headset frames:
+    the video is captured, the headset segmented from its pixels, and the grey box is gone from
+    the output (the face drawn there, the sound kept)."""
+    pytest.importorskip("torch")
+    from geoface.cli import main
+    from geoface.video import probe_video, read_video, write_video
+
+    te = Capture(split.test)
+    write_video(np.round(te.frames() * 255).astype(np.uint8), tmp_path / "headset.mp4", fps=30,
+                audio=split.test / "audio.wav")
+    assert main(["hmd", "train", str(split.train), "-o", str(tmp_path / "m"), "--iters", "30", "-q"]) == 0
+    cfg = json.loads((tmp_path / "m" / "config.json").read_text())
+    assert cfg["registration_size"] == [160, 160]
+    capsys.readouterr()
+    assert main(["hmd", "remove", str(tmp_path / "m"), str(tmp_path / "headset.mp4"), "-o", str(tmp_path / "o"),
+                 "--video", str(tmp_path / "o.mp4"), "-q"]) == 0
+    assert "headset.mp4 -> " in capsys.readouterr().out
+    n = probe_video(tmp_path / "headset.mp4")["frames"]  # (the encoder may end on the sound's last frame)
+    assert n >= 5 and len(list((tmp_path / "o" / "frames").glob("*.png"))) == n and probe_video(tmp_path / "o.mp4")["audio"]
+    out, _ = read_video(tmp_path / "o.mp4")
+    out = out.astype(np.float32) / 255
+    # where the box was (between the eyes, in the first frame's crop), no flat dark grey left
+    pts, _ = read_landmarks(split.test / P.TRUTH / "landmarks.json", 6)
+    x, y = np.round(pts[0, 27]).astype(int)
+    patch = out[0, y - 3:y + 4, x - 3:x + 4]
+    assert patch.mean() > 0.3, patch.mean()
+    # a folder that is not a capture, a video that does not exist: one line each
+    assert main(["hmd", "remove", str(tmp_path / "m"), str(tmp_path / "none.mp4"), "-o", str(tmp_path / "p"), "-q"]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
