@@ -222,7 +222,7 @@ def write_overlay(folder, path, *, quiet: bool | None = None) -> Path:
                                 unit="frames"), path, fps=float(cap.meta().get("fps", 25.0)), audio=cap.audio())
 
 
-def _extract_audio(video: Path, wav: Path) -> bool:
+def extract_audio(video: Path, wav: Path) -> bool:
     """The video's sound as 16 kHz mono WAV; False when it has none."""
     import subprocess
 
@@ -373,7 +373,7 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
             shutil.copyfile(audio, tmp / "audio.wav")
             has_audio = True
         elif src.is_file():
-            has_audio = _extract_audio(src, tmp / "audio.wav")
+            has_audio = extract_audio(src, tmp / "audio.wav")
         write_meta(tmp, {
             "fps": rate, "source": "video", "input": src.name, "input_size": [int(W0), int(H0)], "frames": names,
             "crop_boxes": np.round(boxes, 2).tolist(), "res": int(res),

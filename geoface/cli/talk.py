@@ -94,15 +94,33 @@ def cmd_talk_animate(args) -> int:
         raise GeofaceError(f"--video: an .mp4 path; got {args.video}")
     model = load_thgs(args.model_dir)
     out = None if args.output is None else Path(args.output)
-    with output_folder(out, args.force) as tmp:  # the frames appear all at once, or not at all
-        frames, times = animate(model, args.audio, tmp, poses=args.poses, fps=args.fps)
+    import tempfile
+
+    from geoface.track.frames import VIDEO_SUFFIXES
+
+    with tempfile.TemporaryDirectory(prefix="geoface_talk_") as td:
+        audio = Path(args.audio)
+        if audio.suffix.lower() in VIDEO_SUFFIXES:  # a video: its sound drives the avatar
+            from geoface._io import check_input
+            from geoface.avatar.clip import extract_audio
+
+            check_input(audio)
+            if not extract_audio(audio, Path(td) / "audio.wav"):
+                raise GeofaceError(f"{audio}: the video has no sound to drive the avatar")
+            audio = Path(td) / "audio.wav"
+        with output_folder(out, args.force) as tmp:  # the frames appear all at once, or not at all
+            frames, times = animate(model, audio, tmp, poses=args.poses, fps=args.fps)
+        return _animated(args, out, frames, times, audio)
+
+
+def _animated(args, out, frames, times, audio: Path) -> int:
     import numpy as np
 
     where = [] if out is None else [f"{out}/frames"]
     if args.video is not None:
         from geoface.video import write_video
 
-        wav = args.audio if Path(args.audio).suffix.lower() == ".wav" else None
+        wav = audio if audio.suffix.lower() == ".wav" else None
         write_video(frames, args.video, fps=args.fps, audio=wav)
         where.append(f"{args.video}" + (" (with the audio)" if wav else ""))
     print(f"{args.audio} -> {' and '.join(where)}: {len(frames)} frames, rendered at {1 / float(np.median(times)):.1f} FPS "
@@ -175,7 +193,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.set_defaults(func=cmd_talk_train)
     a = hs.add_parser("animate", parents=[common], help="drive a trained avatar by speech (frames, FPS)")
     a.add_argument("model_dir", metavar="MODEL_DIR")
-    a.add_argument("--audio", required=True, help="WAV file, or .npy/.npz per-frame features")
+    a.add_argument("--audio", required=True, help="the speech: a WAV, a video (its sound), or .npy/.npz per-frame features")
     a.add_argument("--poses", default=None, help=".npz with rot [T, J, 3], transl [T, 3], expr [T, K]")
     a.add_argument("--fps", type=number(float, 0.1, 240), default=25.0)
     a.add_argument("-o", "--output", default=None, metavar="OUT_DIR", help="write the frames as OUT_DIR/frames/*.png")

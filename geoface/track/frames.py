@@ -21,7 +21,7 @@ def as_uint8(img) -> np.ndarray:
 
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
-_VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v")
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v")
 
 
 #: the largest photo the tracker decodes (about 100 megapixels: a medium-format camera's); the
@@ -55,7 +55,7 @@ def read_frames(path) -> tuple[list, list, float | None]:
         return frames, [f.name for f in files], None
     if not p.is_file():
         raise GeofaceError(f"{p}: no such file or folder")
-    if p.suffix.lower() in _VIDEO_SUFFIXES:
+    if p.suffix.lower() in VIDEO_SUFFIXES:
         from geoface.video import read_video
 
         frames, fps = read_video(p)
@@ -65,7 +65,7 @@ def read_frames(path) -> tuple[list, list, float | None]:
 
         image_size(p, max_pixels=TRACK_MAX_PIXELS)  # a photo, not a poster: refused before decoding
         return [as_uint8(read_image(p))], [p.name], None
-    raise GeofaceError(f"{p}: not an image ({', '.join(_IMAGE_SUFFIXES)}), a video ({', '.join(_VIDEO_SUFFIXES)}) "
+    raise GeofaceError(f"{p}: not an image ({', '.join(_IMAGE_SUFFIXES)}), a video ({', '.join(VIDEO_SUFFIXES)}) "
                        "or a folder of images")
 
 
@@ -96,7 +96,7 @@ class FrameSource:
                 raise GeofaceError(f"{p}: the images are not all the same size")
             self.size = (first.shape[1], first.shape[0])
             self._n = len(files)
-        elif p.is_file() and p.suffix.lower() in _VIDEO_SUFFIXES:
+        elif p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES:
             from geoface.video import iter_video, video_rate
 
             self.files, self.fps = None, video_rate(p)

@@ -342,6 +342,15 @@ def test_cli(talk_dir, tmp_path, capsys):
     assert v["audio"] and v["audio_codec"] == "aac" and abs(v["duration"] - 2.0) < 0.1
     assert main(["talk", "animate", str(md), "--audio", str(talk_dir / "audio.wav"), "--video", str(mp4)]) == 2  # exists
     assert main(["talk", "animate", str(md), "--audio", str(talk_dir / "audio.wav")]) == 2  # nowhere to write
+    # a video's sound drives it too (the same speech: the same 50 frames); a silent video is refused
+    assert main(["talk", "animate", str(md), "--audio", str(mp4), "-o", str(tmp_path / "ov"), "-q"]) == 0
+    assert len(list((tmp_path / "ov" / "frames").glob("*.png"))) == 50
+    from geoface.video import write_video
+
+    write_video(np.zeros((5, 32, 32, 3), np.uint8), tmp_path / "silent.mp4", fps=5)
+    capsys.readouterr()
+    assert main(["talk", "animate", str(md), "--audio", str(tmp_path / "silent.mp4"), "-o", str(tmp_path / "os")]) == 2
+    assert "no sound" in capsys.readouterr().err and not (tmp_path / "os").exists()
     # export: standard 3DGS PLY files that load back with the avatar's Gaussians
     from geoface.drive.avatars import avatar_drive
     from geoface.splat.ply import load_ply
