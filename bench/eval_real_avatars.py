@@ -3,8 +3,12 @@
 (:mod:`geoface.avatar.protocol`): nothing from a renderer — frames, masks, landmarks, head track
 and camera all come from ``geoface capture`` on the clip itself.
 
-    python bench/eval_real_avatars.py CLIP.mp4 [CLIP.mp4 ...] --work DIR [--res 256] [--hfm-iters 2000]
+    python bench/eval_real_avatars.py CLIP.mp4|ict:SEED [...] --work DIR [--res 256] [--hfm-iters 2000]
         [--thgs-iters 3000] [--only baselines|hfm|thgs] [--out FILE]
+
+``ict:SEED``: an ICT-FaceKit person rendered talking (``talk synth --head ict``'s generator, 8 s at
+25 fps, 512²), given to ``geoface capture`` as its frames and sound alone — the same protocol on a
+clip whose pictures the docs may show (the real clips' terms keep theirs out).
 
 Per clip: ``geoface capture`` (``DIR/<clip>/capture``, reused when there), the time split
 (``DIR/<clip>/split``: ``train/``, ``test/`` with a headset drawn over the test frames), then one
@@ -18,8 +22,9 @@ JSON line per method and protocol:
 * ``protocol: thgs`` — the whole frame predicted; scored over the face (inside the 468 landmarks'
   oval) and the mouth box. Methods: the two baselines and ``thgs`` driven by the clip's own sound
   and the tracked poses and expressions (the expressions the tracker measured; the mouth from the
-  audio). Lip sync: the mouth's opening (:func:`geoface.thgs.eval.mouth_openness` in the real
-  mouth box) correlated with the sound's loudness and with the real frames' opening.
+  audio). Lip sync: the mouth's opening found by looking (MediaPipe on each predicted frame: the
+  inner lips' gap over the eye corners' distance) correlated with the real frames' (found the
+  same way) and with the sound's loudness.
 
 Each line: PSNR/SSIM per region (dB), the per-frame occluded / face PSNR (to show where a method
 wins and loses), seconds to train, the machine. A clip without sound has no THGS row.
@@ -39,25 +44,29 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
-def _lipsync(preds: np.ndarray, gt: np.ndarray, pts68: np.ndarray, env: np.ndarray | None) -> dict:
-    from geoface.thgs.eval import mouth_openness
+def mouth_gaps(frames: np.ndarray) -> np.ndarray:
+    """The mouth's opening in each frame, found by looking: MediaPipe's face mesh on the frame,
+    the inner lips' gap (iBUG 62–66) over the eye corners' distance (36–45); nan where no face."""
+    from geoface.track import facemesh_points, ibug68_from_mediapipe
 
-    H, W = gt.shape[1:3]
-    o_p, o_g = [], []
-    for j in range(len(gt)):
-        mp = pts68[j, 48:68]
-        pad = 0.25 * (mp[:, 0].max() - mp[:, 0].min())
-        x0, x1 = (int(np.clip(v, 0, W)) for v in (mp[:, 0].min() - pad, mp[:, 0].max() + pad + 1))
-        y0, y1 = (int(np.clip(v, 0, H)) for v in (mp[:, 1].min() - pad, mp[:, 1].max() + pad + 1))
-        o_p.append(mouth_openness(preds[j], (y0, y1, x0, x1)))
-        o_g.append(mouth_openness(gt[j], (y0, y1, x0, x1)))
+    pts = facemesh_points(list(np.round(np.clip(frames, 0, 1) * 255).astype(np.uint8)), video=False, quiet=True)
+    idx, w = ibug68_from_mediapipe()
+    p68 = np.einsum("tkjd,kj->tkd", pts[:, idx], w)
+    return np.linalg.norm(p68[:, 62] - p68[:, 66], axis=-1) / np.linalg.norm(p68[:, 36] - p68[:, 45], axis=-1)
+
+
+def _lipsync(preds: np.ndarray, gt_gaps: np.ndarray, env: np.ndarray | None) -> dict:
+    """Lip sync: the predicted mouth's opening (:func:`mouth_gaps`) against the real frames' and
+    against the sound's loudness."""
+    g = mouth_gaps(preds)
 
     def corr(a, b):
-        return float(np.corrcoef(a, b)[0, 1]) if np.std(a) > 0 and np.std(b) > 0 else 0.0
+        ok = np.isfinite(a) & np.isfinite(b)
+        return float(np.corrcoef(a[ok], b[ok])[0, 1]) if ok.sum() > 2 and np.std(a[ok]) > 0 and np.std(b[ok]) > 0 else 0.0
 
-    out = {"mouth_open_corr_real": round(corr(o_p, o_g), 3)}
+    out = {"mouth_gap_corr_real": round(corr(g, gt_gaps), 3), "mouth_found": int(np.isfinite(g).sum())}
     if env is not None:
-        out.update(lipsync_corr=round(corr(o_p, env), 3), lipsync_corr_real=round(corr(o_g, env), 3))
+        out.update(lipsync_corr=round(corr(g, env), 3), lipsync_corr_real=round(corr(gt_gaps, env), 3))
     return out
 
 
@@ -77,7 +86,7 @@ def main(argv=None) -> int:
     from geoface.avatar import protocol as P
     from geoface.avatar.audio import envelope, read_wav
     from geoface.avatar.clip import capture_clip
-    from geoface.capture import Capture, read_landmarks
+    from geoface.capture import Capture
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("clips", nargs="+")
@@ -97,11 +106,20 @@ def main(argv=None) -> int:
 
     torch.set_num_threads(a.threads)
     for clip in a.clips:
-        name = Path(clip).stem
+        name = clip.replace(":", "_") if clip.startswith("ict:") else Path(clip).stem
         work = Path(a.work) / name
         cap_dir = work / "capture"
         if not (cap_dir / "meta.json").is_file():
-            capture_clip(clip, cap_dir, res=a.res, overlay=False, quiet=True)
+            if clip.startswith("ict:"):
+                from geoface.thgs.ict import make_ict_talking
+
+                talk = work / "render"
+                if not (talk / "audio.wav").is_file():
+                    make_ict_talking(talk, seconds=8.0, res=512, seed=int(clip[4:]), emote=1.0, quiet=True)
+                capture_clip(talk / "frames", cap_dir, res=a.res, fps=25, audio=talk / "audio.wav", overlay=False,
+                             quiet=True)
+            else:
+                capture_clip(clip, cap_dir, res=a.res, overlay=False, quiet=True)
         split = work / "split"
         if not (split / "test" / "meta.json").is_file():
             P.split_capture(cap_dir, split, quiet=True)
@@ -110,7 +128,7 @@ def main(argv=None) -> int:
         shown = te.frames()
         regs = P.regions(split / "test")
         hmd = regs["occluded"][..., None]
-        pts68, _ = read_landmarks(split / "test" / P.TRUTH / "landmarks.json", len(gt))
+        gt_gaps = mouth_gaps(gt)
         env = None
         if (split / "test" / "audio.wav").is_file():
             x, sr = read_wav(split / "test" / "audio.wav")
@@ -122,14 +140,13 @@ def main(argv=None) -> int:
             mf = P.mean_face(split / "train", len(gt))
             for method, pred in (("nearest_frame", nf), ("mean_face", mf)):
                 _row(emit, base, method, "hfm", P.score_regions(np.where(hmd, pred, shown), gt, regs))
-                _row(emit, base, method, "thgs", P.score_regions(pred, gt, regs), _lipsync(pred, gt, pts68, env))
+                _row(emit, base, method, "thgs", P.score_regions(pred, gt, regs), _lipsync(pred, gt_gaps, env))
         if "hfm" in only:
             from geoface.hfm import HFMConfig, load_hfm, train_hfm
             from geoface.hfm.data import load_video
             from geoface.hfm.usage import remove_hmd
 
             mdir = work / f"hfm_{a.hfm_iters}"
-            t0 = time.perf_counter()
             if not (mdir / "config.json").is_file():
                 info = train_hfm(split / "train", mdir, HFMConfig(iters=a.hfm_iters), progress=False,
                                  log=lambda *x, **k: None, device=a.device)
@@ -142,7 +159,6 @@ def main(argv=None) -> int:
                 R, times = remove_hmd(model, video, poses=poses)
                 _row(emit, base, f"hfm_gs_poses_{poses}", "hfm", P.score_regions(np.where(hmd, R, shown), gt, regs),
                      {"iters": a.hfm_iters, "train_s": secs, "fps": round(float(1 / np.median(times)), 1)})
-            del t0
         if "thgs" in only and env is not None:
             from geoface.thgs.data import load_talking
             from geoface.thgs.inference import load_thgs, render_frames
@@ -161,7 +177,7 @@ def main(argv=None) -> int:
             assert len(idx) == len(gt), (len(idx), len(gt))
             R, times = render_frames(model, data.camera, data.rot, data.transl, data.expr, data.audio, idx)
             _row(emit, base, "thgs", "thgs", P.score_regions(R, gt, regs),
-                 {**_lipsync(R, gt, pts68, env), "iters": a.thgs_iters, "train_s": secs,
+                 {**_lipsync(R, gt_gaps, env), "iters": a.thgs_iters, "train_s": secs,
                   "fps": round(float(1 / np.median(times)), 1)})
     return 0
 

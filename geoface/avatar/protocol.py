@@ -28,7 +28,6 @@ hides (``occluded``).
 """
 from __future__ import annotations
 
-import json
 import shutil
 import wave
 from dataclasses import dataclass

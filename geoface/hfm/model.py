@@ -26,7 +26,6 @@ class HFMModel(nn.Module):
     FORMAT = "geoface-hfm-gs"
     KIND = "hfm"
 
-
     def __init__(self, gaussians: Gaussians, cfg: HFMConfig, y_split: float, center=None, scale=None):
         super().__init__()
         self.cfg = cfg

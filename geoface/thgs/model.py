@@ -127,7 +127,6 @@ class THGSModel(nn.Module):
     FORMAT = "geoface-thgs"
     KIND = "thgs"
 
-
     def __init__(self, tpl, cfg: THGSConfig, audio_dim: int, n_frames: int = 0, gaussians: Gaussians | None = None):
         super().__init__()
         self.cfg = cfg
