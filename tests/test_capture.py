@@ -81,12 +81,12 @@ def test_no_frames_is_an_error(tmp_path):
 
 
 def test_face_crops_follow_the_face_smoothly_and_keep_it_whole():
-    from geoface.avatar.clip import _OVAL, face_crops
+    from geoface.avatar.clip import FACE_OVAL, face_crops
 
     rng = np.random.default_rng(0)
     T = 60
     base = np.zeros((468, 2))
-    base[list(_OVAL)] = rng.uniform(-50, 50, (len(_OVAL), 2))
+    base[list(FACE_OVAL)] = rng.uniform(-50, 50, (len(FACE_OVAL), 2))
     path = np.c_[300 + 80 * np.sin(np.linspace(0, 3, T)), 250 + np.linspace(0, 40, T)]
     jitter = rng.normal(0, 3, (T, 1, 2))
     pts = base[None] + path[:, None] + jitter
@@ -98,7 +98,7 @@ def test_face_crops_follow_the_face_smoothly_and_keep_it_whole():
     assert np.abs(np.diff(boxes[:, :2], 2, axis=0)).max() < 1.0  # no jitter left (3 px in)
     for k in np.flatnonzero(found):  # the face whole inside every crop
         cx, cy, s = boxes[k]
-        q = pts[k, list(_OVAL)]
+        q = pts[k, list(FACE_OVAL)]
         assert (np.abs(q[:, 0] - cx) < s / 2).all() and (np.abs(q[:, 1] - cy) < s / 2).all()
 
 
