@@ -120,6 +120,8 @@ def cmd_hmd_remove(args) -> int:
         raise GeofaceError(f"--video: an .mp4 path; got {args.video}")
     model = _load_for_usage(args)
     src = Path(args.usage_dir)
+    if not src.exists():
+        raise GeofaceError(f"{src}: no such video or usage folder")
     if not src.is_file():
         return _remove_folder(args, model, src, str(src))
     # a headset video: captured first (face crops, landmarks below the headset, head track, the
@@ -196,7 +198,48 @@ def cmd_hmd_eval(args) -> int:
         say(f"expression region (what brows and lids change, {res['expression_frames']} frames): PSNR "
               f"{res['psnr_expression']:.2f} dB SSIM {res['ssim_expression']:.4f}; the rest-pose upper face "
               f"scores {res['psnr_expression_rest']:.2f} dB there")
+    if args.baselines is not None:
+        res["baselines"] = _baselines(model, args)
+        for name, r in res["baselines"].items():
+            say(f"  {name:<28} occluded PSNR {r['psnr_occluded']:.2f} dB SSIM {r['ssim_occluded']:.4f}; person "
+                f"PSNR {r['psnr_person']:.2f} dB")
     write_json(args, res)
+    return 0
+
+
+def _baselines(model, args) -> dict:
+    """``hmd eval --baselines REG_DIR``: the avatar and the trivial baselines scored alike on the
+    usage folder's frames (:mod:`geoface.avatar.protocol`: the headset's pixels restored)."""
+    import numpy as np
+
+    from geoface.avatar import protocol as P
+    from geoface.capture import Capture
+    from geoface.hfm import remove_hmd
+    from geoface.hfm.data import load_video
+
+    te = Capture(args.usage_dir)
+    gt = te.images("gt", rgb=True)
+    if gt is None or not te.has(P.TRUTH):
+        raise GeofaceError(f"{args.usage_dir}: --baselines scores a test folder of `geoface hmd holdout` (gt/, truth/)")
+    regs = P.regions(args.usage_dir)
+    shown = te.frames()
+    hmd = regs["occluded"][..., None]
+    R, _ = remove_hmd(model, load_video(args.usage_dir), poses=args.poses)
+    nf, _ = P.nearest_frame(args.baselines, args.usage_dir)
+    preds = {"avatar": R, "nearest training frame": nf, "mean training face": P.mean_face(args.baselines, len(gt))}
+    out = {}
+    for name, pred in preds.items():
+        sc = P.score_regions(np.where(hmd, pred, shown), gt, regs)
+        out[name] = {k: sc[k] for k in ("psnr_occluded", "ssim_occluded", "psnr_person", "ssim_person")}
+    return out
+
+
+def cmd_hmd_holdout(args) -> int:
+    from geoface.avatar.protocol import split_capture
+
+    sp = split_capture(args.capture, args.output, test=args.test, overwrite=args.force, quiet=args_quiet(args))
+    print(f"{args.capture} -> {sp.train} ({sp.n_train} frames: register with `hmd train`) and {sp.test} ({sp.n_test} "
+          f"frames, a headset drawn over them at the tracked pose: `hmd remove`, `hmd eval --baselines {sp.train}`)")
     return 0
 
 
@@ -273,6 +316,14 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--device", default=None, help="cpu or cuda (default: cuda when torch sees a GPU)")
     t.add_argument("--seed", type=SEED, default=0)
     t.set_defaults(func=cmd_hmd_train)
+    o = hs.add_parser("holdout", parents=[common],
+                      help="a real clip's capture split by time: the first frames register, the last ones get a "
+                           "headset drawn over them to test (as the papers score real video)")
+    o.add_argument("capture", metavar="CAPTURE_DIR", help="a folder `geoface capture` wrote")
+    o.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="folder for train/ and test/")
+    o.add_argument("--test", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.2,
+                   help="the last fraction of the frames that tests (0.2)")
+    o.set_defaults(func=cmd_hmd_holdout)
     r = hs.add_parser("remove", parents=[common], help="restore the full face in a headset video (streams, reports FPS)")
     r.add_argument("model_dir", metavar="MODEL_DIR")
     r.add_argument("usage_dir", metavar="USAGE_DIR|VIDEO",
@@ -294,6 +345,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     e.add_argument("model_dir", metavar="MODEL_DIR")
     e.add_argument("usage_dir", metavar="USAGE_DIR")
     _add_usage_pose_options(e)
+    e.add_argument("--baselines", default=None, metavar="REG_DIR",
+                   help="also score the trivial baselines on the same frames (the nearest frame of REG_DIR, warped "
+                        "by the tracked pose; the mean frame of REG_DIR): USAGE_DIR from `hmd holdout`")
     add_json(e, "the figures")
     e.set_defaults(func=cmd_hmd_eval)
 

@@ -138,6 +138,28 @@ def test_hmd_remove_takes_a_headset_video(split, tmp_path, capsys):
     x, y = np.round(pts[0, 27]).astype(int)
     patch = out[0, y - 3:y + 4, x - 3:x + 4]
     assert patch.mean() > 0.3, patch.mean()
+    # the same model scored with the baselines on the held-out frames, as `hmd holdout` writes them
+    assert main(["hmd", "eval", str(tmp_path / "m"), str(split.test), "--baselines", str(split.train),
+                 "--json", str(tmp_path / "e.json"), "-q"]) == 0
+    ev = json.loads((tmp_path / "e.json").read_text())["baselines"]
+    assert set(ev) == {"avatar", "nearest training frame", "mean training face"}
+    assert ev["nearest training frame"]["psnr_occluded"] > ev["mean training face"]["psnr_occluded"]
+    assert main(["hmd", "eval", str(tmp_path / "m"), str(split.train), "--baselines", str(split.train), "-q"]) == 2
+    capsys.readouterr()
     # a folder that is not a capture, a video that does not exist: one line each
     assert main(["hmd", "remove", str(tmp_path / "m"), str(tmp_path / "none.mp4"), "-o", str(tmp_path / "p"), "-q"]) == 2
-    assert capsys.readouterr().err.count("\n") == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no such video or usage folder" in err
+
+
+def test_hmd_holdout_writes_the_split(clip_capture, tmp_path, capsys):
+    from geoface.cli import main
+
+    r, _ = clip_capture
+    assert main(["hmd", "holdout", str(r.folder), "-o", str(tmp_path / "h"), "--test", "0.3", "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "(21 frames" in out and "(9 frames" in out and "hmd eval --baselines" in out
+    assert len(Capture(tmp_path / "h" / "test")) == 9 and (tmp_path / "h" / "test" / "hmd_masks").is_dir()
+    assert main(["hmd", "holdout", str(r.folder), "-o", str(tmp_path / "h"), "-q"]) == 2  # exists
+    assert "exists" in capsys.readouterr().err
+
