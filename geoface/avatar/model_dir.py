@@ -17,7 +17,7 @@ from torch import nn
 
 from geoface.errors import AvatarError
 
-__all__ = ["AvatarModel", "AvatarDrive", "uint8_frames", "write_model_dir", "read_model_dir", "read_model_config"]
+__all__ = ["AvatarModel", "AvatarAdapter", "AvatarDrive", "uint8_frames", "write_model_dir", "read_model_dir", "read_model_config"]
 
 
 @dataclass
@@ -120,3 +120,29 @@ def read_model_config(model_dir, fmt: str, what: str) -> tuple[Path, dict]:
     if not isinstance(meta.get("config"), dict):
         raise ModelFolderError(f"{d}/config.json: 'config' must be a JSON object")
     return d, meta
+
+
+class AvatarAdapter:
+    """A trained avatar network under :class:`AvatarModel`: a subclass names ``FORMAT``, ``KIND``
+    and its package's ``_load(model_dir)``, ``_save(model, out_dir)`` and ``_drive(model, source,
+    fps=)`` (as staticmethods); ``model`` is the network."""
+
+    FORMAT: ClassVar[str]
+    KIND: ClassVar[str]
+    _load: ClassVar[Callable]
+    _save: ClassVar[Callable]
+    _drive: ClassVar[Callable]
+
+    def __init__(self, model):
+        self.model = model
+
+    @classmethod
+    def load(cls, model_dir):
+        return cls(cls._load(model_dir))
+
+    def save(self, out_dir) -> None:
+        type(self)._save(self.model, out_dir)
+
+    def drive(self, source, *, fps: float = 25.0) -> AvatarDrive:
+        return type(self)._drive(self.model, source, fps=fps)
+
