@@ -175,9 +175,15 @@ def main(argv=None) -> int:
             _, idx = train_heldout_split(len(data), P.TEST_FRACTION)
             assert len(idx) == len(gt), (len(idx), len(gt))
             R, times = render_frames(model, data.camera, data.rot, data.transl, data.expr, data.audio, idx)
+            # how far training moved the training frames' tracked head poses (the held-out frames keep theirs)
+            tr_idx = np.arange(len(data) - len(idx))
+            d_rot = np.degrees(model.d_rot.detach().numpy()[tr_idx, 0])
+            d_tr = model.d_transl.detach().numpy()[tr_idx] * 1000
             _row(emit, base, "thgs", "thgs", P.score_regions(R, gt, regs),
                  {**_lipsync(R, gt_gaps, env), "iters": a.thgs_iters, "train_s": secs,
-                  "fps": round(float(1 / np.median(times)), 1)})
+                  "fps": round(float(1 / np.median(times)), 1),
+                  "pose_correction_rot_std_deg": np.round(d_rot.std(0), 2).tolist(),
+                  "pose_correction_transl_std_mm": np.round(d_tr.std(0), 1).tolist()})
     return 0
 
 

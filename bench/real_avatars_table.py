@@ -48,8 +48,8 @@ def table(rows: list[dict], protocol: str) -> str:
                 continue
             cells = [c, NAMES[m]] + [f"{r[f'psnr_{g}']:.2f} / {r[f'ssim_{g}']:.3f}" for g in regs]
             if protocol == "thgs":
-                cells += [f"{r.get('mouth_gap_corr_real', float('nan')):.2f}",
-                          f"{r.get('lipsync_corr', float('nan')):.2f} ({r.get('lipsync_corr_real', float('nan')):.2f})"]
+                cells += [f"{r['mouth_gap_corr_real']:.2f}" if "mouth_gap_corr_real" in r else "–",
+                          f"{r['lipsync_corr']:.2f} ({r['lipsync_corr_real']:.2f})" if "lipsync_corr" in r else "– (no sound)"]
             cells.append(f"{r['iters']} ({r['train_s'] / 60:.0f})" if r.get("train_s") else "–")
             out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out)
