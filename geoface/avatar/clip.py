@@ -201,6 +201,7 @@ def write_overlay(folder, path, *, quiet: bool | None = None) -> Path:
     """``path`` (MP4): the capture's frames, each beside itself with its tracked head drawn over
     it, drawn from the capture's files alone (:func:`capture_head`), with the capture's sound."""
     from geoface.capture import Capture
+    from geoface.images import read_image
     from geoface.nn.mesh_render import render_mesh
     from geoface.progress import progress
     from geoface.video import write_video
@@ -216,8 +217,7 @@ def write_overlay(folder, path, *, quiet: bool | None = None) -> Path:
         r = render_mesh(posed(k), Fs, cam, white, shading="headlight")
         return r.rgb, r.alpha
 
-    frames = (np.asarray(__import__("geoface.images", fromlist=["read_image"]).read_image(p, "rgb"), np.float32)
-              for p in cap.frame_paths)
+    frames = (np.asarray(read_image(p, "rgb"), np.float32) for p in cap.frame_paths)
     return write_video(progress(overlay_frames(frames, draw), "drawing the overlay", total=len(cap), quiet=quiet,
                                 unit="frames"), path, fps=float(cap.meta().get("fps", 25.0)), audio=cap.audio())
 
