@@ -129,8 +129,8 @@ def _neutral(posed, R0, t0, piv):
     return (posed(0) - piv - t0) @ R0 + piv
 
 
-def _write_part(cap, d: Path, sl: slice, *, usage: bool, shown=None, hmd=None, gt: bool = False, extra=None,
-                quiet=None) -> None:
+def _write_part(cap, d: Path, sl: slice, *, usage: bool, rgb=None, shown=None, hmd=None, gt: bool = False,
+                extra=None, quiet=None) -> None:
     """The frames ``sl`` of the capture ``cap`` as a registration folder, or as a usage folder
     (``usage``: ``shown`` frames, ``hmd`` masks, the landmarks below a headset; the rest of the
     landmarks and the expressions in ``truth/`` and the real frames in ``gt/`` when ``gt``)."""
@@ -144,7 +144,7 @@ def _write_part(cap, d: Path, sl: slice, *, usage: bool, shown=None, hmd=None, g
     meta = cap.meta(need=True)
     fps = float(meta.get("fps", 25.0))
     d.mkdir()
-    rgb = part.frames()
+    rgb = part.frames() if rgb is None else rgb
     masks = part.masks()
     shown = rgb if shown is None else shown
     for j in progress(range(len(part)), f"writing the {d.name} frames", total=len(part), quiet=quiet, unit="frames"):
@@ -205,8 +205,10 @@ def split_capture(folder, out, *, test: float = TEST_FRACTION, overwrite: bool =
             if name == "train":
                 _write_part(cap, tmp / name, sl, usage=False, extra=extra, quiet=quiet)
             else:
-                shown, hmd = headset_frames(folder, Capture(folder, frames=sl).frames(), range(sl.start, sl.stop))
-                _write_part(cap, tmp / name, sl, usage=True, shown=shown, hmd=hmd, gt=True, extra=extra, quiet=quiet)
+                rgb = Capture(folder, frames=sl).frames()
+                shown, hmd = headset_frames(folder, rgb, range(sl.start, sl.stop))
+                _write_part(cap, tmp / name, sl, usage=True, rgb=rgb, shown=shown, hmd=hmd, gt=True, extra=extra,
+                            quiet=quiet)
     return ClipSplit(out / "train", out / "test", k, n - k)
 
 
@@ -271,6 +273,7 @@ def nearest_frame(train, test, *, frames_train=None) -> tuple[np.ndarray, np.nda
     R_te, t_te, _ = te.head_poses()
     H, W = cam.height, cam.width
     out = np.empty((len(te), H, W, 3), np.float32)
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
     for j, s in enumerate(pick):
         X = posed_tr(s)  # the head as tracked in the training frame
         rest = (X - piv - t_tr[s]) @ R_tr[s]  # its pose undone ...
@@ -278,7 +281,6 @@ def nearest_frame(train, test, *, frames_train=None) -> tuple[np.ndarray, np.nda
         face, bary, _ = rasterize_mesh(Xt, F, cam)
         uv = np.asarray(cam.project(X)[0])
         hit = face >= 0
-        yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
         xs, ys = xx.copy(), yy.copy()
         q = (uv[F[face[hit]]] * bary[hit][:, :, None]).sum(1) - 0.5  # pixel centres at +0.5
         xs[hit], ys[hit] = q[:, 0], q[:, 1]
