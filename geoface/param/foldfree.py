@@ -80,8 +80,9 @@ LOCAL_SHARE = 0.3
 #: the untangled map is tried once the whole solve loses more than this of the wanted areas and
 #: kept whenever it loses less. The 134K bust's whole solve loses 0.12–0.13 (kept: whole Hausdorff
 #: 0.14–0.18% at 512² against 0.34–0.45% relaxed, although the relaxed map loses only 0.03);
-#: male02's sets lose 0.44–5.5 (whole solve 0.27–15%, a limb squeezed into a strip in one set;
-#: relaxed, as kept in all 8: 0.35% at worst); the Max Planck bust cut
+#: male02's whole solves at 512² leave 0.27–15.4% Hausdorff (a limb squeezed into a strip in
+#: set 0; untangled and relaxed, as kept in all 8: 0.38% at worst,
+#: ``bench/results/stress/male02_untangle_512.jsonl``); the Max Planck bust cut
 #: to 1K faces loses 0.29–0.38 (relaxed: worst face 0.17% against 0.37%, the whole solve
 #: squeezing the jaw's few large triangles to a pixel)
 REFINED_GAIN = 1.0
