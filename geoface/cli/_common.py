@@ -50,6 +50,7 @@ class _Formatter(argparse.HelpFormatter):
         h = action.help or ""
         d = action.default
         if (not action.option_strings or d is None or d is False or d is argparse.SUPPRESS
+                or isinstance(action, argparse._StoreFalseAction)  # --no-X: its default is not to say it
                 or "default" in h or "%(default)" in h):
             return h
         m = re.search(r"\(([^()]*)\)\s*$", h)

@@ -107,7 +107,8 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     sd.required = True
     t = sd.add_parser("train", parents=[common], help="train or resume a DDPM run on a geometry-image dataset")
     t.add_argument("data_dir", help="dataset folder (manifest.jsonl from `geoface dataset build`, or folders with meta.json)")
-    t.add_argument("-o", "--output", required=True, metavar="RUN_DIR")
+    t.add_argument("-o", "--output", required=True, metavar="RUN_DIR",
+                   help='folder for the run: checkpoints, config, statistics (new, or resumed with --resume)')
     t.add_argument("--res", type=number(int, 8, 1024), default=64, help="training resolution (divides the image resolution)")
     t.add_argument("--steps", type=number(int, 1, 100_000_000), default=10000, help="total optimisation steps")
     t.add_argument("--batch", type=number(int, 1, 4096), default=8, help="images per step")
@@ -135,8 +136,8 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint")
     t.set_defaults(func=cmd_ddpm_train)
     p = sd.add_parser("sample", parents=[common], help="sample geometry images + meshes for a prompt")
-    p.add_argument("run_dir")
-    p.add_argument("prompt")
+    p.add_argument("run_dir", metavar="RUN_DIR", help='a run `ddpm train` wrote')
+    p.add_argument("prompt", help='what to draw, e.g. "smiling, a wide face" ("" for unconditional)')
     p.add_argument("-n", type=number(int, 1, 10_000), default=4, help="number of samples")
     p.add_argument("--steps", type=number(int, 1, 100_000_000), default=50, help="denoising steps")
     p.add_argument("--sampler", choices=["ddpm", "ddim"], default="ddpm",
@@ -146,5 +147,6 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--guidance", type=number(float, 0, 100), default=3.0, help="classifier-free guidance scale")
     p.add_argument("--seed", type=SEED, default=0, help="seeds the noise")
     p.add_argument("--device", default="cpu", help="cpu | cuda")
-    p.add_argument("-o", "--output", required=True, metavar="OUT_DIR")
+    p.add_argument("-o", "--output", required=True, metavar="OUT_DIR",
+                   help='folder for the samples (geometry images, meshes, previews)')
     p.set_defaults(func=cmd_ddpm_sample)

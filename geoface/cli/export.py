@@ -33,10 +33,11 @@ def cmd_avatar_export(args) -> int:
 
 def add_export_parser(hs, common, what: str, drive_help: str, required: bool) -> None:
     x = hs.add_parser("export", parents=[common], help=f"{what} frames as standard 3DGS PLY files (other viewers open them)")
-    x.add_argument("model_dir", metavar="MODEL_DIR")
+    x.add_argument("model_dir", metavar="MODEL_DIR", help='a trained avatar model folder')
     x.add_argument("--drive", required=required, default=None, help=drive_help)
     x.add_argument("--frames", default=None, metavar="T|A:B[:S]|all",
                    help="which frames (default: frame 0 into a .ply, every frame into a folder)")
     x.add_argument("--fps", type=number(float, 0.1, 240), default=25.0, help="frame rate of a WAV drive (25)")
-    x.add_argument("-o", "--output", required=True, metavar="OUT.ply|OUT_DIR")
+    x.add_argument("-o", "--output", required=True, metavar="OUT.ply|OUT_DIR",
+                   help='a .ply for one frame, a folder for several')
     x.set_defaults(func=cmd_avatar_export)

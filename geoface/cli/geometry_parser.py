@@ -11,14 +11,14 @@ def register(sub, common) -> None:
     from ._common import axis
 
     s = sub.add_parser("inspect", help="print a mesh's topology report, and the face found on it")
-    s.add_argument("file")
+    s.add_argument("file", help='a mesh (obj, ply, off, stl, glb, ...)')
     s.add_argument("--no-face", dest="face", action="store_false",
                    help="do not look for the face (renders of the mesh and the face tracker: about a second)")
     add_json(s, "the report")
     s.set_defaults(func=cmd_inspect)
 
     s = sub.add_parser("repair", help="turn any mesh into a topological disk")
-    s.add_argument("input")
+    s.add_argument("input", metavar="MESH", help="a mesh or point cloud (obj, ply, off, stl, glb, ...)")
     s.add_argument("-o", "--output", required=True, help="output mesh (obj, ply, off, stl, glb)")
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto",
                    help="how to open a closed surface (default auto: plane cut near the bottom if closed)")
@@ -35,7 +35,7 @@ def register(sub, common) -> None:
     s.set_defaults(func=cmd_repair)
 
     s = sub.add_parser("param", help="parameterize a disk onto the unit square (writes UVs)")
-    s.add_argument("input")
+    s.add_argument("input", metavar="MESH", help="a mesh or point cloud (obj, ply, off, stl, glb, ...)")
     s.add_argument("-o", "--output", required=True, help="output mesh with UVs (obj, ply, glb)")
     s.add_argument("--method", choices=["ricci", "harmonic", "lscm"], default="ricci",
                    help="ricci: conformal map to a rectangle (default); harmonic: to the square by arc length; lscm: free boundary")
@@ -51,7 +51,7 @@ def register(sub, common) -> None:
     s.set_defaults(func=cmd_param)
 
     s = sub.add_parser("convert", help="mesh -> geometry images (+ reconstruction, preview, metrics)")
-    s.add_argument("input")
+    s.add_argument("input", metavar="MESH", help="a mesh or point cloud (obj, ply, off, stl, glb, ...)")
     output_option(s, "OUT_DIR", "folder for the geometry images, preview and metrics")
     s.add_argument("--res", type=number(int, 4, 8192), default=512, help="image resolution N (default 512)")
     s.add_argument("--roi", default="face", help="region magnified by --lam: face (a frontal cone), none, or a mask file (.npy, .txt, .json)")
@@ -94,7 +94,7 @@ def register(sub, common) -> None:
     s.set_defaults(func=cmd_convert)
 
     s = sub.add_parser("reconstruct", help="geometry-image folder -> textured mesh")
-    s.add_argument("dir")
+    s.add_argument("dir", metavar="GIMAGE_DIR", help="a geometry-image folder `convert` wrote (or one of its aug<k>/)")
     s.add_argument("-o", "--output", required=True, help="output mesh (obj writes .mtl, texture and normal map too)")
     s.add_argument("--smooth", type=number(int, 0, 1000), default=0, help="Laplacian smoothing iterations")
     s.set_defaults(func=cmd_reconstruct)

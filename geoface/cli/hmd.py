@@ -265,56 +265,69 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="--head ict: the registration video opens with a range of motion of this length: surprise, "
                         "smile and anger in turn at full weight (0: none)")
     synth_landmarks_option(s)
-    s.add_argument("--seed", type=SEED, default=0)
+    s.add_argument("--seed", type=SEED, default=0, help='seed of the head, the motion and the expressions (0)')
     s.set_defaults(func=cmd_hmd_synth)
+    from geoface.hfm.config import HFMConfig
+
+    base = HFMConfig()
+    on_off = {True: "on", False: "off"}
     t = hs.add_parser("train", parents=[common], help="register a person from an unoccluded video folder")
-    t.add_argument("reg_dir", metavar="REG_DIR")
-    t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
+    t.add_argument("reg_dir", metavar="REG_DIR",
+                   help="a registration folder: `hmd synth`'s registration/, `hmd holdout`'s train/, or a capture")
+    t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR", help="folder for the trained model (new)")
     t.add_argument("--iters", type=number(int, 1, 10_000_000), default=2000, help="optimisation steps (2000)")
     t.add_argument("--warmup", type=number(float, 0, 1, hi_open=True), default=0.2,
                    help="fraction of the steps that trains the Gaussians alone before the networks (0.2)")
     t.add_argument("--ema", type=number(float, 0, 1, hi_open=True), default=0.99, metavar="DECAY",
                    help="save the moving average of the weights over the steps after density control, with this "
                         "decay per step (0.99; 0 saves the last step's weights)")
-    t.add_argument("--ablation", choices=sorted(ABLATION_NAMES), default="full")
     t.add_argument("--vgg-weights", default=None, metavar="FILE",
-                   help="local VGG-16 feature weights (.safetensors or .pth) for the perceptual term")
+                   help="local VGG-16 feature weights (.safetensors or .pth) for the perceptual term (default: none, "
+                        "the term is left out)")
     t.add_argument("--y-split", type=number(float), default=None, help="upper/lower split height y_t (default: meta.json)")
-    t.add_argument("--no-densify", action="store_true", help="no clone/split/prune")
-    t.add_argument("--map-theta", action="store_true", help="MLP_mapping also reads the latent θ (the paper's input)")
-    t.add_argument("--gm-input", choices=("x", "xsr"), default="x",
-                   help="MLP_gm embeds the position (x, default) or position, scale and rotation (xsr, the paper's)")
-    t.add_argument("--pm-per-component", action="store_true",
-                   help="one MLP_pm per deformation component (ΔX, ΔS, ΔR), each mapping head reads its own")
-    t.add_argument("--split-margin", type=number(float, 0, 1), default=0.0, metavar="D",
-                   help="margin d (metres) of the boundary losses: each half held d from y_t (0)")
-    t.add_argument("--threads", type=number(int, 1, 1024), default=None, help="torch CPU threads")
+    t.add_argument("--threads", type=number(int, 1, 1024), default=None, help="torch CPU threads (default: torch's)")
     t.add_argument("--poses", choices=("auto", "file", "landmarks"), default="auto",
                    help="registration head poses: head_poses.npz (file), fitted to the landmarks (landmarks), "
                         "or the file when there is one (auto)")
-    t.add_argument("--pose-landmarks", choices=("rigid", "stable", "lower"), default=None,
+    t.add_argument("--device", default=None, help="cpu or cuda (default: cuda when torch sees a GPU)")
+    t.add_argument("--seed", type=SEED, default=0, help="seed of the initialisation and the frame order (0)")
+    x = t.add_argument_group("experiments", "research knobs for ablations (docs/hmd.md); the defaults are the "
+                                            "settings measured there")
+    x.add_argument("--ablation", choices=sorted(ABLATION_NAMES), default="full",
+                   help="switch off one element of the paper (full: none off)")
+    x.add_argument("--no-densify", action="store_true", help="no clone/split/prune")
+    x.add_argument("--map-theta", action="store_true", help="MLP_mapping also reads the latent θ (the paper's input)")
+    x.add_argument("--gm-input", choices=("x", "xsr"), default="x",
+                   help="MLP_gm embeds the position (x) or position, scale and rotation (xsr, the paper's)")
+    x.add_argument("--pm-per-component", action="store_true",
+                   help="one MLP_pm per deformation component (ΔX, ΔS, ΔR), each mapping head reads its own")
+    x.add_argument("--split-margin", type=number(float, 0, 1), default=0.0, metavar="D",
+                   help="margin d (metres) of the boundary losses: each half held d from y_t (0)")
+    x.add_argument("--pose-landmarks", choices=("rigid", "stable", "lower"), default=base.registration_landmarks,
                    help="registration poses fitted to the landmarks that move little with expressions (rigid), "
                         "to those of them that stay put best (stable: jaw line ends, nose ridge and tip, eye corners), "
-                        "or to those below a headset, as the usage poses are (lower); default: the model's")
-    t.add_argument("--usage-landmarks", choices=("lower", "stable"), default=None,
+                        f"or to those below a headset, as the usage poses are (lower) ({base.registration_landmarks})")
+    x.add_argument("--usage-landmarks", choices=("lower", "stable"), default=base.usage_landmarks,
                    help="the landmarks below a headset that usage poses are fitted to (and the calibration learns): "
-                        "the 12 rigid ones (lower) or the 8 of them that stay put best (stable); default: the model's")
-    t.add_argument("--pose-residual", action=argparse.BooleanOptionalAction, default=None,
-                   help="the global pose MLP corrects the tracked head pose of each frame (default: the model's)")
-    t.add_argument("--pose-head-detach", action=argparse.BooleanOptionalAction, default=None,
+                        f"the 12 rigid ones (lower) or the 8 of them that stay put best (stable) ({base.usage_landmarks})")
+    x.add_argument("--pose-residual", action=argparse.BooleanOptionalAction, default=base.pose_residual,
+                   help=f"the global pose MLP corrects the tracked head pose of each frame "
+                        f"(default: {on_off[base.pose_residual]})")
+    x.add_argument("--pose-head-detach", action=argparse.BooleanOptionalAction, default=base.image_pose_detach,
                    help="the pose MLP that reads the head pose from the crop learns alone: its loss does not train "
-                        "the image encoder (default: the model's)")
-    t.add_argument("--calibration-weights", action=argparse.BooleanOptionalAction, default=None,
+                        f"the image encoder (default: {on_off[base.image_pose_detach]})")
+    x.add_argument("--calibration-weights", action=argparse.BooleanOptionalAction,
+                   default=base.pose_calibration_weighted,
                    help="the usage pose calibration weighs each lower landmark by how little it moved in "
-                        "registration (default: the model's)")
-    t.add_argument("--calibration-expressions", type=int, default=None, metavar="N",
+                        f"registration (default: {on_off[base.pose_calibration_weighted]})")
+    x.add_argument("--calibration-expressions", type=number(int, 0, 10_000), default=base.pose_calibration_expressions,
+                   metavar="N",
                    help="the usage pose calibration also sees each registration frame N times with generic "
-                        "expressions of the ICT-FaceKit model added to its landmarks (0: off; default: the model's)")
-    t.add_argument("--pose-refine", action=argparse.BooleanOptionalAction, default=None,
+                        f"expressions of the ICT-FaceKit model added to its landmarks "
+                        f"(default: {base.pose_calibration_expressions}, off)")
+    x.add_argument("--pose-refine", action=argparse.BooleanOptionalAction, default=base.pose_refine,
                    help="registration poses fitted to the landmarks are corrected frame by frame with the "
-                        "image loss (default: the model's)")
-    t.add_argument("--device", default=None, help="cpu or cuda (default: cuda when torch sees a GPU)")
-    t.add_argument("--seed", type=SEED, default=0)
+                        f"image loss (default: {on_off[base.pose_refine]})")
     t.set_defaults(func=cmd_hmd_train)
     o = hs.add_parser("holdout", parents=[common],
                       help="a real clip's capture split by time: the first frames register, the last ones get a "
@@ -325,7 +338,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="the last fraction of the frames that tests (0.2)")
     o.set_defaults(func=cmd_hmd_holdout)
     r = hs.add_parser("remove", parents=[common], help="restore the full face in a headset video (streams, reports FPS)")
-    r.add_argument("model_dir", metavar="MODEL_DIR")
+    r.add_argument("model_dir", metavar="MODEL_DIR", help='a model `hmd train` wrote')
     r.add_argument("usage_dir", metavar="USAGE_DIR|VIDEO",
                    help="a usage folder, or a headset video (captured first: face crops, the landmarks below the "
                         "headset, the head track, the headset segmented from the pixels: grey or black plastic)")
@@ -342,8 +355,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
 
     add_export_parser(hs, common, "the registered avatar's", "a usage folder (its frames drive the avatar)", True)
     e = hs.add_parser("eval", parents=[common], help="PSNR/SSIM (whole face, occluded region) and FPS on a usage folder with gt/")
-    e.add_argument("model_dir", metavar="MODEL_DIR")
-    e.add_argument("usage_dir", metavar="USAGE_DIR")
+    e.add_argument("model_dir", metavar="MODEL_DIR", help='a model `hmd train` wrote')
+    e.add_argument("usage_dir", metavar="USAGE_DIR",
+                   help="a usage folder with the truth under the headset (gt/): `hmd synth`'s usage/ or `hmd holdout`'s test/")
     _add_usage_pose_options(e)
     e.add_argument("--baselines", default=None, metavar="REG_DIR",
                    help="also score the trivial baselines on the same frames (the nearest frame of REG_DIR, warped "

@@ -76,7 +76,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     f.add_argument("--res", type=number(int, 8, 4096), default=128, help="image side in pixels (128)")
     f.add_argument("--iters", type=number(int, 1, 10_000_000), default=1500, help="optimisation steps (1500)")
     f.add_argument("--sh-degree", type=number(int, 0, 3), default=0, help="spherical-harmonics degree 0..3 (0)")
-    f.add_argument("--seed", type=SEED, default=0)
+    f.add_argument("--seed", type=SEED, default=0, help='seed of the initialisation and the view order (0)')
     f.add_argument("--heldout", type=number(int, 0, 1000), default=4, help="held-out views for the PSNR report (4)")
     f.add_argument("--threads", type=number(int, 1, 1024), default=None, help="torch CPU threads (default: torch's)")
     f.add_argument("--no-densify", action="store_true", help="no clone/split/prune")

@@ -153,21 +153,23 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     hs.required = True
     s = hs.add_parser("synth", parents=[common], help="write a synthetic talking-head data folder")
     output_option(s, "OUT_DIR", "folder for the talking-head capture")
-    s.add_argument("--seconds", type=number(float, 0, 3600, lo_open=True), default=8.0)
-    s.add_argument("--fps", type=number(float, 0.1, 240), default=25.0)
-    s.add_argument("--res", type=number(int, 16, 4096), default=128)
+    s.add_argument("--seconds", type=number(float, 0, 3600, lo_open=True), default=8.0,
+                   help='length of the clip in seconds (8)')
+    s.add_argument("--fps", type=number(float, 0.1, 240), default=25.0, help='frames per second (25)')
+    s.add_argument("--res", type=number(int, 16, 4096), default=128, help='frame side in pixels (128)')
     s.add_argument("--vertices", type=number(int, 1000, 200_000), default=6000, help="template vertices (Gaussians)")
     s.add_argument("--head", choices=("procedural", "ict"), default="procedural",
                    help="procedural head, or an ICT-FaceKit person (lit skin, eyes, teeth; ARKit blendshapes)")
     s.add_argument("--perturb", default=None, metavar="DEG,MM",
                    help="ict: each frame's tracked head pose off by DEG degrees and MM millimetres (true poses kept)")
     synth_landmarks_option(s)
-    s.add_argument("--seed", type=SEED, default=0)
+    s.add_argument("--seed", type=SEED, default=0, help='seed of the person, the speech and the motion (0)')
     s.set_defaults(func=cmd_talk_synth)
     t = hs.add_parser("train", parents=[common], help="fit a talking avatar to a data folder")
-    t.add_argument("data_dir", metavar="DATA_DIR")
-    t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
-    t.add_argument("--iters", type=number(int, 1, 10_000_000), default=3000)
+    t.add_argument("data_dir", metavar="DATA_DIR",
+                   help="a capture: `talk synth`'s folder or one `geoface capture` wrote")
+    t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR", help='folder for the trained model (new)')
+    t.add_argument("--iters", type=number(int, 1, 10_000_000), default=3000, help='optimisation steps (3000)')
     t.add_argument("--stage-scale", type=number(float, 0, 100, lo_open=True), default=None,
                    help="factor on the paper's stage starts 1.5K/15K/25K/50K of 150K (default iters/150000: the paper's fractions of the run)")
     t.add_argument("--no-leb", action="store_true", help="ablation: no learnable expression blendshapes")
@@ -187,15 +189,16 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     t.add_argument("--pose-decay", type=number(float, 1, 1e6), default=THGS_POSE_DECAY, metavar="F",
                    help=f"the corrections' step falls F times by the last training step ({THGS_POSE_DECAY:g})")
     t.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=0.2, help="last fraction of frames kept out of training (0.2)")
-    t.add_argument("--threads", type=number(int, 1, 1024), default=None)
-    t.add_argument("--seed", type=SEED, default=0)
+    t.add_argument("--threads", type=number(int, 1, 1024), default=None, help="torch CPU threads (default: torch's)")
+    t.add_argument("--seed", type=SEED, default=0, help='seed of the initialisation and the frame order (0)')
     t.add_argument("--device", default=None, help="cpu or cuda (default: cuda when torch sees a GPU)")
     t.set_defaults(func=cmd_talk_train)
     a = hs.add_parser("animate", parents=[common], help="drive a trained avatar by speech (frames, FPS)")
-    a.add_argument("model_dir", metavar="MODEL_DIR")
+    a.add_argument("model_dir", metavar="MODEL_DIR", help='a model `talk train` wrote')
     a.add_argument("--audio", required=True, help="the speech: a WAV, a video (its sound), or .npy/.npz per-frame features")
     a.add_argument("--poses", default=None, help=".npz with rot [T, J, 3], transl [T, 3], expr [T, K]")
-    a.add_argument("--fps", type=number(float, 0.1, 240), default=25.0)
+    a.add_argument("--fps", type=number(float, 0.1, 240), default=25.0,
+                   help='frames per second of the animation (25)')
     a.add_argument("-o", "--output", default=None, metavar="OUT_DIR", help="write the frames as OUT_DIR/frames/*.png")
     a.add_argument("--video", default=None, metavar="OUT.mp4",
                    help="write an H.264 MP4 at --fps, with the speech when --audio is a WAV")
@@ -205,8 +208,9 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     add_export_parser(hs, common, "the talking avatar's",
                       "a WAV (rest pose) or a `talk synth` folder (its poses); default: the rest pose, silent", False)
     e = hs.add_parser("eval", parents=[common], help="held-out PSNR/SSIM, mouth error, lip sync, FPS")
-    e.add_argument("model_dir", metavar="MODEL_DIR")
-    e.add_argument("data_dir", metavar="DATA_DIR")
+    e.add_argument("model_dir", metavar="MODEL_DIR", help='a model `talk train` wrote')
+    e.add_argument("data_dir", metavar="DATA_DIR",
+                   help='the capture it was trained on (its held-out frames are scored)')
     e.add_argument("--heldout", type=number(float, 0, 1, lo_open=True, hi_open=True), default=None, help="default: the fraction used in training")
     add_json(e, "the figures")
     e.set_defaults(func=cmd_talk_eval)

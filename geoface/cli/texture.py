@@ -157,7 +157,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     sd.required = True
     p = sd.add_parser("synth", parents=[common], help="write synthetic (photo, maps, UV, normal) samples")
     output_option(p, "OUT_DIR", "folder for the samples")
-    p.add_argument("--count", type=number(int, 1, 100_000), default=8)
+    p.add_argument("--count", type=number(int, 1, 100_000), default=8, help="photos to render (8)")
     p.add_argument("--res", type=number(int, 16, 8192), default=512, help="photo resolution")
     p.add_argument("--map-res", type=number(int, 16, 16384), default=None, help="UV-map resolution (default max(res, 1024))")
     p.add_argument("--vertices", type=number(int, 1000, 200_000), default=20000, help="procedural heads' vertex count")
@@ -165,23 +165,23 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="ict: ICT-FaceKit people with random expressions and skin by facial region")
     p.add_argument("--supersample", type=number(int, 1, 4), default=2,
                    help="rendered pixels averaged per photo pixel, per side (1: point-sampled, aliased maps)")
-    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the heads, skins, lights and cameras (0)")
     p.set_defaults(func=cmd_synth)
     t = sd.add_parser("train", parents=[common], help="train predictor, GDE and HFDR in turn")
-    t.add_argument("data_dir")
-    t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR")
+    t.add_argument("data_dir", metavar="DATA_DIR", help="a folder `texture synth` wrote (photos and their maps)")
+    t.add_argument("-o", "--output", required=True, metavar="MODEL_DIR", help="folder for the trained model (new)")
     t.add_argument("--gde-res", type=number(int, 16, 4096), default=256, help="resolution of the predictor and GDE (paper: 1024)")
     t.add_argument("--k", type=number(int, 1, 64), default=4, help="HFDR patches per side")
     t.add_argument("--epochs", default="20,20,20", help="epochs of predictor, GDE, HFDR")
-    t.add_argument("--lr", type=number(float, 0, 1, lo_open=True), default=1e-3)
-    t.add_argument("--batch", type=number(int, 1, 4096), default=4)
+    t.add_argument("--lr", type=number(float, 0, 1, lo_open=True), default=1e-3, help="Adam learning rate (1e-3)")
+    t.add_argument("--batch", type=number(int, 1, 4096), default=4, help="photos per step (4)")
     t.add_argument("--no-hash", action="store_true", help="GDE without the UV hash encoding (ablation)")
     t.add_argument("--hash-mode", choices=("input", "logit"), default=None,
                    help="where the hash features go: the GDE's input (the paper), or an offset of its output "
-                        "logits per UV position (default: the model's, see docs/textures.md)")
+                        "logits per UV position (default: logit, as measured in docs/textures.md; with --init, its model's)")
     t.add_argument("--gde-tone", choices=("absolute", "relative"), default=None,
                    help="how the GDE reads skin tone: straight from the photo, or relative to the photo's tone "
-                        "(default: the model's, see docs/textures.md)")
+                        "(default: absolute, as measured in docs/textures.md; with --init, its model's)")
     t.add_argument("--map-weights", default="1,1,1", metavar="A,M,S",
                    help="GDE loss weights of albedo, micronormal, specular (default equal, as the paper)")
     t.add_argument("--hfdr-map-weights", default="1,8,1", metavar="A,M,S",
@@ -190,11 +190,11 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                    help="what the HFDR refines: every band, or only the detail finer than the GDE's texels")
     t.add_argument("--init", default=None, metavar="MODEL_DIR",
                    help="start from this trained model's weights (e.g. --epochs 0,0,20 trains its HFDR further)")
-    t.add_argument("--seed", type=SEED, default=0)
+    t.add_argument("--seed", type=SEED, default=0, help="seed of the initialisation and the batches (0)")
     t.set_defaults(func=cmd_train)
     r = sd.add_parser("reconstruct", parents=[common], help="albedo, micronormal, specular maps of a photo")
-    r.add_argument("photo")
-    r.add_argument("--model", required=True, metavar="MODEL_DIR")
+    r.add_argument("photo", metavar="PHOTO", help="a photo of a face (PNG or JPEG)")
+    r.add_argument("--model", required=True, metavar="MODEL_DIR", help="a model `texture train` wrote")
     r.add_argument("--mesh", default=None, help="a mesh with UVs to project the maps into")
     r.add_argument("--camera", default=None, metavar="CAM.json", help="K, R, t of the photo's camera (OpenCV)")
     r.add_argument("--landmarks", default=None, metavar="L.json",
@@ -205,8 +205,8 @@ def register(sub, common: argparse.ArgumentParser) -> None:
                         "the maps in its UV layout from the photo alone")
     r.add_argument("--focal", type=number(float, 1, 1e6), default=None, metavar="PX",
                    help="the photo's focal length in pixels, when known (e.g. from EXIF); else estimated")
-    r.add_argument("--uv-size", type=number(int, 16, 16384), default=1024)
+    r.add_argument("--uv-size", type=number(int, 16, 16384), default=1024, help="side of the UV maps with --mesh/--landmarks/--track (1024)")
     r.add_argument("--k", type=number(int, 1, 64), default=None, help="patches per side (default: the model's)")
     r.add_argument("--no-refine", action="store_true", help="GDE maps upsampled (baseline), no HFDR")
-    r.add_argument("-o", "--output", required=True, metavar="OUT_DIR")
+    r.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="folder for the maps (new)")
     r.set_defaults(func=cmd_reconstruct)
