@@ -2,14 +2,15 @@
 
 A block of a page (a paragraph, a list item, a table) *bears a figure* when, outside code, a
 number carries a unit of measurement (dB, %, ×, s, min, mm, °, GB, px, FPS, steps/s, ...). Such a
-block must sit in a section — the block itself, or an earlier block under the same heading or one
-above it — that names its source:
+block must sit in a section — under its own heading or one above it, anywhere in that section —
+that names its source:
 
 * a path ``bench/results/...`` (a glob is allowed) that exists, or the bare name of a file under
   ``bench/results/`` in backticks (```speed.jsonl```); or
 * a marker ``<!-- results: PATH[, PATH ...] -->`` naming files of the repository (for a figure
   kept beside the code that made it, e.g. ``geoface/data/mediapipe_ict.json``).
 
+A command in a code block that writes a results file (``--out bench/results/...``) names it too.
 A block whose numbers are settings, definitions or specifications, not measurements, says so
 with ``<!-- settings -->``: inline in the block, or on a line of its own before it.
 
@@ -34,16 +35,20 @@ SETTINGS = "<!-- settings -->"
 
 
 def blocks(text: str) -> list[tuple[int, str]]:
-    """(first line, text) of each heading, paragraph, list item and table outside code fences."""
+    """(first line, text) of each heading, paragraph, list item and table; a fenced code block is
+    one block of its own, marked ``CODE`` (its commands may name results files, its numbers are
+    not figures)."""
     out, cur, start, fence = [], [], 0, False
     for i, line in enumerate(text.splitlines(), 1):
         if line.strip().startswith("```"):
-            fence = not fence
             if cur:
-                out.append((start, "\n".join(cur)))
+                out.append((start, ("CODE\n" if fence else "") + "\n".join(cur)))
                 cur = []
+            fence = not fence
+            start = i
             continue
         if fence:
+            cur.append(line)
             continue
         item = re.match(r"\s*([-*]|\d+\.)\s", line) and not (cur and cur[0].lstrip().startswith("|"))
         if (not line.strip() or line.startswith("#") or item) and cur:
@@ -82,32 +87,39 @@ def exists(source: str) -> bool:
 
 
 def unbacked(page: Path) -> list[tuple[int, str]]:
-    """The figure-bearing blocks of ``page`` with no source in their section."""
-    bad, stack, settings_next = [], [(0, [])], False
+    """The figure-bearing blocks of ``page`` with no source in their section (anywhere in it, or
+    in a section that encloses it)."""
+    found: dict[int, list[str]] = {0: []}   # sources per section (by the index of its heading)
+    path, n_sections, todo, settings_next = [(0, 0)], 0, [], False  # path: (level, section) from the top
     for line, block in blocks(page.read_text()):
         if block.startswith("#"):
             level = len(block) - len(block.lstrip("#"))
-            while stack and stack[-1][0] >= level:
-                stack.pop()
-            stack.append((level, []))
+            while path and path[-1][0] >= level:
+                path.pop()
+            n_sections += 1
+            path.append((level, n_sections))
+            found[n_sections] = []
             continue
         if block.strip() == SETTINGS:
             settings_next = True
             continue
-        stack[-1][1].extend(sources(block))
+        found[path[-1][1]].extend(sources(block))
+        if block.startswith("CODE\n"):
+            continue
         settled, settings_next = settings_next or SETTINGS in block, False
-        if not settled and FIGURE.search(re.sub(r"`[^`]*`", "", block)) and not any(s for _, ss in stack for s in ss):
-            bad.append((line, block.splitlines()[0][:100]))
-    return bad
+        if not settled and FIGURE.search(re.sub(r"`[^`]*`", "", block)):
+            todo.append((line, block.splitlines()[0][:100], [s for _, s in path]))
+    return [(line, text) for line, text, sections in todo if not any(found[s] for s in sections)]
 
 
 def test_the_scan_sees_figures_and_sources():
     text = "# A\n\nIt takes 12 s (`bench/results/x.jsonl`).\n\n## B\n\nThen 3 dB.\n\n# C\n\nAnd 4 min.\n\n" \
-           "<!-- settings -->\n\nA 0.3 px low-pass.\n"
+           "<!-- settings -->\n\nA 0.3 px low-pass.\n\n# D\n\n```bash\nrun 5 s --out bench/results/y.jsonl\n```\n\n7 dB.\n" \
+           "\n# E\n\n```bash\nrun it 5 s\n```\n\n8 dB.\n"
     page = ROOT / "tests" / "_figures_probe.md"
     try:
         page.write_text(text)
-        assert [ln for ln, _ in unbacked(page)] == [11]  # B is under A's source; C has none; the setting is one
+        assert [ln for ln, _ in unbacked(page)] == [11, 31]  # B: under A's source; C: none; D: its command's
     finally:
         page.unlink()
     assert sources("see `speed.jsonl`, `meta.json` and bench/results/a/b.jsonl <!-- results: geoface/data/x.json, y -->") == [
