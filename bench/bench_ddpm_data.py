@@ -72,7 +72,7 @@ def make_items(root: Path, items: int, distinct: int, res: int, seed: int = 0) -
 _CHILD = """
 import json, resource, sys, time, torch
 torch.set_num_threads({threads})
-from geoface.learn.ddpm import DDPMConfig, train
+from geoface.ddpm.model import DDPMConfig, train
 cfg = DDPMConfig.preset("small", res={res}, steps={steps}, batch_size={batch}, text_encoder="hash:384",
                         checkpoint_every=10**9, augment=True)
 t = time.perf_counter()
@@ -129,7 +129,7 @@ def speed(a) -> None:
     import torch
     from torch.utils.flop_counter import FlopCounterMode
 
-    from geoface.learn.ddpm import DDPMConfig, build_scheduler, build_unet, ddpm_loss
+    from geoface.ddpm.model import DDPMConfig, build_scheduler, build_unet, ddpm_loss
 
     torch.set_num_threads(a.threads)
     dev = torch.device(a.device)

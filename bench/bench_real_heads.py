@@ -1,5 +1,5 @@
 """How long a labelled set of ICT-FaceKit heads takes to build, and how clean its heads are as
-meshes: the yardstick the DDPM's samples are judged against (``geoface.learn.evaluate.mesh_validity``).
+meshes: the yardstick the DDPM's samples are judged against (``geoface.ddpm.evaluate.mesh_validity``).
 
 Builds ``geoface dataset ict -o DIR --count N --res R --augment 1 --workers W`` in a fresh process
 (wall seconds, heads per minute, failures), then reconstructs every item and reports the share of
@@ -41,7 +41,7 @@ def main() -> None:
     import numpy as np
 
     from geoface.gimage import load_gimage
-    from geoface.learn.evaluate import mesh_validity
+    from geoface.ddpm.evaluate import mesh_validity
 
     with tempfile.TemporaryDirectory() as d:
         out = Path(d) / "ict"

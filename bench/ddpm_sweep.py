@@ -4,11 +4,11 @@ A GPU machine often has torch but not the text encoder's weights or the mesh lib
 script splits the work:
 
 ``pack`` (here) reads the training split of a ``geoface dataset ict`` output at one resolution in
-the dataset frame (:class:`geoface.learn.data.GImageDataset`, as ``ddpm train`` sees it), embeds
+the dataset frame (:class:`geoface.ddpm.data.GImageDataset`, as ``ddpm train`` sees it), embeds
 its prompts and the preset prompts with the run's text encoder, and writes one compressed file
 (residuals from the mean image quantised, :data:`STEPS`; token embeddings in float16).
 
-``train`` (there) trains each ``--variant`` on the pack with :func:`geoface.learn.ddpm.train`
+``train`` (there) trains each ``--variant`` on the pack with :func:`geoface.ddpm.model.train`
 (same loop, same losses), then draws ``--samples-per-prompt`` samples for each preset prompt and
 writes them with the run's state (``OUT/<variant>.npz``) and one JSON line per variant (steps,
 steps/s, seconds).
@@ -91,8 +91,8 @@ def pack(a) -> None:
 
     import torch
 
-    from geoface.learn.data import GImageDataset
-    from geoface.learn.text import make_text_encoder
+    from geoface.ddpm.data import GImageDataset
+    from geoface.ddpm.text import make_text_encoder
     from geoface.synth.ict_data import PRESET_PROMPTS
 
     ev = _eval_module()
@@ -122,7 +122,7 @@ def pack(a) -> None:
 
 
 class PackedData:
-    """The pack as the training loop's dataset (see ``geoface.learn.ddpm.train(dataset=)``)."""
+    """The pack as the training loop's dataset (see ``geoface.ddpm.model.train(dataset=)``)."""
 
     def __init__(self, z):
         meta = json.loads(str(z["meta"]))
@@ -187,7 +187,7 @@ def parse_variant(s: str) -> tuple[str, dict]:
 def train_variants(a) -> None:
     import torch
 
-    from geoface.learn.ddpm import DDPMConfig, build_unet, load_run, sample
+    from geoface.ddpm.model import DDPMConfig, build_unet, load_run, sample
 
     z = np.load(a.pack)
     meta = json.loads(str(z["meta"]))
@@ -220,7 +220,7 @@ def train_variants(a) -> None:
 
 
 def train(*args, **kw):
-    from geoface.learn.ddpm import train as _train
+    from geoface.ddpm.model import train as _train
     return _train(*args, **kw)
 
 

@@ -8,7 +8,7 @@ Every real item and every sample goes the same way: decoded in the run's dataset
 aligned to the mean training head by the best similarity transform over its pixels (a run
 trained with rigid augmentation samples heads in any pose), reconstructed to a mesh and
 rendered off-screen in grey from fixed cameras (front and three-quarter) under fixed lights
-(:class:`geoface.learn.render.HeadRenderer`).
+(:class:`geoface.ddpm.render.HeadRenderer`).
 
 Figures:
 
@@ -90,8 +90,8 @@ class Judge:
     """Align → reconstruct → render, the same for real items and samples."""
 
     def __init__(self, state: dict, ref: np.ndarray, size: int, views):
-        from geoface.learn.data import Normalization
-        from geoface.learn.render import HeadRenderer
+        from geoface.ddpm.data import Normalization
+        from geoface.ddpm.render import HeadRenderer
 
         self.state = state
         self.support = None  # pixels every training item covers (set once the real items are read)
@@ -103,7 +103,7 @@ class Judge:
     def align(self, X: np.ndarray, support=None) -> np.ndarray:
         """Positions of ``X [n, C, R, R]`` (normalised) moved onto the reference by a similarity;
         zero outside the coverage mask (``|normal| > 0.5``, or ``support``)."""
-        from geoface.learn.render import similarity_align
+        from geoface.ddpm.render import similarity_align
 
         out = X.copy()
         for k, x in enumerate(X):
@@ -120,8 +120,8 @@ class Judge:
         item covers count as covered), the rest as :meth:`__call__`."""
         import torch
 
-        from geoface.learn import evaluate as ev
-        from geoface.learn.ddpm import to_geometry_images
+        from geoface.ddpm import evaluate as ev
+        from geoface.ddpm.model import to_geometry_images
 
         return [ev.mesh_validity(g) for g in to_geometry_images(torch.from_numpy(self.align(X, self.support)), self.state,
                                                                  self.support)]
@@ -131,8 +131,8 @@ class Judge:
         import torch
 
         from geoface.gimage import reconstruct
-        from geoface.learn import evaluate as ev
-        from geoface.learn.ddpm import to_geometry_images
+        from geoface.ddpm import evaluate as ev
+        from geoface.ddpm.model import to_geometry_images
 
         gis = to_geometry_images(torch.from_numpy(self.align(X)), self.state)
         val, imgs = [], []
@@ -148,7 +148,7 @@ class Judge:
 
 
 def vendi_of(R: np.ndarray, mean: np.ndarray) -> float:
-    from geoface.learn import evaluate as ev
+    from geoface.ddpm import evaluate as ev
     return ev.vendi_score(ev.cosine_similarity((R - mean[None]).reshape(len(R), -1)))
 
 
@@ -242,10 +242,10 @@ def run(a) -> int:
     import cv2
     import torch
 
-    from geoface.learn import evaluate as ev
-    from geoface.learn.data import GImageDataset, Normalization
-    from geoface.learn.ddpm import DDPMConfig, load_run, sample, train
-    from geoface.learn.render import grid_image
+    from geoface.ddpm import evaluate as ev
+    from geoface.ddpm.data import GImageDataset, Normalization
+    from geoface.ddpm.model import DDPMConfig, load_run, sample, train
+    from geoface.ddpm.render import grid_image
     from geoface.synth.ict_data import PRESET_PROMPTS
 
     tmp = tempfile.TemporaryDirectory(prefix="eval_ddpm_")

@@ -82,7 +82,7 @@ def metrics(pred: dict, gt: np.ndarray, mask: np.ndarray) -> dict:
 
 def fit_baselines(files) -> dict:
     """The constant's mean maps and the photo baseline's per-channel gain, from training faces."""
-    from geoface.learn.texture import load_sample
+    from geoface.texture.model import load_sample
     s_map, n, num, den = np.zeros(7), 0, np.zeros(3), np.zeros(3)
     for f in files:
         d = load_sample(f, ("photo", "maps"))
@@ -127,8 +127,8 @@ def read_png16(path) -> np.ndarray:
 
 def run_4k(a, out: Path, model_dir: Path, fitted: dict) -> None:
     """Render one new face at ``a.size4k``², write its photo and landmarks, run the CLI on them."""
-    from geoface.learn.skin_synth import make_texture_dataset
-    from geoface.learn.texture import load_sample
+    from geoface.texture.synth import make_texture_dataset
+    from geoface.texture.model import load_sample
     from geoface.images import save_image
     size = a.size4k
     t = time.perf_counter()
@@ -204,9 +204,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     import torch
 
-    from geoface.learn.skin_synth import make_texture_dataset
-    from geoface.learn.texture import TextureModel, TextureTrainConfig, load_sample, reconstruct, train_texture
-    from geoface.learn.texture_nets import TextureNetConfig
+    from geoface.texture.synth import make_texture_dataset
+    from geoface.texture.model import TextureModel, TextureTrainConfig, load_sample, reconstruct, train_texture
+    from geoface.texture.nets import TextureNetConfig
     if a.quick:
         a.train, a.val, a.test, a.res, a.k, a.gde_res, a.epochs, a.size4k = 4, 2, 2, 128, 2, 64, "3,3,3", 512
     if a.threads:

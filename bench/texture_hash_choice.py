@@ -25,8 +25,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import eval_texture as E  # noqa: E402
-from geoface.learn.texture import TextureModel, TextureTrainConfig, load_sample, reconstruct, train_texture  # noqa: E402
-from geoface.learn.texture_nets import TextureNetConfig  # noqa: E402
+from geoface.texture.model import TextureModel, TextureTrainConfig, load_sample, reconstruct, train_texture  # noqa: E402
+from geoface.texture.nets import TextureNetConfig  # noqa: E402
 
 VARIANTS = {"no_hash": dict(use_hash=False), "hash_1024": dict(hash_max_res=1024), "hash_128": dict(hash_max_res=128),
             "hash_64_b8": dict(hash_max_res=64, hash_base_res=8), "hash_256_t12": dict(hash_max_res=256, hash_log2_table=12),

@@ -35,7 +35,7 @@ def main(argv=None) -> int:
     import torch
 
     import eval_texture as E
-    from geoface.learn.texture import TextureModel, TextureTrainConfig, load_sample, reconstruct, train_texture
+    from geoface.texture.model import TextureModel, TextureTrainConfig, load_sample, reconstruct, train_texture
 
     torch.set_num_threads(a.threads)
     root = Path(a.eval_dir)

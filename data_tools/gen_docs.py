@@ -26,7 +26,7 @@ LAYERS = [
     ("Geometry", ["geoface.mesh", "geoface.synth", "geoface.repair", "geoface.param", "geoface.gimage", "geoface.uvmap"]),
     ("Pipelines", ["geoface.pipeline", "geoface.dataset"]),
     ("Pictures", ["geoface.viz", "geoface.webview"]),
-    ("Neural consumers", ["geoface.nn", "geoface.learn", "geoface.skin", "geoface.splat"]),
+    ("Neural consumers", ["geoface.nn", "geoface.ddpm", "geoface.texture", "geoface.skin", "geoface.splat"]),
     ("Avatars", ["geoface.track", "geoface.avatar", "geoface.hfm", "geoface.thgs", "geoface.drive"]),
 ]
 

@@ -34,7 +34,7 @@ that finishes in a minute on a laptop CPU:
 
 1. **data** — real heads from the ICT-FaceKit morphable model, with expressions and prompts measured
    from the geometry, converted to geometry images (`geoface.dataset.build_ict_dataset`)
-2. **train** — a `tiny` UNet for a few dozen steps (`geoface.learn.ddpm.train`)
+2. **train** — a `tiny` UNet for a few dozen steps (`geoface.ddpm.model.train`)
 3. **sample** — draw heads for a prompt, decode them to geometry images and meshes, judge them
 
 A model this small, trained this briefly, draws noise: the point here is the API. The measured
@@ -84,7 +84,7 @@ fig.suptitle("position (top) and normal (bottom) images"); plt.show()"""),
 `DDPMConfig.preset` names the model sizes (`tiny` here; `small`, 5.9 M parameters, is the command
 line's default). Items are read lazily; positions are normalised once for the whole dataset and the
 frame is stored with the checkpoint, so samples decode to centimetres."""),
-    new_code_cell("""from geoface.learn.ddpm import DDPMConfig, train
+    new_code_cell("""from geoface.ddpm.model import DDPMConfig, train
 
 cfg = DDPMConfig.preset("tiny", res=RES, text_encoder=TEXT, batch_size=4, steps=STEPS, checkpoint_every=STEPS)
 last = train(data, WORK / "run", cfg, quiet=True)
@@ -94,8 +94,8 @@ print(f"{last['step']} steps, loss {last['loss']:.3f} ({last['steps_per_second']
 `sample` runs DDIM with classifier-free guidance; `to_geometry_images` decodes the samples in the
 dataset's frame; `mesh_validity` rebuilds each one as a mesh and checks that it is one clean disk,
 as real items are. (Expect invalid samples from a model trained for a minute.)"""),
-    new_code_cell("""from geoface.learn.ddpm import load_run, sample, to_geometry_images
-from geoface.learn.evaluate import mesh_validity
+    new_code_cell("""from geoface.ddpm.model import load_run, sample, to_geometry_images
+from geoface.ddpm.evaluate import mesh_validity
 
 run = load_run(WORK / "run")
 x = sample(run, "a smiling face", n=SAMPLES, steps=20, quiet=True)
@@ -225,8 +225,8 @@ WORK = Path(tempfile.mkdtemp(prefix="geoface_tex_nb_"))"""),
 Each sample is a procedural head with procedural skin (pores, freckles, specular variation) seen
 from a near-frontal camera under random lights; the sample stores the photo and the true maps in
 image space."""),
-    new_code_cell("""from geoface.learn.skin_synth import make_texture_dataset
-from geoface.learn.texture import load_sample
+    new_code_cell("""from geoface.texture.synth import make_texture_dataset
+from geoface.texture.model import load_sample
 
 paths = make_texture_dataset(WORK / "tex", count=COUNT + 1, res=RES, map_res=256, vertices=4000, quiet=True)
 train_dir = WORK / "train"; train_dir.mkdir()
@@ -241,8 +241,8 @@ plt.show()"""),
     new_markdown_cell("""## 2. Train the three stages
 
 Predictor, then GDE + hash encoding, then HFDR on patches (`k` × `k` per image)."""),
-    new_code_cell("""from geoface.learn.texture import TextureTrainConfig, train_texture
-from geoface.learn.texture_nets import TextureNetConfig
+    new_code_cell("""from geoface.texture.model import TextureTrainConfig, train_texture
+from geoface.texture.nets import TextureNetConfig
 
 nets = TextureNetConfig(predictor_widths=[8, 16], gde_widths=[8, 16], hfdr_widths=[8, 16], hash_log2_table=12, hash_max_res=128)
 cfg = TextureTrainConfig(nets=nets, gde_res=RES // 4, k=2, epochs=(EPOCHS,) * 3, lr=3e-3, batch=2, hfdr_patches=2)
@@ -255,7 +255,7 @@ ax.set_xlabel("epoch"); ax.set_ylabel("loss"); ax.legend(); plt.show()"""),
 
 `reconstruct(..., refine=False)` is the baseline (GDE maps upsampled); the full model adds HFDR.
 PSNR inside the face mask, against the true maps."""),
-    new_code_cell("""from geoface.learn.texture import TextureModel, reconstruct
+    new_code_cell("""from geoface.texture.model import TextureModel, reconstruct
 from geoface.splat.fit import psnr
 
 model = TextureModel.load(WORK / "model")

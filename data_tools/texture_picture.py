@@ -17,7 +17,7 @@ def main() -> int:
     import cv2
     import numpy as np
 
-    from geoface.learn.texture import TextureModel, load_sample, reconstruct
+    from geoface.texture.model import TextureModel, load_sample, reconstruct
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("eval_out", type=Path)

@@ -39,8 +39,8 @@ def lazy_import(name: str, feature: str = "") -> ModuleType:
 def lazy_exports(package: str, names: dict[str, str]):
     """A package's public names, imported on first use: ``names`` maps each name to the module
     that defines it (relative to ``package`` unless it holds a dot).  Returns ``__getattr__``,
-    ``__dir__`` and ``__all__`` for the package's ``__init__``, so that ``from geoface.learn
-    import sample`` works while ``import geoface.learn`` stays free of torch.
+    ``__dir__`` and ``__all__`` for the package's ``__init__``, so that ``from geoface.ddpm
+    import sample`` works while ``import geoface.ddpm`` stays free of torch.
 
     A name may not be the name of its own module: once that submodule is imported, Python
     binds the package attribute to the module and ``from package import name`` would return

@@ -56,6 +56,14 @@ class ModelFolderError(AvatarError, CheckpointError):
     """A saved avatar model folder that cannot be read (a :class:`CheckpointError` too)."""
 
 
+class TextEncoderError(GeofaceError):
+    """A text encoder could not be built or loaded (bad name, missing local weights)."""
+
+
+class LearnError(GeofaceError):
+    """An invalid argument or input to a neural component (shapes, sizes, options)."""
+
+
 class MissingDependencyError(GeofaceError, ImportError):
     """An optional dependency needed by the requested feature is not installed."""
 

@@ -241,7 +241,7 @@ def test_public_entries_refuse_wrong_types():
 
 
 def test_safetensors_get_the_users_umask(tmp_path):
-    from geoface.learn.data import DataStats
+    from geoface.ddpm.data import DataStats
 
     st = DataStats(mean=np.zeros((3, 4, 4), np.float32), std=np.ones(3, np.float32), bound=1.0)
     st.save(tmp_path / "s.safetensors")
@@ -262,7 +262,7 @@ def test_a_dataset_build_on_a_full_disk_stops_with_one_line(full_disk, tmp_path)
                                          ("text_max_length", -1), ("lr", float("nan")), ("block_out_channels", (64, 0)),
                                          ("ema_decay", 1.0), ("batch_size", True)])
 def test_ddpm_configs_are_bounded(field, value):
-    from geoface.learn.ddpm import DDPMConfig
+    from geoface.ddpm.model import DDPMConfig
 
     with pytest.raises(GeofaceError, match=field):
         DDPMConfig(**{field: value})
@@ -272,7 +272,7 @@ def test_ddpm_configs_are_bounded(field, value):
                                    {"step": -1, "bbox_min": [0, 0, 0], "bbox_max": [1, 1, 1]},
                                    {"step": 1, "bbox_min": [0, 0, 0], "bbox_max": [1, 0, 1]}])
 def test_ddpm_state_files_are_checked(state, tmp_path):
-    from geoface.learn.ddpm_checkpoint import check_state
+    from geoface.ddpm.checkpoint import check_state
 
     with pytest.raises(GeofaceError):
         check_state(state, tmp_path / "state.json")
@@ -281,7 +281,7 @@ def test_ddpm_state_files_are_checked(state, tmp_path):
 
 @pytest.mark.parametrize("spec", ["hash:abc", "hash:-5", "hash:0", "hash:", "nonsense"])
 def test_text_encoder_specs(spec):
-    from geoface.learn.text import make_text_encoder
+    from geoface.ddpm.text import make_text_encoder
 
     with pytest.raises(GeofaceError):
         make_text_encoder(spec)
@@ -289,7 +289,7 @@ def test_text_encoder_specs(spec):
 
 
 def test_texture_and_camera_and_gimage_values_are_checked(tmp_path):
-    from geoface.learn.texture import TextureTrainConfig
+    from geoface.texture.model import TextureTrainConfig
     from geoface.avatar.capture import camera_from_json
 
     for kw in ({"k": 0}, {"gde_res": 1e9}, {"epochs": (1, 2)}, {"lr": -1.0}):
@@ -374,7 +374,7 @@ def _fill(folder: Path) -> None:
 
 
 def test_ddpm_train_on_a_full_disk_is_one_line_and_leaves_no_run(full_disk, tmp_path):
-    from tests.learn.conftest import make_gimage_dataset
+    from tests.ddpm.conftest import make_gimage_dataset
 
     data = make_gimage_dataset(tmp_path / "data", n_items=4, N=16)
     _fill(full_disk)

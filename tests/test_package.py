@@ -31,3 +31,20 @@ def test_missing_dependency_hint():
         assert "pip install" in str(exc) and "a test" in str(exc)
     else:  # pragma: no cover
         raise AssertionError("expected MissingDependencyError")
+
+
+def test_the_old_learn_names_still_resolve_with_a_warning():
+    """geoface.learn split into geoface.ddpm and geoface.texture; the old front door warns and
+    hands over the same objects."""
+    import warnings
+
+    import geoface.learn as old
+    from geoface.ddpm import load_run
+    from geoface.texture import TextureModel
+
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        assert old.load_run is load_run and old.TextureModel is TextureModel
+    assert [str(x.message) for x in w] == ["geoface.learn.load_run is deprecated: import it from geoface.ddpm",
+                                           "geoface.learn.TextureModel is deprecated: import it from geoface.texture"]
+    assert all(x.category is DeprecationWarning for x in w)

@@ -302,7 +302,7 @@ def test_montage_labels_are_legible_on_every_tile(tmp_path):
     of `view DIR --screenshot` names only the tiles that are there."""
     from geoface.gimage import load_gimage
     from geoface.viz import gimage_montage
-    from tests.learn.conftest import make_gimage_dataset
+    from tests.ddpm.conftest import make_gimage_dataset
 
     root = make_gimage_dataset(tmp_path / "gi", n_items=1, N=16)
     folder = root / "head_000" / "aug0"

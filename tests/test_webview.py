@@ -214,7 +214,7 @@ def test_a_file_name_with_html_is_shown_as_text(browser, tmp_path):
 
 
 def test_web_view_of_a_geometry_image_folder(browser, tmp_path):
-    from tests.learn.conftest import make_gimage_dataset
+    from tests.ddpm.conftest import make_gimage_dataset
 
     root = make_gimage_dataset(tmp_path / "gi", n_items=1, N=16)
     proc, url, lines = _serve(root / "head_000" / "aug0")
@@ -235,7 +235,7 @@ def test_geometry_image_tiles_stand_upright(browser, tmp_path):
     bottom-right of each other in the page."""
     import cv2
 
-    from tests.learn.conftest import make_gimage_dataset
+    from tests.ddpm.conftest import make_gimage_dataset
 
     root = make_gimage_dataset(tmp_path / "gi", n_items=1, N=16)
     folder = root / "head_000" / "aug0"

@@ -25,7 +25,7 @@ def _quiet(args):
 
 
 def cmd_ddpm_train(args) -> int:
-    from geoface.learn.ddpm import DDPMConfig, train
+    from geoface.ddpm.model import DDPMConfig, train
 
     if args.res < 8 or args.steps < 1 or args.batch < 1:
         raise GeofaceError("--res must be >= 8, --steps and --batch >= 1")
@@ -58,7 +58,7 @@ def cmd_ddpm_train(args) -> int:
 def cmd_ddpm_sample(args) -> int:
     from geoface.gimage import reconstruct, save_gimage, save_reconstruction
 
-    from geoface.learn.ddpm import load_run, sample, to_geometry_images
+    from geoface.ddpm.model import load_run, sample, to_geometry_images
 
     if args.n < 1 or args.steps < 1:
         raise GeofaceError("-n and --steps must be >= 1")
@@ -69,7 +69,7 @@ def cmd_ddpm_sample(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     # the pixels every training item covers are covered in every sample (runs that stored them)
     support = run.stats.support if run.stats is not None else None
-    from geoface.learn.evaluate import mesh_validity
+    from geoface.ddpm.evaluate import mesh_validity
 
     valid = 0
     gis = to_geometry_images(x, run.state, support)

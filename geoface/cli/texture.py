@@ -17,7 +17,7 @@ from geoface.images import save_image
 
 __all__ = ["register"]
 
-from geoface.learn.texture_uv import MAP_CHANNELS as MAP_FILES  # noqa: E402  (argparse only: texture_uv imports no torch)
+from geoface.texture.uv import MAP_CHANNELS as MAP_FILES  # noqa: E402  (argparse only: texture_uv imports no torch)
 
 
 def _quiet(args):
@@ -50,7 +50,7 @@ def _read_camera(path):
 def cmd_synth(args) -> int:
     from geoface._io import atomic_dir
 
-    from geoface.learn.skin_synth import make_texture_dataset
+    from geoface.texture.synth import make_texture_dataset
     with atomic_dir(args.output, overwrite=True) as tmp:  # complete or absent (the output policy ran first)
         paths = make_texture_dataset(tmp, args.count, args.res, args.map_res, seed=args.seed,
                                      vertices=args.vertices, quiet=_quiet(args), head_source=args.heads,
@@ -71,8 +71,8 @@ def _three(text: str, conv, msg: str) -> tuple:
 
 
 def cmd_train(args) -> int:
-    from geoface.learn.texture import TextureTrainConfig, train_texture
-    from geoface.learn.texture_nets import TextureNetConfig
+    from geoface.texture.model import TextureTrainConfig, train_texture
+    from geoface.texture.nets import TextureNetConfig
     epochs = _three(args.epochs, int, "--epochs must be three counts like 20,20,20 (predictor, GDE, HFDR)")
     weights = _three(args.map_weights, float, "--map-weights must be three weights like 1,4,1 (albedo, micronormal, specular)")
     hfdr_w = _three(args.hfdr_map_weights, float, "--hfdr-map-weights must be three weights like 1,8,1 (albedo, micronormal, specular)")
@@ -81,7 +81,7 @@ def cmd_train(args) -> int:
                              epochs=epochs, lr=args.lr, batch=args.batch, seed=args.seed, map_weights=weights,
                              hfdr_map_weights=hfdr_w)
     if args.init is not None:  # the networks' sizes come from the model trained before
-        from geoface.learn.texture import TextureModel
+        from geoface.texture.model import TextureModel
         nets = TextureModel.load(args.init).cfg.nets
         if nets.use_hash == args.no_hash:
             raise GeofaceError(f"{args.init} was trained {'with' if nets.use_hash else 'without'} hash encoding; "
@@ -99,8 +99,8 @@ def cmd_train(args) -> int:
 
 
 def cmd_reconstruct(args) -> int:
-    from geoface.learn.texture import TextureModel
-    from geoface.learn.texture_uv import CameraSeesNothingError, reconstruct_textures
+    from geoface.texture.model import TextureModel
+    from geoface.texture.uv import CameraSeesNothingError, reconstruct_textures
 
     if (args.mesh is None) != (args.camera is None):
         raise GeofaceError("--mesh and --camera go together (the camera that took the photo of that mesh)")

@@ -1,25 +1,21 @@
-"""Neural consumers of geometry images: the text-guided DDPM of heads and the GDE/HFDR skin
-textures.  Importing this package does not import torch; each name loads its module (and
-torch) when first used.
-
->>> from geoface.learn import load_run, sample
->>> run = load_run("run/")                       # doctest: +SKIP
->>> x = sample(run, "a smiling female", n=4)     # doctest: +SKIP
+"""Deprecated: the two neural consumers that lived here are packages of their own since 0.3 —
+:mod:`geoface.ddpm` (the text-guided DDPM of heads) and :mod:`geoface.texture` (the GDE/HFDR skin
+textures). The old names still resolve, with a :class:`DeprecationWarning`.
 """
+import warnings
+
 from .._lazy import lazy_exports
 
-__getattr__, __dir__, __all__ = lazy_exports("geoface.learn", {
-    # the diffusion model of heads
-    "DDPMConfig": "ddpm", "DiffusionRun": "ddpm", "train": "ddpm", "load_run": "ddpm", "sample": "ddpm",
-    "to_geometry_images": "ddpm",
-    "GImageDataset": "data", "find_items": "data", "DataStats": "data",
-    "make_text_encoder": "text", "TextEncoder": "text",
-    # how samples are judged
-    "mesh_validity": "evaluate", "Validity": "evaluate",
-    # skin textures (GDE/HFDR)
-    "TextureTrainConfig": "texture", "TextureModel": "texture", "train_texture": "texture",
-    "reconstruct_textures": "texture_uv", "TextureReconstruction": "texture_uv",
-    "CameraSeesNothingError": "texture_uv",
-    "make_texture_dataset": "skin_synth",
-    "LearnError": "errors", "CheckpointError": "errors", "TextEncoderError": "errors",
-})
+_ddpm = ("DDPMConfig", "DiffusionRun", "train", "load_run", "sample", "to_geometry_images", "GImageDataset",
+         "find_items", "DataStats", "make_text_encoder", "TextEncoder", "mesh_validity", "Validity", "TextEncoderError")
+_texture = ("TextureTrainConfig", "TextureModel", "train_texture", "reconstruct_textures", "TextureReconstruction",
+            "CameraSeesNothingError", "make_texture_dataset", "LearnError")
+_get, __dir__, __all__ = lazy_exports("geoface.learn", {
+    **{n: "geoface.ddpm" for n in _ddpm}, **{n: "geoface.texture" for n in _texture}, "CheckpointError": "geoface.errors"})
+
+
+def __getattr__(name):
+    value = _get(name)
+    home = _get.homes[name]
+    warnings.warn(f"geoface.learn.{name} is deprecated: import it from {home}", DeprecationWarning, stacklevel=2)
+    return value

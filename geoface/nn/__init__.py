@@ -1,4 +1,4 @@
-"""Pieces shared by the neural consumers (:mod:`geoface.learn`, :mod:`geoface.splat`), so that
+"""Pieces shared by the neural consumers (:mod:`geoface.ddpm`, :mod:`geoface.texture`, :mod:`geoface.splat`), so that
 neither imports the other:
 
 * :mod:`geoface.nn.hashenc` — multiresolution hash encodings (dense, 2D UV, tri-plane);

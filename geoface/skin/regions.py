@@ -16,7 +16,7 @@ too, up to the landmarks' small UV drift):
 
 Sizes are fractions of the face's own landmark distances (eye width, brow-to-chin), so the
 masks follow the layout, not the resolution; edges are softened by a Gaussian of 0.4 % of the
-tile.  :func:`geoface.learn.skin_synth.skin_maps` takes these masks (``regions=``) and varies
+tile.  :func:`geoface.texture.synth.skin_maps` takes these masks (``regions=``) and varies
 pores, colour, hair, lines and shine by region.
 """
 from __future__ import annotations

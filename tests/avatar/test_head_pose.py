@@ -155,7 +155,7 @@ def test_range_of_motion_opens_the_registration_with_each_emotion_at_full_weight
 def test_lit_frames_change_with_pose_under_fixed_lights(ict_capture):
     """The lights stay in the world: the same person in two poses is not just a moved image —
     shading changes (a frame's mean brightness differs beyond what a small move explains)."""
-    from geoface.learn.skin_synth import random_lights
+    from geoface.texture.synth import random_lights
 
     d = random_lights(np.random.default_rng(0), 3)[0]
     assert np.allclose(np.linalg.norm(d, axis=1), 1)

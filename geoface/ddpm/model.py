@@ -13,7 +13,7 @@ position (0-2), normal (3-5), texture (6-8).  **Unmasked**: the background is pa
 (zeros), so the model also learns the coverage; at sampling the mask is ``|normal| > 0.5``.
 
 Standardised data (beyond the paper; ``standardize=True``, the default): the UNet denoises
-``(x - mean) / std`` (:class:`geoface.learn.data.DataStats`: the dataset's mean image and one
+``(x - mean) / std`` (:class:`geoface.ddpm.data.DataStats`: the dataset's mean image and one
 spread per modality), not ``x``.  Heads differ from one another by a few hundredths of the box,
 so a model that denoises raw images must first learn the mean head to that precision before its
 samples are surfaces at all; denoising the residual, its errors are scaled down by ``std``.
@@ -22,8 +22,8 @@ Measured on 1,000 ICT heads at 64² after an hour on a CPU: see ``docs/ddpm.md``
 Classifier-free guidance (beyond the paper, optional): with probability ``cfg_dropout`` a
 training prompt is replaced by ``""``; sampling mixes ``eps_u + w (eps_c - eps_u)``.
 
-The run's hyper-parameters are :mod:`geoface.learn.ddpm_config`; its checkpoints (what a run
-folder holds, loading a run for sampling) are :mod:`geoface.learn.ddpm_checkpoint`.
+The run's hyper-parameters are :mod:`geoface.ddpm.config`; its checkpoints (what a run
+folder holds, loading a run for sampling) are :mod:`geoface.ddpm.checkpoint`.
 """
 from __future__ import annotations
 
@@ -33,12 +33,12 @@ from pathlib import Path
 
 import torch
 
-from .ddpm_checkpoint import STATS_FILE, DiffusionRun, load_run, save_checkpoint  # noqa: F401  (STATS_FILE: public here too)
-from .ddpm_checkpoint import load_st, load_state_dict, load_stats, optim_from_tensors
-from .ddpm_config import PREDICTIONS, PRESETS, DDPMConfig  # noqa: F401  (public here too)
+from .checkpoint import STATS_FILE, DiffusionRun, load_run, save_checkpoint  # noqa: F401  (STATS_FILE: public here too)
+from .checkpoint import load_st, load_state_dict, load_stats, optim_from_tensors
+from .config import PREDICTIONS, PRESETS, DDPMConfig  # noqa: F401  (public here too)
 from .diffusion import (EMA, PatchedUNet, build_scheduler, build_unet, ddpm_loss, ddpm_target,  # noqa: F401
                         learning_rate, shifted_cosine_betas)
-from .errors import CheckpointError
+from ..errors import CheckpointError
 
 __all__ = ["DDPMConfig", "build_unet", "build_scheduler", "ddpm_loss", "EMA", "DiffusionRun",
            "train", "load_run", "sample", "MODALITY_SLICES", "PatchedUNet", "shifted_cosine_betas", "ddpm_target",
@@ -64,16 +64,16 @@ def train(data_dir: str | os.PathLike, run_dir: str | os.PathLike, cfg: DDPMConf
     ``cfg.checkpoint_every`` steps.
 
     Data: items are read lazily (``cache_mb`` of decoded items kept, see
-    :class:`geoface.learn.data.GImageDataset`) in one position frame for the whole dataset,
+    :class:`geoface.ddpm.data.GImageDataset`) in one position frame for the whole dataset,
     stored in the checkpoint's ``state.json`` (``normalization``) and used to decode samples.
     Under ``accelerate launch`` each process draws from its own shard of the items with its
-    own seed (:class:`geoface.learn.data.ShardSampler`); ``loader_workers`` processes decode
+    own seed (:class:`geoface.ddpm.data.ShardSampler`); ``loader_workers`` processes decode
     items in the background (0 = in the training process).
 
     Progress: :class:`geoface.progress.StepProgress` (a bar on a terminal, a line every 10 s
     elsewhere) with steps/s, the time left and the loss.
 
-    ``dataset``: train on this :class:`geoface.learn.data.GImageDataset`-like object (items,
+    ``dataset``: train on this :class:`geoface.ddpm.data.GImageDataset`-like object (items,
     ``modalities``, ``channels``, ``prompts``, ``bbox_stats()``) instead of reading ``data_dir``.
 
     ``gradient_checkpointing``: recompute the UNet's activations in the backward pass instead
@@ -263,7 +263,7 @@ def to_geometry_images(x: torch.Tensor, state: dict, support=None) -> list:
         img = img * mask[None]
         meta = {"bbox_min": list(state["bbox_min"]), "bbox_max": list(state["bbox_max"]),
                 "channels": [c for m in mods for c in MODALITIES[m]],
-                "resolution": int(img.shape[-1]), "version": FORMAT_VERSION, "align_corners": True, "source": "geoface.learn.ddpm"}
+                "resolution": int(img.shape[-1]), "version": FORMAT_VERSION, "align_corners": True, "source": "geoface.ddpm.model"}
         if "normalization" in state:
             meta["normalization"] = state["normalization"]
         out.append(GeometryImage(img, mask, meta))

@@ -1,7 +1,7 @@
 """Skin maps from one photo, in the photo's frame and in a mesh's UV space: what
 ``geoface texture reconstruct`` does, as one library call (:func:`reconstruct_textures`).
 
-The network (:func:`geoface.learn.texture.reconstruct`) gives albedo, micro-normal and specular
+The network (:func:`geoface.texture.model.reconstruct`) gives albedo, micro-normal and specular
 maps aligned with the photo. With a mesh and the camera that took the photo, each map is
 projected into the mesh's UV space (:func:`geoface.uvmap.project_views`) and the texels no
 camera ray sees are filled by push-pull (:func:`geoface.uvmap.inpaint`). With 2D landmarks
@@ -47,12 +47,12 @@ class TextureReconstruction:
 def reconstruct_textures(model, photo: np.ndarray, *, mesh=None, camera=None, landmarks=None, focal: float | None = None,
                          uv_size: int = 1024, k: int | None = None, refine: bool = True) -> TextureReconstruction:
     """Skin maps of ``photo`` ((H, W, 3) float in [0, 1]) by ``model`` (a trained
-    :class:`geoface.learn.texture.TextureModel`), and, given ``mesh`` (a :class:`geoface.mesh.io.Mesh`
+    :class:`geoface.texture.model.TextureModel`), and, given ``mesh`` (a :class:`geoface.mesh.io.Mesh`
     with UVs) and ``camera`` (:class:`geoface.camera.Camera`) or ``landmarks`` ((68, 2) pixels,
     iBUG order, or ``"track"``: found in the photo by MediaPipe, :mod:`geoface.track`), the same
     maps in UV space at ``uv_size``². ``focal`` (pixels) fixes the landmark fit's focal length
     instead of fitting it."""
-    from .texture import reconstruct
+    from .model import reconstruct
 
     photo = np.asarray(photo)
     if photo.ndim != 3 or photo.shape[2] != 3:

@@ -13,7 +13,7 @@ from geoface.skin.render import *  # noqa: F401,F403  (the renderer, kept import
 from geoface.skin.render import (IRIS, ict_eyes, ict_source, pixel_average, random_lights,  # noqa: F401
                                  render_skin_sample, skin_maps, unweld_uv, sample_uv_map, uv_grid_v, periodic_noise)
 
-from .errors import LearnError
+from ..errors import LearnError
 
 
 def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, vertices: int, head_source: str = "procedural",
@@ -21,7 +21,7 @@ def _write_texture_sample(path, i: int, seed: int, res: int, map_res: int, verti
     from geoface.camera import look_at
     from geoface.synth import procedural_head
 
-    from .texture import save_sample
+    from .model import save_sample
 
     rng = np.random.default_rng([seed, i])
     eyes = None
@@ -62,7 +62,7 @@ def make_texture_dataset(out_dir, count: int = 8, res: int = 512, map_res: int |
                          seed: int = 0, vertices: int = 20000, workers: int = 1,
                          quiet: bool | None = None, head_source: str = "procedural", supersample: int = 2) -> list:
     """Write ``count`` texture-model samples (``sample_XXXX.npz``, see
-    :func:`geoface.learn.texture.save_sample`) of procedural skin on heads, each from a
+    :func:`geoface.texture.model.save_sample`) of procedural skin on heads, each from a
     jittered near-frontal camera under random lights.  ``head_source``: ``"procedural"`` (our
     head, stationary skin) or ``"ict"`` (ICT-FaceKit people with random expressions, skin by
     facial region on the model's UV layout; pixels outside its face tile are masked out).

@@ -7,9 +7,9 @@ pytest.importorskip("diffusers")
 pytest.importorskip("accelerate")
 
 from geoface import GeofaceError
-from geoface.learn.ddpm import (DDPMConfig, build_unet, ddpm_loss, load_run, sample,
+from geoface.ddpm.model import (DDPMConfig, build_unet, ddpm_loss, load_run, sample,
                                 to_geometry_images, train)
-from geoface.learn.errors import CheckpointError
+from geoface.errors import CheckpointError
 
 
 def tiny(**kw):
@@ -136,7 +136,7 @@ def test_standardisation_roundtrip_and_old_runs(gimage_dataset, tmp_path):
     error; a config from before standardisation loads unstandardised."""
     import json
 
-    from geoface.learn.data import DataStats, GImageDataset, data_stats
+    from geoface.ddpm.data import DataStats, GImageDataset, data_stats
     ds = GImageDataset(gimage_dataset, res=8)
     st = data_stats(ds)
     X = torch.stack([ds[i]["image"] for i in range(len(ds))])
@@ -197,7 +197,7 @@ def test_shifted_schedule_lowers_log_snr_by_2_log_shift():
 
     import numpy as np
 
-    from geoface.learn.ddpm import build_scheduler, shifted_cosine_betas
+    from geoface.ddpm.model import build_scheduler, shifted_cosine_betas
     base = build_scheduler(tiny(num_train_timesteps=1000)).alphas_cumprod.double().numpy()
     s1 = np.cumprod(1 - np.asarray(shifted_cosine_betas(1000, 1.0)))
     assert np.allclose(s1, base, rtol=1e-5, atol=1e-9)  # shift 1 = diffusers' squaredcos_cap_v2
@@ -208,7 +208,7 @@ def test_shifted_schedule_lowers_log_snr_by_2_log_shift():
 
 
 def test_prediction_targets():
-    from geoface.learn.ddpm import build_scheduler, ddpm_target
+    from geoface.ddpm.model import build_scheduler, ddpm_target
     g = torch.Generator().manual_seed(0)
     x0, eps = torch.randn(3, 9, 8, 8, generator=g), torch.randn(3, 9, 8, 8, generator=g)
     t = torch.tensor([1, 20, 45])
@@ -225,7 +225,7 @@ def test_prediction_targets():
 def test_per_pixel_standardisation_and_support(gimage_dataset, tmp_path):
     """Per-pixel spreads: every pixel of every modality has unit spread over the items (where the
     floor does not act); the support is the pixels all items cover and survives a save."""
-    from geoface.learn.data import DataStats, GImageDataset, data_stats
+    from geoface.ddpm.data import DataStats, GImageDataset, data_stats
     ds = GImageDataset(gimage_dataset, res=8)
     X = torch.stack([ds[i]["image"] for i in range(len(ds))])
     M = torch.stack([ds[i]["mask"] for i in range(len(ds))])[:, 0] > 0.5
@@ -260,7 +260,7 @@ def test_per_pixel_standardisation_and_support(gimage_dataset, tmp_path):
 
 
 def test_cosine_learning_rate():
-    from geoface.learn.ddpm import learning_rate
+    from geoface.ddpm.model import learning_rate
     c = tiny(lr=1e-3, steps=101, lr_schedule="cosine")
     lrs = [learning_rate(c, s) for s in range(101)]
     assert lrs[0] == pytest.approx(1e-3) and lrs[-1] == pytest.approx(1e-4) and lrs[50] == pytest.approx(5.5e-4)

@@ -17,7 +17,7 @@ def test_synth_train_reconstruct_end_to_end(tmp_path, capsys):
     assert (model / "model.safetensors").is_file() and json.loads((model / "config.json").read_text())["k"] == 2
     import cv2
 
-    from geoface.learn.texture import load_sample
+    from geoface.texture.model import load_sample
     photo = load_sample(data / "sample_0000.npz")["photo"]
     cv2.imwrite(str(tmp_path / "photo.png"), (photo[:, :, ::-1] * 255).astype(np.uint8))
     # with a mesh + camera: the maps also land in the mesh's UV space
@@ -68,7 +68,7 @@ def test_synth_train_reconstruct_end_to_end(tmp_path, capsys):
     # the same as one library call: what the command wrote is what reconstruct_textures returns
     from geoface.camera import Camera
     from geoface.images import read_image
-    from geoface.learn import TextureModel, reconstruct_textures
+    from geoface.texture import TextureModel, reconstruct_textures
     from geoface.mesh.io import load_mesh
 
     cam = {"K": [[60, 0, 32], [0, 60, 32], [0, 0, 1]], "R": np.diag([1.0, -1.0, -1.0]), "t": [0, 0, 2]}
@@ -122,7 +122,7 @@ def test_corrupt_model_is_one_line_exit_2(tmp_path, capsys):
 def test_a_model_saved_over_a_link_replaces_the_link_and_leaves_no_temporary(tmp_path):
     """``texture train -o LINK --force`` trained, then failed on "Cannot call rmtree on a symbolic
     link" and left ``.LINK.tmp/``: the link itself is replaced (its target untouched), nothing left."""
-    from geoface.learn.texture import TextureModel, TextureTrainConfig
+    from geoface.texture.model import TextureModel, TextureTrainConfig
 
     target = tmp_path / "theirs"
     target.mkdir()
@@ -137,7 +137,7 @@ def test_a_model_saved_over_a_link_replaces_the_link_and_leaves_no_temporary(tmp
 def test_an_unknown_key_in_a_texture_models_config_is_refused(tmp_path):
     """A key the config does not have (a typo, another model's file) once loaded silently."""
     from geoface.errors import CheckpointError
-    from geoface.learn.texture import TextureModel, TextureTrainConfig
+    from geoface.texture.model import TextureModel, TextureTrainConfig
 
     d = tmp_path / "m"
     TextureModel(TextureTrainConfig()).save(d)

@@ -1,4 +1,4 @@
-"""The hyper-parameters of a text-guided DDPM run (:mod:`geoface.learn.ddpm`): :class:`DDPMConfig`,
+"""The hyper-parameters of a text-guided DDPM run (:mod:`geoface.ddpm.model`): :class:`DDPMConfig`,
 checked on construction and saved as the checkpoint's ``config.json``, and the named model
 sizes (:data:`PRESETS`)."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .._io import atomic_write_text
-from .errors import CheckpointError
+from ..errors import CheckpointError
 
 
 PREDICTIONS = ("epsilon", "v_prediction", "sample")

@@ -5,7 +5,7 @@ import pytest
 pytest.importorskip("pyvista")
 
 from geoface import GeofaceError
-from geoface.learn.render import HeadRenderer, grid_image, similarity_align
+from geoface.ddpm.render import HeadRenderer, grid_image, similarity_align
 from geoface.synth.surfaces import sphere
 
 

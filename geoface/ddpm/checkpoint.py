@@ -1,4 +1,4 @@
-"""Checkpoints of a text-guided DDPM run (:mod:`geoface.learn.ddpm`): writing one atomically,
+"""Checkpoints of a text-guided DDPM run (:mod:`geoface.ddpm.model`): writing one atomically,
 loading a run for sampling (:class:`DiffusionRun`), and checking what is read.
 
 Checkpoints (``RUN_DIR/checkpoint/``): ``config.json``, ``model.safetensors``,
@@ -15,9 +15,9 @@ from pathlib import Path
 
 import torch
 
-from .ddpm_config import DDPMConfig
+from .config import DDPMConfig
 from .diffusion import EMA, build_unet
-from .errors import CheckpointError
+from ..errors import CheckpointError
 
 STATS_FILE = "data_stats.safetensors"
 
@@ -84,7 +84,7 @@ def load_st(path: Path) -> dict:
 @dataclass
 class DiffusionRun:
     """A loaded run: config, UNet (EMA weights when ``use_ema``), text encoder, state and the
-    data standardisation (:class:`geoface.learn.data.DataStats`; None for a run without)."""
+    data standardisation (:class:`geoface.ddpm.data.DataStats`; None for a run without)."""
     config: DDPMConfig
     unet: torch.nn.Module
     text: object

@@ -3,10 +3,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from geoface.learn.errors import CheckpointError, LearnError  # noqa: E402
-from geoface.learn.texture import (TextureModel, TextureTrainConfig, load_sample,  # noqa: E402
+from geoface.errors import CheckpointError, LearnError  # noqa: E402
+from geoface.texture.model import (TextureModel, TextureTrainConfig, load_sample,  # noqa: E402
                                    reconstruct, save_sample, train_texture)
-from geoface.learn.texture_nets import TextureNetConfig  # noqa: E402
+from geoface.texture.nets import TextureNetConfig  # noqa: E402
 
 NETS = TextureNetConfig(predictor_widths=[8, 16], gde_widths=[8, 16], hfdr_widths=[8, 16],
                         hash_log2_table=10, hash_max_res=64)
@@ -150,7 +150,7 @@ def test_init_trains_only_the_stages_asked_for(trained, tmp_path):
 def test_hfdr_map_weights_weigh_the_refiner_s_maps(trained, tmp_path):
     """The HFDR starts at its guidance and learns a map only through that map's loss weight: with
     albedo weighted 0 its albedo stays the GDE's, exactly, while the other maps move."""
-    from geoface.learn.texture import reconstruct
+    from geoface.texture.model import reconstruct
 
     root, out, _ = trained
     src = TextureModel.load(out)

@@ -3,8 +3,8 @@ import pytest
 
 from geoface.skin import SkinError
 
-from geoface.learn.errors import LearnError
-from geoface.learn.skin_synth import height_to_normal, random_lights, shade, skin_maps
+from geoface.errors import LearnError
+from geoface.texture.synth import height_to_normal, random_lights, shade, skin_maps
 
 
 def test_deterministic_ranges_and_layout():
@@ -65,7 +65,7 @@ def test_random_lights_face_the_camera():
 
 
 def test_render_sample_of_a_uv_square():
-    from geoface.learn.skin_synth import render_skin_sample
+    from geoface.texture.synth import render_skin_sample
     from geoface.splat import look_at
     V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
     F = np.array([[0, 1, 2], [0, 2, 3]])
@@ -86,7 +86,7 @@ def test_render_sample_of_a_uv_square():
     assert s["maps"][m].min() >= 0 and s["maps"][m].max() <= 1
     assert (s["photo"][~m] == 0).all() and (s["maps"][~m] == 0).all()
     # flat skin, no specular, light along the normal: photo = albedo^(1/2.2) exactly
-    from geoface.learn.skin_synth import SkinMaps
+    from geoface.texture.synth import SkinMaps
     R = 64
     alb = np.stack([*np.meshgrid(np.linspace(0.1, 0.9, R), np.linspace(0.2, 0.6, R)), np.full((R, R), 0.5)], -1)
     flat = SkinMaps(alb, np.zeros((R, R)), np.broadcast_to([0.5, 0.5, 1.0], (R, R, 3)).copy(), np.zeros((R, R, 1)))
@@ -95,8 +95,8 @@ def test_render_sample_of_a_uv_square():
 
 
 def test_make_texture_dataset(tmp_path):
-    from geoface.learn.skin_synth import make_texture_dataset
-    from geoface.learn.texture import load_sample
+    from geoface.texture.synth import make_texture_dataset
+    from geoface.texture.model import load_sample
     paths = make_texture_dataset(tmp_path, count=2, res=64, map_res=128, vertices=3000, quiet=True)
     d = load_sample(paths[0])
     assert d["photo"].shape == (64, 64, 3) and 0.2 < d["mask"].mean() < 0.95
@@ -110,7 +110,7 @@ def test_make_texture_dataset(tmp_path):
 
 
 def test_make_texture_dataset_workers_write_the_same_files(tmp_path):
-    from geoface.learn.skin_synth import make_texture_dataset
+    from geoface.texture.synth import make_texture_dataset
     a = make_texture_dataset(tmp_path / "a", count=2, res=48, map_res=64, vertices=2000, quiet=True)
     b = make_texture_dataset(tmp_path / "b", count=2, res=48, map_res=64, vertices=2000, workers=2, quiet=True)
     for pa, pb in zip(a, b):
@@ -120,7 +120,7 @@ def test_make_texture_dataset_workers_write_the_same_files(tmp_path):
 
 
 def test_unweld_uv_keeps_every_corner():
-    from geoface.learn.skin_synth import unweld_uv
+    from geoface.texture.synth import unweld_uv
     V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
     F = np.array([[0, 1, 2], [0, 2, 3]])
     UV = np.array([[0, 0], [1, 0], [1, 1], [0.5, 0.5], [0, 1]], float)
@@ -132,8 +132,8 @@ def test_unweld_uv_keeps_every_corner():
 def test_ict_texture_samples(tmp_path):
     """``head_source="ict"``: ICT people with regional skin; the mask keeps the face tile only
     and covers a near-frontal face; maps and photo are defined there."""
-    from geoface.learn.skin_synth import make_texture_dataset
-    from geoface.learn.texture import load_sample
+    from geoface.texture.synth import make_texture_dataset
+    from geoface.texture.model import load_sample
     p = make_texture_dataset(tmp_path, count=1, res=96, map_res=256, seed=5, head_source="ict", quiet=True)
     s = load_sample(p[0])
     m = s["mask"]
@@ -153,7 +153,7 @@ def test_random_lights_share_a_total_power():
 
 
 def test_eye_albedo_pupil_iris_sclera():
-    from geoface.learn.skin_synth import eye_albedo
+    from geoface.texture.synth import eye_albedo
     iris = np.array([0.2, 0.3, 0.45])
     c = np.cos(np.radians([0.0, 20.0, 60.0]))
     a = eye_albedo(c, iris, pupil_deg=12, iris_deg=30)
@@ -165,8 +165,8 @@ def test_eye_albedo_pupil_iris_sclera():
 def test_ict_samples_show_eyes_outside_the_mask(tmp_path):
     """ICT photos have eyes (a dark pupil and a white sclera between the eyelid landmarks),
     which the skin mask leaves out; the 68 landmarks are stored in pixels."""
-    from geoface.learn.skin_synth import make_texture_dataset
-    from geoface.learn.texture import load_sample
+    from geoface.texture.synth import make_texture_dataset
+    from geoface.texture.model import load_sample
     [p] = make_texture_dataset(tmp_path, count=1, res=256, map_res=256, seed=2, head_source="ict", quiet=True)
     s = load_sample(p)
     with np.load(p) as z:
@@ -185,7 +185,7 @@ def test_ict_samples_show_eyes_outside_the_mask(tmp_path):
 
 
 def test_pixel_average_is_what_a_camera_integrates():
-    from geoface.learn.skin_synth import pixel_average
+    from geoface.texture.synth import pixel_average
     H = 4
     photo = np.zeros((H, H, 3), np.float32)
     photo[0, 0] = 1.0  # one bright sub-pixel of four: a quarter of the light

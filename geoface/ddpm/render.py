@@ -26,7 +26,7 @@ class HeadRenderer:
     Parameters
     ----------
     center, scale : the frame: cameras look at ``center`` from ``distance * scale`` away, the
-        view fitting a sphere of radius ``scale`` (e.g. a dataset :class:`~geoface.learn.data.Normalization`)
+        view fitting a sphere of radius ``scale`` (e.g. a dataset :class:`~geoface.ddpm.data.Normalization`)
     size : image side in pixels
     views : names in :data:`VIEWS`
     """

@@ -3,8 +3,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from geoface.errors import CheckpointError  # noqa: E402
-from geoface.learn.errors import LearnError  # noqa: E402
-from geoface.learn.texture_nets import (GAMMA, GDE, HFDR, NormalUVPredictor, TextureNetConfig,  # noqa: E402
+from geoface.errors import LearnError  # noqa: E402
+from geoface.texture.nets import (GAMMA, GDE, HFDR, NormalUVPredictor, TextureNetConfig,  # noqa: E402
                                         UNet, map_loss, pack_maps)
 
 CFG = TextureNetConfig(predictor_widths=[8, 16], gde_widths=[8, 16], hfdr_widths=[8, 16],

@@ -32,7 +32,7 @@ from typing import Protocol, runtime_checkable
 
 import torch
 
-from .errors import TextEncoderError
+from ..errors import TextEncoderError
 
 __all__ = ["TextEncoder", "TextEmbedding", "HashTextEncoder", "MiniLMEncoder", "CLIPEncoder",
            "CachedTextEncoder", "make_text_encoder"]

@@ -1,4 +1,4 @@
-"""What is done to an item's stacked image in a geometry-image dataset (:mod:`geoface.learn.data`):
+"""What is done to an item's stacked image in a geometry-image dataset (:mod:`geoface.ddpm.data`):
 block-averaged downsampling to the training resolution (normals back to unit length) and the
 seeded rigid augmentation.
 

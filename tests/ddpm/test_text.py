@@ -5,7 +5,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from geoface import GeofaceError
-from geoface.learn.text import (CachedTextEncoder, CLIPEncoder, HashTextEncoder, TextEncoder,
+from geoface.ddpm.text import (CachedTextEncoder, CLIPEncoder, HashTextEncoder, TextEncoder,
                                 make_text_encoder)
 
 

@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as Fnn
 from torch import Tensor, nn
 
-from .errors import LearnError
+from ..errors import LearnError
 from geoface.nn.hashenc import HashEncoding
 from geoface.nn.losses import laplacian_loss
 

@@ -9,7 +9,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from geoface import GeofaceError
-from geoface.learn.data import GImageDataset, Normalization, ShardSampler
+from geoface.ddpm.data import GImageDataset, Normalization, ShardSampler
 
 
 def _sphere_items(root, radii, N=16):
@@ -140,7 +140,7 @@ def test_progress_with_a_time_budget_says_when_the_budget_ends(monkeypatch):
 
 
 def test_small_preset_is_the_documented_model():
-    from geoface.learn.ddpm import PRESETS, DDPMConfig, build_unet
+    from geoface.ddpm.model import PRESETS, DDPMConfig, build_unet
 
     cfg = DDPMConfig.preset("small", cross_attention_dim=384)
     n = sum(p.numel() for p in build_unet(cfg).parameters())
@@ -154,7 +154,7 @@ def test_small_preset_is_the_documented_model():
 
 def test_training_uses_the_dataset_frame_and_decodes_samples_in_it(tmp_path):
     pytest.importorskip("diffusers")
-    from geoface.learn.ddpm import DDPMConfig, load_run, to_geometry_images, train
+    from geoface.ddpm.model import DDPMConfig, load_run, to_geometry_images, train
 
     data = _sphere_items(tmp_path / "d", [1.0, 2.0, 4.0], N=8)
     cfg = DDPMConfig.preset("tiny", res=8, text_encoder="hash:8", text_max_length=4, num_train_timesteps=20, steps=3,
@@ -177,7 +177,7 @@ def test_downsampled_normals_are_unit_where_the_surface_folds(tmp_path):
     normals 140° apart, whose mean is 0.34 long — below the |n| > 0.5 coverage rule.  Downsampled
     items keep unit normals pointing between the two, and every pixel stays covered."""
     from geoface.gimage import GeometryImage, save_gimage
-    from geoface.learn.data import unit_normals
+    from geoface.ddpm.data import unit_normals
 
     N = 16
     x = (np.arange(N) + 0.5) / N

@@ -9,8 +9,8 @@ Each item is a dict:
 * ``index``  int.
 
 The items, their sources (a manifest or a folder tree) and the one position frame of the
-whole dataset are :mod:`geoface.learn.data_items`; downsampling and the rigid augmentation
-:mod:`geoface.learn.data_transforms`.
+whole dataset are :mod:`geoface.ddpm.data_items`; downsampling and the rigid augmentation
+:mod:`geoface.ddpm.data_transforms`.
 
 **Lazy**: items are read from disk when asked for; at most ``cache_mb`` of decoded items are
 kept (float16, least recently used first), so memory stays bounded whatever the dataset size.

@@ -4,7 +4,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from geoface import GeofaceError
-from geoface.learn.data import AugmentOptions, GImageDataset, area_resize, find_items, rigid_augment
+from geoface.ddpm.data import AugmentOptions, GImageDataset, area_resize, find_items, rigid_augment
 
 
 def test_dataset_scaling_and_prompts(gimage_dataset):

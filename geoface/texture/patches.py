@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as Fnn
 from torch import Tensor
 
-from .errors import LearnError
+from ..errors import LearnError
 
 
 def _check(shape, k: int) -> tuple[int, int]:

@@ -1,7 +1,7 @@
 """Training and streaming inference of the 4K-texture model (predictor → GDE → HFDR).
 
 Data: a folder of ``*.npz`` samples, each with ``photo`` [H, W, 3], ``maps`` [H, W, 7]
-(albedo, micronormal encoded, specular; see :mod:`geoface.learn.texture_nets`), ``uv``
+(albedo, micronormal encoded, specular; see :mod:`geoface.texture.nets`), ``uv``
 [H, W, 2], ``normal`` [H, W, 3] (encoded n/2 + ½) and ``mask`` [H, W] (face pixels), stored
 as uint16 (values × 65535) so UVs keep 1/65535 precision at 4K.  H = W, divisible by ``k``.
 
@@ -12,7 +12,7 @@ random full-resolution patches with the upsampled GDE guidance.  Adam, ReduceLRO
 
 Inference (:func:`reconstruct`): the photo is downsampled to ``gde_res`` for the predictor and
 GDE; the HFDR then runs patch by patch over the full-resolution photo
-(:func:`geoface.learn.patches.stream_patches`), each patch with its own guidance crops, and the
+(:func:`geoface.texture.patches.stream_patches`), each patch with its own guidance crops, and the
 seams are smoothed.  Peak memory: the photo, the output maps and one patch of activations.
 """
 from __future__ import annotations
@@ -28,9 +28,9 @@ import numpy as np
 import torch
 import torch.nn.functional as Fnn
 
-from .errors import CheckpointError, LearnError
+from ..errors import CheckpointError, LearnError
 from .patches import guidance_crop, smooth_seams_inplace, stream_patches
-from .texture_nets import GDE, HFDR, N_MAPS, NormalUVPredictor, TextureNetConfig, map_loss
+from .nets import GDE, HFDR, N_MAPS, NormalUVPredictor, TextureNetConfig, map_loss
 
 KEYS = {"photo": 3, "maps": N_MAPS, "uv": 2, "normal": 3}
 

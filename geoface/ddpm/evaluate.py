@@ -19,7 +19,7 @@ diversity and memorisation.
   over ``[B, C, N, N]`` geometry images (the text-control judge).
 
 Arrays are numpy ``float64`` unless stated; images are ``[B, 9, N, N]`` in [-1, 1] space (the
-:class:`geoface.learn.data.GImageDataset` convention) with a ``[B, N, N]`` bool mask.
+:class:`geoface.ddpm.data.GImageDataset` convention) with a ``[B, N, N]`` bool mask.
 """
 from __future__ import annotations
 

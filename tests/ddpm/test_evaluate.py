@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from geoface import GeofaceError
-from geoface.learn.evaluate import (cosine_similarity, masked_rms_distances, mesh_validity, nearest_neighbour,
+from geoface.ddpm.evaluate import (cosine_similarity, masked_rms_distances, mesh_validity, nearest_neighbour,
                                     stratified_split, vendi_score)
 
 from .conftest import make_gimage_dataset
@@ -144,7 +144,7 @@ def test_validity_sees_folds_and_self_intersections(real_gi):
 # ---------------------------------------------------------------- classifier, split
 def test_classifier_learns_a_separable_toy_set():
     pytest.importorskip("torch")
-    from geoface.learn.evaluate import predict, train_classifier
+    from geoface.ddpm.evaluate import predict, train_classifier
     rng = np.random.default_rng(0)
     y = np.arange(24) % 2
     X = rng.normal(0, 0.3, size=(24, 3, 16, 16)).astype(np.float32)
@@ -177,7 +177,7 @@ def test_aligned_distance_sees_through_rigid_augmentation():
     (SciPy's Kabsch rotation, least-squares scale) and never exceeds the plain distance."""
     from scipy.spatial.transform import Rotation
 
-    from geoface.learn.evaluate import aligned_rms_distances
+    from geoface.ddpm.evaluate import aligned_rms_distances
 
     rng = np.random.default_rng(0)
     N = 8

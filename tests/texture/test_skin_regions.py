@@ -89,7 +89,7 @@ def test_regional_skin_statistics(regions):
 
 def test_stubble_only_in_the_beard(regions):
     # a seed with stubble and one without (a trait drawn from the seed, as skin_maps draws it)
-    from geoface.learn import skin_synth
+    from geoface.texture import synth as skin_synth
     with_st = [sd for sd in range(40) if _has_stubble(sd)]
     without = [sd for sd in range(40) if not _has_stubble(sd)]
     assert with_st and without

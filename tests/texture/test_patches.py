@@ -3,8 +3,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from geoface.learn.errors import LearnError  # noqa: E402
-from geoface.learn.patches import (assemble_patches, guidance_crop, patch_boxes, seam_masks,  # noqa: E402
+from geoface.errors import LearnError  # noqa: E402
+from geoface.texture.patches import (assemble_patches, guidance_crop, patch_boxes, seam_masks,  # noqa: E402
                                    smooth_seams, split_patches, stream_patches)
 
 
@@ -80,7 +80,7 @@ def test_stream_patches_writes_every_patch_once():
 
 @pytest.mark.parametrize("k,P", [(4, 32), (3, 20), (8, 8)])
 def test_inplace_strip_smoothing_equals_full_image_version(k, P):
-    from geoface.learn.patches import smooth_seams_inplace
+    from geoface.texture.patches import smooth_seams_inplace
     img = torch.rand(1, 5, k * P, k * P, generator=torch.Generator().manual_seed(k), dtype=torch.float64)
     full = smooth_seams(img.float(), k)[0].numpy()
     arr = img[0].float().numpy().copy()

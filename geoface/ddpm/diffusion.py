@@ -1,11 +1,11 @@
-"""The denoiser of :mod:`geoface.learn.ddpm` and what drives it: the UNet (optionally over pixel
+"""The denoiser of :mod:`geoface.ddpm.model` and what drives it: the UNet (optionally over pixel
 blocks), the noise schedule (optionally shifted), the prediction target and loss, the EMA of the
-weights and the learning-rate schedule.  Configured by :class:`geoface.learn.ddpm.DDPMConfig`."""
+weights and the learning-rate schedule.  Configured by :class:`geoface.ddpm.model.DDPMConfig`."""
 from __future__ import annotations
 
 import torch
 
-from .errors import CheckpointError
+from ..errors import CheckpointError
 
 __all__ = ["build_unet", "PatchedUNet", "build_scheduler", "shifted_cosine_betas", "ddpm_target", "ddpm_loss", "EMA",
            "learning_rate"]

@@ -1,4 +1,4 @@
-"""The items of a geometry-image dataset (:mod:`geoface.learn.data`) and the one frame their
+"""The items of a geometry-image dataset (:mod:`geoface.ddpm.data`) and the one frame their
 positions are put in.
 
 Sources: ``DATA_DIR/manifest.jsonl`` (see :mod:`geoface.dataset`: rows with ``status == "ok"``,
