@@ -7,6 +7,9 @@ is vertex ``F[f, k]`` seen from face ``f``.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,8 +24,38 @@ from ..tol import tol
 MAX_COORDINATE = 1e150
 
 
+class _Checks:
+    """How many meshes :func:`check_mesh` validated and how many edge topologies were built (a
+    test counts them per ``convert``)."""
+    validations = 0
+    topologies = 0
+
+
+CHECKS = _Checks()
+#: inside :func:`checked_meshes`: the edge topologies built so far, by the faces' content
+_CHECKED_SCOPE: contextvars.ContextVar = contextvars.ContextVar("geoface_checked_meshes", default=None)
+_TOPOLOGY_CACHE = 32
+
+
+@contextlib.contextmanager
+def checked_meshes():
+    """The library's own meshes from here on: a public entry (``convert``, ``make_disk``, the face
+    finder) validates the user's mesh once with :func:`check_mesh`, then runs its steps inside
+    this scope, where ``check_mesh`` only converts dtypes (every mesh is one the entry checked or
+    a step derived from it) and :func:`edge_topology` is built once per set of faces. Nests."""
+    if _CHECKED_SCOPE.get() is not None:
+        yield
+        return
+    token = _CHECKED_SCOPE.set({})
+    try:
+        yield
+    finally:
+        _CHECKED_SCOPE.reset(token)
+
+
 def check_mesh(V, F, *, allow_empty: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Validate and convert mesh arrays once, at a public entry point.
+    """Validate and convert mesh arrays once, at a public entry point (inside
+    :func:`checked_meshes`, convert only: the entry has validated them).
 
     Parameters
     ----------
@@ -44,6 +77,10 @@ def check_mesh(V, F, *, allow_empty: bool = False) -> tuple[np.ndarray, np.ndarr
     >>> V.dtype, F.dtype
     (dtype('float64'), dtype('int64'))
     """
+    if _CHECKED_SCOPE.get() is not None and isinstance(V, np.ndarray) and isinstance(F, np.ndarray) \
+            and V.ndim == 2 and F.ndim == 2 and F.dtype.kind in "iu":
+        return np.asarray(V, dtype=np.float64), F.astype(np.int64, copy=False)
+    CHECKS.validations += 1
     try:
         V = np.asarray(V, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -176,7 +213,26 @@ class EdgeTopology:
 
 
 def edge_topology(F: np.ndarray) -> EdgeTopology:
-    """Build :class:`EdgeTopology` for faces ``F`` (vectorised, int64 edge keys)."""
+    """Build :class:`EdgeTopology` for faces ``F`` (vectorised, int64 edge keys). Inside
+    :func:`checked_meshes` the same faces get the same (read-only) topology back, built once."""
+    cache = _CHECKED_SCOPE.get()
+    if cache is None or len(F) == 0:
+        return _edge_topology(F)
+    F = np.ascontiguousarray(F)
+    key = (F.shape, F.dtype.str, hashlib.blake2b(F.view(np.uint8), digest_size=16).digest())
+    et = cache.get(key)
+    if et is None:
+        et = _edge_topology(F.copy())
+        for a in (et.E, et.he_edge, et.edge_faces, et.he_src, et.he_dst):
+            a.flags.writeable = False
+        if len(cache) >= _TOPOLOGY_CACHE:
+            cache.pop(next(iter(cache)))
+        cache[key] = et
+    return et
+
+
+def _edge_topology(F: np.ndarray) -> EdgeTopology:
+    CHECKS.topologies += 1
     src = F.ravel()
     dst = F[:, [1, 2, 0]].ravel()
     if len(src) == 0:

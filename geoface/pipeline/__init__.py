@@ -24,7 +24,7 @@ from ..errors import GeofaceError, InvalidMeshError
 from ..mesh.io import Mesh
 from ..progress import log
 from ..repair.proxy import NEEDLE_RATIO
-from .corner_set import convert_set, corner_uvs_for, extend_split, reconstruction_error  # noqa: F401  (extend_split: public here too)
+from .corner_set import SetInputs, convert_set, corner_uvs_for, extend_split, reconstruction_error  # noqa: F401  (extend_split: public here too)
 from .face import corners_key, face_record, level_corners
 from ..rotations import upright_rotation  # noqa: F401  (re-exported)
 
@@ -277,13 +277,21 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
     not at all (files 0644 and folders 0755 under umask 022); an existing ``out_dir`` is
     replaced only with ``overwrite`` (the CLI's ``--force``).  Returns the metrics dict.
     """
-    from ..param.corners import corner_sets
-    from ..param.ricci import RicciFlowSolver
-    from ..repair import make_disk
+    from ..mesh.core import check_mesh, checked_meshes
 
     opts = (options or ConvertOptions()).validate()
     if not isinstance(mesh, Mesh):
         raise InvalidMeshError("convert needs a geoface.mesh.Mesh")
+    check_mesh(mesh.V, mesh.F)  # once, here: every step below works on meshes derived from it
+    with checked_meshes():
+        return _convert(mesh, out_dir, opts, quiet=quiet, overwrite=overwrite)
+
+
+def _convert(mesh: Mesh, out_dir, opts: ConvertOptions, *, quiet, overwrite) -> dict:
+    from ..param.corners import corner_sets
+    from ..param.ricci import RicciFlowSolver
+    from ..repair import make_disk
+
     out_dir = Path(out_dir)
     times: dict = {}
     t_all = time.perf_counter()
@@ -385,13 +393,13 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         metrics["face"] = face["metrics"]
     with atomic_dir(out_dir, overwrite=overwrite) as tmp_root:
         failures: list = []
+        inputs = SetInputs(solver, V, roi, colors, opts, quiet, disk=dm, stored=stored, full=full, face=face)
         for pos, (k, corners) in enumerate(zip(indices, sets)):
             st: dict = {"corner_set": k, "corners": [int(c) for c in corners]}
             folder = tmp_root if len(sets) == 1 else tmp_root / f"aug{k}"
             folder.mkdir(exist_ok=True)
             try:
-                V, roi, colors = convert_set(st, folder, pos, len(sets), corners, solver, V, roi, colors, dm, opts, quiet,
-                                              stored, full=full, face=face, mapped=mapped.pop(corners_key(corners), None))
+                convert_set(st, folder, corners, inputs, pos, len(sets), mapped=mapped.pop(corners_key(corners), None))
             except GeofaceError as e:
                 if len(sets) == 1:
                     raise

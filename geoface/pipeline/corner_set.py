@@ -6,7 +6,9 @@ over to the triangulation the flow ends on."""
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -16,13 +18,36 @@ from ..mesh.io import first_corner_uv
 from ..progress import log
 
 
-def map_set(st, solver, corners, V, roi, colors, opts, quiet, pos=0, count=1):
+@dataclass
+class SetInputs:
+    """What the corner sets of one ``convert`` share: the Ricci-flow solver of the disk, the
+    disk's per-vertex positions, ROI and colours (a set whose flow splits boundary edges extends
+    them, and the next set starts from there), the options, and, for the images: the repaired
+    mesh with its texture (``disk``), the rotation into the stored frame, the scan under a proxy
+    (``full``: :class:`geoface.pipeline.proxy.FullSurface`, which the images sample and the
+    error report measures against) and the face found on it (``face``: ``meta.json``'s face)."""
+
+    solver: Any
+    V: np.ndarray
+    roi: np.ndarray | None
+    colors: np.ndarray | None
+    opts: Any
+    quiet: bool | None = None
+    disk: Any = None
+    stored: np.ndarray | None = None
+    full: Any = None
+    face: dict | None = None
+
+
+def map_set(st, corners, s: SetInputs, pos=0, count=1):
     """The maps of one corner set: Ricci flow (conformal, a rectangle) then, with ``opts.method ==
     "ot"``, the measure-preserving map. Fills ``st`` (``ricci``, ``conformal_distortion``, ``ot``)
     and returns ``(r, V, roi, colors, uv)``: the flow's result, the per-vertex data extended where
-    the flow split boundary edges, and the final UVs."""
+    the flow split boundary edges, and the final UVs (``s`` is left as it is)."""
     from ..param.measure import measure_preserving_map
     from ..param.metrics import distortion
+
+    solver, V, roi, colors, opts, quiet = s.solver, s.V, s.roi, s.colors, s.opts, s.quiet
 
     t = time.perf_counter()
     log(f"convert [{pos + 1}/{count}]: corner set {st['corner_set']}: Ricci flow, optimal transport, images", quiet=quiet)
@@ -62,24 +87,23 @@ def map_set(st, solver, corners, V, roi, colors, opts, quiet, pos=0, count=1):
     return r, V, roi, colors, uv
 
 
-def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opts, quiet, stored, full=None, face=None,
-                mapped=None):
-    """One corner set: Ricci flow → OT → images → reconstruction, into ``folder``; fills
-    ``st`` and returns the (possibly extended) per-vertex data.  ``full``: the scan under a
-    proxy (:class:`geoface.pipeline.proxy.FullSurface`), which the images sample and the error
-    report measures against.  ``face``: the face found on the surface (``meta.json``'s ``face``:
-    its landmarks in the stored frame), to which this set adds where they land in the images.
-    ``mapped``: ``(st entries, map_set's result)`` of these corners, made already."""
+def convert_set(st, folder, corners, s: SetInputs, pos=0, count=1, mapped=None) -> None:
+    """One corner set: Ricci flow → OT → images → reconstruction, into ``folder``; fills ``st``
+    and extends ``s``'s per-vertex data where the flow split boundary edges. The face's
+    landmarks (``s.face``) get where they land in this set's images. ``mapped``: ``(st entries,
+    map_set's result)`` of these corners, made already."""
     from ..gimage import geometry_image, reconstruct, save_reconstruction
     from ..gimage.image import write_gimage_files
     from ..gimage.raster import interpolate, rasterize_faces
     from ..param.metrics import distortion
 
+    opts, quiet, dm, stored, full, face = s.opts, s.quiet, s.disk, s.stored, s.full, s.face
     if mapped is None:
-        r, V, roi, colors, uv = map_set(st, solver, corners, V, roi, colors, opts, quiet, pos, count)
+        r, V, roi, colors, uv = map_set(st, corners, s, pos, count)
     else:
         st.update(mapped[0])
         r, V, roi, colors, uv = mapped[1]
+    s.V, s.roi, s.colors = V, roi, colors
     F = r.F
     st["distortion"] = distortion(V, F, uv).summary()
     t = time.perf_counter()
@@ -136,7 +160,6 @@ def convert_set(st, folder, pos, count, corners, solver, V, roi, colors, dm, opt
         st["reconstruction"]["seconds"] = time.perf_counter() - t
     if opts.preview:
         _preview(gi, folder / "preview.png")
-    return V, roi, colors
 
 
 #: the corner sets are turned until the face's eye line in the default image is within this many

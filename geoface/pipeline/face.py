@@ -47,7 +47,7 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
     import copy
 
     from ..param.corners import corner_sets
-    from .corner_set import face_pixels, map_set
+    from .corner_set import SetInputs, face_pixels, map_set
 
     key0 = _level_key(solver, roi, face, opts)
     if key0 in _LEVELS:  # this mesh levelled already (a dataset's other corner sets): the same turn
@@ -66,7 +66,7 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
             return tilts[key]
         st = {"corner_set": 0, "corners": [int(x) for x in c]}
         try:  # the first map is set 0's own: its iterations show with -v like any set's
-            res = map_set(st, solver, c, V, roi, colors, opts, quiet if not made else True)
+            res = map_set(st, c, SetInputs(solver, V, roi, colors, opts, quiet if not made else True))
         except GeofaceError:
             tilts[key] = None
             return None

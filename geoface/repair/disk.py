@@ -20,7 +20,7 @@ from typing import Literal
 import numpy as np
 
 from ..errors import InvalidMeshError, MeshTopologyError
-from ..mesh.core import boundary_loops, check_mesh, face_areas
+from ..mesh.core import boundary_loops, check_mesh, checked_meshes, face_areas
 from ..mesh.frame import axis_text
 from ..mesh.topology import TopologyReport, topology_report
 from ..progress import log
@@ -240,6 +240,11 @@ def make_disk(V, F, options: RepairOptions | None = None, *, quiet: bool | None 
     t0 = time.perf_counter()
     opts = replace(options or RepairOptions(), **overrides).validate()
     V, F = check_mesh(V, F)
+    with checked_meshes():  # every later step works on meshes derived from this one
+        return _make_disk(V, F, opts, t0, quiet)
+
+
+def _make_disk(V, F, opts, t0, quiet):
     area_before = float(face_areas(V, F).sum())
 
     log(f"make_disk: {len(V)} vertices, {len(F)} faces; cleaning", quiet=quiet, detail=True)

@@ -173,9 +173,14 @@ def scan_landmarks(V, F, *, resolution: int = 256, search_resolution: int = 128,
     >>> r = scan_landmarks(h.V, h.F); r.found, r.up    # doctest: +SKIP
     (True, array([0.0..., 0.99..., 0.0...]))
     """
-    from geoface.mesh.core import check_mesh
+    from geoface.mesh.core import check_mesh, checked_meshes
 
     V, F = check_mesh(V, F)
+    with checked_meshes():  # the renders and the lifts work on this mesh, checked once
+        return _cached_scan(V, F, resolution, search_resolution, views, min_confidence, iterations, candidates, source)
+
+
+def _cached_scan(V, F, resolution, search_resolution, views, min_confidence, iterations, candidates, source):
     key = (_digest(V, F), int(resolution), int(search_resolution), int(views), float(min_confidence), int(iterations),
            int(candidates), str(source))
     if key in _CACHE:
