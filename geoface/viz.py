@@ -222,10 +222,12 @@ def _set_view(pl, view: str, mesh_or_VF=None, *, up=None, face=None, frame=None)
 
 
 def turntable(mesh_or_VF, path, *, seconds: float = 6.0, fps: float = 25.0, window_size=DEFAULT_SIZE, up=None,
-              face=None, elevation: float = 10.0) -> int:
+              face=None, elevation: float = 10.0, quiet: bool | None = None) -> int:
     """A turn around the mesh, starting in front of it, as an MP4 (``geoface.video``). The camera
-    circles the up axis once, ``elevation`` degrees above the horizon. Returns the frame count."""
+    circles the up axis once, ``elevation`` degrees above the horizon (a progress line per frame
+    rendered unless ``quiet``; the library's default is quiet). Returns the frame count."""
     from .mesh.frame import mesh_frame
+    from .progress import progress
     from .video import write_video
 
     V, F = unpack_mesh(mesh_or_VF)[:2]
@@ -245,7 +247,7 @@ def turntable(mesh_or_VF, path, *, seconds: float = 6.0, fps: float = 25.0, wind
 
     def frames():
         try:
-            for k in range(n):
+            for k in progress(range(n), "turntable", unit="frames", quiet=quiet):
                 a = 2 * np.pi * k / n
                 d = np.cos(el) * (np.cos(a) * fr.front + np.sin(a) * fr.right) + np.sin(el) * fr.up
                 pl.camera_position = [tuple(fr.center + dist * d), tuple(fr.center), tuple(fr.up)]

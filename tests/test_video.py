@@ -39,8 +39,9 @@ def test_frames_and_audio_round_trip(tmp_path):
     assert not (tmp_path / "x.mp4").exists() and not list(tmp_path.glob(".x.*"))  # nothing half-written
 
 
-def test_turntables_of_a_mesh_and_of_splats(tmp_path, capsys):
+def test_turntables_of_a_mesh_and_of_splats(tmp_path, capsys, monkeypatch):
     pytest.importorskip("pyvista")
+    monkeypatch.setenv("GEOFACE_QUIET", "0")  # the command's own progress lines, as a user sees them
     from geoface.splat.gaussians import Gaussians
     from geoface.splat.ply import save_ply
     from geoface.synth.ict import ict_head, load_ict_model
@@ -49,7 +50,10 @@ def test_turntables_of_a_mesh_and_of_splats(tmp_path, capsys):
     mesh = tmp_path / "head.obj"
     assert main(["synth", "ict", "-o", str(mesh), "--seed", "4", "-q"]) == 0
     out = tmp_path / "turn.mp4"
+    capsys.readouterr()
     assert main(["view", str(mesh), "--turntable", str(out), "--seconds", "1", "--size", "64,48"]) == 0
+    err = capsys.readouterr().err
+    assert "turntable: frame 1/25" in err and "turntable: frame 25/25 (100%)" in err, err  # progress while it renders
     v = probe_video(out)
     assert (v["frames"], v["width"], v["height"]) == (25, 64, 48)
     assert main(["view", str(mesh), "--turntable", str(out), "--seconds", "1"]) == 2  # exists: never replaced

@@ -296,3 +296,24 @@ def test_web_view_refuses_bad_input(tmp_path, capsys):
     assert "drives an avatar" in capsys.readouterr().err
     assert main(["view", str(Path(__file__).parent / "data" / "meshes" / "spot.obj"), "--drive", "x.wav"]) == 2
     assert "belong to --web" in capsys.readouterr().err
+
+
+def test_the_notebook_view_is_quiet(tmp_path, capsys):
+    """``WebView(...).notebook()`` embeds the page inline without a warning or viser's banner
+    (a stored notebook would keep both, with a URL that is dead once the kernel stops)."""
+    pytest.importorskip("IPython")
+    import warnings
+
+    from geoface.webview import WebView
+
+    view = WebView([Path(__file__).parent / "data" / "meshes" / "spot.obj"], port=0, quiet=True)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            out = view.notebook(height=300)
+    finally:
+        view.stop()
+    html = out.data
+    assert html.startswith("<div><iframe srcdoc=") and "height: 300px" in html and len(html) > 100_000
+    captured = capsys.readouterr()
+    assert "viser" not in captured.out + captured.err and "http://" not in captured.out + captured.err

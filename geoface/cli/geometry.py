@@ -5,6 +5,7 @@ from pathlib import Path
 
 from ..errors import GeofaceError
 from .._args import json_to_stdout, write_json
+from ..progress import args_quiet
 
 from ._common import guard_outputs, mesh_outputs
 
@@ -398,7 +399,7 @@ def cmd_view(args) -> int:
         from ..drive.avatars import splat_turntable
         from ..splat.ply import load_ply
 
-        n = splat_turntable(load_ply(path), movie, seconds=args.seconds, size=size, up=args.up)
+        n = splat_turntable(load_ply(path), movie, seconds=args.seconds, size=size, up=args.up, quiet=args_quiet(args))
         print(f"{args.file[0]} -> {movie}  (turntable of the splats, {n} frames, {size[0]}x{size[1]})")
         return 0
     if path.is_dir() and not (path / "meta.json").exists() and (path / "aug0" / "meta.json").exists():
@@ -434,7 +435,7 @@ def cmd_view(args) -> int:
             viz.plot_mesh(mesh, screenshot=shot, window_size=size, view=args.view, up=args.up, face=face)
             what = ("textured mesh" if mesh.texture is not None and mesh.UV is not None else "mesh") + f", {args.view} view"
     if movie is not None:
-        n = viz.turntable(mesh, movie, seconds=args.seconds, window_size=size, up=args.up, face=face)
+        n = viz.turntable(mesh, movie, seconds=args.seconds, window_size=size, up=args.up, face=face, quiet=args_quiet(args))
         print(f"{args.file[0]} -> {movie}  (turntable, {n} frames, {size[0]}x{size[1]})")
     elif shot is not None:
         print(f"{args.file[0]} -> {shot}  ({what}, {size[0]}x{size[1]})")

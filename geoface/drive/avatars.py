@@ -111,7 +111,7 @@ def export_frames(drive: AvatarDrive, out, frames=None) -> list[Path]:
 
 @torch.no_grad()
 def splat_turntable(gaussians, path, *, seconds: float = 6.0, fps: float = 25.0, size=(512, 512), up=None,
-                    elevation: float = 10.0, background=(1.0, 1.0, 1.0)) -> int:
+                    elevation: float = 10.0, background=(1.0, 1.0, 1.0), quiet: bool | None = None) -> int:
     """A turn around Gaussian splats (e.g. a 3DGS PLY), rendered by :func:`geoface.splat.rasterizer.rasterize`
     and written as an MP4 (``geoface.video``): from the front the splats' centres show
     (:func:`geoface.mesh.frame.points_frame`), ``elevation`` degrees above the horizon. Returns
@@ -119,6 +119,7 @@ def splat_turntable(gaussians, path, *, seconds: float = 6.0, fps: float = 25.0,
     from geoface.mesh.frame import points_frame
     from geoface.camera import look_at
     from geoface.splat.rasterizer import rasterize
+    from geoface.progress import progress
     from geoface.video import write_video
 
     means = gaussians.means.detach().double().numpy()
@@ -129,7 +130,7 @@ def splat_turntable(gaussians, path, *, seconds: float = 6.0, fps: float = 25.0,
     el = np.radians(elevation)
 
     def frames():
-        for k in range(n):
+        for k in progress(range(n), "turntable", unit="frames", quiet=quiet):
             a = 2 * np.pi * k / n
             d = np.cos(el) * (np.cos(a) * fr.front + np.sin(a) * fr.right) + np.sin(el) * fr.up
             cam = look_at(fr.center + 2.4 * fr.radius * d, fr.center, fr.up, width=W, height=H, fov_y_deg=40.0)

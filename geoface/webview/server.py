@@ -325,7 +325,8 @@ class WebView:
         from IPython.display import HTML
 
         page = _html.escape(self.html(), quote=True)
-        return HTML(f'<iframe srcdoc="{page}" style="width: 100%; height: {int(height)}px; border: 0"></iframe>')
+        # in a <div>: IPython warns about a bare <iframe> (it suggests IFrame, which cannot hold a page inline)
+        return HTML(f'<div><iframe srcdoc="{page}" style="width: 100%; height: {int(height)}px; border: 0"></iframe></div>')
 
     def serve(self, *, exit_after: float | None = None, idle_exit: float | None = None, poll: float = 0.2) -> None:
         """Serve until Ctrl-C, or ``exit_after`` seconds, or ``idle_exit`` seconds after the last
