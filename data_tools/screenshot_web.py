@@ -19,11 +19,10 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out", type=Path)
     ap.add_argument("paths", nargs="+")
-    ap.add_argument("--size", default="1280,640")
+    ap.add_argument("--size", default="1280,640", help="window size W,H in pixels (1280,640)")
     ap.add_argument("--wait", type=float, default=20.0, help="seconds for the scene to arrive")
     a = ap.parse_args()
     from selenium import webdriver
-    from selenium.webdriver.common.by import By
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -42,11 +41,9 @@ def main() -> int:
     try:
         driver.get(f"http://127.0.0.1:{port}")
         time.sleep(a.wait)
-        for b in driver.find_elements(By.CSS_SELECTOR, ".mantine-Notification-root button"):  # "software WebGL"
-            try:
-                b.click()
-            except Exception:  # noqa: BLE001 — a notice that went away by itself
-                pass
+        # the browser's own notice ("Software WebGL rendering detected": headless Chromium has no GPU)
+        # is not part of the viewer: take it off the page before the picture
+        driver.execute_script("document.querySelectorAll('[class*=\"Notification\"]').forEach(e => e.remove())")
         time.sleep(1.0)
         a.out.parent.mkdir(parents=True, exist_ok=True)
         driver.save_screenshot(str(a.out))

@@ -27,6 +27,10 @@ def _label(name: str, limit: int = 60) -> str:
 ENV_INTENSITY = 0.5
 
 
+
+#: the share of the first view's width that the items may span (the middle, clear of the GUI panel)
+VIEW_SPAN = 0.75
+
 class WebView:
     """A viser server showing ``paths`` side by side (see the module's description).
 
@@ -146,8 +150,10 @@ class WebView:
             place = {"position": tuple(float(v) for v in pos), "scale": float(sc),
                      "wxyz": (float(q[3]), float(q[0]), float(q[1]), float(q[2]))}
             getattr(self, f"_add_{it.kind}")(it, f"/item{k}", place, k)
-        # the camera: in front, far enough to see every item in a 50-degree view of a 16:9 window
-        dist = 0.5 * depth + 1.05 * max(0.5 * span / 0.83, 0.5 * height / np.tan(np.radians(25)))
+        # the camera: in front, far enough that every item stands in the middle of a 16:9 window
+        # clear of the GUI panel (which covers the right quarter of a 1280-pixel window): the
+        # items span at most about half its width
+        dist = 0.5 * depth + 1.05 * max(0.5 * span / (0.83 * VIEW_SPAN), 0.5 * height / np.tan(np.radians(25)))
         cam = srv.initial_camera
         cam.look_at = (0.0, 0.0, 0.0)
         cam.position = tuple(float(v) for v in fr.front * dist)
