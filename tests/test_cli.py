@@ -1,8 +1,6 @@
 """The `geoface` command: reports, outputs, and one-line errors with exit code 2."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -11,13 +9,12 @@ from geoface.cli import main
 from geoface.mesh import topology_report
 from geoface.mesh.io import load_mesh, save_mesh
 from geoface.synth import torus
-from tests.helpers import shared_mesh
+from tests.helpers import geoface, shared_mesh
 
 
 def run(*args):
-    """Run the real console entry point in a subprocess (as a user would)."""
-    p = subprocess.run([sys.executable, "-m", "geoface", "--quiet", *map(str, args)], capture_output=True, text=True)
-    return p.returncode, p.stdout, p.stderr
+    """The console command (in this process: ``tests.helpers.geoface``)."""
+    return geoface(*args)
 
 
 def test_inspect_json_and_text(capsys):

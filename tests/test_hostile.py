@@ -16,14 +16,13 @@ import pytest
 
 from geoface.errors import GeofaceError
 from geoface.mesh.io import load_mesh, save_mesh
+from tests.helpers import geoface
 
 SPOT = Path(__file__).parent / "data" / "meshes" / "spot.obj"
 
 
 def run(*args, cwd=None):
-    p = subprocess.run([sys.executable, "-m", "geoface", "--quiet", *map(str, args)], capture_output=True, text=True,
-                       cwd=cwd)
-    return p.returncode, p.stdout, p.stderr
+    return geoface(*args, cwd=cwd)  # in this process (tests.helpers.geoface)
 
 
 def one_line_error(code, err):

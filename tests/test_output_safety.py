@@ -17,12 +17,16 @@ import numpy as np
 import pytest
 
 from geoface.mesh.io import Mesh, load_mesh, save_mesh
+from tests.helpers import geoface
 
 
 def run(*args, cwd=None, umask=None):
-    pre = None if umask is None else (lambda: os.umask(umask))
+    """The console command: in this process (``tests.helpers.geoface``), or in a real one under
+    ``umask`` (a process's own setting, which a test here must not change for the others)."""
+    if umask is None:
+        return geoface(*args, cwd=cwd)
     p = subprocess.run([sys.executable, "-m", "geoface", "--quiet", *map(str, args)], capture_output=True, text=True,
-                       cwd=cwd, preexec_fn=pre)
+                       cwd=cwd, preexec_fn=lambda: os.umask(umask))
     return p.returncode, p.stdout, p.stderr
 
 
