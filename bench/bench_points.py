@@ -41,6 +41,7 @@ def _mesh(name):
 def run(name: str, n: int, res: int, tmp: Path) -> dict:
     import trimesh
 
+    from geoface.errors import GeofaceError
     from geoface.mesh.mesh_data import Mesh
     from geoface.mesh.topology import topology_report
     from geoface.pipeline import ConvertOptions, convert, reconstruction_error
@@ -54,14 +55,18 @@ def run(name: str, n: int, res: int, tmp: Path) -> dict:
     poisson_s = time.perf_counter() - t
     rep = topology_report(s.V, s.F)
     err = reconstruction_error(V, F, s.V, s.F)
+    row = {"cloud": name, "points": n, "res": res, "poisson_seconds": round(poisson_s, 2),
+           "surface_vertices": int(len(s.V)), "components": rep.components, "genus": rep.genus,
+           "boundary_loops": rep.boundary_loops, "to_mesh_mean": round(err["mean"], 5),
+           "surface_past_mesh_max": round(err["rec_to_ref_max"], 5), "mesh_missed_max": round(err["ref_to_rec_max"], 5)}
     t = time.perf_counter()
-    m = convert(Mesh(s.V, s.F), tmp / f"{name.replace(':', '_')}_{n}", ConvertOptions(res=res), quiet=True)
+    try:
+        m = convert(Mesh(s.V, s.F), tmp / f"{name.replace(':', '_')}_{n}", ConvertOptions(res=res), quiet=True)
+    except GeofaceError as e:  # recorded: a failure is a result
+        return {**row, "ok": False, "error": str(e), "convert_seconds": round(time.perf_counter() - t, 1)}
     st = m["sets"][0]
-    return {"cloud": name, "points": n, "res": res, "poisson_seconds": round(poisson_s, 2),
-            "surface_vertices": int(len(s.V)), "components": rep.components, "genus": rep.genus,
-            "boundary_loops": rep.boundary_loops, "to_mesh_mean": round(err["mean"], 5),
-            "surface_past_mesh_max": round(err["rec_to_ref_max"], 5), "mesh_missed_max": round(err["ref_to_rec_max"], 5),
-            "convert_seconds": round(time.perf_counter() - t, 1), "hausdorff_vs_surface": round(st["reconstruction"]["hausdorff"], 5),
+    return {**row, "ok": True, "convert_seconds": round(time.perf_counter() - t, 1),
+            "hausdorff_vs_surface": round(st["reconstruction"]["hausdorff"], 5),
             "face_found": bool(m.get("face", {}).get("found")) if isinstance(m.get("face"), dict) else None,
             "roi_pixel_share": st.get("roi_pixel_share")}
 
