@@ -61,7 +61,7 @@ import numpy as np
 from ..errors import ParameterizationError
 from ..mesh.core import boundary_loops, check_mesh, signed_uv_areas, uv_vertex_areas, vertex_areas
 from .balance import BalancedMap, area_balanced_map, log_area_ratio
-from .foldfree import FoldFreeResult, convex_combination_map, square_sides
+from .foldfree import FoldFreeResult, convex_combination_map, fold_free_start, square_sides
 from ..progress import log
 from .ot import OTResult, semi_discrete_ot
 
@@ -315,7 +315,7 @@ class MeasurePreservingSolver:
         if ot is None or not ot.converged:
             # crowded sites: move them to an area-balanced embedding first (the normal path for
             # conformal factors spanning many orders of magnitude, not an error)
-            bal = area_balanced_map(F, uv, nu)
+            bal = area_balanced_map(F, fold_free_start(F, uv), nu)
             log(f"  measure-preserving map: OT sites from an area-balanced embedding (worst log area ratio "
                 f"{bal.start_max_log_ratio:.1f} -> {bal.max_log_ratio:.1f} in {bal.best_round} rounds)", quiet=quiet, detail=True)
             cur = bal.uv

@@ -40,3 +40,37 @@ def test_a_mirrored_patch_untangles_locally_and_keeps_its_area():
     r = convex_combination_map(F, target, uv)
     assert r.flipped == 0 and (signed_uv_areas(F, r.uv) > 0).all()
     assert _area_loss(F, r.uv, target) <= UNTANGLE_GAIN * _area_loss(F, out, target) + 1e-12
+
+
+def test_tutte_embedding_of_a_regular_grid_is_the_grid():
+    """Every interior vertex of the diagonal-split grid is the mean of its six neighbours."""
+    from geoface.param.foldfree import tutte_map
+
+    F, uv, inner = planar_grid(15)
+    noisy = uv.copy()
+    noisy[inner] += np.random.default_rng(0).normal(0, 0.05, (inner.sum(), 2))  # the interior is not read
+    np.testing.assert_allclose(tutte_map(F, noisy), uv, atol=1e-10)
+
+
+def test_a_folded_start_is_made_fold_free_where_it_folds_only():
+    """A map with a vertex pulled across its neighbours (as chords of an intrinsic layout can
+    cross) becomes fold-free and stays near the map away from the fold (within a fifth of the
+    grid's spacing; the folded vertex itself moves back by most of its pull)."""
+    from geoface.param.balance import area_balanced_map
+    from geoface.param.foldfree import fold_free_start
+
+    F, uv, inner = planar_grid(21)
+    folded = uv.copy()
+    k = int(np.argmin(np.linalg.norm(uv - [0.5, 0.5], axis=1)))
+    folded[k] += [0.12, 0.09]  # across two rings of neighbours
+    assert (signed_uv_areas(F, folded) <= 0).any()
+    with np.testing.assert_raises(Exception):
+        area_balanced_map(F, folded, np.full(len(uv), 1.0 / len(uv)))
+    start = fold_free_start(F, folded)
+    assert (signed_uv_areas(F, start) > 0).all()
+    far = np.linalg.norm(uv - uv[k], axis=1) > 0.3
+    assert np.abs(start[far] - folded[far]).max() < 0.01
+    assert np.linalg.norm(start[k] - uv[k]) < 0.5 * np.linalg.norm(folded[k] - uv[k])
+    assert fold_free_start(F, uv) is not None and np.array_equal(fold_free_start(F, uv), uv)
+    bal = area_balanced_map(F, start, np.full(len(uv), 1.0 / len(uv)))  # the solver that needs a fold-free start
+    assert (signed_uv_areas(F, bal.uv) > 0).all()
