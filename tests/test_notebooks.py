@@ -70,6 +70,12 @@ def test_notebook_stored_with_its_pictures(name):
     view_bytes = sum(len("".join(v)) for v in views)
     assert all(len("".join(v)) < 3_500_000 for v in views)
     assert (NOTEBOOKS / name).stat().st_size - view_bytes < 1_500_000  # the pictures and the rest
+    # clean: what a reader sees carries no warning, no server banner and no path of the machine
+    # that ran it
+    text = "\n".join("".join(o.get("text", "")) + "".join(o.get("data", {}).get("text/plain", ""))
+                      for o in outputs)
+    for bad in ("Warning", "warn(", "viser", "http://", "/work/", "/home/", "/tmp/", "/root/", "site-packages"):
+        assert bad not in text, f"{name}: a stored output holds {bad!r}"
 
 
 def _run(name, kernel, tmp_path, params):

@@ -6,7 +6,6 @@ never had appear at the right places, and the error report measures against the 
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 
 import numpy as np
@@ -19,7 +18,7 @@ from geoface.mesh.io import Mesh, save_mesh
 from geoface.pipeline import ConvertOptions, convert
 from geoface.repair.proxy import decimate
 from geoface.uvmap import SurfaceQuery
-from tests.helpers import REPO
+from tests.helpers import REPO, geoface
 
 sys.path.insert(0, str(REPO / "data_tools"))
 import make_stress_cases as S  # noqa: E402
@@ -98,13 +97,13 @@ def test_cli_proxy(scan, tmp_path):
     m, _, _ = scan
     f = tmp_path / "scan.ply"
     save_mesh(f, Mesh(m.V, m.F))
-    run = [sys.executable, "-m", "geoface", "convert", str(f), "-o", str(tmp_path / "o"), "--res", "32", "--no-reconstruct"]
-    p = subprocess.run(run + ["--proxy", "2500"], capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr
-    assert "-vertex proxy of the 11,248)" in p.stdout, p.stdout
+    run = ["convert", f, "-o", tmp_path / "o", "--res", "32", "--no-reconstruct"]
+    code, out, err = geoface(*run, "--proxy", "2500")
+    assert code == 0, err
+    assert "-vertex proxy of the 11,248)" in out, out
     assert json.loads((tmp_path / "o" / "metrics.json").read_text())["proxy"]["proxy_vertices"] > 0
-    p = subprocess.run(run + ["--proxy", "-3", "--force"], capture_output=True, text=True)
-    assert p.returncode == 2 and "Traceback" not in p.stderr and "--proxy" in p.stderr
+    code, out, err = geoface(*run, "--proxy", "-3", "--force")
+    assert code == 2 and "Traceback" not in err and "--proxy" in err
 
 
 def test_the_cli_default_proxy_is_the_library_default():
@@ -190,13 +189,12 @@ def test_cli_needles(tmp_path):
     case = S.with_slivers(S.real_base("spot.obj"))
     f = tmp_path / "cow.obj"
     save_mesh(f, Mesh(case.V, case.F))
-    run = [sys.executable, "-m", "geoface", "convert", str(f), "-o", str(tmp_path / "o"), "--res", "32", "--no-reconstruct",
-           "--no-find-face"]
-    p = subprocess.run(run, capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr
-    assert "needles merged)" in p.stdout, p.stdout
-    p = subprocess.run(run + ["--needles", "2", "--force"], capture_output=True, text=True)
-    assert p.returncode == 2 and "Traceback" not in p.stderr and "--needles" in p.stderr
+    run = ["convert", f, "-o", tmp_path / "o", "--res", "32", "--no-reconstruct", "--no-find-face"]
+    code, out, err = geoface(*run)
+    assert code == 0, err
+    assert "needles merged)" in out, out
+    code, out, err = geoface(*run, "--needles", "2", "--force")
+    assert code == 2 and "Traceback" not in err and "--needles" in err
 
 
 def test_the_cli_default_feature_is_the_library_default(tmp_path):
@@ -210,6 +208,5 @@ def test_the_cli_default_feature_is_the_library_default(tmp_path):
     assert DatasetOptions().convert_options(0, None).feature == DEFAULT_FEATURE
     f = tmp_path / "in.obj"
     f.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-    p = subprocess.run([sys.executable, "-m", "geoface", "convert", str(f), "-o", str(tmp_path / "o"), "--feature", "-1"],
-                       capture_output=True, text=True)
-    assert p.returncode == 2 and "Traceback" not in p.stderr and "--feature" in p.stderr
+    code, _, err = geoface("convert", f, "-o", tmp_path / "o", "--feature", "-1")
+    assert code == 2 and "Traceback" not in err and "--feature" in err
