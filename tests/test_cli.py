@@ -233,7 +233,8 @@ def test_help_shows_every_default_and_names_outputs_one_way():
         for a in p._actions:
             if a.help is argparse.SUPPRESS or not a.option_strings:
                 continue
-            if a.default not in (None, False, argparse.SUPPRESS):
+            if a.default not in (None, False, argparse.SUPPRESS) and not isinstance(a, argparse._StoreFalseAction):
+                # (a --no-X switch's help says what it turns off; "(default: True)" would read backwards)
                 h = p._get_formatter()._get_help_string(a) % {"default": a.default}
                 assert "default" in h, (name, a.option_strings, h)
         positionals = [a.dest for a in p._actions if not a.option_strings and a.help is not argparse.SUPPRESS]

@@ -59,7 +59,7 @@ from ..errors import ParameterizationError
 from ..mesh.core import boundary_loops, signed_uv_areas
 from .untangle import area_loss, untangle
 
-__all__ = ["FoldFreeResult", "convex_combination_map", "fold_free_start", "mean_value_weights", "square_sides", "tutte_map"]
+__all__ = ["FoldFreeResult", "convex_combination_map", "mean_value_weights", "square_sides"]
 
 #: a target angle at a vertex must exceed this (radians) for the vertex to keep its own MVC
 MIN_ANGLE = 1e-9
@@ -430,39 +430,3 @@ def _solve(Lam: sp.csr_matrix, rows: np.ndarray, x: np.ndarray) -> np.ndarray:
     rhs = L_I[:, O_idx] @ x[O_idx]
     return spla.splu(A, permc_spec="COLAMD").solve(np.ascontiguousarray(rhs))
 
-
-def tutte_map(F, uv) -> np.ndarray:
-    """Tutte's embedding of the disk ``F`` with its boundary where ``uv`` puts it (on the square's
-    sides, in order): every interior vertex the mean of its neighbours. Fold-free for a convex
-    boundary (Tutte 1963; Floater 2003), whatever ``uv`` does inside."""
-    F = np.asarray(F, np.int64)
-    uv = np.asarray(uv, np.float64)
-    n = len(uv)
-    loops = boundary_loops(F)
-    if len(loops) != 1:
-        raise ParameterizationError(f"a Tutte embedding needs a disk (one boundary loop); got {len(loops)}")
-    inner = np.ones(n, bool)
-    inner[loops[0]] = False
-    i, j = np.concatenate([F[:, [0, 1, 2]].ravel(), F[:, [1, 2, 0]].ravel()]), \
-        np.concatenate([F[:, [1, 2, 0]].ravel(), F[:, [0, 1, 2]].ravel()])
-    A = sp.csr_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
-    A.data[:] = 1.0  # each edge once, whatever its number of faces
-    Lam = _normalised(A, inner, A)
-    x = uv.copy()
-    x[inner] = _solve(Lam, inner, x)
-    return x
-
-
-def fold_free_start(F, uv) -> np.ndarray:
-    """``uv`` itself when it does not fold, else a fold-free map equal to it away from its folds
-    (:func:`convex_combination_map` with :func:`tutte_map` as the reference): a start for
-    the solvers that need one (``geoface.param.balance.area_balanced_map``). A conformal map
-    laid out through intrinsic flips can fold where its chords cross (a point cloud's Poisson
-    surface with handles cut, e.g.), though the conformal map itself does not."""
-    F = np.asarray(F, np.int64)
-    uv = np.asarray(uv, np.float64)
-    a = signed_uv_areas(F, uv)
-    orient = 1.0 if a.sum() >= 0 else -1.0
-    if not (orient * a <= 0).any():
-        return uv
-    return convex_combination_map(F, uv, tutte_map(F, uv)).uv

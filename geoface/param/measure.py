@@ -61,7 +61,8 @@ import numpy as np
 from ..errors import ParameterizationError
 from ..mesh.core import boundary_loops, check_mesh, signed_uv_areas, uv_vertex_areas, vertex_areas
 from .balance import BalancedMap, area_balanced_map, log_area_ratio
-from .foldfree import FoldFreeResult, convex_combination_map, fold_free_start, square_sides
+from .foldfree import FoldFreeResult, convex_combination_map, square_sides
+from .tutte import fold_free_start
 from ..progress import log
 from .ot import OTResult, semi_discrete_ot
 

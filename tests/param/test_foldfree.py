@@ -44,7 +44,7 @@ def test_a_mirrored_patch_untangles_locally_and_keeps_its_area():
 
 def test_tutte_embedding_of_a_regular_grid_is_the_grid():
     """Every interior vertex of the diagonal-split grid is the mean of its six neighbours."""
-    from geoface.param.foldfree import tutte_map
+    from geoface.param.tutte import tutte_map
 
     F, uv, inner = planar_grid(15)
     noisy = uv.copy()
@@ -57,7 +57,7 @@ def test_a_folded_start_is_made_fold_free_where_it_folds_only():
     cross) becomes fold-free and stays near the map away from the fold (within a fifth of the
     grid's spacing; the folded vertex itself moves back by most of its pull)."""
     from geoface.param.balance import area_balanced_map
-    from geoface.param.foldfree import fold_free_start
+    from geoface.param.tutte import fold_free_start
 
     F, uv, inner = planar_grid(21)
     folded = uv.copy()

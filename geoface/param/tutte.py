@@ -1,0 +1,55 @@
+"""Fold-free starts for the solvers that need one: Tutte's embedding of a disk with its boundary
+on the square, and a map made fold-free where it folds (:func:`fold_free_start`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..errors import ParameterizationError
+from ..mesh.core import boundary_loops, signed_uv_areas
+from .foldfree import convex_combination_map
+
+__all__ = ["fold_free_start", "tutte_map"]
+
+
+def tutte_map(F, uv) -> np.ndarray:
+    """Tutte's embedding of the disk ``F`` with its boundary where ``uv`` puts it (on the square's
+    sides, in order): every interior vertex the mean of its neighbours. Fold-free for a convex
+    boundary (Tutte 1963; Floater 2003), whatever ``uv`` does inside."""
+    F = np.asarray(F, np.int64)
+    uv = np.asarray(uv, np.float64)
+    n = len(uv)
+    loops = boundary_loops(F)
+    if len(loops) != 1:
+        raise ParameterizationError(f"a Tutte embedding needs a disk (one boundary loop); got {len(loops)}")
+    inner = np.ones(n, bool)
+    inner[loops[0]] = False
+    i, j = np.concatenate([F[:, [0, 1, 2]].ravel(), F[:, [1, 2, 0]].ravel()]), \
+        np.concatenate([F[:, [1, 2, 0]].ravel(), F[:, [0, 1, 2]].ravel()])
+    A = sp.csr_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
+    A.data[:] = 1.0  # each edge once, whatever its number of faces
+    I_idx, O_idx = np.flatnonzero(inner), np.flatnonzero(~inner)
+    deg = np.asarray(A.sum(1)).ravel()
+    L = (sp.diags(deg) - A).tocsr()  # deg x_i - sum of the neighbours = 0 inside
+    x = uv.copy()
+    if len(I_idx):
+        rhs = -(L[I_idx][:, O_idx] @ x[O_idx])
+        x[I_idx] = spla.splu(L[I_idx][:, I_idx].tocsc(), permc_spec="COLAMD").solve(np.ascontiguousarray(rhs))
+    return x
+
+
+def fold_free_start(F, uv) -> np.ndarray:
+    """``uv`` itself when it does not fold, else a fold-free map equal to it away from its folds
+    (:func:`convex_combination_map` with :func:`tutte_map` as the reference): a start for
+    the solvers that need one (``geoface.param.balance.area_balanced_map``). A conformal map
+    laid out through intrinsic flips can fold where its chords cross (a point cloud's Poisson
+    surface with handles cut, e.g.), though the conformal map itself does not."""
+    F = np.asarray(F, np.int64)
+    uv = np.asarray(uv, np.float64)
+    a = signed_uv_areas(F, uv)
+    orient = 1.0 if a.sum() >= 0 else -1.0
+    if not (orient * a <= 0).any():
+        return uv
+    return convex_combination_map(F, uv, tutte_map(F, uv)).uv
