@@ -59,3 +59,30 @@ def test_bad_input_is_still_refused_at_the_entry(tmp_path, where, value, match):
     getattr(mesh, where)[0, 2] = value
     with pytest.raises(InvalidMeshError, match=match):
         convert(mesh, tmp_path / "out", ConvertOptions(res=32), quiet=True)
+
+
+@pytest.mark.parametrize("residual, ok", [(4.5e-9, True), (1e-3, False)])
+def test_a_flow_stalled_at_the_floating_point_floor_is_kept(tmp_path, monkeypatch, residual, ok):
+    """A scan whose Ricci flow stops at 4.5e-9 rad, short of the solver's 1e-9 (seen on an ICT
+    head's Poisson surface), still converts; one that stops far off does not."""
+    import dataclasses
+
+    from geoface.errors import GeofaceError
+    from geoface.param.ricci import RicciFlowSolver
+    from geoface.synth.ict import ict_head
+
+    real = RicciFlowSolver.solve
+
+    def stalled(self, *a, **k):
+        r = real(self, *a, **k)
+        return dataclasses.replace(r, converged=False, residual=residual)
+
+    monkeypatch.setattr(RicciFlowSolver, "solve", stalled)
+    h = ict_head(seed=0)
+    opts = ConvertOptions(res=32, find_face=False, method="conformal")
+    if ok:
+        m = convert(Mesh(h.V, h.F), tmp_path / "o", opts, quiet=True)
+        assert m["sets"][0]["ricci"]["converged"] is False
+    else:
+        with pytest.raises(GeofaceError, match="did not converge"):
+            convert(Mesh(h.V, h.F), tmp_path / "o", opts, quiet=True)

@@ -18,6 +18,12 @@ from ..mesh.io import first_corner_uv
 from ..progress import log
 
 
+#: a Ricci flow that stalls short of its tolerance is kept when its largest curvature error is
+#: below this (radians): the floor of floating point on large, ill-conditioned scans, not a
+#: failure to converge
+RICCI_ACCEPT = 1e-6
+
+
 @dataclass
 class SetInputs:
     """What the corner sets of one ``convert`` share: the Ricci-flow solver of the disk, the
@@ -53,13 +59,19 @@ def map_set(st, corners, s: SetInputs, pos=0, count=1):
     log(f"convert [{pos + 1}/{count}]: corner set {st['corner_set']}: Ricci flow, optimal transport, images", quiet=quiet)
     r = solver.solve(corners, quiet=quiet)
     if not r.converged:
-        raise GeofaceError(f"Ricci flow did not converge (max |K - target| {r.residual:.3g})")
+        if not (np.isfinite(r.residual) and r.residual <= RICCI_ACCEPT):
+            raise GeofaceError(f"Ricci flow did not converge (max |K - target| {r.residual:.3g})")
+        # stalled at the floor of floating point on a hard scan, short of the solver's own
+        # 1e-9: a curvature error this small moves no pixel; the metrics say so
+        log(f"convert [{pos + 1}/{count}]: Ricci flow stopped at max |K - target| {r.residual:.2g} "
+            f"(asked {solver.tolerance:g}); kept", quiet=quiet, detail=True)
     F = r.F
     if len(r.V) > len(V):  # boundary edges split by the flow: extend per-vertex data
         V, roi, colors = extend_split(r.V, r.split_edges, len(V), roi, colors)
     uv = r.unit_square()
     st["ricci"] = {"seconds": time.perf_counter() - t, "iterations": r.iterations, "residual": r.residual, "aspect": r.aspect,
-                   "log_conformal_factor_range": float(r.u.max() - r.u.min()), "intrinsic_flips": r.intrinsic_flips}
+                   "log_conformal_factor_range": float(r.u.max() - r.u.min()), "intrinsic_flips": r.intrinsic_flips,
+                   "converged": bool(r.converged)}
     st["conformal_distortion"] = distortion(V, F, uv).summary()
     if opts.method == "ot":
         t = time.perf_counter()

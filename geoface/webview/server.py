@@ -364,12 +364,30 @@ class WebView:
                 signal.signal(signal.SIGTERM, previous)
 
     def _hush(self):
-        """viser prints its banner and "Server stopped" on stdout whatever ``verbose`` says:
-        swallowed when quiet (the CLI prints the URL itself)."""
+        """viser prints its banner and "Server stopped" with rich whatever ``verbose`` says: on
+        stdout, or in a notebook as display output. Swallowed when quiet (the CLI prints the
+        URL itself; a notebook's inline view has none to show)."""
         import contextlib
         import io
 
-        return contextlib.redirect_stdout(io.StringIO()) if self._quiet else contextlib.nullcontext()
+        if not self._quiet:
+            return contextlib.nullcontext()
+
+        @contextlib.contextmanager
+        def hushed():
+            import rich
+            import rich.console
+
+            sink = io.StringIO()
+            saved = rich._console  # rich.print's global console (a notebook's displays through IPython)
+            rich._console = rich.console.Console(file=sink, force_jupyter=False, force_terminal=False)
+            try:
+                with contextlib.redirect_stdout(sink):
+                    yield
+            finally:
+                rich._console = saved
+
+        return hushed()
 
     def stop(self) -> None:
         self._stop.set()
