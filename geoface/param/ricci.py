@@ -38,6 +38,7 @@ then a rectangle with the corners at its corners.
 
 from __future__ import annotations
 
+import copy
 import time
 
 import numpy as np
@@ -125,6 +126,7 @@ class RicciFlowSolver:
         # here (0.18 s + 0.13 s per refactorization, against METIS 0.43 s + 0.14 s)
         self.solver = SPDSolver(linear_solver, ordering="colamd")
         self._u_warm: np.ndarray | None = None
+        self._tri_warm: IntrinsicTriangulation | None = None
 
     def _set_mesh(self, V: np.ndarray, F: np.ndarray) -> None:
         self.V, self.F = V, F
@@ -138,6 +140,15 @@ class RicciFlowSolver:
             ang = corner_angles(self.l0)
         #: needles or caps: an angle under 1 degree or over 177 (see ``solve``)
         self.poor_triangulation = bool(len(ang) and (ang.min() < POOR_MIN_ANGLE or ang.max() > POOR_MAX_ANGLE))
+
+    def _start_triangulation(self) -> IntrinsicTriangulation:
+        """The intrinsic triangulation a flow starts on: the last solve's when it was of this
+        mesh (the corner sets of one mesh differ only at their four corners), else the mesh's."""
+        warm = self._tri_warm
+        if warm is not None and warm.F0.shape == self.F.shape and np.array_equal(warm.F0, self.F):
+            self._tri_warm = None
+            return warm
+        return IntrinsicTriangulation(self.F, self.l0)
 
     def refine_boundary(self, min_vertices: int, *, rounds: int = 4) -> int:
         """Refine the triangles along the boundary (red-green,
@@ -240,14 +251,14 @@ class RicciFlowSolver:
         # <= 1/16: degenerate triangles block every full step)
         auto = self.flips == "auto"
         if self.flips == "always" or (auto and self.poor_triangulation):
-            tri = IntrinsicTriangulation(self.F, self.l0)
+            tri = self._start_triangulation()
         cap = min(self.max_iterations, 30) if auto and tri is None else self.max_iterations
         u, ang, F, it, res, history, converged = self._newton(corners, theta, u, tri, quiet, cap,
                                                               stall=3 if auto and tri is None else 0)
         if auto and tri is None and (not converged or n_degenerate(ang) > 0):
             log(f"ricci: no flat metric on the mesh's own triangulation (residual {res:.2e} after {it} iterations); "
                 "continuing on its intrinsic Delaunay triangulation", quiet=quiet, detail=True)
-            tri = IntrinsicTriangulation(self.F, self.l0)
+            tri = self._start_triangulation()
             u, ang, F, it2, res, h2, converged = self._newton(corners, theta, np.zeros(self.n), tri, quiet, self.max_iterations)
             it += it2
             history += h2
@@ -273,6 +284,9 @@ class RicciFlowSolver:
             it += it2
             history += h2
         self._u_warm = u.copy()
+        # the next corner set starts from this triangulation: Delaunay already for a metric
+        # near its own, so its flow flips little (a copy: this result's flip tracker keeps its log)
+        self._tri_warm = None if tri is None else copy.deepcopy(tri)
         lengths = np.exp(0.5 * self._lam(u, F, tri))
         degenerate = n_degenerate(ang)
         uv = layout(lengths, F, ang, None if tri is None else tri.twin)
