@@ -26,8 +26,8 @@ def test_progress_is_silent_when_quiet(monkeypatch):
 
 
 def test_the_library_is_quiet_by_default():
-    """A fresh interpreter without GEOFACE_QUIET: a library call prints nothing; the command
-    shows its progress (and -q silences it)."""
+    """A fresh interpreter without GEOFACE_QUIET (a real process: the library's default is read
+    at import): a library call prints nothing."""
     import os
     import subprocess
     import sys
@@ -37,18 +37,19 @@ def test_the_library_is_quiet_by_default():
             "h = procedural_head(n_vertices=2000, seed=0)\nmake_disk(h.V, h.F)\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
     assert r.returncode == 0 and r.stdout == "" and r.stderr == "", r.stderr[-500:]
-    import tempfile
 
-    d = tempfile.mkdtemp()
-    mesh = os.path.join(d, "h.obj")
-    subprocess.run([sys.executable, "-m", "geoface", "synth", "head", "-o", mesh, "--vertices", "2000"], env=env,
-                   capture_output=True, check=True, timeout=300)
-    r = subprocess.run([sys.executable, "-m", "geoface", "repair", mesh, "-o", os.path.join(d, "d.obj")], env=env,
-                       capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0 and "repairing" in r.stderr
-    r = subprocess.run([sys.executable, "-m", "geoface", "repair", mesh, "-o", os.path.join(d, "e.obj"), "-q"], env=env,
-                       capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0 and r.stderr == ""
+def test_the_command_shows_progress_and_q_silences_it(tmp_path, capsys, monkeypatch):
+    """The command run as a user runs it (no GEOFACE_QUIET): progress on stderr; -q: none."""
+    from geoface.cli import main
+
+    monkeypatch.delenv("GEOFACE_QUIET", raising=False)
+    mesh = tmp_path / "h.obj"
+    assert main(["synth", "head", "-o", str(mesh), "--vertices", "2000", "-q"]) == 0
+    capsys.readouterr()
+    assert main(["repair", str(mesh), "-o", str(tmp_path / "d.obj")]) == 0
+    assert "repairing" in capsys.readouterr().err
+    assert main(["repair", str(mesh), "-o", str(tmp_path / "e.obj"), "-q"]) == 0
+    assert capsys.readouterr().err == ""
 
 
 def test_convert_says_little_by_default_and_the_iterations_with_v(tmp_path, capsys, caplog):
