@@ -11,7 +11,6 @@ against the Poisson surface, whether the face was found and the image upright.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -21,6 +20,9 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+
+from _results import emitter  # noqa: E402
 MESHES = REPO / "tests" / "data" / "meshes"
 #: (name, points): the Max Planck bust (closed), the open face scan at two densities, an ICT head
 CLOUDS = (("decimated-max.obj", 30000), ("face.obj", 8000), ("face.obj", 30000), ("ict:0", 30000))
@@ -77,12 +79,9 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="also append the JSON lines to this file")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
+        emit = emitter(a.out)
         for name, n in CLOUDS:
-            line = json.dumps(run(name, n, a.res, Path(d)))
-            print(line, flush=True)
-            if a.out:
-                with open(a.out, "a") as f:
-                    f.write(line + "\n")
+            emit(run(name, n, a.res, Path(d)))
 
 
 if __name__ == "__main__":

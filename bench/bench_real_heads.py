@@ -11,7 +11,6 @@ mean and worst over the heads, and how many are valid disks.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import subprocess
 import sys
@@ -21,14 +20,13 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+
+from _results import emitter  # noqa: E402
 
 
 def emit(row: dict, out: Path | None) -> None:
-    line = json.dumps({k: (round(v, 5) if isinstance(v, float) else v) for k, v in row.items()})
-    print(line, flush=True)
-    if out:
-        with open(out, "a") as f:
-            f.write(line + "\n")
+    emitter(out)({k: (round(v, 5) if isinstance(v, float) else v) for k, v in row.items()})
 
 
 def main() -> None:

@@ -15,12 +15,14 @@ the whole-solve-only run's Hausdorff of the same set.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import emitter  # noqa: E402
 
 MESHES = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 
@@ -51,6 +53,7 @@ def main() -> None:
         on = run(a.mesh, a.res, True, Path(d))
         off = run(a.mesh, a.res, False, Path(d))
     before = {s["corner_set"]: s["reconstruction"]["hausdorff"] for s in off}
+    emit = emitter(a.out)
     for s in on:
         row = {"bench": "male02_untangle" if a.mesh.stem == "male02" else "untangle", "mesh": a.mesh.name, "res": a.res,
                "corner_set": s["corner_set"], "fold_free_solve": s["ot"]["fold_free_solve"], "ot_path": s["ot"]["path"],
@@ -60,11 +63,7 @@ def main() -> None:
                "max_displacement": round(s["ot"]["max_displacement"], 4),
                "area_error_after": round(s["ot"]["area_error_after"], 4),
                "before_hausdorff": None if s["corner_set"] not in before else round(before[s["corner_set"]], 5)}
-        line = json.dumps(row)
-        print(line, flush=True)
-        if a.out:
-            with open(a.out, "a") as f:
-                f.write(line + "\n")
+        emit(row)
 
 
 if __name__ == "__main__":

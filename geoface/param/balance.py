@@ -32,8 +32,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import ParameterizationError
-from ..mesh.core import boundary_loops, signed_uv_areas, uv_vertex_areas
-from .foldfree import along_side, loop_area, on_side, boundary_sides, mean_value_weights
+from ..mesh.core import signed_uv_areas, uv_vertex_areas
+from .foldfree import along_side, boundary_sides, disk_loop, loop_area, mean_value_weights, on_side
 
 __all__ = ["BalancedMap", "area_balanced_map", "log_area_ratio"]
 
@@ -99,10 +99,7 @@ def area_balanced_map(F, uv, nu, *, target_log: float = TARGET_LOG, max_rounds: 
     uv = np.asarray(uv, np.float64)
     nu = np.asarray(nu, np.float64)
     n = len(uv)
-    loops = boundary_loops(F)
-    if len(loops) != 1:
-        raise ParameterizationError(f"an area-balanced map needs a disk (one boundary loop); got {len(loops)}")
-    loop = loops[0]
+    loop = disk_loop(F, "an area-balanced map")
     if nu.shape != (n,) or not (np.isfinite(nu).all() and (nu > 0).all()):
         raise ParameterizationError(f"nu must be ({n},) positive masses")
     a0 = signed_uv_areas(F, uv)

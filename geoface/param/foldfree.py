@@ -59,7 +59,7 @@ from ..errors import ParameterizationError
 from ..mesh.core import boundary_loops, signed_uv_areas
 from .untangle import area_loss, untangle
 
-__all__ = ["FoldFreeResult", "convex_combination_map", "mean_value_weights", "square_sides"]
+__all__ = ["FoldFreeResult", "convex_combination_map", "disk_loop", "mean_value_weights", "square_sides"]
 
 #: a target angle at a vertex must exceed this (radians) for the vertex to keep its own MVC
 MIN_ANGLE = 1e-9
@@ -111,6 +111,14 @@ class FoldFreeResult:
     rounds: int
     solve: str = "global"
     solved_vertices: int = 0
+
+
+def disk_loop(F: np.ndarray, what: str) -> np.ndarray:
+    """The one boundary loop of the disk ``F``; ``what`` needs a disk and says so otherwise."""
+    loops = boundary_loops(F)
+    if len(loops) != 1:
+        raise ParameterizationError(f"{what} needs a disk (one boundary loop); got {len(loops)}")
+    return loops[0]
 
 
 def square_sides(uv: np.ndarray, eps: float = 1e-9) -> np.ndarray:
@@ -315,10 +323,7 @@ def convex_combination_map(F, target, reference, *, max_rounds: int = 4, refine=
         raise ParameterizationError(f"target and reference must be ({n}, 2) arrays")
     if not (np.isfinite(target).all() and np.isfinite(reference).all()):
         raise ParameterizationError("target and reference must be finite")
-    loops = boundary_loops(F)
-    if len(loops) != 1:
-        raise ParameterizationError(f"a convex-combination map needs a disk (one boundary loop); got {len(loops)}")
-    loop = loops[0]
+    loop = disk_loop(F, "a convex-combination map")
     a_ref = signed_uv_areas(F, reference)
     orient = 1.0 if a_ref.sum() >= 0 else -1.0
     if (orient * a_ref < 0).any():

@@ -7,9 +7,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..errors import ParameterizationError
-from ..mesh.core import boundary_loops, signed_uv_areas
-from .foldfree import convex_combination_map
+from ..mesh.core import signed_uv_areas
+from .foldfree import convex_combination_map, disk_loop
 
 __all__ = ["fold_free_start", "square_boundary", "tutte_map"]
 
@@ -49,10 +48,7 @@ def tutte_map(F, uv) -> np.ndarray:
     F = np.asarray(F, np.int64)
     uv = np.asarray(uv, np.float64)
     n = len(uv)
-    loops = boundary_loops(F)
-    if len(loops) != 1:
-        raise ParameterizationError(f"a Tutte embedding needs a disk (one boundary loop); got {len(loops)}")
-    loop = loops[0]
+    loop = disk_loop(F, "a Tutte embedding")
     inner = np.ones(n, bool)
     inner[loop] = False
     i, j = np.concatenate([F[:, [0, 1, 2]].ravel(), F[:, [1, 2, 0]].ravel()]), \
