@@ -9,7 +9,7 @@ conversion is one corner set at ``--res`` with the defaults (meshes above 45K ve
 ``--proxy 0`` (the whole scan through every stage) to compare at equal settings.
 
     python bench/bench_scale.py [--sizes 10000 50000 200000 500000 1000000 2000000] [--no-proxy 200000]
-        [--files bust134k.obj] [--res 512] [--cache /tmp/geoface_scale] [--out bench/results/convert/scale_512.jsonl]
+        [--files bust134k.obj] [--res 512] [--cache /tmp/geoface_scale] [--scan] [--out bench/results/convert/scale_512.jsonl]
 """
 
 from __future__ import annotations
@@ -52,12 +52,12 @@ print(json.dumps(out))
 """
 
 
-def mesh_file(cache: Path, n: int) -> Path:
-    f = cache / f"max_{n}.ply"
+def mesh_file(cache: Path, n: int, scan: bool = False) -> Path:
+    f = cache / f"max_{n}{'_scan' if scan else ''}.ply"
     if not f.is_file():
         cache.mkdir(parents=True, exist_ok=True)
-        subprocess.run([sys.executable, str(REPO / "data_tools" / "make_dense_head.py"), str(f), "--vertices", str(n)],
-                       check=True, stdout=subprocess.DEVNULL)
+        subprocess.run([sys.executable, str(REPO / "data_tools" / "make_dense_head.py"), str(f), "--vertices", str(n)]
+                       + (["--scan"] if scan else []), check=True, stdout=subprocess.DEVNULL)
     return f
 
 
@@ -76,7 +76,9 @@ def main() -> None:
     ap.add_argument("--no-proxy", nargs="*", type=int, default=[200000], help="sizes also run with --proxy 0")
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "geoface_scale")
-    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--out", type=Path, default=None, help="also append the JSON lines to this file")
+    ap.add_argument("--scan", action="store_true",
+                    help="scan-like meshes (make_dense_head.py --scan: holes, a ragged rim, debris, uneven triangles)")
     ap.add_argument("--files", nargs="*", type=Path, default=[],
                     help="more meshes to time with the defaults, outside the slope (e.g. the 134K bust of "
                          "data_tools/make_dense_bust.py)")
@@ -92,7 +94,8 @@ def main() -> None:
     rows = []
     jobs = [(n, DEFAULT_PROXY) for n in args.sizes] + [(n, 0) for n in args.no_proxy]
     for n, proxy in jobs:
-        r = {"case": "scale", "target_vertices": n, "res": args.res, "proxy": proxy, **run(mesh_file(args.cache, n), args.res, proxy)}
+        r = {"case": "scale", "target_vertices": n, "res": args.res, "proxy": proxy, "scan_like": args.scan,
+             **run(mesh_file(args.cache, n, args.scan), args.res, proxy)}
         rows.append(r)
         emit(r)
     for f in args.files:
