@@ -9,7 +9,8 @@ conversion is one corner set at ``--res`` with the defaults (meshes above 45K ve
 ``--proxy 0`` (the whole scan through every stage) to compare at equal settings.
 
     python bench/bench_scale.py [--sizes 10000 50000 200000 500000 1000000 2000000] [--no-proxy 200000]
-        [--files bust134k.obj] [--res 512] [--cache /tmp/geoface_scale] [--scan] [--out bench/results/convert/scale_512.jsonl]
+        [--files bust134k.obj] [--res 512] [--cache /tmp/geoface_scale] [--scan] [--source max|ict0]
+        [--proxies 10000 15000 20000 30000] [--repeat 3] [--out bench/results/convert/scale_512.jsonl]
 """
 
 from __future__ import annotations
@@ -47,17 +48,19 @@ out = {"vertices": len(mesh.V), "faces": len(mesh.F), "proxy_vertices": m.get("p
        "ot_iterations": st["ot"]["iterations"], "flipped": st["distortion"]["flipped"],
        "hausdorff": st["reconstruction"]["hausdorff"], "face_hausdorff": st["reconstruction"].get("face_hausdorff"),
        "roi_pixel_share": st.get("roi_pixel_share"),
+       "qc_p95": st["distortion"]["qc_p95"], "log_area_abs_p95": st["distortion"]["log_area_abs_p95"],
+       "face_pixels": st.get("face_pixels"), "level": (m.get("face") or {}).get("level"),
        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 print(json.dumps(out))
 """
 
 
-def mesh_file(cache: Path, n: int, scan: bool = False) -> Path:
-    f = cache / f"max_{n}{'_scan' if scan else ''}.ply"
+def mesh_file(cache: Path, n: int, scan: bool = False, source: str = "max") -> Path:
+    f = cache / f"{source}_{n}{'_scan' if scan else ''}.ply"
     if not f.is_file():
         cache.mkdir(parents=True, exist_ok=True)
-        subprocess.run([sys.executable, str(REPO / "data_tools" / "make_dense_head.py"), str(f), "--vertices", str(n)]
-                       + (["--scan"] if scan else []), check=True, stdout=subprocess.DEVNULL)
+        subprocess.run([sys.executable, str(REPO / "data_tools" / "make_dense_head.py"), str(f), "--vertices", str(n),
+                        "--source", source] + (["--scan"] if scan else []), check=True, stdout=subprocess.DEVNULL)
     return f
 
 
@@ -74,7 +77,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", nargs="*", type=int, default=[10000, 50000, 200000, 500000, 1000000, 2000000])
     ap.add_argument("--no-proxy", nargs="*", type=int, default=[200000], help="sizes also run with --proxy 0")
+    ap.add_argument("--proxies", nargs="*", type=int, default=[DEFAULT_PROXY],
+                    help="proxy sizes each size is run with (a sweep: accuracy against time)")
+    ap.add_argument("--source", default="max", help="make_dense_head.py's --source (max: the bust; ict0: an ICT head)")
     ap.add_argument("--res", type=int, default=512)
+    ap.add_argument("--repeat", type=int, default=1, help="runs of each --files mesh (each in a fresh process)")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "geoface_scale")
     ap.add_argument("--out", type=Path, default=None, help="also append the JSON lines to this file")
     ap.add_argument("--scan", action="store_true",
@@ -92,15 +99,19 @@ def main() -> None:
                 fh.write(line + "\n")
 
     rows = []
-    jobs = [(n, DEFAULT_PROXY) for n in args.sizes] + [(n, 0) for n in args.no_proxy]
+    jobs = [(n, p) for n in args.sizes for p in args.proxies] + [(n, 0) for n in args.no_proxy]
     for n, proxy in jobs:
         r = {"case": "scale", "target_vertices": n, "res": args.res, "proxy": proxy, "scan_like": args.scan,
-             **run(mesh_file(args.cache, n, args.scan), args.res, proxy)}
+             **({"source": args.source} if args.source != "max" else {}),
+             **run(mesh_file(args.cache, n, args.scan, args.source), args.res, proxy)}
         rows.append(r)
         emit(r)
     for f in args.files:
-        emit({"case": "scale_file", "mesh": f.name, "res": args.res, "proxy": DEFAULT_PROXY, **run(f, args.res, DEFAULT_PROXY)})
-    ok = [r for r in rows if r["proxy"] and "error" not in r]
+        for proxy in args.proxies:
+            for k in range(args.repeat):
+                emit({"case": "scale_file", "mesh": f.name, "res": args.res, "proxy": proxy,
+                      **({"run": k} if args.repeat > 1 else {}), **run(f, args.res, proxy)})
+    ok = [r for r in rows if r["proxy"] == DEFAULT_PROXY and "error" not in r]
     if len(ok) >= 2:
         x = np.log([r["vertices"] for r in ok])
         for key in ("total", "total_without_report"):

@@ -261,3 +261,51 @@ def test_a_datasets_other_corner_sets_reuse_the_level_turn(tmp_path, monkeypatch
     calls.clear()
     convert(mesh, tmp_path / "c", ConvertOptions(corner_set=3, **opts), quiet=True)
     assert len(calls) >= 2, len(calls)
+
+
+def test_a_large_disk_is_levelled_on_a_decimated_copy(tmp_path, monkeypatch):
+    """Above ``LEVEL_SEARCH_FACTOR × LEVEL_SEARCH_VERTICES`` the level turn is sought on a copy
+    (every boundary vertex kept, a disk) and the disk itself is mapped once or twice: the bust,
+    26° off level on its own, ends within 2° with at most two maps of the full disk, where the
+    search on the disk itself makes more."""
+    import geoface.pipeline.corner_set as cs
+    import geoface.pipeline.face as pf
+    from geoface.param.ricci import RicciFlowSolver
+    from geoface.repair import make_disk
+
+    mesh = load_mesh(shared_mesh("decimated-max.obj"))
+    d = make_disk(mesh.V, mesh.F, find_face=False)
+    solver = RicciFlowSolver(d.V, d.F)
+    coarse, _ = pf._coarse_disk(solver, None, 1500)
+    loop = boundary_loops(coarse.F)
+    assert len(loop) == 1 and 1300 <= len(coarse.V) <= 1700
+    # the copy keeps the disk's boundary, vertex for vertex
+    assert np.array_equal(np.sort(coarse.V[loop[0]], axis=0), np.sort(d.V[boundary_loops(d.F)[0]], axis=0))
+
+    monkeypatch.setattr(pf, "LEVEL_SEARCH_VERTICES", 1500)
+    monkeypatch.setattr(pf, "LEVEL_SEARCH_FACTOR", 2.0)
+    pf._LEVELS.clear()
+    sizes = []
+    real = cs.map_set
+    monkeypatch.setattr(cs, "map_set", lambda st, c, s, *a, **k: sizes.append(len(s.solver.V)) or real(st, c, s, *a, **k))
+    opts = dict(res=32, preview=False, reconstruct=False)
+    m = convert(mesh, tmp_path / "a", ConvertOptions(**opts), quiet=True)
+    level = m["face"]["level"]
+    assert level["searched_on"]["vertices"] < 2000 and abs(level["eye_line_after"]) <= 2.0, level
+    assert abs(m["sets"][0]["face_pixels"]["eye_line_degrees"]) <= 2.0
+    full = [n for n in sizes if n > 3000]
+    assert 1 <= len(full) <= 2 and len(sizes) > len(full), sizes
+    monkeypatch.setattr(pf, "LEVEL_SEARCH_FACTOR", 1e9)  # the search on the disk itself
+    pf._LEVELS.clear()
+    sizes.clear()
+    convert(mesh, tmp_path / "b", ConvertOptions(**opts), quiet=True)
+    assert len(sizes) > len(full), sizes
+
+
+def test_the_default_proxy_takes_only_large_scans():
+    """With the default proxy (15,000) a scan goes through it above 45,000 vertices (smaller ones
+    convert whole in seconds); an explicit size keeps the 1.5 × rule."""
+    from geoface.pipeline import DEFAULT_PROXY, PROXY_ABOVE, proxy_threshold
+
+    assert proxy_threshold(DEFAULT_PROXY) == PROXY_ABOVE == 45000
+    assert proxy_threshold(2500) == 3750 and proxy_threshold(40000) == 60000

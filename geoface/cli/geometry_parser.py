@@ -84,8 +84,8 @@ def register(sub, common) -> None:
                    "file; without one, the front found with --up auto, or where the mesh faces about a given --up: symmetry "
                    "and detail, as `view` finds it) or an axis (z, -x, ...)")
     s.add_argument("--open", choices=["auto", "plane", "cap", "none"], default="auto", help="how to open a closed surface")
-    s.add_argument("--proxy", type=number(int, 0, 10**8), default=30000, metavar="N",  # = pipeline.DEFAULT_PROXY (kept light: no pipeline import here)
-                   help="a scan with more than 1.5 N vertices is decimated to N vertices for the repair and the maps, and the "
+    s.add_argument("--proxy", type=number(int, 0, 10**8), default=15000, metavar="N",  # = pipeline.DEFAULT_PROXY (kept light: no pipeline import here)
+                   help="a scan with more than 1.5 N vertices (with the default N: more than 45,000) is decimated to N vertices for the repair and the maps, and the "
                         "images sample the full surface (default %(default)s; 0: never)")
     s.add_argument("--needles", type=number(float, 0, 0.5, hi_open=True), default=0.01, metavar="RATIO",  # = repair.proxy.NEEDLE_RATIO
                    help="needle triangles: edges shorter than RATIO x their face's longest edge are collapsed for the maps "

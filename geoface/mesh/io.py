@@ -186,6 +186,12 @@ def _split_at_seams(F: np.ndarray, FUV: np.ndarray, n_uv: int):
     """One output vertex per distinct (vertex, UV) corner pair, in the order of the pairs:
     (vertex index, UV index, faces over the new vertices).  The pairs are one int64 key each,
     so the sort is a plain 1-D one (``np.unique(axis=0)`` sorts structured rows, ~15x slower)."""
+    if FUV.shape == F.shape and np.array_equal(F, FUV):  # one UV per vertex (a geometry image's mesh): no seams
+        used = np.zeros(max(int(n_uv), int(F.max(initial=-1)) + 1), bool)
+        used[F.ravel()] = True
+        vi = np.flatnonzero(used)
+        rank = np.cumsum(used) - 1
+        return vi, vi.copy(), rank[F].astype(np.int64)
     key = F.astype(np.int64).ravel() * max(int(n_uv), 1) + FUV.astype(np.int64).ravel()
     uniq, inv = np.unique(key, return_inverse=True)
     vi, ti = np.divmod(uniq, max(int(n_uv), 1))

@@ -22,6 +22,8 @@ triangle inequality (which the Delaunay triangulation then repairs).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..errors import ParameterizationError
@@ -115,30 +117,28 @@ class IntrinsicTriangulation:
         D = int(F[g, (m + 2) % 3])
         hBC, hCA = 3 * f + (k + 1) % 3, 3 * f + (k + 2) % 3
         hAD, hDB = 3 * g + (m + 1) % 3, 3 * g + (m + 2) % 3
-        old = {name: (L[x], twin[x]) for name, x in (("BC", hBC), ("CA", hCA), ("AD", hAD), ("DB", hDB))}
+        lBC, lCA, lAD, lDB = float(L[hBC]), float(L[hCA]), float(L[hAD]), float(L[hDB])
+        tBC, tCA, tAD, tDB = int(twin[hBC]), int(twin[hCA]), int(twin[hAD]), int(twin[hDB])
         # Ptolemy on base lengths (invariant under vertex scaling)
-        l_cd = (old["AD"][0] * old["BC"][0] + old["DB"][0] * old["CA"][0]) / L[h]
-        # new faces: f = (C, A, D), g = (D, B, C)
+        l_cd = (lAD * lBC + lDB * lCA) / float(L[h])
+        # new faces f = (C, A, D), g = (D, B, C): half-edges CA, AD, DC = 3f, 3f+1, 3f+2 and
+        # DB, BC, CD = 3g, 3g+1, 3g+2
         F[f] = (C, A, D)
         F[g] = (D, B, C)
-        new = {"CA": 3 * f, "AD": 3 * f + 1, "DC": 3 * f + 2, "DB": 3 * g, "BC": 3 * g + 1, "CD": 3 * g + 2}
-        for name in ("BC", "CA", "AD", "DB"):
-            x = new[name]
-            L[x], tw = old[name]
+        f3, g3 = 3 * f, 3 * g
+        for x, length, tw in ((f3, lCA, tCA), (f3 + 1, lAD, tAD), (g3, lDB, tDB), (g3 + 1, lBC, tBC)):
+            L[x] = length
             twin[x] = tw
             if tw >= 0:
                 twin[tw] = x
-        L[new["DC"]] = L[new["CD"]] = l_cd
-        twin[new["DC"]], twin[new["CD"]] = new["CD"], new["DC"]
+        L[f3 + 2] = L[g3 + 2] = l_cd
+        twin[f3 + 2], twin[g3 + 2] = g3 + 2, f3 + 2
         self.log.append((h, t, None))
         # refresh cached scaled lengths and endpoints of the six half-edges
-        for x in range(3 * f, 3 * f + 3):
-            src[x], dst[x] = F[f, x % 3], F[f, (x % 3 + 1) % 3]
-        for x in range(3 * g, 3 * g + 3):
-            src[x], dst[x] = F[g, x % 3], F[g, (x % 3 + 1) % 3]
-        for x in list(range(3 * f, 3 * f + 3)) + list(range(3 * g, 3 * g + 3)):
-            Ls[x] = L[x] * np.exp(0.5 * (u[src[x]] + u[dst[x]]))
-        return [new[n] for n in ("BC", "CA", "AD", "DB")]
+        for x, a, b in ((f3, C, A), (f3 + 1, A, D), (f3 + 2, D, C), (g3, D, B), (g3 + 1, B, C), (g3 + 2, C, D)):
+            src[x], dst[x] = a, b
+            Ls[x] = L[x] * math.exp(0.5 * (u[a] + u[b]))
+        return [g3 + 1, f3, f3 + 1, g3]
 
 
 def flip_flat_degenerate(tri: IntrinsicTriangulation, u: np.ndarray, tol: float = 1e-9) -> int:

@@ -64,6 +64,9 @@ MAX_LOG_SCALE_RANGE = 200.0
 #: a triangulation with an angle outside these (radians) starts on intrinsic Delaunay flips
 POOR_MIN_ANGLE = np.radians(1.0)
 POOR_MAX_ANGLE = np.radians(177.0)
+#: on intrinsic flips, a step that makes more degenerate triangles than the iterate has is still
+#: taken when backtracking has shrunk it below this
+FLIP_GUARD_STEP = 1.0
 
 
 def _energy_terms(lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -362,7 +365,7 @@ class RicciFlowSolver:
                 noise = abs(t * slope) < 1e-11 * max(abs(E), 1.0)
                 if noise and np.isfinite(En):
                     armijo = float(np.abs(gn).max()) < float(np.abs(g).max())
-                if armijo and (n_degenerate(angn) <= n_deg or t < (1e-3 if tri is not None else 1e-6)):
+                if armijo and (n_degenerate(angn) <= n_deg or t < (FLIP_GUARD_STEP if tri is not None else 1e-6)):
                     break
                 t *= 0.5
                 if t < 1e-12:

@@ -33,9 +33,13 @@ __all__ = ["ConvertOptions", "convert", "face_region", "load_roi", "reconstructi
 METHODS = ("ot", "conformal")
 #: a scan with more than this many times ``ConvertOptions.proxy`` vertices goes through a proxy
 PROXY_FACTOR = 1.5
-#: default proxy size: with it the 134K bust converts at 512² in 22 s, Hausdorff 0.33% / face
-#: 0.09% of the diagonal, and a 2M-vertex scan in 58 s (bench/bench_scale.py)
-DEFAULT_PROXY = 30000
+#: with the default proxy size, only scans of more than this many vertices go through it (smaller
+#: ones convert in seconds whole, as they did with the earlier 30,000-vertex default)
+PROXY_ABOVE = 45000
+#: default proxy size, chosen on validation scans (bench/bench_scale.py --proxies; docs/benchmarks.md,
+#: "The proxy's size"): against 30,000 the same mean distance to the scan within 10%, the maps
+#: solved in half the time
+DEFAULT_PROXY = 15000
 #: a scan whose needle triangles' short edges (``ConvertOptions.needles``) would merge at least this
 #: share of its vertices is parameterized through a proxy with them merged
 NEEDLE_MIN_SHARE = 1e-3
@@ -72,8 +76,8 @@ class ConvertOptions:
     corner_set : convert only corner set ``k`` (0..7) of the 8, written directly in the
     output folder (used by the dataset builder: one item per mesh × corner set); ``augment``
     is then ignored; metrics : write ``metrics.json`` (it holds timings, so a folder without
-    it is byte-identical across runs); proxy : a scan with more than 1.5 × ``proxy`` vertices
-    (default :data:`DEFAULT_PROXY`, 30000) is decimated to ``proxy`` vertices for the repair and the maps, and the
+    it is byte-identical across runs); proxy : a scan with more than 1.5 × ``proxy`` vertices (with the default,
+    :data:`DEFAULT_PROXY` = 15,000: more than :data:`PROXY_ABOVE` = 45,000) is decimated to ``proxy`` vertices for the repair and the maps, and the
     images take positions, normals and colours from the full surface
     (:mod:`geoface.pipeline.proxy`); 0: never; needles : when edges shorter than ``needles``
     times the longest edge of their face (needle triangles: marching-cubes output, edges split
@@ -287,6 +291,12 @@ def convert(mesh: Mesh, out_dir: str | os.PathLike, options: ConvertOptions | No
         return _convert(mesh, out_dir, opts, quiet=quiet, overwrite=overwrite)
 
 
+def proxy_threshold(proxy: int) -> float:
+    """How many vertices a scan must exceed to be solved on a ``proxy``-vertex proxy:
+    :data:`PROXY_FACTOR` × ``proxy``, and :data:`PROXY_ABOVE` with the default size."""
+    return PROXY_ABOVE if proxy == DEFAULT_PROXY else PROXY_FACTOR * proxy
+
+
 def _convert(mesh: Mesh, out_dir, opts: ConvertOptions, *, quiet, overwrite) -> dict:
     from ..param.corners import corner_sets
     from ..param.ricci import RicciFlowSolver
@@ -298,7 +308,7 @@ def _convert(mesh: Mesh, out_dir, opts: ConvertOptions, *, quiet, overwrite) -> 
     roi0 = _explicit_roi(opts, mesh.V)
 
     scan, proxy_kind, needle_px = None, None, None
-    if opts.proxy and len(mesh.V) > PROXY_FACTOR * opts.proxy:
+    if opts.proxy and len(mesh.V) > proxy_threshold(opts.proxy):
         from ..repair.proxy import decimate
 
         t = time.perf_counter()

