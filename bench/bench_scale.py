@@ -47,6 +47,7 @@ out = {"vertices": len(mesh.V), "faces": len(mesh.F), "proxy_vertices": m.get("p
                    "reconstruction": st["reconstruction"]["seconds"], "total": total},
        "ot_iterations": st["ot"]["iterations"], "flipped": st["distortion"]["flipped"],
        "hausdorff": st["reconstruction"]["hausdorff"], "face_hausdorff": st["reconstruction"].get("face_hausdorff"),
+       "mean_distance": st["reconstruction"]["mean"], "face_mean_distance": st["reconstruction"].get("face_mean"),
        "roi_pixel_share": st.get("roi_pixel_share"),
        "qc_p95": st["distortion"]["qc_p95"], "log_area_abs_p95": st["distortion"]["log_area_abs_p95"],
        "face_pixels": st.get("face_pixels"), "level": (m.get("face") or {}).get("level"),

@@ -210,3 +210,31 @@ def test_the_cli_default_feature_is_the_library_default(tmp_path):
     f.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     code, _, err = geoface("convert", f, "-o", tmp_path / "o", "--feature", "-1")
     assert code == 2 and "Traceback" not in err and "--feature" in err
+
+
+def test_the_error_report_bounds_the_sampled_positions_without_querying_them(scan):
+    """The reconstruction's vertices are the positions the sampling gave (stored, so moved by a
+    rounding): their distance to the scan is bounded by the sampled point's plus that move — the
+    report's bound is at least the queried distance and within 1e-6 of the diagonal of it, where
+    a point off the scan (a proxy position kept) counts with its own distance."""
+    from geoface.pipeline.proxy import full_surface
+    from geoface.repair import make_disk
+
+    m, _, _ = scan
+    prox = decimate(m.V, m.F, 2500)
+    d = make_disk(prox.V, prox.F, find_face=False)
+    full = full_surface(m, d.V, d.F, None, fill=d.face_map < 0)
+    rng = np.random.default_rng(0)
+    f = rng.integers(0, len(d.F), 4000)
+    b = rng.dirichlet(np.ones(3), 4000)
+    P = np.einsum("kj,kjd->kd", b, d.V[d.F[f]])
+    P[:50] += 3.0 * full.tol * rng.normal(size=(50, 3))  # a few far off the proxy: kept where they are
+    Q, _, _, _ = full.sample(P, np.zeros_like(P))
+    V_rec = Q.astype(np.float32).astype(np.float64)  # stored in single precision
+    F_rec = np.arange(len(V_rec) - len(V_rec) % 3).reshape(-1, 3)
+    bound = full.error(V_rec, F_rec, sampled=True)
+    exact = full.error(V_rec, F_rec)
+    assert exact["rec_to_ref_max"] <= bound["rec_to_ref_max"] <= exact["rec_to_ref_max"] + 1e-6
+    assert exact["mean"] <= bound["mean"] + 1e-12 and bound["mean"] <= exact["mean"] + 1e-6
+    assert bound["ref_to_rec_max"] == exact["ref_to_rec_max"]
+    assert (full.last_distance > 0).any()  # some points stayed off the scan: their own distance counts

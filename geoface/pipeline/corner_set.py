@@ -168,7 +168,10 @@ def convert_set(st, folder, corners, s: SetInputs, pos=0, count=1, mapped=None) 
         if full is None:
             st["reconstruction"].update(reconstruction_error(V, F, rec.V, rec.F, ref_mask=roi, rec_mask=rec_mask))
         else:
-            st["reconstruction"].update(full.error(rec.V, rec.F, rec_mask=rec_mask))
+            # without smoothing the reconstruction's vertices are the covered pixels' positions, in
+            # their order: their distances to the scan are bounded by the sampling's
+            st["reconstruction"].update(full.error(rec.V, rec.F, rec_mask=rec_mask,
+                                                    sampled=opts.smooth == 0 and np.array_equal(gi.mask, fid >= 0)))
         st["reconstruction"]["seconds"] = time.perf_counter() - t
     if opts.preview:
         _preview(gi, folder / "preview.png")

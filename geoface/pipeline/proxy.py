@@ -44,10 +44,16 @@ class FullSurface:
     # against them too) and their vertices
     fill_query: object = None
     fill_vertices: np.ndarray | None = None
+    #: (:meth:`sample`) the last sampled positions and their distances to the scan and the fills
+    last_points: np.ndarray | None = None
+    last_distance: np.ndarray | None = None
 
     def sample(self, P: np.ndarray, N_proxy: np.ndarray):
         """Positions, normals and colours (or None) for proxy surface points ``P (k, 3)`` (with
-        the proxy's normals there), and the share of points that moved onto the scan."""
+        the proxy's normals there), and the share of points that moved onto the scan. Each
+        position's distance to the scan and the fills is kept in ``last_distance``: 0 where it
+        moved onto them (it is their closest point), the proxy point's own elsewhere; the positions in
+        ``last_points``."""
         dist, face, bary = self.query(P)
         Q = self.query.points(face, bary)
         on_scan = dist <= self.tol
@@ -57,9 +63,12 @@ class FullSurface:
             on_scan &= ~to_fill
             Q = np.where(to_fill[:, None], self.fill_query.points(f_fill, b_fill), Q)
             keep = ~on_scan & ~to_fill
+            dist = np.minimum(dist, d_fill)
         else:
             keep = ~on_scan
         Q = np.where(keep[:, None], P, Q)
+        self.last_distance = np.where(keep, dist, 0.0)
+        self.last_points = Q
         n = (self.normals[self.F[face]] * bary[:, :, None]).sum(1)
         Nn = np.where(on_scan[:, None], n, N_proxy)
         snap = on_scan
@@ -70,15 +79,21 @@ class FullSurface:
             C = sample_source(self.colour_source, face, bary, "color")
         return Q, Nn, C, float(snap.mean()) if len(snap) else 1.0
 
-    def error(self, V_rec, F_rec, rec_mask=None) -> dict:
+    def error(self, V_rec, F_rec, rec_mask=None, sampled: bool = False) -> dict:
         """Two-sided distances between a reconstruction and this surface, with the faces the
         repair created (filled holes, a neck cap) from the proxy disk, over its diagonal (the
-        keys of :func:`geoface.pipeline.corner_set.reconstruction_error`)."""
+        keys of :func:`geoface.pipeline.corner_set.reconstruction_error`). ``sampled``: True when
+        the reconstruction's vertices are the positions :meth:`sample` gave last, in its order (as
+        stored: a vertex is within its distance from there of the surface, the distance of its
+        sampled point plus how far storing moved it: no query needed)."""
         from ..uvmap.bake import SurfaceQuery
 
-        d_rec = self.query(V_rec)[0] / self.diag
-        if self.fill_query is not None:
-            d_rec = np.minimum(d_rec, self.fill_query(V_rec)[0] / self.diag)
+        if sampled and self.last_points is not None and len(self.last_points) == len(V_rec):
+            d_rec = (self.last_distance + np.linalg.norm(np.asarray(V_rec, np.float64) - self.last_points, axis=1)) / self.diag
+        else:
+            d_rec = self.query(V_rec)[0] / self.diag
+            if self.fill_query is not None:
+                d_rec = np.minimum(d_rec, self.fill_query(V_rec)[0] / self.diag)
         rec = SurfaceQuery(V_rec, F_rec)
         d_ref = rec(self.mesh.V[self.kept])[0] / self.diag
         d_fill = rec(self.fill_vertices)[0] / self.diag if self.fill_vertices is not None else np.zeros(0)
