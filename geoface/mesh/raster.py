@@ -17,13 +17,15 @@ __all__ = ["bbox_pixels", "rasterize_mesh"]
 
 
 def bbox_pixels(x, y, det, j0, i0, nj, count, chunk: int):
-    """Enumerate the pixel centres in triangles' bounding boxes, in chunks of about ``chunk``.
+    """Enumerate the pixel centres of triangles, in chunks of about ``chunk`` (bounding-box pixels).
 
     ``x, y (m, 3)``: vertex pixel coordinates (centres at integers); ``det (m,)``: twice the
-    signed area; ``j0, i0 (m,)``: first column/row of each box; ``nj (m,)``: box width;
-    ``count (m,)``: pixels in the box (0 skips the triangle).  Yields
-    ``(tt, ii, jj, b0, b1, b2)``: triangle, row, column and barycentric coordinates of every
-    enumerated pixel (inside or not: the caller tests the signs).
+    signed area; ``j0, i0 (m,)``: first column/row of each bounding box; ``nj (m,)``: box width;
+    ``count (m,)``: pixels in the box (0 skips the triangle). Each row of a box is cut to the
+    span between the triangle's edges there (widened by :data:`SPAN_SLACK` of a pixel), so a
+    sliver's box costs no more than its pixels. Yields ``(tt, ii, jj, b0, b1, b2)``: triangle,
+    row, column and barycentric coordinates of every enumerated pixel (inside or not, near an
+    edge: the caller tests the signs).
     """
     tri = np.flatnonzero(count)
     csum = np.cumsum(count[tri])
@@ -32,12 +34,36 @@ def bbox_pixels(x, y, det, j0, i0, nj, count, chunk: int):
         base = csum[start - 1] if start else 0
         stop = max(int(np.searchsorted(csum, base + chunk, side="right")), start + 1)
         t = tri[start:stop]
-        c = count[t]
-        rep = np.repeat(np.arange(len(t)), c)
-        local = np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c)
-        tt = t[rep]
-        jj = j0[tt] + local % nj[tt]
-        ii = i0[tt] + local // nj[tt]
+        start = stop
+        # one (triangle, row) pair per row of each box, cut to the edges' span on that row
+        ni = count[t] // nj[t]
+        pt = np.repeat(t, ni)
+        row = i0[pt] + (np.arange(len(pt)) - np.repeat(np.cumsum(ni) - ni, ni))
+        yr = row.astype(np.float64)
+        X, Y = x[pt], y[pt]
+        lo = np.full(len(pt), np.inf)
+        hi = np.full(len(pt), -np.inf)
+        for a, b in ((0, 1), (1, 2), (2, 0)):
+            ya, yb, xa, xb = Y[:, a], Y[:, b], X[:, a], X[:, b]
+            on = (np.minimum(ya, yb) <= yr) & (yr <= np.maximum(ya, yb))
+            dy = yb - ya
+            flat = dy == 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                xi = xa + (yr - ya) * (xb - xa) / np.where(flat, 1.0, dy)
+            lo = np.where(on, np.minimum(lo, np.where(flat, np.minimum(xa, xb), xi)), lo)
+            hi = np.where(on, np.maximum(hi, np.where(flat, np.maximum(xa, xb), xi)), hi)
+        ok = np.isfinite(lo) & np.isfinite(hi)
+        jl = np.maximum(np.ceil(np.where(ok, lo, 0.0) - SPAN_SLACK), j0[pt]).astype(np.int64)
+        jr = np.minimum(np.floor(np.where(ok, hi, -1.0) + SPAN_SLACK), j0[pt] + nj[pt] - 1).astype(np.int64)
+        c = np.where(ok, np.maximum(jr - jl + 1, 0), 0)
+        keep = c > 0
+        pt, row, jl, c = pt[keep], row[keep], jl[keep], c[keep]
+        if not len(pt):
+            continue
+        rep = np.repeat(np.arange(len(pt)), c)
+        tt = pt[rep]
+        ii = row[rep]
+        jj = jl[rep] + (np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c))
         px = jj.astype(np.float64)
         py = ii.astype(np.float64)
         xa, ya = x[tt], y[tt]
@@ -45,7 +71,11 @@ def bbox_pixels(x, y, det, j0, i0, nj, count, chunk: int):
         b1 = ((px - xa[:, 0]) * (ya[:, 2] - ya[:, 0]) - (xa[:, 2] - xa[:, 0]) * (py - ya[:, 0])) / d
         b2 = ((xa[:, 1] - xa[:, 0]) * (py - ya[:, 0]) - (px - xa[:, 0]) * (ya[:, 1] - ya[:, 0])) / d
         yield tt, ii, jj, 1.0 - b1 - b2, b1, b2
-        start = stop
+
+
+#: a row's span between a triangle's edges is widened by this share of a pixel on each side
+#: (pixel centres on an edge, to rounding, are enumerated; the caller's sign test decides)
+SPAN_SLACK = 1e-5
 
 
 def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_000_000):
@@ -92,13 +122,11 @@ def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_0
         tt, pix = tt[inside], ii[inside] * W + jj[inside]
         w = np.clip(np.stack([b0[inside], b1[inside], b2[inside]], 1), 0.0, None) / zf[tt]
         zc = 1.0 / w.sum(1)  # perspective-correct depth: 1/z is linear on screen
-        order = np.lexsort((zc, pix))  # by pixel, nearest first
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = pix[order[1:]] != pix[order[:-1]]
-        k = order[first]
-        win = zc[k] < zbuf[pix[k]]  # nearer than what earlier chunks left
-        k = k[win]
-        zbuf[pix[k]] = zc[k]
+        # the nearest candidate of each pixel, and nearer than what earlier chunks left: the
+        # z-buffer by an unbuffered minimum (no sort); of equally near ones the first is kept
+        before = zbuf[pix]
+        np.minimum.at(zbuf, pix, zc)
+        k = np.flatnonzero((zc == zbuf[pix]) & (zc < before))[::-1]  # reversed: the first written last
         face[pix[k]] = tt[k]
         bary[pix[k]] = w[k] * zc[k, None]
     return face.reshape(H, W), bary.reshape(H, W, 3), zbuf.reshape(H, W)
