@@ -17,6 +17,23 @@ if os.environ.get("PYTEST_XDIST_WORKER_COUNT"):
         os.environ.setdefault(_var, _share)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _shared_cache(tmp_path_factory):
+    """One on-disk cache of faces and level turns (geoface._cache) for the whole run, shared by
+    the xdist workers and the processes the tests start: a mesh converted by several tests (and
+    by a dataset's worker processes) is looked at once. Set before any test starts."""
+    from geoface import _cache
+
+    if _cache.folder() is not None:  # the caller chose one
+        yield
+        return
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    os.environ[_cache.ENV] = str(root / "geoface-cache")
+    yield
+    os.environ.pop(_cache.ENV, None)
+
+
 @pytest.fixture(autouse=True)
 def _threads():
     """Each test starts with the worker's share of threads (a test that trains with a config's

@@ -257,10 +257,18 @@ def test_a_datasets_other_corner_sets_reuse_the_level_turn(tmp_path, monkeypatch
     monkeypatch.setattr(cs, "map_set", lambda *a, **k: calls.append(1) or real(*a, **k))
     other = convert(mesh, tmp_path / "b", ConvertOptions(corner_set=3, **opts), quiet=True)
     assert other["face"]["level"] == first["face"]["level"] and len(calls) == 1, (len(calls), other["face"]["level"])
-    pf._LEVELS.clear()  # without the cache the levelling's maps are made again
+    pf._LEVELS.clear()  # without the caches (this process's, and the shared one on disk) the levelling's maps are made again
+    from geoface import _cache
+
+    monkeypatch.setenv(_cache.ENV, str(tmp_path / "empty cache"))
     calls.clear()
-    convert(mesh, tmp_path / "c", ConvertOptions(corner_set=3, **opts), quiet=True)
+    third = convert(mesh, tmp_path / "c", ConvertOptions(corner_set=3, **opts), quiet=True)
     assert len(calls) >= 2, len(calls)
+    # another process (here: this one, its own cache emptied) reads the turn back from the disk cache
+    pf._LEVELS.clear()
+    calls.clear()
+    fourth = convert(mesh, tmp_path / "d", ConvertOptions(corner_set=3, **opts), quiet=True)
+    assert fourth["face"]["level"] == third["face"]["level"] and len(calls) == 1, len(calls)
 
 
 def test_a_large_disk_is_levelled_on_a_decimated_copy(tmp_path, monkeypatch):
@@ -282,6 +290,9 @@ def test_a_large_disk_is_levelled_on_a_decimated_copy(tmp_path, monkeypatch):
     # the copy keeps the disk's boundary, vertex for vertex
     assert np.array_equal(np.sort(coarse.V[loop[0]], axis=0), np.sort(d.V[boundary_loops(d.F)[0]], axis=0))
 
+    from geoface import _cache
+
+    monkeypatch.delenv(_cache.ENV, raising=False)  # the level sought here, not read back from other tests
     monkeypatch.setattr(pf, "LEVEL_SEARCH_VERTICES", 1500)
     monkeypatch.setattr(pf, "LEVEL_SEARCH_FACTOR", 2.0)
     pf._LEVELS.clear()

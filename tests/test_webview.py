@@ -56,7 +56,7 @@ def _serve(*paths):
     """Start `geoface view --web`; return (process, url) once it prints the URL."""
     port = _free_port()
     proc = subprocess.Popen([sys.executable, "-m", "geoface", "view", "--web", *map(str, paths), "--port", str(port),
-                             "--exit-after", "240", "--idle-exit", "2"],
+                             "--exit-after", "240", "--idle-exit", "1"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
     got = threading.Event()
@@ -95,7 +95,7 @@ def _look(browser, url, ok, timeout=90.0) -> np.ndarray:
         canvas = img
         if ok(canvas) or time.monotonic() - t0 > timeout:
             return canvas
-        time.sleep(1.0)
+        time.sleep(0.25)
 
 
 def _centre(c, frac=0.4):
@@ -108,7 +108,7 @@ def _drawn(c):
 
 
 def _finish(proc, browser, lines):
-    browser.quit()  # the browser leaves: the server stops by itself (--idle-exit 2)
+    browser.quit()  # the browser leaves: the server stops by itself (--idle-exit 1)
     try:
         assert proc.wait(timeout=60) == 0, "".join(lines)
     finally:

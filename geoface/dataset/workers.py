@@ -38,11 +38,39 @@ def executor(workers: int, scheduler: str | None):
     if workers == 1:  # in this process, one item at a time as the driver asks for results
         return _Deferred, iter, lambda interrupted=False: None
     import multiprocessing as mp
+    import shutil
+    import tempfile
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
+    from .. import _cache
+
+    # the workers share one cache for the length of the build (geoface._cache): each mesh's face
+    # and level turn are found once, not once per worker that converts one of its corner sets
+    own_cache = None
+    if _cache.folder() is None:
+        own_cache = tempfile.mkdtemp(prefix="geoface-cache-")
+    env = {_cache.ENV: own_cache} if own_cache else {}
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)  # spawned workers take the environment as it is when they start
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=die_with_parent,
                                initargs=(os.getpid(),))
+
+    def restore() -> None:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        if own_cache:
+            shutil.rmtree(own_cache, ignore_errors=True)
+
     def close(interrupted: bool = False) -> None:
+        try:
+            _close(interrupted)
+        finally:
+            restore()
+
+    def _close(interrupted: bool) -> None:
         if interrupted:  # do not wait for running items: end the workers now (the temporary
             # folders of their unfinished items are removed by the next run that builds them)
             procs = list((getattr(pool, "_processes", None) or {}).values())

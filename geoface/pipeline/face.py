@@ -115,7 +115,13 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
 
     from ..param.corners import corner_sets
 
+    from .. import _cache
+
     key0 = _level_key(solver, roi, face, opts)
+    if key0 not in _LEVELS:  # levelled in another process (GEOFACE_CACHE: a dataset's workers)
+        stored = _cache.get("level", key0)
+        if isinstance(stored, dict) and "turn" in stored and "boundary_vertices_added" in stored:
+            _LEVELS[key0] = stored
     if key0 in _LEVELS:  # this mesh levelled already (a dataset's other corner sets): the same turn
         level = copy.deepcopy(_LEVELS[key0])
         if level["boundary_vertices_added"]:
@@ -131,6 +137,7 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
         level = _level_search(solver, tilt)
     face["metrics"]["level"] = level
     _LEVELS[key0] = copy.deepcopy(level)
+    _cache.put("level", key0, level)
     while len(_LEVELS) > LEVEL_CACHE_SIZE:
         _LEVELS.pop(next(iter(_LEVELS)))
     keep = corners_key(corner_sets(solver.V, solver.F, n=8, front=front, up=up, count=1, turn=level["turn"])[0])

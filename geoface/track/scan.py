@@ -185,7 +185,13 @@ def _cached_scan(V, F, resolution, search_resolution, views, min_confidence, ite
            int(candidates), str(source))
     if key in _CACHE:
         return _CACHE[key]
-    r = _scan_landmarks(V, F, resolution, search_resolution, views, min_confidence, iterations, candidates, source)
+    from geoface import _cache
+
+    stored = _cache.get("face", repr(key))
+    r = _from_json(stored) if stored is not None else None
+    if r is None:
+        r = _scan_landmarks(V, F, resolution, search_resolution, views, min_confidence, iterations, candidates, source)
+        _cache.put("face", repr(key), _to_json(r))
     _CACHE[key] = r
     while len(_CACHE) > CACHE_SIZE:
         _CACHE.pop(next(iter(_CACHE)))
@@ -193,9 +199,33 @@ def _cached_scan(V, F, resolution, search_resolution, views, min_confidence, ite
 
 
 #: the last few meshes' faces are kept (per process): a dataset converts each mesh once per corner
-#: set, a notebook converts the same scan again with other options
+#: set, a notebook converts the same scan again with other options; across processes with
+#: ``GEOFACE_CACHE`` (:mod:`geoface._cache`)
 CACHE_SIZE = 8
 _CACHE: dict = {}
+_ARRAYS = ("points", "keypoints", "mesh_points", "right", "up", "front")
+
+
+def _to_json(r: ScanLandmarks) -> dict:
+    """``r`` as JSON (arrays as lists, NaN kept: Python's JSON writes and reads it)."""
+    from dataclasses import asdict
+
+    d = asdict(r)
+    for k in _ARRAYS:
+        d[k] = None if d[k] is None else np.asarray(d[k], np.float64).tolist()
+    return d
+
+
+def _from_json(d: dict) -> ScanLandmarks | None:
+    """The :class:`ScanLandmarks` of :func:`_to_json`, or None where it does not fit."""
+    try:
+        d = dict(d)
+        for k in _ARRAYS:
+            d[k] = None if d.get(k) is None else np.asarray(d[k], np.float64)
+        r = ScanLandmarks(**d)
+    except (TypeError, ValueError):
+        return None
+    return r if r.points.shape == (68, 3) and r.keypoints.shape == (4, 3) else None
 
 
 def _digest(V, F) -> str:

@@ -203,3 +203,29 @@ def test_a_turned_copy_of_a_coarse_bust_is_seen_the_same():
         r = scan_landmarks(b.V @ R.T, b.F)
         assert r.found, (seed, r.why)
         assert _deg(R.T @ r.up, ref.up) < 1 and _deg(R.T @ r.front, ref.front) < 1, seed
+
+
+def test_a_face_found_once_is_read_back_from_the_shared_cache(tmp_path, monkeypatch):
+    """With ``GEOFACE_CACHE`` a face found in one process is read back in another (here: the
+    in-process cache emptied and the search made to fail); a damaged entry is looked at again."""
+    import geoface.track.scan as S
+    from geoface import _cache
+    from geoface.synth.ict import ict_head
+
+    monkeypatch.setenv(_cache.ENV, str(tmp_path / "cache"))
+    h = ict_head(seed=7)
+    S._CACHE.clear()
+    first = S.scan_landmarks(h.V, h.F)
+    assert first.found and len(list((tmp_path / "cache" / "face").glob("*.json"))) == 1
+    S._CACHE.clear()
+    real = S._scan_landmarks
+    monkeypatch.setattr(S, "_scan_landmarks", lambda *a: (_ for _ in ()).throw(AssertionError("looked again")))
+    again = S.scan_landmarks(h.V, h.F)
+    assert again.found and again.source == first.source and again.why == first.why
+    assert np.array_equal(again.points, first.points, equal_nan=True) and np.allclose(again.front, first.front)
+    (entry,) = (tmp_path / "cache" / "face").glob("*.json")
+    entry.write_text("{not json")
+    S._CACHE.clear()
+    calls = []
+    monkeypatch.setattr(S, "_scan_landmarks", lambda *a: calls.append(1) or real(*a))
+    assert S.scan_landmarks(h.V, h.F).found and calls == [1]
