@@ -74,6 +74,19 @@ def run(file: Path, res: int, proxy: int) -> dict:
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
+def calibration() -> dict:
+    """How fast this machine is as the bench starts (a shared machine's speed drifts by a third
+    between hours): a pure-Python loop of 3M additions and a 2000² float64 matrix product, each
+    the best of three, in a fresh process. The quiet 2-core machine: about 0.21 s and 0.16 s."""
+    code = ("import time, numpy as np\n"
+            "def best(f):\n    r = []\n    for _ in range(3):\n        t = time.perf_counter(); f(); r.append(time.perf_counter() - t)\n    return min(r)\n"
+            "def loop():\n    s = 0\n    for i in range(3000000): s += i\n"
+            "a = np.random.default_rng(0).random((2000, 2000))\n"
+            "print(best(loop), best(lambda: a @ a))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    return {"case": "calibration", "python_loop_s": round(float(out[0]), 3), "matmul_2000_s": round(float(out[1]), 3)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", nargs="*", type=int, default=[10000, 50000, 200000, 500000, 1000000, 2000000])
@@ -99,6 +112,7 @@ def main() -> None:
             with open(args.out, "a") as fh:
                 fh.write(line + "\n")
 
+    emit(calibration())
     rows = []
     jobs = [(n, p) for n in args.sizes for p in args.proxies] + [(n, 0) for n in args.no_proxy]
     for n, proxy in jobs:
