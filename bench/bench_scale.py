@@ -77,7 +77,7 @@ def run(file: Path, res: int, proxy: int) -> dict:
 def calibration() -> dict:
     """How fast this machine is as the bench starts (a shared machine's speed drifts by a third
     between hours): a pure-Python loop of 3M additions and a 2000² float64 matrix product, each
-    the best of three, in a fresh process. The quiet 2-core machine: about 0.21 s and 0.16 s."""
+    the best of three, in a fresh process. The quiet 2-core machine: about 0.08 s and 0.16 s."""
     code = ("import time, numpy as np\n"
             "def best(f):\n    r = []\n    for _ in range(3):\n        t = time.perf_counter(); f(); r.append(time.perf_counter() - t)\n    return min(r)\n"
             "def loop():\n    s = 0\n    for i in range(3000000): s += i\n"
