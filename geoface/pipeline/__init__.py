@@ -36,7 +36,7 @@ PROXY_FACTOR = 1.5
 #: with the default proxy size, only scans of more than this many vertices go through it (smaller
 #: ones convert in seconds whole, as they did with the earlier 30,000-vertex default)
 PROXY_ABOVE = 45000
-#: default proxy size, chosen on validation scans (bench/bench_scale.py --proxies; docs/benchmarks.md,
+#: default proxy size, chosen on validation scans (bench/bench_scale.py --proxies; docs/large_scans.md,
 #: "The proxy's size"): against 30,000 the same mean distance to the scan within 10%, the maps
 #: solved in half the time
 DEFAULT_PROXY = 15000
