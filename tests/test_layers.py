@@ -12,7 +12,7 @@ PKG = Path(__file__).resolve().parents[1] / "geoface"
 #: rank of each top-level module or package; a module may import only lower ranks (same rank:
 #: siblings that must not know each other, e.g. ddpm, texture and splat)
 RANKS = {
-    "errors": 0, "tol": 0.1, "rotations": 0.11, "camera": 0.12, "landmarks": 0.13, "images": 0.16, "_io": 0.15, "capture": 0.17, "_args": 0.2, "_lazy": 0.2, "progress": 0.3, "video": 0.4, "": 0.5,
+    "errors": 0, "tol": 0.1, "rotations": 0.11, "camera": 0.12, "landmarks": 0.13, "images": 0.16, "_io": 0.15, "capture": 0.17, "_args": 0.2, "_lazy": 0.2, "progress": 0.3, "video": 0.4, "": 0.5, "_cache": 0.55,
     "mesh": 1, "synth": 2, "track": 2.2, "repair": 2.5, "param": 3, "gimage": 4, "uvmap": 5, "viz_arrays": 5.49, "viz": 5.5,
     "pipeline": 6, "dataset": 6.5, "nn": 7, "skin": 7.5, "ddpm": 8, "texture": 8, "splat": 8, "learn": 8.05,
     "avatar": 8.1, "hfm": 8.3, "thgs": 8.3, "drive": 8.4, "webview": 8.5, "cli": 9, "__main__": 10,
