@@ -182,6 +182,12 @@ def refine_patch(V: list, faces: list, target: float, mesh_edge_keys: np.ndarray
     """
     mesh_keys = mesh_edge_keys if mesh_edge_keys is not None else np.zeros(0, np.int64)
     faces = [list(f) for f in faces]
+    arr = [np.asarray(V, np.float64).reshape(-1, 3)]  # V as an array, grown as V grows (not rebuilt each pass)
+
+    def points():
+        if len(arr[0]) < len(V):
+            arr[0] = np.vstack([arr[0], np.asarray(V[len(arr[0]):], np.float64).reshape(-1, 3)])
+        return arr[0]
 
     def edge_map():
         em = {}
@@ -212,7 +218,7 @@ def refine_patch(V: list, faces: list, target: float, mesh_edge_keys: np.ndarray
         if not cand:
             return 0
         C = np.asarray(cand, np.int64)
-        P = np.asarray(V)
+        P = points()
         Pu, Pv, Pc, Pd = P[C[:, 0]], P[C[:, 1]], P[C[:, 2]], P[C[:, 3]]
 
         def ang(p, q, r):
@@ -243,7 +249,7 @@ def refine_patch(V: list, faces: list, target: float, mesh_edge_keys: np.ndarray
     for _ in range(max_rounds):
         em = edge_map()
         inner = np.asarray([k for k, fs in em.items() if len(fs) == 2], np.int64).reshape(-1, 2)
-        P = np.asarray(V)
+        P = points()
         ln = np.linalg.norm(P[inner[:, 0]] - P[inner[:, 1]], axis=1)
         sel = np.flatnonzero(ln > 4.0 / 3.0 * target)
         if len(sel) == 0:
