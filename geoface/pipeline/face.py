@@ -106,16 +106,15 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
     (:meth:`geoface.param.ricci.RicciFlowSolver.refine_boundary`, to :data:`LEVEL_BOUNDARY`
     vertices: a corner moves by a 180th of the boundary, the image by 2°) and the turn sought
     again. A disk of more than :data:`LEVEL_SEARCH_FACTOR` × :data:`LEVEL_SEARCH_VERTICES`
-    vertices is levelled on a copy decimated to the latter (the secant steps cost a map each:
-    a fifth of the time there), then mapped once at that turn, and once more (one secant step
+    vertices is levelled on a copy decimated to the latter (each secant step costs a map, a
+    fraction of the disk's there), then mapped once at that turn, and once more (one secant step
     with the copy's slope) when its eye line is more than :data:`FINE_LEVEL_DEGREES` off; where
     that still leaves it more than :data:`COARSE_LEVEL_DEGREES` off, the turn is sought on the
     disk itself. The result goes into ``face["metrics"]["level"]``."""
     import copy
 
-    from ..param.corners import corner_sets
-
     from .. import _cache
+    from ..param.corners import corner_sets
 
     key0 = _level_key(solver, roi, face, opts)
     if key0 not in _LEVELS:  # levelled in another process (GEOFACE_CACHE: a dataset's workers)
