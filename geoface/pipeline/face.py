@@ -75,7 +75,7 @@ def _coarse_disk(solver, roi, vertices: int):
     from scipy.spatial import cKDTree
 
     from .._lazy import lazy_import
-    from ..mesh.core import boundary_loops, edge_topology
+    from ..mesh.core import edge_topology
     from ..param.ricci import RicciFlowSolver
 
     pymeshlab = lazy_import("pymeshlab", "levelling the face on a decimated copy")
@@ -85,13 +85,11 @@ def _coarse_disk(solver, roi, vertices: int):
                                                 boundaryweight=1.0, planarquadric=True, qualitythr=0.3, autoclean=True)
     cm = ms.current_mesh()
     V, F = np.asarray(cm.vertex_matrix(), np.float64), np.asarray(cm.face_matrix(), np.int64)
-    loops = boundary_loops(F)
-    et = edge_topology(F)
-    if len(loops) != 1 or (et.edge_faces > 2).any() or len(V) - len(et.E) + len(F) != 1 or len(np.unique(F)) != len(V):
-        return None
-    try:
+    try:  # the flow refuses more than one boundary loop, unused vertices and non-manifold edges itself
         coarse = RicciFlowSolver(V, F)
     except GeofaceError:
+        return None
+    if len(V) - len(edge_topology(F).E) + len(F) != 1:  # one loop and manifold, but not a disk
         return None
     croi = None if roi is None else np.asarray(roi)[cKDTree(solver.V[: len(roi)]).query(V)[1]]
     return coarse, croi
