@@ -18,6 +18,8 @@ mean and p95), and frames per second. Each fit twice: with the focal length esti
 known (the true one given). ``--refine``: also the photometric refinement after the landmark fit
 with the focal length estimated (``refine_photometric``), with the photometric error before and after.
 
+``--floor``: also the landmarks' own floor (:func:`rigid468`).
+
 Seeds: 11 validation (where the refinement's weights were chosen), 13, 14, 15 test.
 
     python bench/bench_head_track.py [--seeds 11 13 14 15] [--res 512] [--seconds 3] [--refine] [--out FILE]
@@ -109,6 +111,30 @@ def pnp68(person, frames_pts68, Vtrue):
     return Rcam, Vw @ person.cam.R.T + person.cam.t
 
 
+def rigid468(person, pts, Etrue):
+    """The landmarks' own floor: the person's *true* identity and each frame's *true* expression
+    weights at the table's 468 points (the view offsets included), posed by PnP on MediaPipe's
+    points through the true camera — the best any fit of the ICT head to these points can do
+    when shape and expression are exactly right; what is left is MediaPipe's own error."""
+    from geoface.track.head_track import pnp, point_bases, view_offsets
+
+    mean, Bid, Bex = point_bases()
+    base = mean + np.tensordot(person.ident[: len(Bid)], Bid, axes=1)
+    c = (person.cam.cx, person.cam.cy)
+    Rs, Vs = [], []
+    names = person.model.expression_names
+    for k in range(len(pts)):
+        X = base + np.einsum("e,ekd->kd", Etrue[k], Bex)
+        ok = np.isfinite(pts[k]).all(1)
+        r = pnp(X[ok], pts[k, ok], person.cam.fx, c)
+        for _ in range(4):  # the offsets follow the view the pose gives
+            Xo = X + view_offsets(r[0][None], r[1][None], mean.mean(0))[0]
+            r = pnp(Xo[ok], pts[k, ok], person.cam.fx, c)
+        Rs.append(r[0])
+        Vs.append(person.shape(dict(zip(names, Etrue[k]))) @ r[0].T + r[1])
+    return np.stack(Rs), np.stack(Vs)
+
+
 def main(argv=None) -> int:
     from geoface.track import facemesh_points, ibug68_from_mediapipe
     from geoface.track.head_refine import refine_photometric
@@ -119,6 +145,8 @@ def main(argv=None) -> int:
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--refine", action="store_true", help="also the photometric refinement")
+    ap.add_argument("--floor", action="store_true",
+                    help="also the landmarks' floor: true identity, expressions and camera, posed by PnP")
     ap.add_argument("--settings", default="{}", help="TrackSettings overrides as JSON")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
@@ -157,6 +185,10 @@ def main(argv=None) -> int:
         Rp, Vp = pnp68(person, p68, Vtrue)
         emit({**base, "method": "pnp68_true_head_true_camera", "focal": "known",
               **scores(person, Vtrue, Rtrue, Etrue, Rp, Vp)})
+        if a.floor:
+            Rf, Vf = rigid468(person, pts, Etrue)
+            emit({**base, "method": "rigid468_true_shape_true_camera", "focal": "known",
+                  **scores(person, Vtrue, Rtrue, Etrue, Rf, Vf)})
     return 0
 
 
