@@ -238,3 +238,40 @@ def test_the_error_report_bounds_the_sampled_positions_without_querying_them(sca
     assert exact["mean"] <= bound["mean"] + 1e-12 and bound["mean"] <= exact["mean"] + 1e-6
     assert bound["ref_to_rec_max"] == exact["ref_to_rec_max"]
     assert (full.last_distance > 0).any()  # some points stayed off the scan: their own distance counts
+
+
+def test_the_fills_are_asked_only_where_they_can_matter():
+    """``FullSurface._fill_near`` queries the fills only for points within ``tol`` of their box or
+    off the scan, and :meth:`sample` gives exactly what querying every point gives."""
+    from types import SimpleNamespace
+
+    from geoface.pipeline.proxy import FullSurface
+    from geoface.synth import square_grid
+    from geoface.uvmap.bake import SurfaceQuery
+
+    V, F = square_grid(20)  # the unit square at z = 0; the fill: four triangles just above a corner
+    fillV = V[F[:4].ravel()] + [0.0, 0.0, 0.001]
+    fillF = np.arange(12).reshape(4, 3)
+    asked = []
+
+    class Counting(SurfaceQuery):
+        def __call__(self, P):
+            asked.append(len(P))
+            return super().__call__(P)
+
+    q = SurfaceQuery(fillV, fillF)
+    counting = Counting(fillV, fillF)
+
+    surf = FullSurface(mesh=SimpleNamespace(V=V), F=F, query=SurfaceQuery(V, F), normals=np.tile([0.0, 0.0, 1.0], (len(V), 1)),
+                       tol=0.02, diag=1.5, roi=None, kept=np.arange(len(V)), colour_source=None,
+                       fill_query=counting, fill_vertices=fillV)
+    rng = np.random.default_rng(0)
+    P = np.column_stack([rng.uniform(0, 1, (2000, 2)), rng.normal(0, 0.01, 2000)])
+    P[:50, 2] += 0.5  # off the scan: asked wherever they are, and half of them nearer the fill than the scan
+    P[:25, :2] = V[F[:4].ravel(), :2].mean(0) + rng.uniform(-0.005, 0.005, (25, 2))
+    Q, N, _, _ = surf.sample(P, np.tile([0.0, 0.0, 1.0], (len(P), 1)))
+    assert 50 <= asked[0] < len(P) / 2
+    d_near = surf.last_distance.copy()
+    surf._fill_near = lambda P_, dist: q(P_)  # every point asked
+    Q2, N2, _, _ = surf.sample(P, np.tile([0.0, 0.0, 1.0], (len(P), 1)))
+    assert np.array_equal(Q, Q2) and np.array_equal(N, N2) and np.array_equal(d_near, surf.last_distance)

@@ -55,6 +55,14 @@ class IntrinsicTriangulation:
         self.flips = 0
         self.log: list = []
 
+    def copy(self) -> "IntrinsicTriangulation":
+        """An independent copy: the arrays and the flip log copied (the log's entries, tuples that
+        nothing changes once written, are shared): far cheaper than ``copy.deepcopy`` on a flow's log."""
+        c = object.__new__(type(self))
+        c.__dict__.update({k: v.copy(order="K") if isinstance(v, np.ndarray) else list(v) if isinstance(v, list) else v
+                           for k, v in self.__dict__.items()})
+        return c
+
     def corner_lengths(self, u: np.ndarray) -> np.ndarray:
         """``(m, 3)`` scaled lengths opposite each corner (the layout of ``l`` everywhere)."""
         Ls = self.scaled_halfedges(u).reshape(-1, 3)

@@ -38,7 +38,6 @@ then a rectangle with the corners at its corners.
 
 from __future__ import annotations
 
-import copy
 import time
 
 import numpy as np
@@ -290,7 +289,7 @@ class RicciFlowSolver:
         self._u_warm = u.copy()
         # the next corner set starts from this triangulation: Delaunay already for a metric
         # near its own, so its flow flips little (a copy: this result's flip tracker keeps its log)
-        self._tri_warm = None if tri is None else copy.deepcopy(tri)
+        self._tri_warm = None if tri is None else tri.copy()
         lengths = np.exp(0.5 * self._lam(u, F, tri))
         degenerate = n_degenerate(ang)
         uv = layout(lengths, F, ang, None if tri is None else tri.twin)

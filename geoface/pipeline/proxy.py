@@ -58,7 +58,7 @@ class FullSurface:
         Q = self.query.points(face, bary)
         on_scan = dist <= self.tol
         if self.fill_query is not None:  # onto the scan or a fill, whichever is closer: a fill keeps its place
-            d_fill, f_fill, b_fill = self.fill_query(P)
+            d_fill, f_fill, b_fill = self._fill_near(P, dist)
             to_fill = (d_fill < dist) & (d_fill <= self.tol)
             on_scan &= ~to_fill
             Q = np.where(to_fill[:, None], self.fill_query.points(f_fill, b_fill), Q)
@@ -78,6 +78,22 @@ class FullSurface:
 
             C = sample_source(self.colour_source, face, bary, "color")
         return Q, Nn, C, float(snap.mean()) if len(snap) else 1.0
+
+    def _fill_near(self, P, dist):
+        """The fills' closest points to ``P`` where :meth:`sample` can use them: every point within
+        ``tol`` of the fills' bounding box, and every point further than ``tol`` from the scan (its
+        distance is the smaller of the two); elsewhere the fills are further than ``tol`` and not
+        nearer than the scan, and their distance is left infinite (a fill is small beside the
+        pixels: most need no query)."""
+        lo, hi = self.fill_vertices.min(0) - self.tol, self.fill_vertices.max(0) + self.tol
+        ask = np.flatnonzero(((P >= lo) & (P <= hi)).all(1) | (dist > self.tol))
+        d = np.full(len(P), np.inf)
+        f = np.zeros(len(P), np.int64)
+        b = np.zeros((len(P), 3))
+        b[:, 0] = 1.0
+        if len(ask):
+            d[ask], f[ask], b[ask] = self.fill_query(P[ask])
+        return d, f, b
 
     def error(self, V_rec, F_rec, rec_mask=None, sampled: bool = False) -> dict:
         """Two-sided distances between a reconstruction and this surface, with the faces the

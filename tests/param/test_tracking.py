@@ -164,3 +164,26 @@ def test_intrinsic_ricci_map_is_continuous_and_fold_free(seed):
     assert s["qc_mean"] < 1.03
     pos = r.map_points(face, np.tile(np.eye(3), (m, 1)))
     assert np.abs(pos / r.width * 1.5 - V[r.mesh_F.ravel(), :2]).max() < 0.01
+
+
+def test_a_copied_triangulation_flips_on_its_own():
+    """``IntrinsicTriangulation.copy`` (the warm start a flow hands the next corner set): equal
+    to the original, and flipping the copy leaves the original, its log included, as it was."""
+    from geoface.synth import square_grid
+
+    V, F = square_grid(6)
+    rng = np.random.default_rng(3)
+    V = V + np.column_stack([rng.uniform(-0.05, 0.05, (len(V), 2)), np.zeros(len(V))])
+    tri = IntrinsicTriangulation(F, edge_lengths(V, F))
+    u = rng.normal(0, 0.6, len(V))
+    tri.make_delaunay(u)
+    before = {k: (v.copy() if isinstance(v, np.ndarray) else list(v) if isinstance(v, list) else v)
+              for k, v in tri.__dict__.items()}
+    c = tri.copy()
+    assert c.__dict__.keys() == tri.__dict__.keys()
+    for k, v in tri.__dict__.items():
+        assert (np.array_equal(v, c.__dict__[k]) if isinstance(v, np.ndarray) else v == c.__dict__[k]), k
+    assert c.make_delaunay(-3 * u) > 0  # another metric: the copy flips
+    for k, v in before.items():
+        now = tri.__dict__[k]
+        assert (np.array_equal(v, now) if isinstance(v, np.ndarray) else v == now), k
