@@ -89,11 +89,18 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
         okp = np.isfinite(P).all((1, 2)) & track.found
         base_pts = mean + np.tensordot(track.identity, Bid[: len(track.identity)], axes=1)
 
+    # the expression modes as one (53, 3n) matrix in metres, made once (a blend per frame is then
+    # one product, not a reshaped copy of the modes)
+    modes = np.ascontiguousarray(v.expression_modes.reshape(len(v.expression_modes), -1), np.float64) * CM_TO_M
+    # the faces around the sampled vertices: their normals are all the visibility test needs
+    Fsamp = v.F[np.isin(v.F, samp).any(1)]
+
     def posed_all(k):
-        X = neutral + np.tensordot(E[k], v.expression_modes, axes=1) * CM_TO_M
+        X = neutral + (E[k] @ modes).reshape(-1, 3)
         return X @ R[k].T + tt[k]
 
     def visible(k):
+        """(visible samples, their cosines to the view, the posed head)."""
         Vc = posed_all(k)
         # only the triangles that face the camera can hide a face vertex (half the z-buffer's work)
         P0 = Vc[Fskin[:, 0]]
@@ -105,16 +112,16 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
         px = np.floor(uv).astype(int)
         ins = (px[:, 0] >= 1) & (px[:, 0] < W - 1) & (px[:, 1] >= 1) & (px[:, 1] < H - 1)
         i, j = np.clip(px[:, 1], 0, H - 1), np.clip(px[:, 0], 0, W - 1)
-        N = vertex_normals(Vc, v.F)[samp]
+        N = vertex_normals(Vc, Fsamp)[samp]
         cos = -(N * Xs).sum(1) / np.linalg.norm(Xs, axis=1)
         vis = ins & (Xs[:, 2] <= depth[i, j] + 2e-3) & (cos > 0.3) & (masks[k][i, j] > 0.5)
-        return vis, cos
+        return vis, cos, Vc
 
     def texture():
         acc, wsum = np.zeros((len(samp), 3)), np.zeros(len(samp))
         for k in range(0, T, max(1, T // 40)):
-            vis, cos = visible(k)
-            Xs = posed_all(k)[samp]
+            vis, cos, Vc = visible(k)
+            Xs = Vc[samp]
             uv = np.stack([f * Xs[:, 0] / Xs[:, 2] + cx, f * Xs[:, 1] / Xs[:, 2] + cy], 1)
             w = np.where(vis, cos ** 2, 0.0)
             acc += w[:, None] * _bilinear(frames[k], uv)
@@ -125,11 +132,11 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
     def photo_error(col, seen):
         out = np.full(T, np.nan)
         for k in range(T):
-            vis, _ = visible(k)
+            vis, _, Vc = visible(k)
             vis &= seen
             if vis.sum() < 50:
                 continue
-            Xs = posed_all(k)[samp][vis]
+            Xs = Vc[samp][vis]
             uv = np.stack([f * Xs[:, 0] / Xs[:, 2] + cx, f * Xs[:, 1] / Xs[:, 2] + cy], 1)
             I = _bilinear(frames[k], uv)
             # the frame's own gain and offset per channel, fitted (as the refinement does)
@@ -151,7 +158,7 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
                 E_nb, t_nb = E.copy(), tt.copy()
                 q = Rotation.from_matrix(R).as_quat()
                 for k in range(T):
-                    vis, _ = visible(k)
+                    vis = visible(k)[0]
                     vis &= seen
                     if vis.sum() < 50:
                         bar.update(1)
@@ -163,8 +170,11 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
                     tr_nb = np.mean([t_nb[j] for j in nb], 0)
                     gain = np.ones(3)
                     off = np.zeros(3)
+                    Bv = Bs[:, vis]  # (53, n, 3): the visible samples' modes, taken once per frame
+                    Bv2 = Bv.reshape(len(Bv), -1)
+                    base_v = neutral[samp][vis]
                     for _it in range(iterations):
-                        Xc0 = neutral[samp][vis] + np.tensordot(E[k], Bs[:, vis], axes=1)
+                        Xc0 = base_v + (E[k] @ Bv2).reshape(-1, 3)
                         RX = Xc0 @ R[k].T
                         Xc = RX + tt[k]
                         z = Xc[:, 2]
@@ -179,7 +189,7 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
                         dX = np.empty((n, 3, 59))
                         dX[..., 0:3] = -_skew(RX)
                         dX[..., 3:6] = np.eye(3)
-                        dX[..., 6:] = np.einsum("ij,ekj->kie", R[k], Bs[:, vis])
+                        dX[..., 6:] = (Bv @ R[k].T).transpose(1, 2, 0)
                         du = A @ dX  # (n, 2, 59)
                         # r_c = gain_c I_c(u) + off_c − col_c
                         Jg = (gain[None, :, None] * (Gx[..., None] * du[:, None, 0] + Gy[..., None] * du[:, None, 1]))
@@ -211,7 +221,7 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
                             dXl = np.empty((468, 3, 59))
                             dXl[..., 0:3] = -_skew(RXl)
                             dXl[..., 3:6] = np.eye(3)
-                            dXl[..., 6:] = np.einsum("ij,ekj->kie", R[k], Bex)
+                            dXl[..., 6:] = (Bex @ R[k].T).transpose(1, 2, 0)
                             Jl = (Al @ dXl).reshape(-1, 59)
                             wl2 = np.repeat(wl, 2)
                             Hm[:59, :59] += (Jl * wl2[:, None]).T @ Jl
