@@ -190,7 +190,9 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
                         dX[..., 0:3] = -_skew(RX)
                         dX[..., 3:6] = np.eye(3)
                         dX[..., 6:] = (Bv @ R[k].T).transpose(1, 2, 0)
-                        du = A @ dX  # (n, 2, 59)
+                        # A @ dX written out (A's zeros skipped; batched 2×3 products are slow)
+                        du = np.stack([A[:, 0, 0, None] * dX[:, 0] + A[:, 0, 2, None] * dX[:, 2],
+                                       A[:, 1, 1, None] * dX[:, 1] + A[:, 1, 2, None] * dX[:, 2]], 1)  # (n, 2, 59)
                         # r_c = gain_c I_c(u) + off_c − col_c
                         Jg = (gain[None, :, None] * (Gx[..., None] * du[:, None, 0] + Gy[..., None] * du[:, None, 1]))
                         J = np.zeros((n, 3, 65))
@@ -202,8 +204,9 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
                         r = ((gain * I + off - col[vis]) / _COLOUR_NOISE).reshape(-1)
                         J = J.reshape(-1, 65) / _COLOUR_NOISE
                         wr = 1.0 / (1.0 + r ** 2) / len(r)
-                        Hm = (J * wr[:, None]).T @ J
-                        g = (J * wr[:, None]).T @ r
+                        Jw = J * wr[:, None]
+                        Hm = Jw.T @ J
+                        g = Jw.T @ r
                         if width is not None and okp[k]:  # the landmarks, as in the fit
                             Xl = base_pts + np.tensordot(E[k], Bex, axes=1) + view_offsets(R[k:k + 1], tt[k:k + 1],
                                                                                             mean.mean(0))[0]
