@@ -46,6 +46,21 @@ def _bilinear(img, uv):
             + img[y0 + 1, x0] * (1 - fx) * fy + img[y0 + 1, x0 + 1] * fx * fy)
 
 
+def _pixel_jacobian(f, RX, Xc, B, R):
+    """How points move in the image, ``(n, 2, 59)``, under a frame's 59 unknowns (a turn, a shift,
+    the 53 expression weights): points ``Xc (n, 3)`` in the camera, ``RX`` the same before the
+    shift, ``B (53, n, 3)`` their expression modes in the head's frame, ``R`` the head's turn, ``f``
+    the focal length. The projection's 2×3 derivative is applied written out (its zeros skipped:
+    batched 2×3 products are slow)."""
+    z = Xc[:, 2]
+    dX = np.empty((len(z), 3, 59))
+    dX[..., 0:3] = -_skew(RX)
+    dX[..., 3:6] = np.eye(3)
+    dX[..., 6:] = (B @ R.T).transpose(1, 2, 0)
+    a, bx, by = f / z, -f * Xc[:, 0] / z ** 2, -f * Xc[:, 1] / z ** 2
+    return np.stack([a[:, None] * dX[:, 0] + bx[:, None] * dX[:, 2], a[:, None] * dX[:, 1] + by[:, None] * dX[:, 2]], 1)
+
+
 def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: int = 3, iterations: int = 4,
                        blur=(2.0, 1.0), w_landmarks: float = 0.05, w_smooth: float = 0.5,
                        quiet: bool | None = None) -> tuple[HeadTrack, Refinement]:
@@ -182,17 +197,7 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
                         I = _bilinear(imgs[k], uv)
                         Gx, Gy = _bilinear(gx[k], uv), _bilinear(gy[k], uv)
                         n = len(z)
-                        A = np.zeros((n, 2, 3))
-                        A[:, 0, 0] = A[:, 1, 1] = f / z
-                        A[:, 0, 2] = -f * Xc[:, 0] / z ** 2
-                        A[:, 1, 2] = -f * Xc[:, 1] / z ** 2
-                        dX = np.empty((n, 3, 59))
-                        dX[..., 0:3] = -_skew(RX)
-                        dX[..., 3:6] = np.eye(3)
-                        dX[..., 6:] = (Bv @ R[k].T).transpose(1, 2, 0)
-                        # A @ dX written out (A's zeros skipped; batched 2×3 products are slow)
-                        du = np.stack([A[:, 0, 0, None] * dX[:, 0] + A[:, 0, 2, None] * dX[:, 2],
-                                       A[:, 1, 1, None] * dX[:, 1] + A[:, 1, 2, None] * dX[:, 2]], 1)  # (n, 2, 59)
+                        du = _pixel_jacobian(f, RX, Xc, Bv, R[k])
                         # r_c = gain_c I_c(u) + off_c − col_c
                         Jg = (gain[None, :, None] * (Gx[..., None] * du[:, None, 0] + Gy[..., None] * du[:, None, 1]))
                         J = np.zeros((n, 3, 65))
@@ -217,18 +222,10 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
                             rl = ul - P[k]
                             sc2 = (0.01 * width[k]) ** 2
                             wl = w_landmarks * conf / (1 + (rl ** 2).sum(1) / sc2) / sc2 / conf.sum()
-                            Al = np.zeros((468, 2, 3))
-                            Al[:, 0, 0] = Al[:, 1, 1] = f / zl
-                            Al[:, 0, 2] = -f * Xcl[:, 0] / zl ** 2
-                            Al[:, 1, 2] = -f * Xcl[:, 1] / zl ** 2
-                            dXl = np.empty((468, 3, 59))
-                            dXl[..., 0:3] = -_skew(RXl)
-                            dXl[..., 3:6] = np.eye(3)
-                            dXl[..., 6:] = (Bex @ R[k].T).transpose(1, 2, 0)
-                            Jl = (Al @ dXl).reshape(-1, 59)
-                            wl2 = np.repeat(wl, 2)
-                            Hm[:59, :59] += (Jl * wl2[:, None]).T @ Jl
-                            g[:59] += (Jl * wl2[:, None]).T @ rl.reshape(-1)
+                            Jl = _pixel_jacobian(f, RXl, Xcl, Bex, R[k]).reshape(-1, 59)
+                            Jlw = Jl * np.repeat(wl, 2)[:, None]
+                            Hm[:59, :59] += Jlw.T @ Jl
+                            g[:59] += Jlw.T @ rl.reshape(-1)
                         # the neighbours (temporal smoothness), as in the fit
                         ws = w_smooth
                         dr = Rotation.from_matrix(R[k] @ R_nb.T).as_rotvec()
