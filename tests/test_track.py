@@ -17,6 +17,37 @@ def test_the_landmark_table_is_a_convex_combination_per_landmark():
     assert np.allclose(w.sum(1), 1.0)
 
 
+def test_mediapipe_starts_without_pyplot_and_its_drawing_helpers_still_draw():
+    """MediaPipe imports matplotlib.pyplot on start (most of its import time); geoface defers it:
+    after the tracker loads, pyplot is not loaded, MediaPipe's drawing helper reaches the real
+    pyplot when used, and a later ``import matplotlib.pyplot`` is the real module. A process that
+    loaded pyplot first keeps its own."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("mediapipe")
+    code = """
+import sys, types
+from geoface.track import load_mediapipe
+mp = load_mediapipe()
+assert "matplotlib.pyplot" not in sys.modules and "matplotlib" not in sys.modules, sorted(m for m in sys.modules if "matplotlib" in m)
+figure = mp.solutions.drawing_utils.plt.figure
+import matplotlib
+import matplotlib.pyplot as plt
+assert figure is plt.figure and matplotlib.pyplot is plt and type(plt) is types.ModuleType
+assert type(matplotlib) is types.ModuleType and callable(plt.subplots)
+"""
+    first = """
+import matplotlib.pyplot as plt
+from geoface.track import load_mediapipe
+mp = load_mediapipe()
+assert mp.solutions.drawing_utils.plt is plt
+"""
+    for src in (code, first):
+        r = subprocess.run([sys.executable, "-c", src], capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr[-2000:]
+
+
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
     pytest.importorskip("mediapipe")

@@ -25,6 +25,12 @@ def area_loss(F: np.ndarray, uv: np.ndarray, target: np.ndarray) -> float:
     return float(np.mean(np.abs(np.log(np.maximum(a[ok], 1e-300) / t[ok]))))
 
 
+#: :func:`untangle` stops a region's L-BFGS once its energy has gained less than ``STALL`` (a
+#: share of itself) over the last ``STALL_WINDOW`` iterations
+STALL = 0.01
+STALL_WINDOW = 100
+
+
 def untangle(F: np.ndarray, x: np.ndarray, movable: np.ndarray, orient: float = 1.0, *,
              rings=(2, 8, 32, None), max_iterations: int = 3000) -> tuple[np.ndarray, bool]:
     """Untangle a folded map near its folds: the ``movable`` vertices within a few rings of the
@@ -32,8 +38,9 @@ def untangle(F: np.ndarray, x: np.ndarray, movable: np.ndarray, orient: float = 
 
         Σ_t (max(0, ε − A_t) / ε)² + w Σ_i |x_i − x_i⁰|² / ε
 
-    (A_t the triangles' signed areas, ε a tenth of their median area, w = 1e-3), by L-BFGS; the
-    region grows until no triangle is non-positive (checked exactly). A whole flipped patch
+    (A_t the triangles' signed areas, ε a tenth of their median area, w = 1e-3), by L-BFGS until
+    the energy stalls (:data:`STALL`); the region grows until no triangle is non-positive
+    (checked exactly). A whole flipped patch
     untangles (the penalty moves its vertices together) and every triangle keeps about its
     area, where a convex-combination solve with a conformal reference can squeeze a region that
     the conformal map shrank (a limb) back into a strip. Returns ``(uv, fold-free?)``."""
@@ -85,7 +92,19 @@ def untangle(F: np.ndarray, x: np.ndarray, movable: np.ndarray, orient: float = 
             grad = g + 2.0 * w * d / eps
             return float((h * h).sum() + w * (d * d).sum() / eps), grad.ravel()
 
-        z = minimize(energy, x0[free].ravel(), jac=True, method="L-BFGS-B",
+        seen: list = []  # a new list per region: the closure below reads this one
+
+        def stalled(intermediate_result):  # scipy passes the state to a parameter of this name
+            """Stop once the energy has gained less than :data:`STALL` of itself over the last
+            :data:`STALL_WINDOW` iterations: a region that untangles sits at its balance of area
+            penalty and displacement by then, and one that cannot has stopped trying (L-BFGS's
+            own tolerances, kept tight, would run every call to ``max_iterations``)."""
+            seen.append(float(intermediate_result.fun))
+            k = len(seen)
+            if k > STALL_WINDOW and k % 10 == 0 and seen[-STALL_WINDOW - 1] - seen[-1] <= STALL * abs(seen[-STALL_WINDOW - 1]):
+                raise StopIteration
+
+        z = minimize(energy, x0[free].ravel(), jac=True, method="L-BFGS-B", callback=stalled,
                      options={"maxiter": int(max_iterations), "gtol": 1e-12, "ftol": 1e-15}).x
         y = x0.copy()
         y[free] = z.reshape(-1, 2)

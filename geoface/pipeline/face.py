@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import GeofaceError
 from ..progress import log
-from .corner_set import level_turn
+from .corner_set import LEVEL_TARGET, level_turn
 
 __all__ = ["level_corners", "face_record", "corners_key", "COARSE_LEVEL_DEGREES", "LEVEL_BOUNDARY", "LEVEL_SEARCH_VERTICES",
            "FINE_LEVEL_DEGREES"]
@@ -104,11 +104,12 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
     (:meth:`geoface.param.ricci.RicciFlowSolver.refine_boundary`, to :data:`LEVEL_BOUNDARY`
     vertices: a corner moves by a 180th of the boundary, the image by 2°) and the turn sought
     again. A disk of more than :data:`LEVEL_SEARCH_FACTOR` × :data:`LEVEL_SEARCH_VERTICES`
-    vertices is levelled on a copy decimated to the latter (each secant step costs a map, a
-    fraction of the disk's there), then mapped once at that turn, and once more (one secant step
-    with the copy's slope) when its eye line is more than :data:`FINE_LEVEL_DEGREES` off; where
-    that still leaves it more than :data:`COARSE_LEVEL_DEGREES` off, the turn is sought on the
-    disk itself. The result goes into ``face["metrics"]["level"]``."""
+    vertices is mapped as it stands first; where its eye line is more than :data:`LEVEL_TARGET`
+    off, the turn is sought on a copy decimated to the latter (each secant step costs a map, a
+    fraction of the disk's there), then the disk mapped once at that turn, and once more (one
+    secant step) when its eye line is more than :data:`FINE_LEVEL_DEGREES` off
+    (:func:`_level_on_copy`); where that still leaves it more than :data:`COARSE_LEVEL_DEGREES`
+    off, the turn is sought on the disk itself. The result goes into ``face["metrics"]["level"]``."""
     import copy
 
     from .. import _cache
@@ -141,51 +142,72 @@ def level_corners(solver, V, roi, colors, face, front, up, opts, quiet):
     return level["turn"], {k: v for k, v in made.items() if k == keep}
 
 
-def _level_search(solver, tilt) -> dict:
+def _level_search(solver, tilt, shift: float = 0.0) -> dict:
     """The secant search of :func:`level_corners` on ``solver``'s own mesh, the boundary refined
-    where it is too coarse to come near."""
-    level = level_turn(tilt, tilt(0.0))
+    where it is too coarse to come near. ``shift`` is added to every eye line: the search on a
+    copy then aims at the turn that levels the disk (the copy's eye line differs from the disk's
+    by about the same at every turn)."""
+    def seen(turn):
+        y = tilt(turn)
+        return None if y is None else y + shift
+
+    level = level_turn(seen, seen(0.0))
     added = 0
     if level["eye_line_after"] is not None and abs(level["eye_line_after"]) > COARSE_LEVEL_DEGREES:
         # corners move by whole vertices: on a coarse boundary no turn is near enough
         added = solver.refine_boundary(LEVEL_BOUNDARY)
         if added:
             tilt.clear()
-            level = level_turn(tilt, tilt(0.0))
+            level = level_turn(seen, seen(0.0))
     level["boundary_vertices_added"] = added
     return level
 
 
 def _level_on_copy(solver, roi, face, front, up, opts, tilt) -> dict | None:
-    """The level turn sought on a decimated copy of the disk (:func:`level_corners`) and checked
-    on the disk; None where the copy cannot be made or its turn leaves the disk's eye line more
-    than :data:`COARSE_LEVEL_DEGREES` off."""
+    """The level turn of a large disk (:func:`level_corners`): the disk is mapped as it stands
+    first (most faces found by looking come out within :data:`LEVEL_TARGET` of level, and that
+    map is the one the images use); only where its eye line is further off is the turn sought
+    on a decimated copy, aiming at the disk's own offset (its eye line minus the copy's at the
+    same turn), then the disk mapped at that turn, and once more (a secant step through the
+    disk's two maps) where it is still more than :data:`FINE_LEVEL_DEGREES` off. None where the
+    disk's first map fails, the copy cannot be made, or the result is still more than
+    :data:`COARSE_LEVEL_DEGREES` off."""
+    y0 = tilt(0.0)
+    if y0 is None:
+        return None
+    if abs(y0) <= LEVEL_TARGET:
+        return {"turn": 0.0, "eye_line_before": y0, "eye_line_after": y0, "tries": 0, "boundary_vertices_added": 0}
     made = _coarse_disk(solver, roi, LEVEL_SEARCH_VERTICES)
     if made is None:
         return None
     coarse, croi = made
     ctilt, _ = _tilter(coarse, coarse.V, croi, None, face, front, up, opts, True)
-    searched = _level_search(coarse, ctilt)
-    turn = searched["turn"]
-    y = tilt(turn)
-    if y is None:
+    c0 = ctilt(0.0)
+    if c0 is None:
         return None
-    best = (abs(y), turn, y)
-    tries = 1
-    if abs(y) > FINE_LEVEL_DEGREES:
-        before, after = searched["eye_line_before"], searched["eye_line_after"]
-        slope = (after - before) / turn if turn and before is not None and after is not None and after != before else -360.0
-        x = turn - y / slope
-        y2 = tilt(x)
-        tries = 2
-        if y2 is not None and abs(y2) < best[0]:
-            best = (abs(y2), x, y2)
+    searched = _level_search(coarse, ctilt, shift=y0 - c0)
+    turn = searched["turn"]
+    best = (abs(y0), 0.0, y0)
+    tries = 0
+    if turn:
+        y = tilt(turn)
+        tries = 1
+        if y is not None and abs(y) < best[0]:
+            best = (abs(y), turn, y)
+        if y is not None and abs(y) > FINE_LEVEL_DEGREES and y != y0:
+            x = turn - y * turn / (y - y0)  # the secant through the disk's maps at 0 and at the turn
+            if abs(x) <= 0.125:
+                y2 = tilt(x)
+                tries = 2
+                if y2 is not None and abs(y2) < best[0]:
+                    best = (abs(y2), x, y2)
     if best[0] > COARSE_LEVEL_DEGREES:
         return None
-    return {"turn": best[1], "eye_line_before": searched["eye_line_before"], "eye_line_after": best[2], "tries": tries,
+    return {"turn": best[1], "eye_line_before": y0, "eye_line_after": best[2], "tries": tries,
             "boundary_vertices_added": 0,
             "searched_on": {"vertices": int(coarse.n_input), "tries": searched["tries"],
-                            "eye_line_after": searched["eye_line_after"],
+                            "eye_line_before": c0,
+                            "eye_line_after": None if searched["eye_line_after"] is None else searched["eye_line_after"] - (y0 - c0),
                             "boundary_vertices_added": searched["boundary_vertices_added"]}}
 
 

@@ -24,7 +24,10 @@ order, so a tracked frame fits the ICT head directly (:mod:`geoface.synth.ict_fi
 from __future__ import annotations
 
 import contextlib
+import importlib
 import json
+import sys
+import types
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -49,11 +52,48 @@ def load_mediapipe():
     os.environ.setdefault("GLOG_minloglevel", "2")
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     try:
-        import mediapipe as mp  # noqa: F401
+        mp = _import_mediapipe()
     except ImportError as e:
         raise MissingDependencyError("face tracking needs MediaPipe: pip install 'geoface[track]' "
                                      "(mediapipe 0.10.21 --no-deps, absl-py, attrs, flatbuffers, protobuf<5)") from e
     return mp
+
+
+class _Deferred(types.ModuleType):
+    """A module as MediaPipe's drawing helpers see it (``matplotlib.pyplot``, and its package
+    where that is not loaded): the real one, imported the first time one of them uses it.
+    MediaPipe imports pyplot on start; geoface never draws with it, and it is most of
+    MediaPipe's import time."""
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        if sys.modules.get(self.__name__) is self:
+            del sys.modules[self.__name__]
+        return getattr(importlib.import_module(self.__name__), name)
+
+
+def _import_mediapipe():
+    """``import mediapipe`` with matplotlib deferred (:class:`_Deferred`) unless pyplot is loaded
+    already; nothing else changes: once MediaPipe is in, ``import matplotlib.pyplot`` anywhere
+    gets the real module."""
+    if "mediapipe" in sys.modules or "matplotlib.pyplot" in sys.modules:
+        import mediapipe
+
+        return mediapipe
+    stubs = [_Deferred("matplotlib.pyplot")]
+    if "matplotlib" not in sys.modules:  # `import matplotlib.pyplot as plt` takes pyplot from the package
+        stubs.append(_Deferred("matplotlib"))
+        stubs[1].pyplot = stubs[0]
+    for stub in stubs:
+        sys.modules[stub.__name__] = stub
+    try:
+        import mediapipe
+    finally:
+        for stub in stubs:
+            if sys.modules.get(stub.__name__) is stub:
+                del sys.modules[stub.__name__]
+    return mediapipe
 
 
 @lru_cache(maxsize=1)
