@@ -98,6 +98,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="runs of each --files mesh (each in a fresh process)")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "geoface_scale")
     ap.add_argument("--out", type=Path, default=None, help="also append the JSON lines to this file")
+    ap.add_argument("--label", default=None, help="written into the calibration line as its 'code' (which code, which batch)")
     ap.add_argument("--scan", action="store_true",
                     help="scan-like meshes (make_dense_head.py --scan: holes, a ragged rim, debris, uneven triangles)")
     ap.add_argument("--files", nargs="*", type=Path, default=[],
@@ -112,7 +113,7 @@ def main() -> None:
             with open(args.out, "a") as fh:
                 fh.write(line + "\n")
 
-    emit(calibration())
+    emit({**calibration(), **({"code": args.label} if args.label else {})})
     rows = []
     jobs = [(n, p) for n in args.sizes for p in args.proxies] + [(n, 0) for n in args.no_proxy]
     for n, proxy in jobs:
