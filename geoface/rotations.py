@@ -34,6 +34,18 @@ def rodrigues(w) -> np.ndarray:
     return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
 
 
+def rodrigues_axes(w) -> np.ndarray:
+    """(3, 3): row ``i`` is the axis ``a_i`` with ∂(R(w) q)/∂w_i = a_i × (R(w) q) for every ``q``
+    (:func:`rodrigues`'s derivative, Gallego & Yezzi 2015:
+    a_i = (w_i w + w × (I − R) e_i) / |w|²; the unit axes at w = 0)."""
+    w = np.asarray(w, np.float64)
+    n2 = float(w @ w)
+    if n2 < 1e-24:
+        return np.eye(3)
+    IR = np.eye(3) - rodrigues(w)
+    return (w[:, None] * w[None, :] + np.cross(w[None, :], IR.T)) / n2
+
+
 def rotation_vector(R) -> np.ndarray:
     """Axis-angle vector of a rotation matrix (inverse of :func:`rodrigues`)."""
     from scipy.spatial.transform import Rotation

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from geoface.errors import AvatarError
-from geoface.rotations import rodrigues, rotation_vector  # noqa: F401  (re-exported)
+from geoface.rotations import rodrigues, rodrigues_axes, rotation_vector  # noqa: F401  (re-exported)
 
 __all__ = ["landmarks_on_mesh", "solve_poses", "triangulate", "poses_from_landmarks", "canonical_landmarks", "rodrigues",
            "rotation_vector", "repivot", "ray_offsets", "calibrate_lower_poses", "apply_lower_calibration", "calibration_scores", "expression_reach",
@@ -79,6 +79,24 @@ def project_points(camera, X):
     return np.stack([camera.fx * Xc[:, 0] / Xc[:, 2] + camera.cx, camera.fy * Xc[:, 1] / Xc[:, 2] + camera.cy], 1)
 
 
+def _pose_jacobian(camera, Q, piv, x, wk) -> np.ndarray:
+    """(2K, 6): the derivative of :func:`solve_poses`'s residuals (the projections of
+    ``R(x[:3]) Q + piv + x[3:]``, times ``wk``, raveled point by point) by ``x``."""
+    Y = Q @ rodrigues(x[:3]).T
+    Cr = np.asarray(camera.R, np.float64)
+    Xc = (Y + piv + x[3:]) @ Cr.T + np.asarray(camera.t, np.float64)
+    iz = 1.0 / Xc[:, 2]
+    zero = np.zeros_like(iz)
+    # d(u, v)/dXc per point: (K, 2, 3)
+    P = np.stack([np.stack([camera.fx * iz, zero, -camera.fx * Xc[:, 0] * iz * iz], 1),
+                  np.stack([zero, camera.fy * iz, -camera.fy * Xc[:, 1] * iz * iz], 1)], 1)
+    dY = np.cross(rodrigues_axes(x[:3])[None, :, :], Y[:, None, :])  # (K, i, 3): ∂Y/∂x_i
+    J = np.empty((len(Q), 2, 6))
+    J[:, :, :3] = np.einsum("npj,jk,nik->npi", P, Cr, dY)
+    J[:, :, 3:] = P @ Cr
+    return (J * wk[:, :, None]).reshape(-1, 6)
+
+
 def solve_poses(camera, points3d, points2d, pivot, *, init=None, scale_px: float = 1.0, weights=None) -> dict:
     """Per-frame rigid pose of ``points3d`` [K, 3] (canonical) seen at ``points2d`` [T, K, 2].
 
@@ -111,9 +129,12 @@ def solve_poses(camera, points3d, points2d, pivot, *, init=None, scale_px: float
             X = Q @ rodrigues(x[:3]).T + piv + x[3:]
             return ((project_points(camera, X) - q) * wk).ravel()
 
+        def jac(x):
+            return _pose_jacobian(camera, Q, piv, x, wk)
+
         # soft-L1 first (close to convex), then Cauchy from there (ignores moved points more)
-        sol = least_squares(resid, x, loss="soft_l1", f_scale=2 * scale_px, method="trf", x_scale="jac", max_nfev=200)
-        sol = least_squares(resid, sol.x, loss="cauchy", f_scale=scale_px, method="trf", x_scale="jac", max_nfev=200)
+        sol = least_squares(resid, x, jac=jac, loss="soft_l1", f_scale=2 * scale_px, method="trf", x_scale="jac", max_nfev=200)
+        sol = least_squares(resid, sol.x, jac=jac, loss="cauchy", f_scale=scale_px, method="trf", x_scale="jac", max_nfev=200)
         x = sol.x
         e = np.linalg.norm(sol.fun.reshape(-1, 2) / wk, axis=1)
         good = e < 3 * scale_px
