@@ -25,7 +25,7 @@ def area_loss(F: np.ndarray, uv: np.ndarray, target: np.ndarray) -> float:
     return float(np.mean(np.abs(np.log(np.maximum(a[ok], 1e-300) / t[ok]))))
 
 
-#: :func:`untangle` stops a region's L-BFGS once its energy has gained less than ``STALL`` (a
+#: :func:`untangle` stops a region's L-BFGS once its energy has dropped by less than ``STALL`` (a
 #: share of itself) over the last ``STALL_WINDOW`` iterations
 STALL = 0.01
 STALL_WINDOW = 100
@@ -95,7 +95,7 @@ def untangle(F: np.ndarray, x: np.ndarray, movable: np.ndarray, orient: float = 
         seen: list = []  # a new list per region: the closure below reads this one
 
         def stalled(intermediate_result):  # scipy passes the state to a parameter of this name
-            """Stop once the energy has gained less than :data:`STALL` of itself over the last
+            """Stop once the energy has dropped by less than :data:`STALL` of itself over the last
             :data:`STALL_WINDOW` iterations: a region that untangles sits at its balance of area
             penalty and displacement by then, and one that cannot has stopped trying (L-BFGS's
             own tolerances, kept tight, would run every call to ``max_iterations``)."""

@@ -42,6 +42,41 @@ def test_a_mirrored_patch_untangles_locally_and_keeps_its_area():
     assert _area_loss(F, r.uv, target) <= UNTANGLE_GAIN * _area_loss(F, out, target) + 1e-12
 
 
+def test_untangling_stops_when_its_energy_stalls(monkeypatch):
+    """L-BFGS's own tolerances are never met by the untangling energy: without a stop of its
+    own, every region ran to ``max_iterations``. It stops once the energy has dropped by less
+    than ``STALL`` over ``STALL_WINDOW`` iterations: the mirrored patch untangles in a few hundred
+    iterations (3,000 without the stop), fold-free with its smallest triangle as large as then."""
+    import scipy.optimize
+
+    import geoface.param.untangle as U
+
+    F, uv, inner = planar_grid()
+    h = 1.0 / 20
+    patch = (np.abs(uv[:, 0] - 0.5) < 3.5 * h) & (np.abs(uv[:, 1] - 0.5) < 3.5 * h)
+    target = uv.copy()
+    target[patch, 0] = 1.0 - target[patch, 0]
+    runs = []
+    real = scipy.optimize.minimize
+
+    def counted(*a, **k):
+        r = real(*a, **k)
+        runs.append(int(r.nit))
+        return r
+
+    monkeypatch.setattr(scipy.optimize, "minimize", counted)
+    out, ok = U.untangle(F, target, inner)
+    assert ok and runs == [runs[0]] and runs[0] < 1000, runs  # one region: 380 iterations here
+    monkeypatch.setattr(U, "STALL", -1.0)  # never stalls: the iteration limit
+    runs.clear()
+    full, ok_full = U.untangle(F, target, inner, max_iterations=3000)
+    assert ok_full and runs == [3000], runs
+    A, A_full = signed_uv_areas(F, out), signed_uv_areas(F, full)
+    eps = 0.1 * np.median(np.abs(signed_uv_areas(F, target)))
+    # the smallest triangle at 0.98 ε against 0.99 ε with the limit
+    assert A.min() > 0.9 * eps and A.min() > 0.95 * A_full.min(), (A.min() / eps, A_full.min() / eps)
+
+
 def test_tutte_embedding_of_a_regular_grid_is_the_grid():
     """Every interior vertex of the diagonal-split grid is the mean of its six neighbours."""
     from geoface.param.tutte import tutte_map
