@@ -182,6 +182,11 @@ def convert_set(st, folder, corners, s: SetInputs, pos=0, count=1, mapped=None) 
 LEVEL_TARGET = 0.5
 
 
+#: a secant step of the level search that would turn the corners further than this share of the
+#: boundary (an eighth) is not a small correction: the search stops there
+MAX_LEVEL_TURN = 0.125
+
+
 def level_turn(tilt, first: float, *, target: float = LEVEL_TARGET, tries: int = 3) -> dict:
     """The turn of the corner sets (a share of the boundary's length, :func:`geoface.param.corners.corner_sets`)
     that brings a face's eye line level in the default image: a boundary that is not
@@ -209,7 +214,7 @@ def level_turn(tilt, first: float, *, target: float = LEVEL_TARGET, tries: int =
         if abs(y1) <= target or y1 == y0:
             break
         x0, y0, x1 = x1, y1, x1 - y1 * (x1 - x0) / (y1 - y0)
-        if abs(x1) > 0.125:  # more than an eighth of the boundary: not a small correction
+        if abs(x1) > MAX_LEVEL_TURN:
             break
     out.update(turn=best[1], eye_line_after=best[2])
     return out

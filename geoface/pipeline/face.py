@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import GeofaceError
 from ..progress import log
-from .corner_set import LEVEL_TARGET, level_turn
+from .corner_set import LEVEL_TARGET, MAX_LEVEL_TURN, level_turn
 
 __all__ = ["level_corners", "face_record", "corners_key", "COARSE_LEVEL_DEGREES", "LEVEL_BOUNDARY", "LEVEL_SEARCH_VERTICES",
            "FINE_LEVEL_DEGREES"]
@@ -196,7 +196,7 @@ def _level_on_copy(solver, roi, face, front, up, opts, tilt) -> dict | None:
             best = (abs(y), turn, y)
         if y is not None and abs(y) > FINE_LEVEL_DEGREES and y != y0:
             x = turn - y * turn / (y - y0)  # the secant through the disk's maps at 0 and at the turn
-            if abs(x) <= 0.125:
+            if abs(x) <= MAX_LEVEL_TURN:
                 y2 = tilt(x)
                 tries = 2
                 if y2 is not None and abs(y2) < best[0]:
