@@ -18,11 +18,21 @@ mean and p95), and frames per second. Each fit twice: with the focal length esti
 known (the true one given). ``--refine``: also the photometric refinement after the landmark fit
 with the focal length estimated (``refine_photometric``), with the photometric error before and after.
 
+``--refine-unlit``: also the refinement as it was before the head's colours were lit and its
+identity refined (``shading=False, identity=False``).
+
+``--cache DIR``: each person's rendered clip, points and truth are kept there (an npz) and read
+back on the next run (the renders take two minutes a person).
+
 ``--floor``: also the landmarks' own floor (:func:`rigid468`).
 
-Seeds: 11 validation (where the refinement's weights were chosen), 13, 14, 15 test.
+``--tilt-only``: only how far each person's identity tilts the head in the model's frame
+(:func:`identity_tilt_deg`), one line each (nothing rendered or tracked).
 
-    python bench/bench_head_track.py [--seeds 11 13 14 15] [--res 512] [--seconds 3] [--refine] [--out FILE]
+Seeds: 11 and 12 validation (where the refinement's weights were chosen), 13, 14, 15 test.
+
+    python bench/bench_head_track.py [--seeds 11 12 13 14 15] [--res 512] [--seconds 3] [--refine] [--refine-unlit]
+        [--floor] [--cache DIR] [--out FILE]
 """
 from __future__ import annotations
 
@@ -69,7 +79,37 @@ def angle_deg(Ra, Rb):
     return np.degrees(np.arccos(np.clip(c, -1, 1)))
 
 
-def scores(person, Vtrue, Rtrue, Etrue, Rfit, Vfit, Efit=None):
+def shape_error_mm(person, neutral_fit):
+    """The fitted neutral face against the true one (the model's narrow face), mm, after the one
+    similarity (scale, turn, shift: Umeyama) that best lays it on the truth — the face's shape
+    alone, as face-reconstruction benchmarks score it."""
+    face = person.rest.labels == 0
+    X, Y = neutral_fit[face], person.V0[face]
+    mx, my = X.mean(0), Y.mean(0)
+    U, S, Vt = np.linalg.svd((Y - my).T @ (X - mx))
+    d = np.sign(np.linalg.det(U @ Vt))
+    Rm = U @ np.diag([1, 1, d]) @ Vt
+    sc = (S * [1, 1, d]).sum() / ((X - mx) ** 2).sum()
+    e = np.linalg.norm(sc * (X - mx) @ Rm.T + my - Y, axis=1) * 1000
+    return e.mean(), np.percentile(e, 95)
+
+
+def identity_tilt_deg(person) -> float:
+    """How far the person's identity turns the head in the model's own frame: the angle of the
+    rotation that best lays the mean ICT head's skin on the person's (centred, Kabsch), degrees.
+    The truth's head pose is given in this tilted frame; a fitted identity tilts it its own way."""
+    from geoface.track.head_track import CM_TO_M, model_view
+
+    v = model_view()
+    skin = v.labels <= 2
+    X = v.neutral[skin].astype(np.float64) * CM_TO_M
+    Y = person.V0[skin]
+    U, _, Vt = np.linalg.svd((Y - Y.mean(0)).T @ (X - X.mean(0)))
+    Q = U @ np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    return float(np.degrees(np.arccos(np.clip((np.trace(Q) - 1) / 2, -1, 1))))
+
+
+def scores(person, Vtrue, Rtrue, Etrue, Rfit, Vfit, Efit=None, neutral_fit=None):
     lm = person.rest.landmarks
     face = person.rest.labels == 0
     rot = angle_deg(Rfit, Rtrue)
@@ -79,13 +119,27 @@ def scores(person, Vtrue, Rtrue, Etrue, Rfit, Vfit, Efit=None):
 
     off = Rotation.from_matrix(np.einsum("tij,tkj->tik", Rfit, Rtrue)).mean().as_matrix()
     rot_aligned = angle_deg(np.einsum("ji,tjk->tik", off, Rfit), Rtrue)
-    ctr = np.linalg.norm(Vfit[:, lm].mean(1) - Vtrue[:, lm].mean(1), axis=1) * 1000
+    # the head's motion: after the clip's one rotation between the fitted and the true head's own
+    # frames (R_fit = R_true Q: the gauge the identity and the pose share — ICT's identity modes
+    # tilt the head — and all the capture keeps, its poses being relative to frame 0)
+    offh = Rotation.from_matrix(np.einsum("tji,tjk->tik", Rtrue, Rfit)).mean().as_matrix()
+    rot_motion = angle_deg(Rfit @ offh.T, Rtrue)
+    cf, ct = Vfit[:, lm].mean(1), Vtrue[:, lm].mean(1)
+    ctr = np.linalg.norm(cf - ct, axis=1) * 1000
+    # the face centre after the clip's one scale about the camera (a head s times bigger s times
+    # further away projects the same: the depth one camera cannot tell)
+    s = float((cf * ct).sum() / (cf * cf).sum())
+    ctr_s = np.linalg.norm(s * cf - ct, axis=1) * 1000
     out = {"rot_mean_deg": rot.mean(), "rot_p95_deg": np.percentile(rot, 95), "rot_max_deg": rot.max(),
            "rot_aligned_mean_deg": rot_aligned.mean(), "rot_aligned_p95_deg": np.percentile(rot_aligned, 95),
-           "trans_mean_mm": ctr.mean(), "trans_p95_mm": np.percentile(ctr, 95)}
+           "rot_motion_mean_deg": rot_motion.mean(), "rot_motion_p95_deg": np.percentile(rot_motion, 95),
+           "trans_mean_mm": ctr.mean(), "trans_p95_mm": np.percentile(ctr, 95),
+           "trans_scaled_mean_mm": ctr_s.mean(), "trans_scaled_p95_mm": np.percentile(ctr_s, 95), "scale": s}
     if Vfit.shape[1] == Vtrue.shape[1]:
         ve = np.linalg.norm(Vfit[:, face] - Vtrue[:, face], axis=-1) * 1000
         out.update(vertex_mean_mm=ve.mean(), vertex_p95_mm=np.percentile(ve, 95))
+    if neutral_fit is not None:
+        out["shape_mean_mm"], out["shape_p95_mm"] = shape_error_mm(person, neutral_fit)
     if Efit is not None:
         moving = Etrue.std(0) > 0.05
         cs = [np.corrcoef(Efit[:, j], Etrue[:, j])[0, 1] for j in np.flatnonzero(moving)]
@@ -145,9 +199,13 @@ def main(argv=None) -> int:
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--refine", action="store_true", help="also the photometric refinement")
+    ap.add_argument("--refine-unlit", action="store_true",
+                    help="also the refinement as it was: one colour per point, the identity kept (shading=False, identity=False)")
     ap.add_argument("--floor", action="store_true",
                     help="also the landmarks' floor: true identity, expressions and camera, posed by PnP")
     ap.add_argument("--settings", default="{}", help="TrackSettings overrides as JSON")
+    ap.add_argument("--tilt-only", action="store_true", help="only how far each identity tilts the head")
+    ap.add_argument("--cache", type=Path, default=None, help="keep the rendered clips here (npz) and reuse them")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     settings = TrackSettings(**json.loads(a.settings))
@@ -155,9 +213,28 @@ def main(argv=None) -> int:
     from _results import emitter
 
     emit = emitter(a.out)
+    if a.tilt_only:
+        from geoface.avatar.ict import ICTPerson
+
+        for seed in a.seeds:
+            person = ICTPerson(np.random.default_rng([seed, 7201]), res=64, map_res=64, supersample=1)
+            emit({"seed": seed, "split": "val" if seed in (11, 12) else "test", "method": "truth",
+                  "identity_tilt_deg": round(identity_tilt_deg(person), 3)})
+        return 0
     for seed in a.seeds:
-        person, frames, Vtrue, Rtrue, Etrue = render_person(seed, a.res, a.seconds)
-        pts = facemesh_points(frames, video=True, quiet=True)
+        clip = None if a.cache is None else a.cache / f"ict{seed}_{a.res}_{a.seconds:g}s_truth.npz"
+        if clip is not None and clip.exists():
+            from geoface.avatar.ict import ICTPerson
+
+            z = np.load(clip)
+            person = ICTPerson(np.random.default_rng([seed, 7201]), res=a.res, supersample=2)
+            frames, pts, Vtrue, Rtrue, Etrue = list(z["frames"]), z["pts"], z["Vtrue"], z["Rtrue"], z["Etrue"]
+        else:
+            person, frames, Vtrue, Rtrue, Etrue = render_person(seed, a.res, a.seconds)
+            pts = facemesh_points(frames, video=True, quiet=True)
+            if clip is not None:
+                clip.parent.mkdir(parents=True, exist_ok=True)
+                np.savez(clip, frames=np.stack(frames), pts=pts, Vtrue=Vtrue, Rtrue=Rtrue, Etrue=Etrue)
         split = "val" if seed in (11, 12) else "test"
         base = {"seed": seed, "split": split, "res": a.res, "frames": len(frames)}
         rgb = np.stack(frames).astype(np.float32) / 255.0
@@ -168,15 +245,17 @@ def main(argv=None) -> int:
                                 settings=settings, quiet=True)
             sec = time.perf_counter() - t0
             fits = [("ict_head_track", tr, sec, {})]
-            if a.refine and focal == "estimated":
+            variants = ([("ict_head_track_refined", {})] if a.refine else []) + (
+                [("ict_head_track_refined_unlit", {"shading": False, "identity": False})] if a.refine_unlit else [])
+            for name, kw in variants if focal == "estimated" else []:
                 t0 = time.perf_counter()
-                tr2, ref = refine_photometric(tr, rgb, masks, pts, quiet=True)
-                fits.append(("ict_head_track_refined", tr2, sec + time.perf_counter() - t0,
+                tr2, ref = refine_photometric(tr, rgb, masks, pts, quiet=True, **kw)
+                fits.append((name, tr2, sec + time.perf_counter() - t0,
                              {"photo_err_before": round(float(np.nanmean(ref.before)), 4),
                               "photo_err_after": round(float(np.nanmean(ref.after)), 4)}))
             for method, t_, s_, extra in fits:
                 Vfit = np.stack([t_.posed(k) for k in range(len(t_))])
-                r = scores(person, Vtrue, Rtrue, Etrue, t_.R, Vfit, t_.expressions)
+                r = scores(person, Vtrue, Rtrue, Etrue, t_.R, Vfit, t_.expressions, t_.neutral())
                 emit({**base, "method": method, "focal": focal, **r, "fps": round(len(frames) / s_, 2),
                       "focal_px": round(t_.focal, 1), "true_focal_px": round(person.cam.fx, 1),
                       "residual_px": round(float(np.nanmedian(t_.residual_px)), 3), **extra})
