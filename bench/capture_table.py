@@ -13,36 +13,36 @@ from collections import defaultdict
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-NAMES = {("pnp68_true_head_true_camera", "known"): "PnP on MediaPipe's 68, true head and camera (today; oracle)",
+NAMES = {("pnp68_true_head_true_camera", "known"): "PnP on MediaPipe's 68, true head and camera (oracle)",
+         ("rigid468_true_shape_true_camera", "known"): "landmarks' floor: PnP on the 468, true shape, expressions, camera (oracle)",
          ("ict_head_track", "estimated"): "**ICT head track**, focal fitted",
          ("ict_head_track", "known"): "ICT head track, focal given",
-         ("ict_head_track_refined", "estimated"): "ICT head track + pixels, focal fitted"}
+         ("ict_head_track_refined_unlit", "estimated"): "+ pixels, one colour per point, identity kept",
+         ("ict_head_track_refined", "estimated"): "**+ pixels, lit, identity refined** (`--refine`)"}
 
 
 def ict_table(path: Path, split: str = "test") -> str:
     rows = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
-    rows = [r for r in rows if r["split"] == split]
+    rows = [r for r in rows if r.get("split") == split and "rot_mean_deg" in r]
     by = defaultdict(list)
     for r in rows:
         by[(r["method"], r.get("focal", "known"))].append(r)
     seeds = sorted({r["seed"] for r in rows})
-    out = [f"| {split} people {', '.join(map(str, seeds))} | rotation mean / p95 ° | rotation after the constant offset, "
-           "mean / p95 ° | translation mean mm | vertices mean / p95 mm | expression r |", "|---|---|---|---|---|---|"]
+    out = [f"| {split} people {', '.join(map(str, seeds))} | rotation, model frame, mean / p95 ° | the head's motion, "
+           "mean / p95 ° | translation mm | after the one scale mm | face shape mm | vertices mm | expression r |",
+           "|---|---|---|---|---|---|---|---|"]
 
-    def m(rs, k):
+    def m(rs, k, d=2):
         v = [r[k] for r in rs if r.get(k) is not None]
-        return sum(v) / len(v) if v else None
+        return "—" if not v else f"{sum(v) / len(v):.{d}f}"
 
     for key, name in NAMES.items():
         rs = by.get(key)
         if not rs:
             continue
-        e = m(rs, "expr_corr")
-        al = m(rs, "rot_aligned_mean_deg")
-        al = "—" if al is None else f"{al:.2f} / {m(rs, 'rot_aligned_p95_deg'):.2f}"
-        out.append(f"| {name} | {m(rs, 'rot_mean_deg'):.2f} / {m(rs, 'rot_p95_deg'):.2f} | {al} | "
-                   f"{m(rs, 'trans_mean_mm'):.1f} | {m(rs, 'vertex_mean_mm'):.1f} / {m(rs, 'vertex_p95_mm'):.1f} | "
-                   f"{'—' if e is None else f'{e:.2f}'} |")
+        out.append(f"| {name} | {m(rs, 'rot_mean_deg')} / {m(rs, 'rot_p95_deg')} | {m(rs, 'rot_motion_mean_deg')} / "
+                   f"{m(rs, 'rot_motion_p95_deg')} | {m(rs, 'trans_mean_mm', 1)} | {m(rs, 'trans_scaled_mean_mm', 1)} | "
+                   f"{m(rs, 'shape_mean_mm')} | {m(rs, 'vertex_mean_mm', 1)} | {m(rs, 'expr_corr')} |")
     return "\n".join(out)
 
 
