@@ -49,7 +49,7 @@ def register(sub, common) -> None:
     s.add_argument("--margin", type=number(float, 1, 6), default=1.9, metavar="X",
                    help="the crop's side in face sizes (default: 1.9: the head and a little of the shoulders)")
     s.add_argument("--refine", action="store_true",
-                   help="refine the head track against the pixels (the face's colours matched frame by frame; "
-                        "about 1 frame/s on 2 cores; docs/video.md has what it gains)")
+                   help="refine the head track against the pixels (the face's lit colours matched frame by frame "
+                        "and its shape refined; about 0.6 frames/s at 512 on 2 cores; docs/video.md has what it gains)")
     s.add_argument("--no-overlay", action="store_true", help="do not draw overlay.mp4 (the tracked head over the frames)")
     s.set_defaults(func=cmd_capture)
