@@ -83,29 +83,26 @@ def shape_error_mm(person, neutral_fit):
     """The fitted neutral face against the true one (the model's narrow face), mm, after the one
     similarity (scale, turn, shift: Umeyama) that best lays it on the truth — the face's shape
     alone, as face-reconstruction benchmarks score it."""
+    from geoface.mesh.align import similarity_transform
+
     face = person.rest.labels == 0
     X, Y = neutral_fit[face], person.V0[face]
-    mx, my = X.mean(0), Y.mean(0)
-    U, S, Vt = np.linalg.svd((Y - my).T @ (X - mx))
-    d = np.sign(np.linalg.det(U @ Vt))
-    Rm = U @ np.diag([1, 1, d]) @ Vt
-    sc = (S * [1, 1, d]).sum() / ((X - mx) ** 2).sum()
-    e = np.linalg.norm(sc * (X - mx) @ Rm.T + my - Y, axis=1) * 1000
+    sc, Rm, tv = similarity_transform(X, Y)
+    e = np.linalg.norm(sc * X @ Rm.T + tv - Y, axis=1) * 1000
     return e.mean(), np.percentile(e, 95)
 
 
 def identity_tilt_deg(person) -> float:
     """How far the person's identity turns the head in the model's own frame: the angle of the
-    rotation that best lays the mean ICT head's skin on the person's (centred, Kabsch), degrees.
+    rotation that best lays the mean ICT head's skin on the person's (a similarity), degrees.
     The truth's head pose is given in this tilted frame; a fitted identity tilts it its own way."""
     from geoface.track.head_track import CM_TO_M, model_view
 
+    from geoface.mesh.align import similarity_transform
+
     v = model_view()
     skin = v.labels <= 2
-    X = v.neutral[skin].astype(np.float64) * CM_TO_M
-    Y = person.V0[skin]
-    U, _, Vt = np.linalg.svd((Y - Y.mean(0)).T @ (X - X.mean(0)))
-    Q = U @ np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    Q = similarity_transform(v.neutral[skin].astype(np.float64) * CM_TO_M, person.V0[skin])[1]
     return float(np.degrees(np.arccos(np.clip((np.trace(Q) - 1) / 2, -1, 1))))
 
 

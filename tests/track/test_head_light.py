@@ -84,14 +84,11 @@ def test_the_identity_columns_are_the_derivative_of_the_projection():
 
 def _face_shape_error_mm(person, neutral):
     """Mean distance (mm) of a fitted neutral face from the person's, after the best similarity."""
+    from geoface.mesh.align import similarity_transform
+
     face = person.rest.labels == 0
-    X, Y = neutral[face], person.V0[face]
-    mx, my = X.mean(0), Y.mean(0)
-    U, S, Vt = np.linalg.svd((Y - my).T @ (X - mx))
-    d = np.sign(np.linalg.det(U @ Vt))
-    Rm = U @ np.diag([1, 1, d]) @ Vt
-    sc = (S * [1, 1, d]).sum() / ((X - mx) ** 2).sum()
-    return float(np.linalg.norm(sc * (X - mx) @ Rm.T + my - Y, axis=1).mean() * 1000)
+    sc, Rm, tv = similarity_transform(neutral[face], person.V0[face])
+    return float(np.linalg.norm(sc * neutral[face] @ Rm.T + tv - person.V0[face], axis=1).mean() * 1000)
 
 
 def test_the_pixels_take_a_wrong_face_shape_towards_the_persons():
