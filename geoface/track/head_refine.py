@@ -142,9 +142,13 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
     lights are; as the face models of DECA and Face2Face light theirs), so that a face turning
     under a lamp is not pulled to where the frames' average shading would put it; albedo and
     lighting are fitted in turn, and taken again after each of ``passes`` passes.
-    ``shading=False``: one colour per point, the frames' average. ``frames (T, H, W, 3)`` float in
-    [0, 1] (sRGB), ``masks (T, H, W)`` the person. Returns the refined track and the errors before
-    and after."""
+    ``shading=False``: one colour per point, the frames' average.
+
+    ``identity``: after each sweep over the frames, one Gauss–Newton step of the clip's identity
+    weights (the face's shape) with every frame's unknowns eliminated, as bundle adjustment takes
+    it; ``w_identity`` is its N(0, 1) prior per frame. ``identity=False`` keeps the identity the
+    landmarks gave. ``frames (T, H, W, 3)`` float in [0, 1] (sRGB), ``masks (T, H, W)`` the person.
+    Returns the refined track and the errors before and after."""
     import time
 
     from scipy.ndimage import gaussian_filter
@@ -214,13 +218,13 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
 
     def texture():
         nonlocal light
-        seen_k = []
+        views = []
         for k in range(0, T, max(1, T // 40)):
             vis, cos, Vc, N = visible(k)
             Xs = Vc[samp][vis]
             uv = np.stack([f * Xs[:, 0] / Xs[:, 2] + cx, f * Xs[:, 1] / Xs[:, 2] + cy], 1)
-            seen_k.append((vis, cos[vis] ** 2, N[vis], _bilinear(frames[k], uv) ** GAMMA))
-        alb, ok, light = albedo_and_light(seen_k, len(samp), shading=shading)
+            views.append((vis, cos[vis] ** 2, N[vis], _bilinear(frames[k], uv) ** GAMMA))
+        alb, ok, light = albedo_and_light(views, len(samp), shading=shading)
         return alb, ok
 
     def predict(alb, vis, N):
