@@ -11,7 +11,8 @@ Per person and method, one JSON line: head rotation error (degrees, mean / p95 /
 of R_tracked R_trueᵀ in camera coordinates; and "aligned": after the clip's one constant rotation
 between the fitted and the true head's own frames, which identity and pose trade and the avatar's
 head mesh carries with it), translation error (mm, the face centre's —
-the mean of the 68 landmark vertices — position in camera coordinates), expression weights'
+the mean of the 68 landmark vertices — position in camera coordinates; then after the clip's one
+depth scale; then its motion: after that scale and one offset fixed to the fitted head), expression weights'
 correlation with the truth (Pearson over frames, averaged over the blendshapes that move more
 than 0.05), vertex error of the tracked head against the true one (mm over the face's vertices,
 mean and p95), and frames per second. Each fit twice: with the focal length estimated, and
@@ -19,12 +20,16 @@ known (the true one given). ``--refine``: also the photometric refinement after 
 with the focal length estimated (``refine_photometric``), with the photometric error before and after.
 
 ``--refine-unlit``: also the refinement as it was before the head's colours were lit and its
-identity refined (``shading=False, identity=False``).
+identity refined (``shading=False, identity=False``, blurred 2 then 1 px). ``--refine-coarse``: the
+lit refinement with the blur it had before (2 then 1 px; the default now goes on to finer levels).
 
 ``--cache DIR``: each person's rendered clip, points and truth are kept there (an npz) and read
 back on the next run (the renders take two minutes a person).
 
 ``--floor``: also the landmarks' own floor (:func:`rigid468`).
+
+``--blur-choice "2,1;1,0.5,0.25,0;..."``: only the refinement, once per blur schedule, each row
+with its ``blur`` (how the default schedule was chosen, on the validation people).
 
 ``--tilt-only``: only how far each person's identity tilts the head in the model's frame
 (:func:`identity_tilt_deg`), one line each (nothing rendered or tracked).
@@ -127,11 +132,19 @@ def scores(person, Vtrue, Rtrue, Etrue, Rfit, Vfit, Efit=None, neutral_fit=None)
     # further away projects the same: the depth one camera cannot tell)
     s = float((cf * ct).sum() / (cf * cf).sum())
     ctr_s = np.linalg.norm(s * cf - ct, axis=1) * 1000
+    # the face centre's motion: after that one scale and one offset fixed to the fitted head (where
+    # the face centre sits on a head of another shape: the gauge that the shape shares with the
+    # pose, as the rotation's above, and which the capture's poses, relative to frame 0, drop):
+    # ct_k ≈ s cf_k + R_fit,k u, least squares in (s, u)
+    A = np.concatenate([cf.reshape(-1, 1), Rfit.reshape(-1, 3)], 1)
+    su = np.linalg.lstsq(A, ct.reshape(-1), rcond=None)[0]
+    ctr_m = np.linalg.norm(ct - su[0] * cf - Rfit @ su[1:], axis=1) * 1000
     out = {"rot_mean_deg": rot.mean(), "rot_p95_deg": np.percentile(rot, 95), "rot_max_deg": rot.max(),
            "rot_aligned_mean_deg": rot_aligned.mean(), "rot_aligned_p95_deg": np.percentile(rot_aligned, 95),
            "rot_motion_mean_deg": rot_motion.mean(), "rot_motion_p95_deg": np.percentile(rot_motion, 95),
            "trans_mean_mm": ctr.mean(), "trans_p95_mm": np.percentile(ctr, 95),
-           "trans_scaled_mean_mm": ctr_s.mean(), "trans_scaled_p95_mm": np.percentile(ctr_s, 95), "scale": s}
+           "trans_scaled_mean_mm": ctr_s.mean(), "trans_scaled_p95_mm": np.percentile(ctr_s, 95), "scale": s,
+           "trans_motion_mean_mm": ctr_m.mean(), "trans_motion_p95_mm": np.percentile(ctr_m, 95)}
     if Vfit.shape[1] == Vtrue.shape[1]:
         ve = np.linalg.norm(Vfit[:, face] - Vtrue[:, face], axis=-1) * 1000
         out.update(vertex_mean_mm=ve.mean(), vertex_p95_mm=np.percentile(ve, 95))
@@ -198,6 +211,11 @@ def main(argv=None) -> int:
     ap.add_argument("--refine", action="store_true", help="also the photometric refinement")
     ap.add_argument("--refine-unlit", action="store_true",
                     help="also the refinement as it was: one colour per point, the identity kept (shading=False, identity=False)")
+    ap.add_argument("--refine-coarse", action="store_true",
+                    help="also the refinement with the coarse-to-fine blur it had before (2 and 1 px)")
+    ap.add_argument("--blur-choice", default=None, metavar="S1;S2;...",
+                    help="only the refinement (focal fitted), once per blur schedule (σ px, comma-separated; "
+                         "schedules separated by ';'): the choice of the default on the validation people")
     ap.add_argument("--floor", action="store_true",
                     help="also the landmarks' floor: true identity, expressions and camera, posed by PnP")
     ap.add_argument("--settings", default="{}", help="TrackSettings overrides as JSON")
@@ -236,6 +254,18 @@ def main(argv=None) -> int:
         base = {"seed": seed, "split": split, "res": a.res, "frames": len(frames)}
         rgb = np.stack(frames).astype(np.float32) / 255.0
         masks = (rgb.max(-1) > 0).astype(np.float32)
+        if a.blur_choice:
+            tr = fit_head_track(pts, (a.res, a.res), settings=settings, quiet=True)
+            for sched in a.blur_choice.split(";"):
+                blur = tuple(float(x) for x in sched.split(","))
+                t0 = time.perf_counter()
+                tr2, ref = refine_photometric(tr, rgb, masks, pts, quiet=True, blur=blur)
+                Vfit = np.stack([tr2.posed(k) for k in range(len(tr2))])
+                emit({**base, "method": "ict_head_track_refined", "focal": "estimated", "blur": list(blur),
+                      **scores(person, Vtrue, Rtrue, Etrue, tr2.R, Vfit, tr2.expressions, tr2.neutral()),
+                      "refine_seconds": round(time.perf_counter() - t0, 1),
+                      "photo_err_after": round(float(np.nanmean(ref.after)), 4)})
+            continue
         for focal in ("estimated", "known"):
             t0 = time.perf_counter()
             tr = fit_head_track(pts, (a.res, a.res), focal=person.cam.fx if focal == "known" else None,
@@ -243,7 +273,9 @@ def main(argv=None) -> int:
             sec = time.perf_counter() - t0
             fits = [("ict_head_track", tr, sec, {})]
             variants = ([("ict_head_track_refined", {})] if a.refine else []) + (
-                [("ict_head_track_refined_unlit", {"shading": False, "identity": False})] if a.refine_unlit else [])
+                [("ict_head_track_refined_unlit", {"shading": False, "identity": False, "blur": (2.0, 1.0)})]
+                if a.refine_unlit else []) + (
+                [("ict_head_track_refined_coarse", {"blur": (2.0, 1.0)})] if a.refine_coarse else [])
             for name, kw in variants if focal == "estimated" else []:
                 t0 = time.perf_counter()
                 tr2, ref = refine_photometric(tr, rgb, masks, pts, quiet=True, **kw)

@@ -18,7 +18,8 @@ NAMES = {("pnp68_true_head_true_camera", "known"): "PnP on MediaPipe's 68, true 
          ("ict_head_track", "estimated"): "**ICT head track**, focal fitted",
          ("ict_head_track", "known"): "ICT head track, focal given",
          ("ict_head_track_refined_unlit", "estimated"): "+ pixels, one colour per point, identity kept",
-         ("ict_head_track_refined", "estimated"): "**+ pixels, lit, identity refined** (`--refine`)"}
+         ("ict_head_track_refined_coarse", "estimated"): "+ pixels, lit, identity refined, blurred 2 then 1 px",
+         ("ict_head_track_refined", "estimated"): "**+ pixels, lit, identity refined, on to the sharp frame** (`--refine`)"}
 
 
 def ict_table(path: Path, split: str = "test") -> str:
@@ -29,8 +30,9 @@ def ict_table(path: Path, split: str = "test") -> str:
         by[(r["method"], r.get("focal", "known"))].append(r)
     seeds = sorted({r["seed"] for r in rows})
     out = [f"| {split} people {', '.join(map(str, seeds))} | rotation, model frame, mean / p95 ° | the head's motion, "
-           "mean / p95 ° | translation mm | after the one scale mm | face shape mm | vertices mm | expression r |",
-           "|---|---|---|---|---|---|---|---|"]
+           "mean / p95 ° | translation mm | after the one scale mm | the face centre's motion mm | face shape mm | "
+           "vertices mm | expression r |",
+           "|---|---|---|---|---|---|---|---|---|"]
 
     def m(rs, k, d=2):
         v = [r[k] for r in rs if r.get(k) is not None]
@@ -42,7 +44,7 @@ def ict_table(path: Path, split: str = "test") -> str:
             continue
         out.append(f"| {name} | {m(rs, 'rot_mean_deg')} / {m(rs, 'rot_p95_deg')} | {m(rs, 'rot_motion_mean_deg')} / "
                    f"{m(rs, 'rot_motion_p95_deg')} | {m(rs, 'trans_mean_mm', 1)} | {m(rs, 'trans_scaled_mean_mm', 1)} | "
-                   f"{m(rs, 'shape_mean_mm')} | {m(rs, 'vertex_mean_mm', 1)} | {m(rs, 'expr_corr')} |")
+                   f"{m(rs, 'trans_motion_mean_mm', 1)} | {m(rs, 'shape_mean_mm')} | {m(rs, 'vertex_mean_mm', 1)} | {m(rs, 'expr_corr')} |")
     return "\n".join(out)
 
 

@@ -126,15 +126,17 @@ def _mode_jacobian(f, Xc, B, R):
 
 
 def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: int = 3, iterations: int = 4,
-                       blur=(2.0, 1.0), w_landmarks: float = 0.05, w_smooth: float = 0.5, shading: bool = True,
+                       blur=(1.0, 0.5, 0.25, 0.0), w_landmarks: float = 0.05, w_smooth: float = 0.5, shading: bool = True,
                        identity: bool = True, w_identity: float = 1e-3,
                        quiet: bool | None = None) -> tuple[HeadTrack, Refinement]:
     """The track refined against the pixels: each frame's pose and expressions moved so that the
     head's colours (taken from the frames themselves) match the frame where the head is seen — a
     dense, direct alignment of the face's texture (as analysis-by-synthesis trackers do), by
     Gauss–Newton on the visible face vertices (a z-buffer decides which), coarse to fine over
-    ``blur`` (Gaussian σ in pixels), with each frame's colour gain and offset per channel, the
-    landmarks (``points``, the face mesh's 468 as fitted, weight ``w_landmarks``) and the
+    ``blur`` (Gaussian σ in pixels; 0: the frame as it is; the finest levels align the sharp
+    edges — lids, lips, brows — to a fraction of a pixel; chosen on the validation people of
+    ``bench/bench_head_track.py`` against 2 then 1 px), with each frame's colour gain and offset
+    per channel, the landmarks (``points``, the face mesh's 468 as fitted, weight ``w_landmarks``) and the
     neighbours' poses and expressions (``w_smooth``) keeping it in place.
 
     The head's colours are an albedo per point lit by one lighting for the clip (``shading``:
