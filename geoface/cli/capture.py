@@ -50,6 +50,6 @@ def register(sub, common) -> None:
                    help="the crop's side in face sizes (default: 1.9: the head and a little of the shoulders)")
     s.add_argument("--refine", action="store_true",
                    help="refine the head track against the pixels (the face's lit colours matched frame by frame "
-                        "and its shape refined; about 0.6 frames/s at 512 on 2 cores; docs/video.md has what it gains)")
+                        "and its shape refined; about 0.4 frames/s at 512 on 2 cores; docs/video.md has what it gains)")
     s.add_argument("--no-overlay", action="store_true", help="do not draw overlay.mp4 (the tracked head over the frames)")
     s.set_defaults(func=cmd_capture)
