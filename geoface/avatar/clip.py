@@ -169,7 +169,7 @@ def capture_head(folder):
     ``head_poses.npz``; the ICT head's own triangles ``F``."""
     from geoface.capture import Capture
     from geoface.synth.ict import load_ict_model
-    from geoface.track.head_track import CM_TO_M
+    from geoface.track.head_track import CM_TO_M, neutral_head
 
     cap = Capture(folder)
     meta = cap.meta(need=True)
@@ -187,7 +187,7 @@ def capture_head(folder):
     view = model.view(parts)
     W, names = ex
     order = [names.index(n) for n in model.expression_names]
-    neutral = (view.neutral + np.tensordot(ident, view.identity_modes[: len(ident)], axes=1)) * CM_TO_M
+    neutral = neutral_head(ident, view)
     R, t, piv = poses
 
     def posed(k: int) -> np.ndarray:

@@ -9,7 +9,7 @@ import numpy as np
 from geoface.errors import GeofaceError
 from geoface.track.head_solver import expmap as _expmap, skew as _skew
 from geoface.track.head_track import (CM_TO_M, CHEEKS, HeadTrack, point_bases, model_view, mediapipe_on_ict,
-                                      view_offsets)
+                                      neutral_head, view_offsets)
 
 __all__ = ["refine_photometric", "Refinement", "albedo_and_light"]
 
@@ -364,7 +364,7 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
         for k, (Y, gain, off) in solved.items():
             step(k, -(Y[:, na] + Y[:, :na] @ da), gain, off)
         ident[:] += da
-        neutral[:] = (v.neutral + np.tensordot(ident, v.identity_modes[:na], axes=1)) * CM_TO_M
+        neutral[:] = neutral_head(ident, v)
         if width is not None:
             base_pts[:] = mean + np.tensordot(ident, Bid[:na], axes=1)
 

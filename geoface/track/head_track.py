@@ -46,7 +46,8 @@ import numpy as np
 from geoface.errors import GeofaceError
 from geoface.track.head_solver import LM as _LM
 
-__all__ = ["HeadTrack", "fit_head_track", "mediapipe_on_ict", "view_offsets", "TrackSettings", "CM_TO_M", "ICT_TRACK_PARTS"]
+__all__ = ["HeadTrack", "fit_head_track", "mediapipe_on_ict", "view_offsets", "TrackSettings", "CM_TO_M", "ICT_TRACK_PARTS",
+           "neutral_head"]
 
 log = logging.getLogger(__name__)
 
@@ -119,9 +120,7 @@ class HeadTrack:
 
     def neutral(self) -> np.ndarray:
         """The person's expressionless head (metres, canonical), vertices of :data:`ICT_TRACK_PARTS`."""
-        v = model_view()
-        a = np.asarray(self.identity, np.float64)
-        return (v.neutral + np.tensordot(a, v.identity_modes[: len(a)], axes=1)) * CM_TO_M
+        return neutral_head(self.identity)
 
     def canonical(self, frame: int) -> np.ndarray:
         """Frame ``frame``'s head with its expression, canonical pose (metres)."""
@@ -148,6 +147,15 @@ def model_view():
     from geoface.synth.ict import load_ict_model
 
     return load_ict_model().view(ICT_TRACK_PARTS)
+
+
+def neutral_head(identity, view=None) -> np.ndarray:
+    """The ICT head of ``identity`` (weights of the first ``len(identity)`` modes) without
+    expression, in metres, canonical: the vertices of ``view`` (an ICT model view; default the
+    track's, :data:`ICT_TRACK_PARTS`)."""
+    v = model_view() if view is None else view
+    a = np.asarray(identity, np.float64)
+    return (v.neutral + np.tensordot(a, v.identity_modes[: len(a)], axes=1)) * CM_TO_M
 
 
 @lru_cache(maxsize=1)
