@@ -157,6 +157,12 @@ def scores(person, Vtrue, Rtrue, Etrue, Rfit, Vfit, Efit=None, neutral_fit=None)
     return {k: round(float(v), 4) if isinstance(v, float) else v for k, v in out.items()}
 
 
+def track_scores(person, Vtrue, Rtrue, Etrue, track):
+    """:func:`scores` of a fitted :class:`~geoface.track.head_track.HeadTrack`."""
+    Vfit = np.stack([track.posed(k) for k in range(len(track))])
+    return scores(person, Vtrue, Rtrue, Etrue, track.R, Vfit, track.expressions, track.neutral())
+
+
 def pnp68(person, frames_pts68, Vtrue):
     """Today's poses: robust PnP of the true 68 landmark vertices (frame 0's canonical head) onto
     the tracked 68 points, through the true camera."""
@@ -260,9 +266,8 @@ def main(argv=None) -> int:
                 blur = tuple(float(x) for x in sched.split(","))
                 t0 = time.perf_counter()
                 tr2, ref = refine_photometric(tr, rgb, masks, pts, quiet=True, blur=blur)
-                Vfit = np.stack([tr2.posed(k) for k in range(len(tr2))])
                 emit({**base, "method": "ict_head_track_refined", "focal": "estimated", "blur": list(blur),
-                      **scores(person, Vtrue, Rtrue, Etrue, tr2.R, Vfit, tr2.expressions, tr2.neutral()),
+                      **track_scores(person, Vtrue, Rtrue, Etrue, tr2),
                       "refine_seconds": round(time.perf_counter() - t0, 1),
                       "photo_err_after": round(float(np.nanmean(ref.after)), 4)})
             continue
@@ -283,9 +288,8 @@ def main(argv=None) -> int:
                              {"photo_err_before": round(float(np.nanmean(ref.before)), 4),
                               "photo_err_after": round(float(np.nanmean(ref.after)), 4)}))
             for method, t_, s_, extra in fits:
-                Vfit = np.stack([t_.posed(k) for k in range(len(t_))])
-                r = scores(person, Vtrue, Rtrue, Etrue, t_.R, Vfit, t_.expressions, t_.neutral())
-                emit({**base, "method": method, "focal": focal, **r, "fps": round(len(frames) / s_, 2),
+                emit({**base, "method": method, "focal": focal, **track_scores(person, Vtrue, Rtrue, Etrue, t_),
+                      "fps": round(len(frames) / s_, 2),
                       "focal_px": round(t_.focal, 1), "true_focal_px": round(person.cam.fx, 1),
                       "residual_px": round(float(np.nanmedian(t_.residual_px)), 3), **extra})
         idx, w = ibug68_from_mediapipe()
