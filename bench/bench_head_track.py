@@ -84,19 +84,6 @@ def angle_deg(Ra, Rb):
     return np.degrees(np.arccos(np.clip(c, -1, 1)))
 
 
-def shape_error_mm(person, neutral_fit):
-    """The fitted neutral face against the true one (the model's narrow face), mm, after the one
-    similarity (scale, turn, shift: Umeyama) that best lays it on the truth — the face's shape
-    alone, as face-reconstruction benchmarks score it."""
-    from geoface.mesh.align import similarity_transform
-
-    face = person.rest.labels == 0
-    X, Y = neutral_fit[face], person.V0[face]
-    sc, Rm, tv = similarity_transform(X, Y)
-    e = np.linalg.norm(sc * X @ Rm.T + tv - Y, axis=1) * 1000
-    return e.mean(), np.percentile(e, 95)
-
-
 def identity_tilt_deg(person) -> float:
     """How far the person's identity turns the head in the model's own frame: the angle of the
     rotation that best lays the mean ICT head's skin on the person's (a similarity), degrees.
@@ -149,7 +136,7 @@ def scores(person, Vtrue, Rtrue, Etrue, Rfit, Vfit, Efit=None, neutral_fit=None)
         ve = np.linalg.norm(Vfit[:, face] - Vtrue[:, face], axis=-1) * 1000
         out.update(vertex_mean_mm=ve.mean(), vertex_p95_mm=np.percentile(ve, 95))
     if neutral_fit is not None:
-        out["shape_mean_mm"], out["shape_p95_mm"] = shape_error_mm(person, neutral_fit)
+        out["shape_mean_mm"], out["shape_p95_mm"] = person.face_shape_error_mm(neutral_fit)
     if Efit is not None:
         moving = Etrue.std(0) > 0.05
         cs = [np.corrcoef(Efit[:, j], Etrue[:, j])[0, 1] for j in np.flatnonzero(moving)]

@@ -18,7 +18,8 @@ talking, emoting, lit ICT person, registration and usage videos of different seq
   landmarks and person masks detected by MediaPipe on the frames (:mod:`geoface.track`) instead of
   the renderer's, headset masks segmented from the usage frames, registration and usage; scored
   against the same true frames (``gt/``, ``hmd_masks_true/``); ``tracked_pose_refine``: the same with
-  the registration poses corrected per frame by the image loss;
+  the registration poses corrected per frame by the image loss; ``tracked_true_poses``: the same
+  copy registered and used with the true head poses (what the tracked landmarks and masks cost alone);
 * ``full``     — Full with no pose file: registration poses fitted to the landmarks (PnP), the
   usage pose read from the lower-face crop (the pose MLP trained during registration);
 * ``no_gaussian_feature_mapping``, ``no_global_pose`` — the paper's ablations, no pose file;
@@ -77,6 +78,14 @@ VARIANTS["oracle_pose_head_detach"] = ("full", "file")  # registered and used wi
 VARIANTS["tracked"] = ("full", "landmarks")  # Full on the capture's copy tracked by geoface.track (DIR/data_tracked)
 OURS["tracked_pose_refine"] = {"pose_refine": True}  # the same, registration poses corrected by the image loss
 VARIANTS["tracked_pose_refine"] = ("full", "landmarks")
+# the tracked copy registered and used with the true head poses (an ablation: what the tracked
+# landmarks and masks cost with the poses exact)
+VARIANTS["tracked_true_poses"] = ("full", "file")
+# the tracked copy registered with the ICT head track's poses (``track --head-track``: its
+# registration head_poses.npz), used with the poses fitted to the lower landmarks, as ``tracked``
+VARIANTS["tracked_head_track"] = ("full", "file")
+#: variants registered with a pose file but used, as the no-file ones, with every usage pose source
+REGISTERED_WITH_FILE = {"tracked_head_track"}
 MAIN = ["oracle", "full", "no_gaussian_feature_mapping", "no_global_pose"]
 
 
@@ -136,6 +145,64 @@ def _track(a) -> None:
                                   "landmark_error_px": round(float(err.mean()), 3),
                                   "landmark_error_p95_px": round(float(np.percentile(err, 95)), 3),
                                   "mask_iou": round(float(iou.mean()), 4), **headset, "seconds": seconds}), flush=True)
+            if a.head_track:
+                _head_track_copy(Path(a.out), f"{split}_{s}", data / f"{split}_{s}" / "registration")
+
+
+def _head_track_copy(out: Path, name: str, truth_dir: Path) -> None:
+    """``OUT/data_head_track/<name>``: the tracked copy with registration poses from the ICT head
+    track (:func:`geoface.track.head_track.fit_head_track` on MediaPipe's 468 points of the
+    frames, through the capture's camera, refined against the pixels): the clip's head motion from
+    the track, placed on the capture's head mesh by the one rigid offset and scale that best lay
+    the track on the poses fitted to the tracked landmarks (PnP, ``tracked``'s poses) over all
+    frames. One row: the poses' error against the truth, as the runs score it."""
+    import shutil
+
+    from scipy.spatial.transform import Rotation
+
+    from geoface.capture import write_head_poses
+    from geoface.hfm.data import load_video
+    from geoface.mesh.io import load_mesh
+    from geoface.track import facemesh_points
+    from geoface.track.head_refine import refine_photometric
+    from geoface.track.head_track import fit_head_track
+    from geoface.hfm.train import registration_poses
+
+    src, dst = out / "data_tracked" / name, out / "data_head_track" / name
+    if (dst / "registration" / "head_poses.npz").is_file():
+        return
+    t0 = time.time()
+    reg = load_video(src / "registration", need_mesh=True)
+    registration_poses(reg, "landmarks", None, load_mesh(reg.mesh_path))  # the tracked variant's PnP poses
+    Rp, tp, pivot = reg.poses
+    cam = reg.camera
+    H, W = reg.frames.shape[1:3]
+    frames8 = [np.round(f * 255).astype(np.uint8) for f in reg.frames]
+    pts = facemesh_points(frames8, video=True, quiet=True)
+    tr = fit_head_track(pts, (W, H), focal=float(cam.fx), quiet=True)
+    tr, _ = refine_photometric(tr, reg.frames, reg.masks.astype(np.float32), pts, quiet=True)
+    C = np.asarray(cam.R, np.float64)
+    # the mesh's turn in the camera, C R_k, is the track's turn R_k times one constant Q
+    Q = Rotation.from_matrix(np.einsum("tji,jk,tkl->til", tr.R, C, Rp)).mean().as_matrix()
+    Rw = np.einsum("ji,tjk,kl->til", C, tr.R, Q)
+    # the pivot in the camera, c_k = C (pivot + t_k) + cam.t, is s t_k + R_k u (a head s times
+    # bigger s times further away projects the same)
+    c = (pivot + tp) @ C.T + np.asarray(cam.t, np.float64)
+    A = np.concatenate([tr.t.reshape(-1, 1), tr.R.reshape(-1, 3)], 1)
+    su = np.linalg.lstsq(A, c.reshape(-1), rcond=None)[0]
+    c_fit = su[0] * tr.t + tr.R @ su[1:]
+    tw = (c_fit - np.asarray(cam.t, np.float64)) @ C - pivot
+    if dst.exists():
+        shutil.rmtree(dst)
+    shutil.copytree(src, dst)
+    write_head_poses(dst / "registration", Rw, tw, pivot)
+    true = load_video(truth_dir).poses
+    rv, dt = _pose_offsets(true, Rw, tw, pivot)
+    rv0, dt0 = _pose_offsets(true, Rp, tp, pivot)
+    print(json.dumps({"stage": "head_track", "data": name, "frames": len(reg), "focal": round(float(cam.fx), 1),
+                      "registration_pose_deg": round(_centred_rms(rv), 3), "registration_pose_mm": round(_centred_rms(dt), 3),
+                      "pnp_pose_deg": round(_centred_rms(rv0), 3), "pnp_pose_mm": round(_centred_rms(dt0), 3),
+                      "seconds": round(time.time() - t0, 1)}), flush=True)
 
 
 def _read_mask(path) -> np.ndarray:
@@ -190,7 +257,8 @@ def _job_rows(job) -> list:
     rows = []
     video = load_video(Path(d) / "usage")
     cal = model.pose_calibration
-    for usage_poses in (("file",) if poses == "file" else ("landmarks", "landmarks_uncalibrated", "image", "file")):
+    every_usage = poses != "file" or variant in REGISTERED_WITH_FILE
+    for usage_poses in (("landmarks", "landmarks_uncalibrated", "image", "file") if every_usage else ("file",)):
         if usage_poses == "landmarks_uncalibrated" and cal is None:
             continue
         model.pose_calibration = None if usage_poses == "landmarks_uncalibrated" else cal
@@ -220,7 +288,8 @@ def _run(a) -> None:
         for seed in (int(x) for x in seeds.split(",")):
             for s in ([int(x) for x in people[0].split(",")] if people else default):
                 for v in variants.split(","):
-                    d = (Path(a.out) / "data_tracked" if v.startswith("tracked") else data) / f"{split}_{s}"
+                    d = (Path(a.out) / ("data_head_track" if v == "tracked_head_track" else "data_tracked")
+                         if v.startswith("tracked") else data) / f"{split}_{s}"
                     if not (d / "usage" / "meta.json").is_file():
                         raise SystemExit(f"{d}: no capture; run the data stage first"
                                          + (" and then the track stage" if v.startswith("tracked") else ""))
@@ -362,7 +431,8 @@ def _calibration(a) -> None:
         for seed in (int(x) for x in seeds.split(",")):
             for s in ([int(x) for x in people[0].split(",")] if people else default):
                 for v in variants.split(","):
-                    d = (Path(a.out) / "data_tracked" if v.startswith("tracked") else data) / f"{split}_{s}"
+                    d = (Path(a.out) / ("data_head_track" if v == "tracked_head_track" else "data_tracked")
+                         if v.startswith("tracked") else data) / f"{split}_{s}"
                     model = load_hfm(models / f"{split}_{s}_{v}_s{seed}")
                     reg = _registration(d / "registration", model, models / f"{split}_{s}_{v}_s{seed}")
                     use = load_video(d / "usage")
@@ -463,6 +533,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True)
     ap.add_argument("--val", type=ints, default=[10])
     ap.add_argument("--test", type=ints, default=[11, 12, 13])
+    ap.add_argument("--head-track", action="store_true",
+                    help="track: also OUT/data_head_track, registered with the ICT head track's poses (variant tracked_head_track)")
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--usage", type=int, default=50)
     ap.add_argument("--res", type=int, default=128)

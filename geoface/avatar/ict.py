@@ -217,6 +217,19 @@ class ICTPerson:
         hmd = _box_mean((s["face"] >= len(Fu)).astype(np.float32), ss) > 0.5 if headset else None
         return V, rgb.astype(np.float32), alpha, hmd
 
+    def face_shape_error_mm(self, neutral) -> tuple[float, float]:
+        """A fitted expressionless head's face (vertices of the ICT parts, metres, canonical)
+        against this person's, mm (mean, 95th percentile), after the one similarity (scale, turn,
+        shift: Umeyama) that best lays it on the truth — the face's shape alone, as
+        face-reconstruction benchmarks score it."""
+        from geoface.mesh.align import similarity_transform
+
+        face = self.rest.labels == 0
+        X, Y = np.asarray(neutral, np.float64)[face], self.V0[face]
+        sc, Rm, tv = similarity_transform(X, Y)
+        e = np.linalg.norm(sc * X @ Rm.T + tv - Y, axis=1) * 1000
+        return float(e.mean()), float(np.percentile(e, 95))
+
     def init_mesh(self, target: int):
         """The canonical head for Gaussians: vertices, faces, colours (see :func:`_init_mesh`)."""
         return _init_mesh(self.V0, self.rest, self.src, self.UVu, self.maps, self.eyes, self.solids, target)

@@ -38,7 +38,7 @@ from __future__ import annotations
 import json
 import logging
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -118,14 +118,18 @@ class HeadTrack:
         W, H = self.image_size
         return Camera(self.focal, self.focal, self.centre[0], self.centre[1], W, H, np.eye(3), np.zeros(3))
 
+    @cached_property
+    def _neutral(self) -> np.ndarray:
+        return neutral_head(self.identity)  # made once per track: the posed heads of every frame share it
+
     def neutral(self) -> np.ndarray:
         """The person's expressionless head (metres, canonical), vertices of :data:`ICT_TRACK_PARTS`."""
-        return neutral_head(self.identity)
+        return self._neutral.copy()
 
     def canonical(self, frame: int) -> np.ndarray:
         """Frame ``frame``'s head with its expression, canonical pose (metres)."""
         v = model_view()
-        return self.neutral() + np.tensordot(self.expressions[frame], v.expression_modes, axes=1) * CM_TO_M
+        return self._neutral + np.tensordot(self.expressions[frame], v.expression_modes, axes=1) * CM_TO_M
 
     def posed(self, frame: int) -> np.ndarray:
         """Frame ``frame``'s head in camera coordinates (metres)."""

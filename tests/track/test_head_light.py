@@ -82,15 +82,6 @@ def test_the_identity_columns_are_the_derivative_of_the_projection():
         assert np.allclose(J[:, :, m], num, rtol=1e-5, atol=1e-6)
 
 
-def _face_shape_error_mm(person, neutral):
-    """Mean distance (mm) of a fitted neutral face from the person's, after the best similarity."""
-    from geoface.mesh.align import similarity_transform
-
-    face = person.rest.labels == 0
-    sc, Rm, tv = similarity_transform(neutral[face], person.V0[face])
-    return float(np.linalg.norm(sc * neutral[face] @ Rm.T + tv - person.V0[face], axis=1).mean() * 1000)
-
-
 def test_the_pixels_take_a_wrong_face_shape_towards_the_persons():
     """A lit ICT person turning its head, its face-mesh points known to a pixel, tracked from a
     face shape made wrong (six identity weights moved by 2–3σ): the refinement against the pixels
@@ -121,7 +112,7 @@ def test_the_pixels_take_a_wrong_face_shape_towards_the_persons():
     wrong[:6] += [3.0, -3.0, 2.5, -2.5, 2.0, -2.0]
     tr = dataclasses.replace(tr, identity=wrong)
     out, _ = refine_photometric(tr, frames, masks, pts, passes=2, blur=(1.0, 0.0), quiet=True)
-    before, after = _face_shape_error_mm(person, tr.neutral()), _face_shape_error_mm(person, out.neutral())
+    before, after = person.face_shape_error_mm(tr.neutral())[0], person.face_shape_error_mm(out.neutral())[0]
     assert after < 0.7 * before, (before, after)  # 6.5 → 4.1 mm
 
     def motion_error(Rf):  # the head's turn from frame 0, against the truth's
