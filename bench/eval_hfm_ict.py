@@ -2,7 +2,7 @@
 """HFM-GS on ICT-FaceKit people without the head-pose file: held-out identities, paired variants.
 
     python bench/eval_hfm_ict.py data --out DIR [--val 10 --test 11,12,13] [--frames 200 --usage 50] [--rom 3]
-    python bench/eval_hfm_ict.py track --out DIR [--splits test]       # then --variants tracked
+    python bench/eval_hfm_ict.py track --out DIR [--splits test] [--head-track]   # then --variants tracked
     python bench/eval_hfm_ict.py run --out DIR [--splits test] [--seeds 0,1] [--jobs 4] [--device cuda]
     python bench/eval_hfm_ict.py run --out DIR --group test/0/oracle,full --group val/0,1/full,map_theta/10 ...
     python bench/eval_hfm_ict.py poses --out DIR [--splits val,test]
@@ -20,6 +20,8 @@ talking, emoting, lit ICT person, registration and usage videos of different seq
   against the same true frames (``gt/``, ``hmd_masks_true/``); ``tracked_pose_refine``: the same with
   the registration poses corrected per frame by the image loss; ``tracked_true_poses``: the same
   copy registered and used with the true head poses (what the tracked landmarks and masks cost alone);
+  ``tracked_head_track``: the copy that ``track --head-track`` wrote (``DIR/data_head_track``),
+  registered with the ICT head track's poses instead of the landmarks' PnP and used as ``tracked``;
 * ``full``     — Full with no pose file: registration poses fitted to the landmarks (PnP), the
   usage pose read from the lower-face crop (the pose MLP trained during registration);
 * ``no_gaussian_feature_mapping``, ``no_global_pose`` — the paper's ablations, no pose file;
