@@ -160,21 +160,43 @@ def _head_track_copy(out: Path, name: str, truth_dir: Path) -> None:
     frames. One row: the poses' error against the truth, as the runs score it."""
     import shutil
 
-    from scipy.spatial.transform import Rotation
-
     from geoface.capture import write_head_poses
     from geoface.hfm.data import load_video
-    from geoface.mesh.io import load_mesh
-    from geoface.track import facemesh_points
-    from geoface.track.head_refine import refine_photometric
-    from geoface.track.head_track import fit_head_track
-    from geoface.hfm.train import registration_poses
 
     src, dst = out / "data_tracked" / name, out / "data_head_track" / name
     if (dst / "registration" / "head_poses.npz").is_file():
         return
     t0 = time.time()
-    reg = load_video(src / "registration", need_mesh=True)
+    reg, _, Rw, tw, pivot, Rp, tp = _registration_head_track(src / "registration")
+    if dst.exists():
+        shutil.rmtree(dst)
+    shutil.copytree(src, dst)
+    write_head_poses(dst / "registration", Rw, tw, pivot)
+    true = load_video(truth_dir).poses
+    rv, dt = _pose_offsets(true, Rw, tw, pivot)
+    rv0, dt0 = _pose_offsets(true, Rp, tp, pivot)
+    print(json.dumps({"stage": "head_track", "data": name, "frames": len(reg), "focal": round(float(reg.camera.fx), 1),
+                      "registration_pose_deg": round(_centred_rms(rv), 3), "registration_pose_mm": round(_centred_rms(dt), 3),
+                      "pnp_pose_deg": round(_centred_rms(rv0), 3), "pnp_pose_mm": round(_centred_rms(dt0), 3),
+                      "seconds": round(time.time() - t0, 1)}), flush=True)
+
+
+def _registration_head_track(reg_dir: Path):
+    """The registration video's ICT head track (refined against the pixels, through the capture's
+    camera) and its placement on the capture's head mesh: ``(video, place, R, t, pivot, R_pnp,
+    t_pnp)``, with ``place(track) → (R, t)`` the one turn, shift and scale that best lay this
+    track on the landmarks' PnP poses over all frames, applied to any track of the same identity
+    and camera."""
+    from scipy.spatial.transform import Rotation
+
+    from geoface.hfm.data import load_video
+    from geoface.hfm.train import registration_poses
+    from geoface.mesh.io import load_mesh
+    from geoface.track import facemesh_points
+    from geoface.track.head_refine import refine_photometric
+    from geoface.track.head_track import fit_head_track
+
+    reg = load_video(reg_dir, need_mesh=True)
     registration_poses(reg, "landmarks", None, load_mesh(reg.mesh_path))  # the tracked variant's PnP poses
     Rp, tp, pivot = reg.poses
     cam = reg.camera
@@ -183,28 +205,89 @@ def _head_track_copy(out: Path, name: str, truth_dir: Path) -> None:
     pts = facemesh_points(frames8, video=True, quiet=True)
     tr = fit_head_track(pts, (W, H), focal=float(cam.fx), quiet=True)
     tr, _ = refine_photometric(tr, reg.frames, reg.masks.astype(np.float32), pts, quiet=True)
-    C = np.asarray(cam.R, np.float64)
+    C, c0 = np.asarray(cam.R, np.float64), np.asarray(cam.t, np.float64)
     # the mesh's turn in the camera, C R_k, is the track's turn R_k times one constant Q
     Q = Rotation.from_matrix(np.einsum("tji,jk,tkl->til", tr.R, C, Rp)).mean().as_matrix()
-    Rw = np.einsum("ji,tjk,kl->til", C, tr.R, Q)
     # the pivot in the camera, c_k = C (pivot + t_k) + cam.t, is s t_k + R_k u (a head s times
     # bigger s times further away projects the same)
-    c = (pivot + tp) @ C.T + np.asarray(cam.t, np.float64)
+    c = (pivot + tp) @ C.T + c0
     A = np.concatenate([tr.t.reshape(-1, 1), tr.R.reshape(-1, 3)], 1)
     su = np.linalg.lstsq(A, c.reshape(-1), rcond=None)[0]
-    c_fit = su[0] * tr.t + tr.R @ su[1:]
-    tw = (c_fit - np.asarray(cam.t, np.float64)) @ C - pivot
-    if dst.exists():
-        shutil.rmtree(dst)
-    shutil.copytree(src, dst)
-    write_head_poses(dst / "registration", Rw, tw, pivot)
-    true = load_video(truth_dir).poses
-    rv, dt = _pose_offsets(true, Rw, tw, pivot)
-    rv0, dt0 = _pose_offsets(true, Rp, tp, pivot)
-    print(json.dumps({"stage": "head_track", "data": name, "frames": len(reg), "focal": round(float(cam.fx), 1),
-                      "registration_pose_deg": round(_centred_rms(rv), 3), "registration_pose_mm": round(_centred_rms(dt), 3),
-                      "pnp_pose_deg": round(_centred_rms(rv0), 3), "pnp_pose_mm": round(_centred_rms(dt0), 3),
-                      "seconds": round(time.time() - t0, 1)}), flush=True)
+
+    def place(track):
+        R = np.einsum("ji,tjk,kl->til", C, track.R, Q)
+        t = (su[0] * track.t + track.R @ su[1:] - c0) @ C - pivot
+        return R, t
+
+    place.track = tr
+    Rw, tw = place(tr)
+    return reg, place, Rw, tw, pivot, Rp, tp
+
+
+def _usage_head_track(a) -> None:
+    """``head_track_usage``: the usage video's poses from the same head track as the registration's
+    (``track --head-track``): the ICT head with the registration track's identity, fitted to
+    MediaPipe's points below the headset (40% of the way from the eyes to the nose tip, less
+    5 mm) through the capture's camera, and placed on the head mesh as the registration track
+    was — one tracker for both videos, in one frame. Writes ``DIR/data_head_track_usage/<name>``
+    (the head-track copy with those usage poses) and scores ``tracked_head_track``'s model with
+    them (variant ``tracked_head_track_usage``, usage poses ``file``), with the poses' error."""
+    import shutil
+
+    import geoface.track.head_track as HT
+    from geoface.capture import write_head_poses
+    from geoface.hfm import evaluate_hmd, load_hfm
+    from geoface.hfm.data import load_video
+    from geoface.track import facemesh_points
+
+    data = Path(a.data) if a.data else Path(a.out) / "data"
+    models = Path(a.models or Path(a.out) / "models")
+    res = Path(a.out) / "results.jsonl"
+    for split, seeds in (("val", a.val), ("test", a.test)):
+        if split not in a.splits:
+            continue
+        for s in seeds:
+            name = f"{split}_{s}"
+            src, dst = Path(a.out) / "data_head_track" / name, Path(a.out) / "data_head_track_usage" / name
+            t0 = time.time()
+            reg, place, Rw, tw, pivot, _, _ = _registration_head_track(Path(a.out) / "data_tracked" / name / "registration")
+            with np.load(src / "registration" / "head_poses.npz") as z:  # the poses the model was registered in
+                same = float(max(np.abs(z["R"] - Rw).max(), np.abs(z["t"] - tw).max()))
+            tr = place.track
+            use_v = load_video(src / "usage")
+            mean, Bid, Bex = HT.point_bases()
+            P0 = mean + np.tensordot(tr.identity, Bid[: len(tr.identity)], axes=1)
+            y_eye, y_nose = P0[[33, 133, 362, 263], 1].mean(), P0[1, 1]
+            lower = P0[:, 1] < y_eye - 0.4 * (y_eye - y_nose) - 0.005
+            frames8 = [np.round(f * 255).astype(np.uint8) for f in use_v.frames]
+            pts = facemesh_points(frames8, video=True, quiet=True)
+            bases = HT.point_bases
+            HT.point_bases = lambda: (P0, Bid, Bex)  # the registration's identity, held there by its prior
+            try:
+                H, W = use_v.frames.shape[1:3]
+                ut = HT.fit_head_track(pts, (W, H), focal=float(use_v.camera.fx), use=lower,
+                                       settings=HT.TrackSettings(w_identity=1e4), quiet=True)
+            finally:
+                HT.point_bases = bases
+            Ru, tu = place(ut)
+            if dst.exists():
+                shutil.rmtree(dst)
+            shutil.copytree(src, dst)
+            write_head_poses(dst / "usage", Ru, tu, pivot)
+            true = load_video(data / name / "usage").poses
+            rv, dt = _pose_offsets(true, Ru, tu, pivot)
+            row = {"stage": "head_track_usage", "data": name, "frames": len(use_v), "lower_points": int(lower.sum()),
+                   "registration_poses_reproduced": same, "usage_pose_deg": round(_centred_rms(rv), 3),
+                   "usage_pose_mm": round(_centred_rms(dt), 3), "usage_offset_deg": np.round(rv.mean(0), 3).tolist(),
+                   "usage_offset_mm": np.round(dt.mean(0), 2).tolist(), "seconds": round(time.time() - t0, 1)}
+            model = load_hfm(models / f"{name}_tracked_head_track_s0")
+            r = evaluate_hmd(model, load_video(dst / "usage"), poses="file")
+            score = {"stage": "score", "split": split, "data_seed": s, "seed": 0, "variant": "tracked_head_track_usage",
+                     "usage_poses": "file", **{k: (round(float(v), 4) if isinstance(v, (int, float)) else v) for k, v in r.items()}}
+            with res.open("a") as f:
+                for line in (row, score):
+                    print(json.dumps(line), flush=True)
+                    f.write(json.dumps(line) + "\n")
 
 
 def _read_mask(path) -> np.ndarray:
@@ -531,7 +614,7 @@ def _table(a) -> None:
 def main(argv=None) -> int:
     ints = lambda s: [int(x) for x in s.split(",") if x]  # noqa: E731
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("stage", choices=("data", "track", "run", "poses", "calibration", "table"))
+    ap.add_argument("stage", choices=("data", "track", "run", "poses", "calibration", "table", "head_track_usage"))
     ap.add_argument("--out", required=True)
     ap.add_argument("--val", type=ints, default=[10])
     ap.add_argument("--test", type=ints, default=[11, 12, 13])
@@ -569,7 +652,8 @@ def main(argv=None) -> int:
     if bad:
         ap.error(f"unknown variants {bad}; choose from {list(VARIANTS)}")
     os.makedirs(a.out, exist_ok=True)
-    {"data": _data, "track": _track, "run": _run, "poses": _poses, "calibration": _calibration, "table": _table}[a.stage](a)
+    {"data": _data, "track": _track, "run": _run, "poses": _poses, "calibration": _calibration, "table": _table,
+     "head_track_usage": _usage_head_track}[a.stage](a)
     return 0
 
 
