@@ -3,6 +3,7 @@
 
     python bench/eval_hfm_ict.py data --out DIR [--val 10 --test 11,12,13] [--frames 200 --usage 50] [--rom 3]
     python bench/eval_hfm_ict.py track --out DIR [--splits test] [--head-track]   # then --variants tracked
+    python bench/eval_hfm_ict.py head_track_usage --out DIR [--splits val,test]   # after run --variants tracked_head_track
     python bench/eval_hfm_ict.py run --out DIR [--splits test] [--seeds 0,1] [--jobs 4] [--device cuda]
     python bench/eval_hfm_ict.py run --out DIR --group test/0/oracle,full --group val/0,1/full,map_theta/10 ...
     python bench/eval_hfm_ict.py poses --out DIR [--splits val,test]
@@ -192,7 +193,6 @@ def _registration_head_track(reg_dir: Path):
     from geoface.hfm.data import load_video
     from geoface.hfm.train import registration_poses
     from geoface.mesh.io import load_mesh
-    from geoface.track import facemesh_points
     from geoface.track.head_refine import refine_photometric
     from geoface.track.head_track import fit_head_track
 
@@ -201,8 +201,7 @@ def _registration_head_track(reg_dir: Path):
     Rp, tp, pivot = reg.poses
     cam = reg.camera
     H, W = reg.frames.shape[1:3]
-    frames8 = [np.round(f * 255).astype(np.uint8) for f in reg.frames]
-    pts = facemesh_points(frames8, video=True, quiet=True)
+    pts = _facemesh(reg)
     tr = fit_head_track(pts, (W, H), focal=float(cam.fx), quiet=True)
     tr, _ = refine_photometric(tr, reg.frames, reg.masks.astype(np.float32), pts, quiet=True)
     C, c0 = np.asarray(cam.R, np.float64), np.asarray(cam.t, np.float64)
@@ -238,7 +237,6 @@ def _usage_head_track(a) -> None:
     from geoface.capture import write_head_poses
     from geoface.hfm import evaluate_hmd, load_hfm
     from geoface.hfm.data import load_video
-    from geoface.track import facemesh_points
 
     data = Path(a.data) if a.data else Path(a.out) / "data"
     models = Path(a.models or Path(a.out) / "models")
@@ -259,8 +257,7 @@ def _usage_head_track(a) -> None:
             P0 = mean + np.tensordot(tr.identity, Bid[: len(tr.identity)], axes=1)
             y_eye, y_nose = P0[[33, 133, 362, 263], 1].mean(), P0[1, 1]
             lower = P0[:, 1] < y_eye - 0.4 * (y_eye - y_nose) - 0.005
-            frames8 = [np.round(f * 255).astype(np.uint8) for f in use_v.frames]
-            pts = facemesh_points(frames8, video=True, quiet=True)
+            pts = _facemesh(use_v)
             bases = HT.point_bases
             HT.point_bases = lambda: (P0, Bid, Bex)  # the registration's identity, held there by its prior
             try:
@@ -288,6 +285,20 @@ def _usage_head_track(a) -> None:
                 for line in (row, score):
                     print(json.dumps(line), flush=True)
                     f.write(json.dumps(line) + "\n")
+
+
+def _capture_dir(out, data: Path, variant: str) -> Path:
+    """Where a variant's captures are: the tracked copies (the head track's for ``tracked_head_track``) or ``data``."""
+    if not variant.startswith("tracked"):
+        return data
+    return Path(out) / ("data_head_track" if variant == "tracked_head_track" else "data_tracked")
+
+
+def _facemesh(video) -> np.ndarray:
+    """MediaPipe's 468 points on a loaded video's frames (float in [0, 1]), tracked frame to frame."""
+    from geoface.track import facemesh_points
+
+    return facemesh_points([np.round(f * 255).astype(np.uint8) for f in video.frames], video=True, quiet=True)
 
 
 def _read_mask(path) -> np.ndarray:
@@ -373,8 +384,7 @@ def _run(a) -> None:
         for seed in (int(x) for x in seeds.split(",")):
             for s in ([int(x) for x in people[0].split(",")] if people else default):
                 for v in variants.split(","):
-                    d = (Path(a.out) / ("data_head_track" if v == "tracked_head_track" else "data_tracked")
-                         if v.startswith("tracked") else data) / f"{split}_{s}"
+                    d = _capture_dir(a.out, data, v) / f"{split}_{s}"
                     if not (d / "usage" / "meta.json").is_file():
                         raise SystemExit(f"{d}: no capture; run the data stage first"
                                          + (" and then the track stage" if v.startswith("tracked") else ""))
@@ -516,8 +526,7 @@ def _calibration(a) -> None:
         for seed in (int(x) for x in seeds.split(",")):
             for s in ([int(x) for x in people[0].split(",")] if people else default):
                 for v in variants.split(","):
-                    d = (Path(a.out) / ("data_head_track" if v == "tracked_head_track" else "data_tracked")
-                         if v.startswith("tracked") else data) / f"{split}_{s}"
+                    d = _capture_dir(a.out, data, v) / f"{split}_{s}"
                     model = load_hfm(models / f"{split}_{s}_{v}_s{seed}")
                     reg = _registration(d / "registration", model, models / f"{split}_{s}_{v}_s{seed}")
                     use = load_video(d / "usage")
