@@ -18,19 +18,7 @@ class VoxelSkinning(nn.Module):
 
     def __init__(self, V, weights, res: int = 64, k: int = 4, pad: float = 0.1, learn_offsets: bool = True):
         super().__init__()
-        from scipy.spatial import cKDTree
-
-        V = np.asarray(V, np.float64)
-        W = np.asarray(weights, np.float64)
-        lo, hi = V.min(0), V.max(0)
-        ext = hi - lo
-        lo, hi = lo - pad * ext, hi + pad * ext
-        g = [np.linspace(lo[i], hi[i], res) for i in range(3)]
-        P = np.stack(np.meshgrid(*g, indexing="ij"), -1).reshape(-1, 3)
-        d, j = cKDTree(V).query(P, k=k)
-        d, j = d.reshape(len(P), k), j.reshape(len(P), k)
-        w = 1.0 / (d + 1e-9)
-        G = (W[j] * w[..., None]).sum(1) / w.sum(1, keepdims=True)
+        lo, hi, G = _grid_weights(np.asarray(V, np.float64), np.asarray(weights, np.float64), int(res), int(k), float(pad))
         self.res = res
         self.register_buffer("lo", torch.tensor(lo, dtype=torch.float32))
         self.register_buffer("hi", torch.tensor(hi, dtype=torch.float32))
@@ -44,6 +32,37 @@ class VoxelSkinning(nn.Module):
         s = Fnn.grid_sample(G[None], u.flip(-1)[None, :, None, None], mode="bilinear", padding_mode="border",
                             align_corners=True)[0, :, :, 0, 0].T
         return s / s.sum(1, keepdim=True).clamp_min(1e-12)
+
+
+#: the last few templates' grids (a model is built again for every load, resume and evaluation
+#: of the same person: the grid's nearest-vertex query is the costly part)
+_GRIDS: dict = {}
+_GRID_CACHE = 4
+
+
+def _grid_weights(V: np.ndarray, W: np.ndarray, res: int, k: int, pad: float):
+    """``(lo, hi, G (res³, J))``: the grid's corners and each node's skinning weights, the
+    inverse-distance blend of its ``k`` nearest template vertices' (:class:`VoxelSkinning`)."""
+    import hashlib
+
+    from scipy.spatial import cKDTree
+
+    h = hashlib.sha1(np.ascontiguousarray(V).tobytes())
+    h.update(np.ascontiguousarray(W).tobytes())
+    key = (h.hexdigest(), V.shape, W.shape, res, k, pad)
+    if key not in _GRIDS:
+        lo, hi = V.min(0), V.max(0)
+        ext = hi - lo
+        lo, hi = lo - pad * ext, hi + pad * ext
+        g = [np.linspace(lo[i], hi[i], res) for i in range(3)]
+        P = np.stack(np.meshgrid(*g, indexing="ij"), -1).reshape(-1, 3)
+        d, j = cKDTree(V).query(P, k=k)
+        d, j = d.reshape(len(P), k), j.reshape(len(P), k)
+        w = 1.0 / (d + 1e-9)
+        _GRIDS[key] = (lo, hi, (W[j] * w[..., None]).sum(1) / w.sum(1, keepdims=True))
+        while len(_GRIDS) > _GRID_CACHE:
+            _GRIDS.pop(next(iter(_GRIDS)))
+    return _GRIDS[key]
 
 
 def lbs(X: Tensor, quats: Tensor, W: Tensor, A: Tensor) -> tuple[Tensor, Tensor]:
