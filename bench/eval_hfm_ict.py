@@ -168,11 +168,12 @@ def _head_track_copy(out: Path, name: str, truth_dir: Path) -> None:
     if (dst / "registration" / "head_poses.npz").is_file():
         return
     t0 = time.time()
-    reg, _, Rw, tw, pivot, Rp, tp = _registration_head_track(src / "registration")
+    reg, place, Rw, tw, pivot, Rp, tp = _registration_head_track(src / "registration")
     if dst.exists():
         shutil.rmtree(dst)
     shutil.copytree(src, dst)
     write_head_poses(dst / "registration", Rw, tw, pivot)
+    place.save(dst / "registration" / "head_track.npz")  # the usage track is placed the same (head_track_usage)
     true = load_video(truth_dir).poses
     rv, dt = _pose_offsets(true, Rw, tw, pivot)
     rv0, dt0 = _pose_offsets(true, Rp, tp, pivot)
@@ -213,14 +214,28 @@ def _registration_head_track(reg_dir: Path):
     A = np.concatenate([tr.t.reshape(-1, 1), tr.R.reshape(-1, 3)], 1)
     su = np.linalg.lstsq(A, c.reshape(-1), rcond=None)[0]
 
+    place = _placement(C, c0, Q, su, pivot, tr.identity)
+    Rw, tw = place(tr)
+    return reg, place, Rw, tw, pivot, Rp, tp
+
+
+def _placement(C, c0, Q, su, pivot, identity):
+    """``place(track) → (R, t)``: a track of this person and camera on the capture's head mesh
+    (:func:`_registration_head_track`); ``place.save(path)`` keeps it (``head_track.npz``)."""
     def place(track):
         R = np.einsum("ji,tjk,kl->til", C, track.R, Q)
         t = (su[0] * track.t + track.R @ su[1:] - c0) @ C - pivot
         return R, t
 
-    place.track = tr
-    Rw, tw = place(tr)
-    return reg, place, Rw, tw, pivot, Rp, tp
+    place.identity = np.asarray(identity, np.float64)
+    place.save = lambda path: np.savez(path, C=C, c0=c0, Q=Q, su=su, pivot=pivot, identity=place.identity)
+    return place
+
+
+def _load_placement(path: Path):
+    """The placement :func:`_placement` saved at ``path``."""
+    with np.load(path) as z:
+        return _placement(z["C"], z["c0"], z["Q"], z["su"], z["pivot"], z["identity"])
 
 
 def _usage_head_track(a) -> None:
@@ -248,24 +263,23 @@ def _usage_head_track(a) -> None:
             name = f"{split}_{s}"
             src, dst = Path(a.out) / "data_head_track" / name, Path(a.out) / "data_head_track_usage" / name
             t0 = time.time()
-            reg, place, Rw, tw, pivot, _, _ = _registration_head_track(Path(a.out) / "data_tracked" / name / "registration")
-            with np.load(src / "registration" / "head_poses.npz") as z:  # the poses the model was registered in
-                same = float(max(np.abs(z["R"] - Rw).max(), np.abs(z["t"] - tw).max()))
-            tr = place.track
+            saved = src / "registration" / "head_track.npz"
+            if saved.is_file():  # kept by the track stage: the refined registration track is not made again
+                place, same = _load_placement(saved), 0.0
+                with np.load(src / "registration" / "head_poses.npz") as z:
+                    pivot = z["pivot"]
+            else:  # a copy made before the placement was kept: the registration track again (about 25 min)
+                _, place, Rw, tw, pivot, _, _ = _registration_head_track(Path(a.out) / "data_tracked" / name / "registration")
+                with np.load(src / "registration" / "head_poses.npz") as z:  # the poses the model was registered in
+                    same = float(max(np.abs(z["R"] - Rw).max(), np.abs(z["t"] - tw).max()))
             use_v = load_video(src / "usage")
-            mean, Bid, Bex = HT.point_bases()
-            P0 = mean + np.tensordot(tr.identity, Bid[: len(tr.identity)], axes=1)
+            mean, Bid, _ = HT.point_bases()
+            P0 = mean + np.tensordot(place.identity, Bid[: len(place.identity)], axes=1)
             y_eye, y_nose = P0[[33, 133, 362, 263], 1].mean(), P0[1, 1]
             lower = P0[:, 1] < y_eye - 0.4 * (y_eye - y_nose) - 0.005
             pts = _facemesh(use_v)
-            bases = HT.point_bases
-            HT.point_bases = lambda: (P0, Bid, Bex)  # the registration's identity, held there by its prior
-            try:
-                H, W = use_v.frames.shape[1:3]
-                ut = HT.fit_head_track(pts, (W, H), focal=float(use_v.camera.fx), use=lower,
-                                       settings=HT.TrackSettings(w_identity=1e4), quiet=True)
-            finally:
-                HT.point_bases = bases
+            H, W = use_v.frames.shape[1:3]
+            ut = HT.fit_head_track(pts, (W, H), focal=float(use_v.camera.fx), use=lower, identity=place.identity, quiet=True)
             Ru, tu = place(ut)
             if dst.exists():
                 shutil.rmtree(dst)

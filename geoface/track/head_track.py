@@ -216,13 +216,15 @@ def pnp(P3, p2, focal, centre):
 
 
 def fit_head_track(points, image_size, *, found=None, focal: float | None = None, focal_init: float | None = None, use=None,
-                   settings: TrackSettings | None = None, quiet: bool | None = None) -> HeadTrack:
+                   identity=None, settings: TrackSettings | None = None, quiet: bool | None = None) -> HeadTrack:
     """Fit the ICT head to a clip's face-mesh points ``points (T, 468, 2)`` (pixels; NaN rows
     where no face was found) in images of ``image_size`` (W, H). ``focal``: the camera's focal
     length in pixels when known (then fixed), else estimated, starting at ``focal_init`` (default
     1.2 × the larger side: a phone's or a webcam's field of view) with a log-normal prior about it.
     ``use``: a bool (468,) of the points to fit (the others are held out, e.g. to measure the fit
-    on points it did not see). Returns a :class:`HeadTrack`."""
+    on points it did not see). ``identity``: the person's identity weights when known (another
+    clip's track of the same person, ``HeadTrack.identity``): the head is then held as it is, and
+    only expressions, poses and the focal length are fitted. Returns a :class:`HeadTrack`."""
     import time
 
     from geoface.progress import StepProgress
@@ -250,6 +252,12 @@ def fit_head_track(points, image_size, *, found=None, focal: float | None = None
     f0 = float(focal) if focal is not None else float(focal_init or 1.2 * max(W, H))
     mean, Bid, Bex = point_bases()
     n_id = int(min(max(s.n_identity, 0), len(Bid)))
+    held = None
+    if identity is not None:
+        held = np.asarray(identity, np.float64).reshape(-1)
+        if len(held) > len(Bid) or not np.isfinite(held).all():
+            raise GeofaceError(f"head track: identity must be at most {len(Bid)} finite weights; got {len(held)}")
+        mean, n_id = mean + np.tensordot(held, Bid[: len(held)], axes=1), 0  # the person's head, not fitted
     conf = mediapipe_on_ict()["confidence"] * use
     # PnP on each frame with a face; the others take the nearest found frame's pose
     R0, t0v = np.zeros((T, 3, 3)), np.zeros((T, 3))
@@ -283,7 +291,7 @@ def fit_head_track(points, image_size, *, found=None, focal: float | None = None
     resid = np.full(T, np.nan)
     resid[ok] = np.nanmedian(err[ok], axis=1)
     a, logf, E, R, t = lm.state
-    return HeadTrack(identity=a.copy(), expressions=E.copy(), expression_names=tuple(_model_names()), R=R.copy(),
+    return HeadTrack(identity=a.copy() if held is None else held.copy(), expressions=E.copy(), expression_names=tuple(_model_names()), R=R.copy(),
                      t=t.copy(), focal=float(f0 * np.exp(logf)), centre=centre, image_size=(W, H), found=ok,
                      residual_px=resid, seconds=time.perf_counter() - t0, settings=s)
 
