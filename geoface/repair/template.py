@@ -114,9 +114,16 @@ def _similarity_many(A, B):
     return s, R, mb - s[:, None] * np.einsum("kij,kj->ki", R, ma)
 
 
+#: after this many iterations, a start whose trimmed error is more than :data:`PRUNE_RATIO` times
+#: the best start's stops where it is (it has settled in another, worse fit than the best's)
+PRUNE_AFTER = 10
+PRUNE_RATIO = 1.5
+
+
 def _icp_many(T, P, tree, starts, iterations, stop: float = 0.0):
     """:func:`_icp` (template to scan) from many starts ``[(R, s, t), ...]`` at once: one query
-    of the scan's tree per iteration for all of them (each start stops on its own)."""
+    of the scan's tree per iteration for all of them (each start stops on its own, and a start far
+    behind the best after :data:`PRUNE_AFTER` iterations stops there)."""
     n = len(T)
     m = int(_KEEP * n)
     R = np.array([st[0] for st in starts], np.float64)
@@ -130,7 +137,7 @@ def _icp_many(T, P, tree, starts, iterations, stop: float = 0.0):
         d, j = tree.query(X.reshape(-1, 3), workers=-1)
         return d.reshape(len(idx), n), j.reshape(len(idx), n)
 
-    for _ in range(iterations):
+    for it in range(iterations):
         idx = np.flatnonzero(active)
         if not len(idx):
             break
@@ -141,6 +148,8 @@ def _icp_many(T, P, tree, starts, iterations, stop: float = 0.0):
         if stop:
             active[idx[np.abs(last[idx] - e) <= stop * e]] = False
         last[idx] = e
+        if it + 1 >= PRUNE_AFTER:
+            active[idx[e > PRUNE_RATIO * last.min()]] = False
     d = query(np.arange(len(starts)))[0]
     e = np.take_along_axis(d, np.argpartition(d, m - 1, axis=1)[:, :m], 1).mean(1)
     return [(R[i], float(s[i]), t[i], float(e[i])) for i in range(len(starts))]
