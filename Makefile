@@ -53,7 +53,7 @@ chromium:
 
 test: $(STAMP)
 	@$(PY) -m compileall -q geoface tests >/dev/null  # bytecode once, not in every process the tests start
-	GEOFACE_QUIET=1 $(PY) -m pytest -q -n 2 tests
+	GEOFACE_QUIET=1 $(PY) -m pytest -q -n 2 --dist worksteal tests
 
 # The documentation site in site/ (offline; warnings are errors): the guides in docs/, the
 # command-line reference and the API reference generated from the code.
