@@ -8,6 +8,7 @@ atomically, and an input file is never overwritten.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import warnings
 
@@ -54,8 +55,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@functools.lru_cache(maxsize=1)
+def _parser() -> argparse.ArgumentParser:
+    """The parser :func:`main` uses, built once per process (argparse parses without changing
+    it; a notebook or a test calls :func:`main` many times, and building it takes 20 ms)."""
+    return build_parser()
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    parser = _parser()
     try:
         args = parser.parse_args(argv)
         with warnings.catch_warnings():
