@@ -227,7 +227,7 @@ def _placement(C, c0, Q, su, pivot, identity):
         t = (su[0] * track.t + track.R @ su[1:] - c0) @ C - pivot
         return R, t
 
-    place.identity = np.asarray(identity, np.float64)
+    place.identity, place.pivot = np.asarray(identity, np.float64), np.asarray(pivot, np.float64)
     place.save = lambda path: np.savez(path, C=C, c0=c0, Q=Q, su=su, pivot=pivot, identity=place.identity)
     return place
 
@@ -264,14 +264,14 @@ def _usage_head_track(a) -> None:
             src, dst = Path(a.out) / "data_head_track" / name, Path(a.out) / "data_head_track_usage" / name
             t0 = time.time()
             saved = src / "registration" / "head_track.npz"
+            same = None  # how far the registration poses made again are from the model's (when they are)
             if saved.is_file():  # kept by the track stage: the refined registration track is not made again
-                place, same = _load_placement(saved), 0.0
-                with np.load(src / "registration" / "head_poses.npz") as z:
-                    pivot = z["pivot"]
+                place = _load_placement(saved)
             else:  # a copy made before the placement was kept: the registration track again (about 25 min)
-                _, place, Rw, tw, pivot, _, _ = _registration_head_track(Path(a.out) / "data_tracked" / name / "registration")
+                _, place, Rw, tw, _, _, _ = _registration_head_track(Path(a.out) / "data_tracked" / name / "registration")
                 with np.load(src / "registration" / "head_poses.npz") as z:  # the poses the model was registered in
                     same = float(max(np.abs(z["R"] - Rw).max(), np.abs(z["t"] - tw).max()))
+            pivot = place.pivot
             use_v = load_video(src / "usage")
             mean, Bid, _ = HT.point_bases()
             P0 = mean + np.tensordot(place.identity, Bid[: len(place.identity)], axes=1)
