@@ -17,7 +17,9 @@ correlation with the truth (Pearson over frames, averaged over the blendshapes t
 than 0.05), vertex error of the tracked head against the true one (mm over the face's vertices,
 mean and p95), and frames per second. Each fit twice: with the focal length estimated, and
 known (the true one given). ``--refine``: also the photometric refinement after the landmark fit
-with the focal length estimated (``refine_photometric``), with the photometric error before and after.
+with the focal length estimated (``refine_photometric``), with the photometric error before and after;
+``--refine-focal known`` (or ``both``): the refinement of the fit given the true focal length, as
+a user who knows the camera's (``geoface capture --focal``) gets. ``--fits``: only one of the two fits.
 
 ``--refine-unlit``: also the refinement as it was before the head's colours were lit and its
 identity refined (``shading=False, identity=False``, blurred 2 then 1 px). ``--refine-coarse``: the
@@ -202,6 +204,10 @@ def main(argv=None) -> int:
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--refine", action="store_true", help="also the photometric refinement")
+    ap.add_argument("--refine-focal", choices=("estimated", "known", "both"), default="estimated",
+                    help="which of the two fits the refinements start from (default: the one with the focal length estimated)")
+    ap.add_argument("--fits", choices=("estimated", "known", "both"), default="both",
+                    help="the landmark fits made: focal length estimated, known, or both (default)")
     ap.add_argument("--refine-unlit", action="store_true",
                     help="also the refinement as it was: one colour per point, the identity kept (shading=False, identity=False)")
     ap.add_argument("--refine-coarse", action="store_true",
@@ -259,6 +265,8 @@ def main(argv=None) -> int:
                       "photo_err_after": round(float(np.nanmean(ref.after)), 4)})
             continue
         for focal in ("estimated", "known"):
+            if a.fits not in (focal, "both"):
+                continue
             t0 = time.perf_counter()
             tr = fit_head_track(pts, (a.res, a.res), focal=person.cam.fx if focal == "known" else None,
                                 settings=settings, quiet=True)
@@ -268,7 +276,7 @@ def main(argv=None) -> int:
                 [("ict_head_track_refined_unlit", {"shading": False, "identity": False, "blur": (2.0, 1.0)})]
                 if a.refine_unlit else []) + (
                 [("ict_head_track_refined_coarse", {"blur": (2.0, 1.0)})] if a.refine_coarse else [])
-            for name, kw in variants if focal == "estimated" else []:
+            for name, kw in variants if a.refine_focal in (focal, "both") else []:
                 t0 = time.perf_counter()
                 tr2, ref = refine_photometric(tr, rgb, masks, pts, quiet=True, **kw)
                 fits.append((name, tr2, sec + time.perf_counter() - t0,

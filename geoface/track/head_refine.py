@@ -127,7 +127,7 @@ def _mode_jacobian(f, Xc, B, R):
 
 def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: int = 3, iterations: int = 4,
                        blur=(1.0, 0.5, 0.25, 0.0), w_landmarks: float = 0.05, w_smooth: float = 0.5, shading: bool = True,
-                       identity: bool = True, w_identity: float = 1e-3,
+                       identity: bool = True, w_identity: float = 1e-3, region=None,
                        quiet: bool | None = None) -> tuple[HeadTrack, Refinement]:
     """The track refined against the pixels: each frame's pose and expressions moved so that the
     head's colours (taken from the frames themselves) match the frame where the head is seen — a
@@ -149,7 +149,12 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
     ``identity``: after each sweep over the frames, one Gauss–Newton step of the clip's identity
     weights (the face's shape) with every frame's unknowns eliminated, as bundle adjustment takes
     it; ``w_identity`` is its N(0, 1) prior per frame. ``identity=False`` keeps the identity the
-    landmarks gave. ``frames (T, H, W, 3)`` float in [0, 1] (sRGB), ``masks (T, H, W)`` the person.
+    landmarks gave. ``frames (T, H, W, 3)`` float in [0, 1] (sRGB), ``masks (T, H, W)`` the person
+    (where a headset hides the upper face, the person less the headset). ``points`` may be NaN
+    where a point is not seen (under a headset): those points have no weight. ``region``: a bool
+    per head vertex (:data:`~geoface.track.head_track.ICT_TRACK_PARTS`) that keeps the pixels looked
+    at to that part of the face (the face below a headset:
+    :func:`~geoface.track.head_track.below_headset`), so that nothing above it steers the track.
     Returns the refined track and the errors before and after."""
     import time
 
@@ -168,6 +173,13 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
                            f"{track.image_size[0]}×{track.image_size[1]})")
     v = model_view()
     samp, Fskin = _face_samples()
+    if region is not None:  # only part of the face is looked at (the face below a headset)
+        region = np.asarray(region, bool).reshape(-1)
+        if region.shape != (len(v.expression_modes[0]),):
+            raise GeofaceError(f"refine: region must be a bool per head vertex ({len(v.expression_modes[0])}); got {region.shape}")
+        samp = samp[region[samp]]
+        if len(samp) < 100:
+            raise GeofaceError(f"refine: the region keeps {len(samp)} of the face's samples; at least 100 are needed")
     Bs = v.expression_modes[:, samp].astype(np.float64) * CM_TO_M  # (53, ns, 3)
     mean, Bid, Bex = point_bases()
     conf = mediapipe_on_ict()["confidence"]
@@ -178,8 +190,15 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
     width = None
     if points is not None:
         P = np.asarray(points, np.float64)
-        width = np.linalg.norm(P[:, CHEEKS[0]] - P[:, CHEEKS[1]], axis=-1)
-        okp = np.isfinite(P).all((1, 2)) & track.found
+        if P.shape != (T, 468, 2):
+            raise GeofaceError(f"refine: points must be (T, 468, 2) for the track's {T} frames; got {P.shape}")
+        seen_pt = np.isfinite(P).all(2)  # a point not seen (NaN: under a headset, off the frame) has no weight
+        okp = (seen_pt.sum(1) >= 20) & track.found
+        P = np.where(seen_pt[..., None], P, 0.0)
+        # the landmarks' robust scale: the cheeks' distance, or where a cheek is not seen, the track's own
+        fitted = track.points()
+        width = np.where(seen_pt[:, CHEEKS].all(1), np.linalg.norm(P[:, CHEEKS[0]] - P[:, CHEEKS[1]], axis=-1),
+                         np.linalg.norm(fitted[:, CHEEKS[0]] - fitted[:, CHEEKS[1]], axis=-1))
         base_pts = mean + np.tensordot(track.identity, Bid[: len(track.identity)], axes=1)
 
     # the expression modes as one (53, 3n) matrix in metres, made once (a blend per frame is then
@@ -314,7 +333,7 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
             ul = np.stack([f * Xcl[:, 0] / zl + cx, f * Xcl[:, 1] / zl + cy], 1)
             rl = ul - P[k]
             sc2 = (0.01 * width[k]) ** 2
-            wl = np.repeat(w_landmarks * conf / (1 + (rl ** 2).sum(1) / sc2) / sc2 / conf.sum(), 2)
+            wl = np.repeat(w_landmarks * conf * seen_pt[k] / (1 + (rl ** 2).sum(1) / sc2) / sc2 / conf.sum(), 2)
             Jl = _pixel_jacobian(f, RXl, Xcl, Bex, R[k]).reshape(-1, 59)
             Jlw = Jl * wl[:, None]
             Hm[:59, :59] += Jlw.T @ Jl

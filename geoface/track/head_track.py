@@ -47,7 +47,7 @@ from geoface.errors import GeofaceError
 from geoface.track.head_solver import LM as _LM
 
 __all__ = ["HeadTrack", "fit_head_track", "mediapipe_on_ict", "view_offsets", "TrackSettings", "CM_TO_M", "ICT_TRACK_PARTS",
-           "neutral_head"]
+           "neutral_head", "below_headset", "HEADSET_CUT"]
 
 log = logging.getLogger(__name__)
 
@@ -160,6 +160,25 @@ def neutral_head(identity, view=None) -> np.ndarray:
     v = model_view() if view is None else view
     a = np.asarray(identity, np.float64)
     return (v.neutral + np.tensordot(a, v.identity_modes[: len(a)], axes=1)) * CM_TO_M
+
+
+#: where a headset's lower edge sits on the face: this share of the way down from the eyes' corners
+#: to the nose tip, less 5 mm (metres) for the visor's rim (:func:`below_headset`)
+HEADSET_CUT = (0.4, 0.005)
+
+
+def below_headset(identity) -> tuple[np.ndarray, np.ndarray]:
+    """What a headset leaves visible of the head of ``identity``: ``(points (468,) bool, vertices
+    (n,) bool)``, MediaPipe's face-mesh points and the head's vertices (:data:`ICT_TRACK_PARTS`)
+    below the cut of :data:`HEADSET_CUT` (canonical heights: a level line across the face). For
+    :func:`fit_head_track`'s ``use`` and :func:`geoface.track.head_refine.refine_photometric`'s
+    ``region`` on frames where the upper face is hidden."""
+    mean, Bid, _ = point_bases()
+    a = np.asarray(identity, np.float64)
+    P = mean + np.tensordot(a, Bid[: len(a)], axes=1)
+    y_eye, y_nose = P[[33, 133, 362, 263], 1].mean(), P[1, 1]
+    cut = y_eye - HEADSET_CUT[0] * (y_eye - y_nose) - HEADSET_CUT[1]
+    return P[:, 1] < cut, neutral_head(a)[:, 1] < cut
 
 
 @lru_cache(maxsize=1)
