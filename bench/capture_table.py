@@ -2,7 +2,11 @@
 one row per clip for the real clips).
 
     python bench/capture_table.py [--ict bench/results/head_track/ict_512.jsonl]
+                                  [--ict-extra bench/results/head_track/ict_512_known_focal.jsonl]
                                   [--clips bench/results/capture/clips_512.jsonl]
+
+``--ict-extra``: rows of methods the first file does not have (the refinement with the focal
+length given), added to its tables.
 """
 from __future__ import annotations
 
@@ -19,15 +23,23 @@ NAMES = {("pnp68_true_head_true_camera", "known"): "PnP on MediaPipe's 68, true 
          ("ict_head_track", "known"): "ICT head track, focal given",
          ("ict_head_track_refined_unlit", "estimated"): "+ pixels, one colour per point, identity kept",
          ("ict_head_track_refined_coarse", "estimated"): "+ pixels, lit, identity refined, blurred 2 then 1 px",
-         ("ict_head_track_refined", "estimated"): "**+ pixels, lit, identity refined, on to the sharp frame** (`--refine`)"}
+         ("ict_head_track_refined", "estimated"): "**+ pixels, lit, identity refined, on to the sharp frame** (`--refine`)",
+         ("ict_head_track_refined", "known"): "the same, focal given (`--refine-focal known`)"}
 
 
-def ict_table(path: Path, split: str = "test") -> str:
-    rows = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
-    rows = [r for r in rows if r.get("split") == split and "rot_mean_deg" in r]
-    by = defaultdict(list)
-    for r in rows:
-        by[(r["method"], r.get("focal", "known"))].append(r)
+def ict_table(path: Path, split: str = "test", extra: Path | None = None) -> str:
+    def read(p):
+        rows = [json.loads(x) for x in p.read_text().splitlines() if x.strip()]
+        by = defaultdict(list)
+        for r in rows:
+            if r.get("split") == split and "rot_mean_deg" in r:
+                by[(r["method"], r.get("focal", "known"))].append(r)
+        return by
+
+    by = read(path)
+    if extra is not None and extra.is_file():
+        by.update({k: v for k, v in read(extra).items() if k not in by})
+    rows = [r for rs in by.values() for r in rs]
     seeds = sorted({r["seed"] for r in rows})
     out = [f"| {split} people {', '.join(map(str, seeds))} | rotation, model frame, mean / p95 ° | the head's motion, "
            "mean / p95 ° | translation mm | after the one scale mm | the face centre's motion mm | face shape mm | "
@@ -78,12 +90,13 @@ def speed_table(path: Path) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ict", default=str(ROOT / "bench/results/head_track/ict_512.jsonl"))
+    ap.add_argument("--ict-extra", default=str(ROOT / "bench/results/head_track/ict_512_known_focal.jsonl"))
     ap.add_argument("--clips", default=str(ROOT / "bench/results/capture/clips_512.jsonl"))
     ap.add_argument("--speed", default=str(ROOT / "bench/results/capture/speed_512.jsonl"))
     a = ap.parse_args(argv)
     if Path(a.ict).is_file():
-        print(ict_table(Path(a.ict)), "\n")
-        print(ict_table(Path(a.ict), "val"), "\n")
+        print(ict_table(Path(a.ict), extra=Path(a.ict_extra)), "\n")
+        print(ict_table(Path(a.ict), "val", Path(a.ict_extra)), "\n")
     if Path(a.clips).is_file():
         print(clips_table(Path(a.clips)), "\n")
     if Path(a.speed).is_file():

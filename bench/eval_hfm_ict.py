@@ -240,18 +240,35 @@ def _load_placement(path: Path):
 
 def _usage_head_track(a) -> None:
     """``head_track_usage``: the usage video's poses from the same head track as the registration's
-    (``track --head-track``): the ICT head with the registration track's identity, fitted to
-    MediaPipe's points below the headset (40% of the way from the eyes to the nose tip, less
-    5 mm) through the capture's camera, and placed on the head mesh as the registration track
-    was — one tracker for both videos, in one frame. Writes ``DIR/data_head_track_usage/<name>``
-    (the head-track copy with those usage poses) and scores ``tracked_head_track``'s model with
-    them (variant ``tracked_head_track_usage``, usage poses ``file``), with the poses' error."""
+    (``track --head-track``), scored with ``tracked_head_track``'s model, one row each:
+
+    * ``tracked_head_track_usage``: the ICT head with the registration track's identity, fitted to
+      MediaPipe's points below the headset (:func:`geoface.track.head_track.below_headset`) through
+      the capture's camera, and placed on the head mesh as the registration track was;
+    * ``tracked_head_track_usage_refined``: that track refined against the pixels below the headset
+      (:func:`geoface.track.head_refine.refine_photometric` with ``region``: the person's mask less
+      the segmented headset, dilated 3 px), then moved by the offset a track of the lower face
+      alone has on the registration video (the same fit and refinement on its middle 60 frames,
+      against the registration's own poses there: one turn and shift in the head's frame);
+    * ``tracked_head_track_usage_aligned``: those poses aligned with the image by the avatar itself
+      (:func:`geoface.hfm.align.align_poses`, 20 steps, with translation);
+    * ``tracked_head_track_usage_landmarks_aligned``: the first poses aligned so (what the
+      refinement adds).
+
+    Writes ``DIR/data_head_track_usage/<name>`` (the head-track copy with the aligned usage poses)
+    and the poses' error beside each score."""
     import shutil
+    from dataclasses import replace
+
+    import torch
+    from scipy.ndimage import binary_dilation
 
     import geoface.track.head_track as HT
     from geoface.capture import write_head_poses
     from geoface.hfm import evaluate_hmd, load_hfm
+    from geoface.hfm.align import align_poses
     from geoface.hfm.data import load_video
+    from geoface.track.head_refine import refine_photometric
 
     data = Path(a.data) if a.data else Path(a.out) / "data"
     models = Path(a.models or Path(a.out) / "models")
@@ -271,34 +288,88 @@ def _usage_head_track(a) -> None:
                 _, place, Rw, tw, _, _, _ = _registration_head_track(Path(a.out) / "data_tracked" / name / "registration")
                 with np.load(src / "registration" / "head_poses.npz") as z:  # the poses the model was registered in
                     same = float(max(np.abs(z["R"] - Rw).max(), np.abs(z["t"] - tw).max()))
+                place.save(saved)
             pivot = place.pivot
             use_v = load_video(src / "usage")
-            mean, Bid, _ = HT.point_bases()
-            P0 = mean + np.tensordot(place.identity, Bid[: len(place.identity)], axes=1)
-            y_eye, y_nose = P0[[33, 133, 362, 263], 1].mean(), P0[1, 1]
-            lower = P0[:, 1] < y_eye - 0.4 * (y_eye - y_nose) - 0.005
+            true = load_video(data / name / "usage").poses
+            model = load_hfm(models / f"{name}_tracked_head_track_s0")
+            lower, region = HT.below_headset(place.identity)
             pts = _facemesh(use_v)
             H, W = use_v.frames.shape[1:3]
             ut = HT.fit_head_track(pts, (W, H), focal=float(use_v.camera.fx), use=lower, identity=place.identity, quiet=True)
-            Ru, tu = place(ut)
+            t_fit = time.time() - t0
+            t1 = time.time()
+            seen = use_v.masks & ~np.stack([binary_dilation(h, iterations=3) for h in use_v.hmd_masks])
+            rt, ref = refine_photometric(ut, use_v.frames, seen.astype(np.float32), np.where(lower[None, :, None], pts, np.nan),
+                                         identity=False, region=region, quiet=True)
+            t_refine = time.time() - t1
+            t1 = time.time()
+            D, d = _lower_face_offset(place, src / "registration", lower, region)
+            t_offset = time.time() - t1
+            poses = {"tracked_head_track_usage": place(ut)}
+            Rr, tr_ = place(rt)
+            poses["tracked_head_track_usage_refined"] = (Rr @ D, tr_ + np.einsum("tij,j->ti", Rr, d))
+            align_s = {}
+            for src_v, v_name in (("tracked_head_track_usage_refined", "tracked_head_track_usage_aligned"),
+                                  ("tracked_head_track_usage", "tracked_head_track_usage_landmarks_aligned")):
+                t1 = time.time()
+                with torch.enable_grad():
+                    Ra, ta, _ = align_poses(model, use_v, (*poses[src_v], pivot), steps=20, translation=True, quiet=True)
+                poses[v_name], align_s[v_name] = (Ra, ta), time.time() - t1
             if dst.exists():
                 shutil.rmtree(dst)
             shutil.copytree(src, dst)
-            write_head_poses(dst / "usage", Ru, tu, pivot)
-            true = load_video(data / name / "usage").poses
-            rv, dt = _pose_offsets(true, Ru, tu, pivot)
-            row = {"stage": "head_track_usage", "data": name, "frames": len(use_v), "lower_points": int(lower.sum()),
-                   "registration_poses_reproduced": same, "usage_pose_deg": round(_centred_rms(rv), 3),
-                   "usage_pose_mm": round(_centred_rms(dt), 3), "usage_offset_deg": np.round(rv.mean(0), 3).tolist(),
-                   "usage_offset_mm": np.round(dt.mean(0), 2).tolist(), "seconds": round(time.time() - t0, 1)}
-            model = load_hfm(models / f"{name}_tracked_head_track_s0")
-            r = evaluate_hmd(model, load_video(dst / "usage"), poses="file")
-            score = {"stage": "score", "split": split, "data_seed": s, "seed": 0, "variant": "tracked_head_track_usage",
-                     "usage_poses": "file", **{k: (round(float(v), 4) if isinstance(v, (int, float)) else v) for k, v in r.items()}}
+            write_head_poses(dst / "usage", *poses["tracked_head_track_usage_aligned"], pivot)
+            lines = []
+            for variant, (Ru, tu) in poses.items():
+                rv, dt = _pose_offsets(true, Ru, tu, pivot)
+                r = evaluate_hmd(model, replace(use_v, poses=(Ru, tu, pivot)), poses="file")
+                lines.append({"stage": "head_track_usage", "data": name, "variant": variant, "frames": len(use_v),
+                              "lower_points": int(lower.sum()), "registration_poses_reproduced": same,
+                              "usage_pose_deg": round(_centred_rms(rv), 3), "usage_pose_mm": round(_centred_rms(dt), 3),
+                              "usage_offset_deg": np.round(rv.mean(0), 3).tolist(), "usage_offset_mm": np.round(dt.mean(0), 2).tolist(),
+                              "fit_s": round(t_fit, 1), "refine_s": round(t_refine, 1), "offset_s": round(t_offset, 1),
+                              "align_s": round(align_s.get(variant, 0.0), 1),
+                              "photo_err_before": round(float(np.nanmean(ref.before)), 4),
+                              "photo_err_after": round(float(np.nanmean(ref.after)), 4)})
+                lines.append({"stage": "score", "split": split, "data_seed": s, "seed": 0, "variant": variant, "usage_poses": "file",
+                              **{k: (round(float(v), 4) if isinstance(v, (int, float)) else v) for k, v in r.items()}})
             with res.open("a") as f:
-                for line in (row, score):
+                for line in lines:
                     print(json.dumps(line), flush=True)
                     f.write(json.dumps(line) + "\n")
+
+
+#: the registration frames (the middle ones) the lower face's offset is measured on
+OFFSET_FRAMES = 60
+
+
+def _lower_face_offset(place, reg_dir: Path, lower, region):
+    """What a track of the lower face alone gets wrong on the registration video, where the whole
+    face's track is known: the same fit (``use=lower``, the identity held) and refinement
+    (``region``) on the middle :data:`OFFSET_FRAMES` frames, placed on the mesh, against the
+    registration's own poses there. ``(D (3, 3), d (3,))``: the turn and the shift (metres) in the
+    head's frame that take the lower face's poses onto the whole face's, on average."""
+    from scipy.spatial.transform import Rotation
+
+    import geoface.track.head_track as HT
+    from geoface.hfm.data import load_video
+    from geoface.track.head_refine import refine_photometric
+
+    reg = load_video(reg_dir)
+    a = max((len(reg) - OFFSET_FRAMES) // 2, 0)
+    sl = slice(a, a + OFFSET_FRAMES)
+    pts = _facemesh(reg)[sl]
+    frames = reg.frames[sl]
+    H, W = frames.shape[1:3]
+    lt = HT.fit_head_track(pts, (W, H), focal=float(reg.camera.fx), use=lower, identity=place.identity, quiet=True)
+    lt, _ = refine_photometric(lt, frames, reg.masks[sl].astype(np.float32), np.where(lower[None, :, None], pts, np.nan),
+                               identity=False, region=region, quiet=True)
+    Rl, tl = place(lt)
+    Rw, tw = reg.poses[0][sl], reg.poses[1][sl]
+    D = Rotation.from_matrix(np.einsum("tji,tjk->tik", Rl, Rw)).mean().as_matrix()
+    d = np.einsum("tji,tj->ti", Rl, tw - tl).mean(0)
+    return D, d
 
 
 def _capture_dir(out, data: Path, variant: str) -> Path:
