@@ -196,9 +196,11 @@ def refine_photometric(track: HeadTrack, frames, masks, points=None, *, passes: 
         okp = (seen_pt.sum(1) >= 20) & track.found
         P = np.where(seen_pt[..., None], P, 0.0)
         # the landmarks' robust scale: the cheeks' distance, or where a cheek is not seen, the track's own
-        fitted = track.points()
-        width = np.where(seen_pt[:, CHEEKS].all(1), np.linalg.norm(P[:, CHEEKS[0]] - P[:, CHEEKS[1]], axis=-1),
-                         np.linalg.norm(fitted[:, CHEEKS[0]] - fitted[:, CHEEKS[1]], axis=-1))
+        width = np.linalg.norm(P[:, CHEEKS[0]] - P[:, CHEEKS[1]], axis=-1)
+        hid = ~seen_pt[:, CHEEKS].all(1)
+        if hid.any():
+            fitted = track.points()
+            width[hid] = np.linalg.norm(fitted[hid, CHEEKS[0]] - fitted[hid, CHEEKS[1]], axis=-1)
         base_pts = mean + np.tensordot(track.identity, Bid[: len(track.identity)], axes=1)
 
     # the expression modes as one (53, 3n) matrix in metres, made once (a blend per frame is then
