@@ -268,7 +268,6 @@ def _usage_head_track(a) -> None:
     from geoface.hfm import evaluate_hmd, load_hfm
     from geoface.hfm.align import align_poses
     from geoface.hfm.data import load_video
-    from geoface.track.head_refine import refine_photometric
 
     data = Path(a.data) if a.data else Path(a.out) / "data"
     models = Path(a.models or Path(a.out) / "models")
@@ -294,15 +293,9 @@ def _usage_head_track(a) -> None:
             true = load_video(data / name / "usage").poses
             model = load_hfm(models / f"{name}_tracked_head_track_s0")
             lower, region = HT.below_headset(place.identity)
-            pts = _facemesh(use_v)
-            H, W = use_v.frames.shape[1:3]
-            ut = HT.fit_head_track(pts, (W, H), focal=float(use_v.camera.fx), use=lower, identity=place.identity, quiet=True)
-            t_fit = time.time() - t0
-            t1 = time.time()
             seen = use_v.masks & ~np.stack([binary_dilation(h, iterations=3) for h in use_v.hmd_masks])
-            rt, ref = refine_photometric(ut, use_v.frames, seen.astype(np.float32), np.where(lower[None, :, None], pts, np.nan),
-                                         identity=False, region=region, quiet=True)
-            t_refine = time.time() - t1
+            ut, rt, ref, _, t_refine = _lower_face_track(use_v, slice(None), seen, place.identity, lower, region)
+            t_fit = time.time() - t0 - t_refine  # the loads and the face mesh's points count as the fit's, as before
             t1 = time.time()
             D, d = _lower_face_offset(place, src / "registration", lower, region)
             t_offset = time.time() - t1
@@ -344,6 +337,25 @@ def _usage_head_track(a) -> None:
 OFFSET_FRAMES = 60
 
 
+def _lower_face_track(video, sl, seen, identity, lower, region):
+    """The ICT head of ``identity`` tracked on frames ``sl`` of a loaded video from its lower face
+    alone: fitted to MediaPipe's points ``lower`` through the capture's camera, then refined against
+    the pixels of ``region`` where ``seen`` (T, H, W) holds, the other points unseen.
+    ``(landmark track, refined track, the refinement's errors, fit seconds, refinement seconds)``."""
+    import geoface.track.head_track as HT
+    from geoface.track.head_refine import refine_photometric
+
+    t0 = time.time()
+    pts = _facemesh(video)[sl]
+    frames = video.frames[sl]
+    H, W = frames.shape[1:3]
+    ut = HT.fit_head_track(pts, (W, H), focal=float(video.camera.fx), use=lower, identity=identity, quiet=True)
+    t1 = time.time()
+    rt, ref = refine_photometric(ut, frames, seen[sl].astype(np.float32), np.where(lower[None, :, None], pts, np.nan),
+                                 identity=False, region=region, quiet=True)
+    return ut, rt, ref, t1 - t0, time.time() - t1
+
+
 def _lower_face_offset(place, reg_dir: Path, lower, region):
     """What a track of the lower face alone gets wrong on the registration video, where the whole
     face's track is known: the same fit (``use=lower``, the identity held) and refinement
@@ -352,19 +364,12 @@ def _lower_face_offset(place, reg_dir: Path, lower, region):
     head's frame that take the lower face's poses onto the whole face's, on average."""
     from scipy.spatial.transform import Rotation
 
-    import geoface.track.head_track as HT
     from geoface.hfm.data import load_video
-    from geoface.track.head_refine import refine_photometric
 
     reg = load_video(reg_dir)
     a = max((len(reg) - OFFSET_FRAMES) // 2, 0)
     sl = slice(a, a + OFFSET_FRAMES)
-    pts = _facemesh(reg)[sl]
-    frames = reg.frames[sl]
-    H, W = frames.shape[1:3]
-    lt = HT.fit_head_track(pts, (W, H), focal=float(reg.camera.fx), use=lower, identity=place.identity, quiet=True)
-    lt, _ = refine_photometric(lt, frames, reg.masks[sl].astype(np.float32), np.where(lower[None, :, None], pts, np.nan),
-                               identity=False, region=region, quiet=True)
+    _, lt, _, _, _ = _lower_face_track(reg, sl, reg.masks, place.identity, lower, region)
     Rl, tl = place(lt)
     Rw, tw = reg.poses[0][sl], reg.poses[1][sl]
     D = Rotation.from_matrix(np.einsum("tji,tjk->tik", Rl, Rw)).mean().as_matrix()
