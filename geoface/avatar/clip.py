@@ -239,13 +239,22 @@ def extract_audio(video: Path, wav: Path) -> bool:
 
 def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None, fps: float | None = None,
                  audio=None, head_vertices: int = 6000, overlay: bool = True, margin: float = 1.9,
-                 refine: bool = False, settings=None, overwrite: bool = False, quiet: bool | None = None) -> ClipCapture:
+                 refine: bool = False, settings=None, identity=None, headset: bool = False, overwrite: bool = False,
+                 quiet: bool | None = None) -> ClipCapture:
     """Make the capture folder ``out_dir`` of the clip ``source`` (a video file or a folder of
     frames); module doc. ``res``: the crops' side in pixels; ``focal``: the camera's focal length
     in the video's pixels when known (else fitted); ``fps``: a folder's frame rate (default 25);
     ``audio``: a WAV to use as the clip's sound (a silent clip, or better sound);
     ``head_vertices``: the head mesh's size (one Gaussian per vertex for HFM-GS); ``refine``: refine
-    the track against the pixels (:func:`geoface.track.head_refine.refine_photometric`; slower)."""
+    the track against the pixels (:func:`geoface.track.head_refine.refine_photometric`; slower).
+    ``identity``: the person's ICT identity weights when known (a registration capture's
+    ``meta.json`` ``ict_identity``): the head is then held as it is and only expressions, poses
+    and the focal length are fitted, in the same head frame as that capture's. ``headset``: the
+    clip shows the person wearing a headset (grey or black plastic over the eyes,
+    :func:`geoface.track.headset_masks` finds it in each crop): the head is fitted to the face-mesh
+    points below it and refined against the pixels below it alone
+    (:func:`geoface.track.head_track.below_headset`), what MediaPipe guesses under the visor left
+    out; the masks are kept in ``hmd_masks/``."""
     import shutil
     import time
 
@@ -303,15 +312,30 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
     secs["masks"] = time.perf_counter() - t0
     side = float(boxes[0, 2])
     scale = res / side
+    held = None if identity is None else np.asarray(identity, np.float64).reshape(-1)
+    use, region, hmd, seen, fit_pts = None, None, None, masks, pts
+    if headset:  # the face below the visor only: MediaPipe's points under it are guesses
+        from scipy.ndimage import binary_dilation
+
+        from geoface.track import headset_masks
+        from geoface.track.head_track import below_headset
+
+        hmd = headset_masks(crops)
+        use, region = below_headset(held if held is not None else np.zeros(0))
+        # the person less the headset and a rim of 3 pixels (its edge, blurred, is neither)
+        seen = masks * ~np.stack([binary_dilation(h, iterations=3) for h in hmd])
+        fit_pts = np.where(use[None, :, None], pts, np.nan)
     track = fit_head_track(pts, (int(res), int(res)), found=found, focal=None if focal is None else focal * scale,
-                           focal_init=1.2 * max(W0, H0) * scale, settings=settings, quiet=quiet)
+                           focal_init=1.2 * max(W0, H0) * scale, settings=settings, use=use, identity=held,
+                           quiet=quiet)
     secs["head_track"] = track.seconds
     photo = None
     rgb = crops.astype(np.float32) / 255.0
     if refine:
         from geoface.track.head_refine import refine_photometric
 
-        track, ref = refine_photometric(track, rgb, masks, pts, quiet=quiet)
+        track, ref = refine_photometric(track, rgb, seen.astype(np.float32), fit_pts, identity=held is None,
+                                        region=region, quiet=quiet)
         secs["refine"] = ref.seconds
         photo = [round(float(np.nanmean(ref.before)), 4), round(float(np.nanmean(ref.after)), 4)]
     t0 = time.perf_counter()
@@ -335,12 +359,12 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
     def posed(k):
         return track.posed(k)
 
-    col, seen = head_colours(posed, view.F, rgb, masks, cam_crop)
-    if seen.any():
+    col, coloured = head_colours(posed, view.F, rgb, seen, cam_crop)  # (not from a headset's pixels)
+    if coloured.any():
         from scipy.spatial import cKDTree
 
-        _, nn = cKDTree(neutral[seen]).query(neutral[~seen])
-        col[~seen] = col[seen][nn]
+        _, nn = cKDTree(neutral[coloured]).query(neutral[~coloured])
+        col[~coloured] = col[coloured][nn]
     from geoface.repair.remesh import remesh
 
     if head_vertices < len(neutral):
@@ -362,6 +386,9 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
             m = masks[k]
             save_image(tmp / "frames" / name, rgb[k] * m[..., None], atomic=False)
             save_image(tmp / "masks" / name, np.round(m * 255).astype(np.uint8), atomic=False)
+            if hmd is not None:
+                (tmp / "hmd_masks").mkdir(exist_ok=True)
+                save_image(tmp / "hmd_masks" / name, hmd[k].astype(np.uint8) * 255, atomic=False)
         write_landmarks(tmp, lm68, found=found, confidence=conf, tracker=TRACKER, dense="landmarks_dense.npz")
         write_dense(tmp, pts, found, conf)
         write_camera(tmp, cam)
@@ -381,6 +408,7 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
             "ict_identity": [round(float(x), 6) for x in track.identity], "ict_parts": list(ICT_TRACK_PARTS),
             "focal_px": track.focal, "focal_given": focal is not None, "found": int(found.sum()),
             "refined": bool(refine), "photometric_error_before_after": photo,
+            "identity_held": held is not None, "headset": bool(headset),
             "residual_px": [None if not np.isfinite(x) else round(float(x), 3) for x in track.residual_px],
             "tracker": {"landmarks": TRACKER, "head": "ICT-FaceKit fit to MediaPipe's 468 points (geoface.track.head_track)"},
             "seconds": {k: round(v, 2) for k, v in secs.items()}})

@@ -221,7 +221,8 @@ def usage_from_capture(folder, out, *, quiet: bool | None = None) -> Path:
     from geoface.track import headset_masks
 
     cap = _need_track(folder)
-    hmd = headset_masks(np.round(cap.frames() * 255).astype(np.uint8))
+    hmd = cap.images("hmd_masks")  # segmented already by a headset capture (`capture_clip(headset=True)`)
+    hmd = headset_masks(np.round(cap.frames() * 255).astype(np.uint8)) if hmd is None else hmd > 0.5
     out = Path(out)
     _write_part(cap, out, slice(0, len(cap)), usage=True, hmd=hmd, extra={"headset": "segmented from the frames"},
                 quiet=quiet)

@@ -43,15 +43,17 @@ def cmd_hmd_synth(args) -> int:
 
 def _add_usage_pose_options(p) -> None:
     """``--poses`` and ``--headset-pose`` of ``hmd remove`` and ``hmd eval``."""
-    p.add_argument("--poses", choices=("auto", "file", "landmarks", "image"), default="auto",
-                   help="head pose per frame: USAGE_DIR/head_poses.npz (file; a headset's own tracking), fitted to the "
-                        "landmarks below the headset (landmarks), read from the lower-face crop (image), or the first "
-                        "of these the folder allows (auto)")
+    p.add_argument("--poses", choices=("auto", "file", "track", "landmarks", "image"), default="auto",
+                   help="head pose per frame: USAGE_DIR/head_poses.npz (file; a headset's own tracking), that file as "
+                        "a head tracker made it, aligned by --pose-align (track; what a VIDEO gets with auto: the "
+                        "person's head tracked below the headset), fitted to the landmarks below the headset "
+                        "(landmarks), read from the lower-face crop (image), or the first of these the folder allows "
+                        "(auto)")
     p.add_argument("--headset-pose", action=argparse.BooleanOptionalAction, default=None,
                    help="with --poses landmarks (or auto without a pose file): also correct the poses by where the "
                         "headset masks (USAGE_DIR/hmd_masks) lie (default: the model's setting)")
     p.add_argument("--pose-align", type=int, default=None, metavar="STEPS",
-                   help="with --poses landmarks (or auto without a pose file): then turn each frame's pose so that the "
+                   help="with --poses landmarks or track (or auto without a pose file, or on a VIDEO): then turn each frame's pose so that the "
                         "avatar's render matches the pixels outside the headset masks, STEPS gradient steps per frame "
                         "(0: not; default: the model's setting; slow on a CPU, about 0.25 s a step at 128 px)")
     p.add_argument("--pose-align-translation", action=argparse.BooleanOptionalAction, default=None,
@@ -135,9 +137,13 @@ def cmd_hmd_remove(args) -> int:
     check_input(src)
     quiet = args_quiet(args)
     res = args.res or (model.registration_size or (512, 512))[0]
+    ident = getattr(model, "ict_identity", None)  # registered on a capture: its head, tracked below the headset
     with tempfile.TemporaryDirectory(prefix="geoface_hmd_") as td:
-        capture_clip(src, Path(td) / "capture", res=res, overlay=False, quiet=quiet)
+        capture_clip(src, Path(td) / "capture", res=res, overlay=False, identity=ident, headset=ident is not None,
+                     refine=ident is not None, quiet=quiet)
         usage = usage_from_capture(Path(td) / "capture", Path(td) / "usage", quiet=quiet)
+        if ident is not None and args.poses == "auto":
+            args.poses = "track"
         return _remove_folder(args, model, usage, str(src))
 
 
@@ -151,7 +157,8 @@ def _remove_folder(args, model, usage_dir: Path, shown_as: str) -> int:
     from geoface._io import output_folder
 
     with output_folder(out, args.force) as tmp:  # the frames appear all at once, or not at all
-        renders, times = remove_hmd(model, video, out_dir=tmp, composite=composite, poses=args.poses)
+        renders, times, source = remove_hmd(model, video, out_dir=tmp, composite=composite, poses=args.poses,
+                                            with_source=True)
     import numpy as np
 
     where = [] if out is None else [f"{out}/frames"]
@@ -171,7 +178,7 @@ def _remove_folder(args, model, usage_dir: Path, shown_as: str) -> int:
         where.append(str(args.video))
     med = float(np.median(times))
     print(f"{shown_as} -> {' and '.join(where)}: {len(times)} frames, {1 / med:.1f} FPS "
-          f"(median {1000 * med:.1f} ms per frame: crop, encode, deform, render)")
+          f"(median {1000 * med:.1f} ms per frame: crop, encode, deform, render); head poses: {source}")
     return 0
 
 

@@ -52,6 +52,8 @@ def save_hfm(model: HFMModel, out_dir) -> None:
         meta["registration_size"] = [int(v) for v in model.registration_size]
     if getattr(model, "pose_calibration", None):
         meta["pose_calibration"] = model.pose_calibration
+    if getattr(model, "ict_identity", None):  # the registration capture's head (a headset video is tracked as it)
+        meta["ict_identity"] = [float(x) for x in model.ict_identity]
     write_model_dir(out_dir, model, meta)
 
 
@@ -105,6 +107,16 @@ def load_hfm(model_dir) -> HFMModel:
     model.eval()
     model.refresh_keys()
     model.registration_size = tuple(size) if size is not None else None
+    ident = meta.get("ict_identity")
+    if ident is not None:
+        try:
+            a = np.asarray(ident, np.float64)
+            if a.ndim != 1 or not 0 < len(a) <= 100 or not np.isfinite(a).all():
+                raise ValueError(f"{a.shape}")
+        except (TypeError, ValueError) as e:
+            raise ModelFolderError(f"{d}/config.json: ict_identity must be up to 100 finite weights ({e})") from None
+        ident = a.tolist()
+    model.ict_identity = ident
     return model
 
 

@@ -160,6 +160,19 @@ def calibrate_usage_poses(model: HFMModel, video, source: str = "landmarks") -> 
     return model.pose_calibration
 
 
+def _ict_identity(reg_dir) -> list | None:
+    """The registration capture's ICT identity weights (``meta.json``'s ``ict_identity``, which
+    `geoface capture` writes: its head mesh and poses are that head's), or None."""
+    from geoface.capture import Capture
+
+    ident = Capture(reg_dir).meta().get("ict_identity")
+    try:
+        a = np.asarray(ident, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        return None
+    return [float(x) for x in a] if ident is not None and 0 < len(a) <= 100 and np.isfinite(a).all() else None
+
+
 def build_model(video, cfg: HFMConfig, mesh=None) -> HFMModel:
     """Canonical Gaussians from the registration head mesh (one per vertex, THGS init);
     ``mesh``: that mesh loaded (default: read from the folder)."""
@@ -201,6 +214,7 @@ def train_hfm(reg_dir, out_dir, cfg: HFMConfig | None = None, *, frames: slice |
     model = build_model(video, cfg, mesh)
     model.landmarks3d = pose_info.pop("landmarks3d")  # for the usage video's landmarks (hfm_usage.usage_poses)
     model.registration_size = (video.camera.width, video.camera.height)
+    model.ict_identity = _ict_identity(reg_dir)  # a headset video is tracked as this person (hmd remove VIDEO)
     from geoface.nn.config import resolve_device
 
     dev = resolve_device(device, AvatarError) or "cpu"

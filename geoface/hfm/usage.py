@@ -15,7 +15,7 @@ from geoface.hfm.train import frame_pose
 
 
 # ----------------------------------------------------------------------------- usage
-POSE_SOURCES = ("auto", "file", "landmarks", "image")
+POSE_SOURCES = ("auto", "file", "track", "landmarks", "image")
 
 
 @torch.no_grad()
@@ -23,6 +23,10 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
     """The head pose of each usage frame and where it came from, one of:
 
     * ``"file"`` — the folder's ``head_poses.npz`` (a headset's own tracking in the camera's frame);
+    * ``"track"`` — the same file as a tracker made it from the pixels (the head of the
+      registration's identity tracked below the headset: what ``hmd remove MODEL VIDEO`` does,
+      :func:`geoface.avatar.clip.capture_clip` with ``headset``), then aligned with the image as
+      the landmarks' poses are (``cfg.pose_align``);
     * ``"landmarks"`` — fitted to the frame's landmarks below the headset that move little with
       expressions (nose base, the jaw line's ends: :data:`~geoface.avatar.head_pose.LOWER_RIGID_NAMES`,
       or the 8 of them in :data:`~geoface.avatar.head_pose.LOWER_STABLE_NAMES` with ``cfg.usage_landmarks``
@@ -46,10 +50,12 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
 
     if source not in POSE_SOURCES:
         raise AvatarError(f"poses must be one of {POSE_SOURCES}; got {source!r}")
-    if source == "file" or (source == "auto" and video.poses is not None):
+    if source in ("file", "track") or (source == "auto" and video.poses is not None):
         if video.poses is None:
-            raise AvatarError("poses 'file': the usage folder has no head_poses.npz")
-        return video.poses, "file"
+            raise AvatarError(f"poses {source!r}: the usage folder has no head_poses.npz")
+        if source != "track":
+            return video.poses, "file"
+        return _aligned(model, video, video.poses, "track")
     if source == "image":
         return None, "image"
     lower = _lower_fit(model, video, need=source == "landmarks")
@@ -71,6 +77,12 @@ def usage_poses(model: HFMModel, video, source: str = "auto") -> tuple[tuple | N
             Rh, th, _ = headset_poses(video.camera, *got, piv, P, cen, anchor, Z, weights=w,
                                       ridge=model.cfg.headset_pose_ridge)
             pose, source = (Rh, th, piv), "landmarks+headset"
+    return _aligned(model, video, pose, source)
+
+
+def _aligned(model: HFMModel, video, pose, source: str):
+    """``(pose, source)`` aligned with the image by the avatar (:func:`~geoface.hfm.align.align_poses`)
+    when the model asks for it (``cfg.pose_align`` steps) and the video has headset masks."""
     if model.cfg.pose_align and video.hmd_masks is not None:
         from geoface.hfm.align import align_poses
 
@@ -168,14 +180,17 @@ def _warn_beyond(cov: dict | None) -> None:
                       GeofaceWarning, stacklevel=4)  # the caller of usage_poses (under no_grad)
 
 
-def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: bool = True, poses: str = "auto"):
+def remove_hmd(model: HFMModel, video, *, out_dir=None, camera=None, composite: bool = True, poses: str = "auto",
+               with_source: bool = False):
     """Restore every frame of ``video`` (an :class:`HMDVideo`): render the avatar driven by the
     lower-face crop, in the head pose that ``poses`` says (:func:`usage_poses`); where
     ``video.hmd_masks`` is known, paste the rendering into the occluded region only
     (``composite``). Streams frame by frame; returns (renders [T, H, W, 3] float32, per-frame
-    seconds, including the pose fit). Writes ``out_dir/frames/*.png`` when given (each file
-    complete or absent)."""
-    return _remove(model, video, out_dir, camera, composite, poses)[:2]
+    seconds, including the pose fit), and where the poses came from (:func:`usage_poses`'s
+    source) with ``with_source``. Writes ``out_dir/frames/*.png`` when given (each file complete
+    or absent)."""
+    out = _remove(model, video, out_dir, camera, composite, poses)
+    return out if with_source else out[:2]
 
 
 @torch.no_grad()

@@ -113,7 +113,8 @@ def test_what_cannot_be_split_is_refused(clip_capture, split, tmp_path):
 
 def test_hmd_remove_takes_a_headset_video(split, tmp_path, capsys):
     """A model registered on the training frames restores the face in an MP4 of the headset frames:
-    the video is captured, the headset segmented from its pixels, and the grey box is gone from
+    the video is captured, the headset segmented from its pixels, the person's head (the
+    registration's identity, which the model keeps) tracked below it, and the grey box is gone from
     the output (the face drawn there, the sound kept)."""
     pytest.importorskip("torch")
     from geoface.cli import main
@@ -125,10 +126,12 @@ def test_hmd_remove_takes_a_headset_video(split, tmp_path, capsys):
     assert main(["hmd", "train", str(split.train), "-o", str(tmp_path / "m"), "--iters", "30", "-q"]) == 0
     cfg = json.loads((tmp_path / "m" / "config.json").read_text())
     assert cfg["registration_size"] == [160, 160]
+    assert np.allclose(cfg["ict_identity"], Capture(split.train).meta()["ict_identity"], atol=1e-6)
     capsys.readouterr()
     assert main(["hmd", "remove", str(tmp_path / "m"), str(tmp_path / "headset.mp4"), "-o", str(tmp_path / "o"),
                  "--video", str(tmp_path / "o.mp4"), "-q"]) == 0
-    assert "headset.mp4 -> " in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "headset.mp4 -> " in said and "head poses: track" in said, said
     n = probe_video(tmp_path / "headset.mp4")["frames"]  # (the encoder may end on the sound's last frame)
     assert n >= 5 and len(list((tmp_path / "o" / "frames").glob("*.png"))) == n and probe_video(tmp_path / "o.mp4")["audio"]
     out, _ = read_video(tmp_path / "o.mp4")
