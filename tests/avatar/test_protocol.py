@@ -155,6 +155,35 @@ def test_hmd_remove_takes_a_headset_video(split, tmp_path, capsys):
     assert err.count("\n") == 1 and "no such video or usage folder" in err
 
 
+def test_a_headset_video_is_tracked_as_the_registered_person_below_the_headset(split, tmp_path):
+    """``capture_clip(identity=..., headset=True)`` on the headset frames: the headset is found in
+    every crop (above the mouth, which stays out of it) and kept in ``hmd_masks/``; the head is the
+    registration's, held; and the usage folder made from it takes those masks as they are."""
+    from geoface.avatar.clip import capture_clip
+    from geoface.landmarks import IBUG68_NAMES
+    from geoface.video import write_video
+
+    te = Capture(split.test)
+    write_video(np.round(te.frames() * 255).astype(np.uint8), tmp_path / "headset.mp4", fps=30)
+    ident = Capture(split.train).meta()["ict_identity"]
+    r = capture_clip(tmp_path / "headset.mp4", tmp_path / "u", res=160, head_vertices=500, overlay=False,
+                     identity=ident, headset=True, quiet=True)
+    c = Capture(r.folder)
+    meta = c.meta()
+    assert meta["headset"] and meta["identity_held"] and np.allclose(meta["ict_identity"], ident, atol=1e-6)
+    hmd = c.images("hmd_masks") > 0.5
+    lm = c.landmarks()
+    mouth = lm.points[:, [lm.names.index(n) for n in IBUG68_NAMES[48:68]]]
+    for k in range(len(c)):
+        assert hmd[k].mean() > 0.03, (k, hmd[k].mean())  # the box covers the eyes: a good part of the crop
+        ys = np.nonzero(hmd[k])[0]
+        assert ys.mean() < mouth[k, :, 1].min(), k  # above the mouth
+        x, y = np.clip(np.floor(mouth[k]).astype(int), 0, 159).T
+        assert not hmd[k][y, x].any(), k  # and none of the mouth's points under it
+    usage = P.usage_from_capture(r.folder, tmp_path / "usage", quiet=True)
+    assert np.array_equal(Capture(usage).images("hmd_masks") > 0.5, hmd)
+
+
 def test_hmd_holdout_writes_the_split(clip_capture, tmp_path, capsys):
     from geoface.cli import main
 
