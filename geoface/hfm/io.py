@@ -108,16 +108,23 @@ def load_hfm(model_dir) -> HFMModel:
     model.refresh_keys()
     model.registration_size = tuple(size) if size is not None else None
     ident = meta.get("ict_identity")
-    if ident is not None:
-        try:
-            a = np.asarray(ident, np.float64)
-            if a.ndim != 1 or not 0 < len(a) <= 100 or not np.isfinite(a).all():
-                raise ValueError(f"{a.shape}")
-        except (TypeError, ValueError) as e:
-            raise ModelFolderError(f"{d}/config.json: ict_identity must be up to 100 finite weights ({e})") from None
-        ident = a.tolist()
-    model.ict_identity = ident
+    try:
+        model.ict_identity = None if ident is None else identity_weights(ident)
+    except ValueError as e:
+        raise ModelFolderError(f"{d}/config.json: ict_identity must be up to 100 finite weights ({e})") from None
     return model
+
+
+def identity_weights(value) -> list:
+    """``value`` as ICT identity weights (1 to 100 finite numbers, a capture's ``ict_identity``);
+    ValueError otherwise."""
+    try:
+        a = np.asarray(value, np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(str(e)) from None
+    if a.ndim != 1 or not 0 < len(a) <= 100 or not np.isfinite(a).all():
+        raise ValueError(f"shape {a.shape}" + ("" if np.isfinite(a).all() else ", not all finite"))
+    return a.tolist()
 
 
 def _read_calibration(cal, d):

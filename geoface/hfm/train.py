@@ -164,13 +164,13 @@ def _ict_identity(reg_dir) -> list | None:
     """The registration capture's ICT identity weights (``meta.json``'s ``ict_identity``, which
     `geoface capture` writes: its head mesh and poses are that head's), or None."""
     from geoface.capture import Capture
+    from geoface.hfm.io import identity_weights
 
     ident = Capture(reg_dir).meta().get("ict_identity")
     try:
-        a = np.asarray(ident, np.float64).reshape(-1)
-    except (TypeError, ValueError):
+        return None if ident is None else identity_weights(ident)
+    except ValueError:
         return None
-    return [float(x) for x in a] if ident is not None and 0 < len(a) <= 100 and np.isfinite(a).all() else None
 
 
 def build_model(video, cfg: HFMConfig, mesh=None) -> HFMModel:

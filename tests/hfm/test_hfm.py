@@ -710,6 +710,16 @@ def test_save_load_round_trip_with_sampling_keys(tmp_path):
         del meta["config"]["unmapped_upper"]
         (tmp_path / name / "config.json").write_text(json.dumps(meta))
         assert load_hfm(tmp_path / name).cfg.unmapped_upper == want
+    # the registration's ICT identity (a headset video is tracked as that head) survives a round trip;
+    # a malformed one is a one-line error
+    m.ict_identity = [0.5, -1.25, 2.0]
+    save_hfm(m, tmp_path / "ident")
+    assert load_hfm(tmp_path / "ident").ict_identity == [0.5, -1.25, 2.0] and m2.ict_identity is None
+    meta = json.loads((tmp_path / "ident" / "config.json").read_text())
+    meta["ict_identity"] = [0.5, "x"]
+    (tmp_path / "ident" / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(AvatarError, match="ict_identity must be up to 100 finite weights"):
+        load_hfm(tmp_path / "ident")
     cfg = json.loads((tmp_path / "config.json").read_text())
     cfg["n_gaussians"] = 7
     (tmp_path / "config.json").write_text(json.dumps(cfg))
