@@ -142,12 +142,11 @@ def cmd_hmd_remove(args) -> int:
         capture_clip(src, Path(td) / "capture", res=res, overlay=False, identity=ident, headset=ident is not None,
                      refine=ident is not None, quiet=quiet)
         usage = usage_from_capture(Path(td) / "capture", Path(td) / "usage", quiet=quiet)
-        if ident is not None and args.poses == "auto":
-            args.poses = "track"
-        return _remove_folder(args, model, usage, str(src))
+        poses = "track" if ident is not None and args.poses == "auto" else args.poses
+        return _remove_folder(args, model, usage, str(src), poses)
 
 
-def _remove_folder(args, model, usage_dir: Path, shown_as: str) -> int:
+def _remove_folder(args, model, usage_dir: Path, shown_as: str, poses: str | None = None) -> int:
     from geoface.hfm import remove_hmd
     from geoface.hfm.data import load_video
 
@@ -157,7 +156,7 @@ def _remove_folder(args, model, usage_dir: Path, shown_as: str) -> int:
     from geoface._io import output_folder
 
     with output_folder(out, args.force) as tmp:  # the frames appear all at once, or not at all
-        renders, times, source = remove_hmd(model, video, out_dir=tmp, composite=composite, poses=args.poses,
+        renders, times, source = remove_hmd(model, video, out_dir=tmp, composite=composite, poses=poses or args.poses,
                                             with_source=True)
     import numpy as np
 
