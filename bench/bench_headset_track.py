@@ -105,6 +105,8 @@ def main(argv=None) -> int:
                    "track_seconds": round(float(secs.get("head_track", 0.0)), 1),
                    "refine_seconds": round(float(secs.get("refine", 0.0)), 1),
                    "wall_s_this_run": round(time.time() - t0, 1)}
+            if kw.get("headset"):  # the headset's masks (they bound the refinement's pixels)
+                row["segmenter"] = "colour learned at the eyes (face-mesh points)"
             line = json.dumps(row)
             print(line, flush=True)
             if a.out:

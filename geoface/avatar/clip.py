@@ -250,8 +250,8 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
     ``identity``: the person's ICT identity weights when known (a registration capture's
     ``meta.json`` ``ict_identity``): the head is then held as it is and only expressions, poses
     and the focal length are fitted, in the same head frame as that capture's. ``headset``: the
-    clip shows the person wearing a headset (grey or black plastic over the eyes,
-    :func:`geoface.track.headset_masks` finds it in each crop): the head is fitted to the face-mesh
+    clip shows the person wearing a headset (:func:`geoface.track.headset_masks` finds it in each
+    crop by the colour where the face mesh's eyes fall): the head is fitted to the face-mesh
     points below it and refined against the pixels below it alone
     (:func:`geoface.track.head_track.below_headset`), what MediaPipe guesses under the visor left
     out; the masks are kept in ``hmd_masks/``."""
@@ -320,7 +320,7 @@ def capture_clip(source, out_dir, *, res: int = 512, focal: float | None = None,
         from geoface.track import headset_masks
         from geoface.track.head_track import below_headset
 
-        hmd = headset_masks(crops)
+        hmd = headset_masks(crops, points=np.where(found[:, None, None], pts, np.nan))
         use, region = below_headset(held if held is not None else np.zeros(0))
         # the person less the headset and a rim of 3 pixels (its edge, blurred, is neither)
         seen = masks * ~np.stack([binary_dilation(h, iterations=3) for h in hmd])

@@ -215,14 +215,20 @@ def split_capture(folder, out, *, test: float = TEST_FRACTION, overwrite: bool =
 def usage_from_capture(folder, out, *, quiet: bool | None = None) -> Path:
     """A usage folder ``out`` from the capture of a real headset video (``geoface capture`` on it):
     its frames as they are, the headset's pixels segmented from them
-    (:func:`geoface.track.headset_masks`: grey or black plastic), the landmarks below the headset,
+    (:func:`geoface.track.headset_masks`, its colour learned where the face mesh's eyes fall), the
+    landmarks below the headset,
     the tracked head poses. What ``geoface hmd remove MODEL VIDEO`` makes before it restores the
     face."""
     from geoface.track import headset_masks
 
     cap = _need_track(folder)
     hmd = cap.images("hmd_masks")  # segmented already by a headset capture (`capture_clip(headset=True)`)
-    hmd = headset_masks(np.round(cap.frames() * 255).astype(np.uint8)) if hmd is None else hmd > 0.5
+    if hmd is None:
+        dense = cap.dense()
+        pts = None if dense is None else np.where(dense[1][:, None, None], dense[0], np.nan)
+        hmd = headset_masks(np.round(cap.frames() * 255).astype(np.uint8), points=pts)
+    else:
+        hmd = hmd > 0.5
     out = Path(out)
     _write_part(cap, out, slice(0, len(cap)), usage=True, hmd=hmd, extra={"headset": "segmented from the frames"},
                 quiet=quiet)

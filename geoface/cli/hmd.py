@@ -347,7 +347,7 @@ def register(sub, common: argparse.ArgumentParser) -> None:
     r.add_argument("model_dir", metavar="MODEL_DIR", help='a model `hmd train` wrote')
     r.add_argument("usage_dir", metavar="USAGE_DIR|VIDEO",
                    help="a usage folder, or a headset video (captured first: face crops, the landmarks below the "
-                        "headset, the head track, the headset segmented from the pixels: grey or black plastic)")
+                        "headset, the head track, the headset segmented from the pixels by its colour where the face mesh puts the eyes)")
     r.add_argument("-o", "--output", default=None, metavar="OUT_DIR", help="write the frames as OUT_DIR/frames/*.png")
     r.add_argument("--video", default=None, metavar="OUT.mp4", help="write an H.264 MP4 (with the sound, if any)")
     r.add_argument("--res", type=number(int, 16, 4096), default=None,

@@ -1,0 +1,94 @@
+"""The headset found in a real headset video's frames: ``geoface.track.headset_masks`` with the
+face mesh's points (the headset's colour learned where the eyes fall) against the fixed grey test
+it replaces (no points), scored against the drawn headset's own masks.
+
+The work folders of ``bench/bench_headset_track.py`` are used (made when missing, as there): a
+real clip's first ``--seconds`` captured at ``--res``, split in half by time, the second half
+given the box headset at the tracked pose and written as an MP4 (H.264, as a user's video is).
+Its decoded frames are segmented each way, and again with the headset recoloured white (its
+shading kept) and written as an MP4 too. Per clip, colour and way: the IoU with the drawn
+headset's masks (mean, 10th percentile, least over the frames); and on the clip's first half
+(no headset, the eyes seen) the share of frames given a headset. One JSON line per row.
+
+    python bench/bench_headset_masks.py man_closeup.mp4 woman_blue_backdrop.mp4 --work /tmp/hs \\
+        --out bench/results/hfm_eval/real_headset_masks.jsonl
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def _work(name: str, a) -> Path:
+    """``bench_headset_track``'s work folder of the clip (made when missing)."""
+    from geoface.avatar import protocol as P
+    from geoface.avatar.clip import capture_clip
+    from tests.helpers import short_clip
+
+    work = Path(a.work) / f"{Path(name).stem}_{a.res}"
+    work.mkdir(parents=True, exist_ok=True)
+    if not (work / "split").is_dir():
+        clip = short_clip(name, work, seconds=a.seconds)
+        capture_clip(clip, work / "cap", res=a.res, head_vertices=3000, overlay=False, refine=True, quiet=True)
+        P.split_capture(work / "cap", work / "split", test=a.test, quiet=True)
+    return work
+
+
+def _through_mp4(frames: np.ndarray, path: Path) -> np.ndarray:
+    from geoface.track import read_frames
+    from geoface.video import write_video
+
+    write_video(frames, path, fps=25)
+    return np.stack(read_frames(path)[0])
+
+
+def main(argv=None) -> int:
+    from geoface.capture import Capture
+    from geoface.track import facemesh_points, headset_masks
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("clips", nargs="+", help="clip names in ../shared/data/videos/")
+    ap.add_argument("--seconds", type=float, default=6.0, help="the clip's first seconds (6)")
+    ap.add_argument("--res", type=int, default=192, help="the crops' side (192)")
+    ap.add_argument("--test", type=float, default=0.5, help="the held-out share that gets the headset (0.5)")
+    ap.add_argument("--work", required=True, help="bench_headset_track's work folder (made when missing)")
+    ap.add_argument("--out", default=None, help="append the JSON lines to this file too")
+    a = ap.parse_args(argv)
+    rows = []
+    for name in a.clips:
+        work = _work(name, a)
+        te, tr = Capture(work / "split" / "test"), Capture(work / "split" / "train")
+        truth = te.images("hmd_masks") > 0.5
+        drawn = np.round(te.frames() * 255).astype(np.uint8)
+        white = drawn.astype(np.float64)
+        white[truth] *= 0.85 / 0.19  # the drawn headset's brightest is 0.19: white plastic, shaded alike
+        white = np.clip(np.round(white), 0, 255).astype(np.uint8)
+        seen = np.round(tr.frames() * 255).astype(np.uint8)
+        seen_pts = facemesh_points(list(seen), video=True, total=len(seen), quiet=True)
+        for colour, frames in (("grey (drawn)", drawn), ("white", white)):
+            got = _through_mp4(frames, work / f"masks_{colour.split()[0]}.mp4")
+            pts = facemesh_points(list(got), video=True, total=len(got), quiet=True)
+            for way, kw in (("fixed grey test (no points)", {}), ("colour learned at the eyes (points)", {"points": pts})):
+                m = headset_masks(got, **kw)
+                iou = (m & truth).sum((1, 2)) / np.maximum((m | truth).sum((1, 2)), 1)
+                empty = headset_masks(seen, **({"points": seen_pts} if kw else {}))
+                rows.append({"bench": "headset_masks", "clip": name, "seconds": a.seconds, "res": a.res,
+                             "headset": colour, "way": way, "frames": int(len(got)),
+                             "iou_mean": round(float(iou.mean()), 3), "iou_p10": round(float(np.percentile(iou, 10)), 3),
+                             "iou_min": round(float(iou.min()), 3), "frames_without_headset": int(len(seen)),
+                             "headset_found_without_one": round(float(empty.any((1, 2)).mean()), 3)})
+                print(json.dumps(rows[-1]), flush=True)
+    if a.out:
+        with open(a.out, "a") as f:
+            f.writelines(json.dumps(r) + "\n" for r in rows)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
