@@ -23,21 +23,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-
-def _work(name: str, a) -> Path:
-    """``bench_headset_track``'s work folder of the clip (made when missing)."""
-    from geoface.avatar import protocol as P
-    from geoface.avatar.clip import capture_clip
-    from tests.helpers import short_clip
-
-    work = Path(a.work) / f"{Path(name).stem}_{a.res}"
-    work.mkdir(parents=True, exist_ok=True)
-    if not (work / "split").is_dir():
-        clip = short_clip(name, work, seconds=a.seconds)
-        capture_clip(clip, work / "cap", res=a.res, head_vertices=3000, overlay=False, refine=True, quiet=True)
-        P.split_capture(work / "cap", work / "split", test=a.test, quiet=True)
-    return work
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_headset_track import clip_arguments, clip_work  # noqa: E402  (the same clips and work folders)
 
 
 def _through_mp4(frames: np.ndarray, path: Path) -> np.ndarray:
@@ -52,17 +39,10 @@ def main(argv=None) -> int:
     from geoface.capture import Capture
     from geoface.track import facemesh_points, headset_masks
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("clips", nargs="+", help="clip names in ../shared/data/videos/")
-    ap.add_argument("--seconds", type=float, default=6.0, help="the clip's first seconds (6)")
-    ap.add_argument("--res", type=int, default=192, help="the crops' side (192)")
-    ap.add_argument("--test", type=float, default=0.5, help="the held-out share that gets the headset (0.5)")
-    ap.add_argument("--work", required=True, help="bench_headset_track's work folder (made when missing)")
-    ap.add_argument("--out", default=None, help="append the JSON lines to this file too")
-    a = ap.parse_args(argv)
+    a = clip_arguments(argparse.ArgumentParser(description=__doc__.splitlines()[0])).parse_args(argv)
     rows = []
     for name in a.clips:
-        work = _work(name, a)
+        work = clip_work(name, a)
         te, tr = Capture(work / "split" / "test"), Capture(work / "split" / "train")
         truth = te.images("hmd_masks") > 0.5
         drawn = np.round(te.frames() * 255).astype(np.uint8)

@@ -56,28 +56,42 @@ def _errors(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(np.einsum("tij,tkj->tik", Ra @ off.T, Rb)).as_rotvec(degrees=True)
 
 
-def main(argv=None) -> int:
-    from geoface.avatar import protocol as P
-    from geoface.avatar.clip import capture_clip
-    from geoface.capture import Capture
-    from geoface.video import write_video
-    from tests.helpers import short_clip
-
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def clip_arguments(ap):
+    """The clips, their length and size, the split and the work folder (shared with
+    ``bench_headset_masks.py``)."""
     ap.add_argument("clips", nargs="+", help="clip names in ../shared/data/videos/")
     ap.add_argument("--seconds", type=float, default=6.0, help="the clip's first seconds (6)")
     ap.add_argument("--res", type=int, default=192, help="the crops' side (192)")
     ap.add_argument("--test", type=float, default=0.5, help="the held-out share that gets the headset (0.5)")
     ap.add_argument("--work", required=True, help="folder for the captures (reused when there)")
     ap.add_argument("--out", default=None, help="append the JSON lines to this file too")
-    a = ap.parse_args(argv)
+    return ap
+
+
+def clip_work(name: str, a) -> Path:
+    """The clip's work folder: its first ``a.seconds`` captured at ``a.res`` with the refinement
+    and split by time (made when missing)."""
+    from geoface.avatar import protocol as P
+    from geoface.avatar.clip import capture_clip
+    from tests.helpers import short_clip
+
+    work = Path(a.work) / f"{Path(name).stem}_{a.res}"
+    work.mkdir(parents=True, exist_ok=True)
+    if not (work / "split").is_dir():
+        clip = short_clip(name, work, seconds=a.seconds)
+        capture_clip(clip, work / "cap", res=a.res, head_vertices=3000, overlay=False, refine=True, quiet=True)
+        P.split_capture(work / "cap", work / "split", test=a.test, quiet=True)
+    return work
+
+
+def main(argv=None) -> int:
+    from geoface.avatar.clip import capture_clip
+    from geoface.capture import Capture
+    from geoface.video import write_video
+
+    a = clip_arguments(argparse.ArgumentParser(description=__doc__.splitlines()[0])).parse_args(argv)
     for name in a.clips:
-        work = Path(a.work) / f"{Path(name).stem}_{a.res}"
-        work.mkdir(parents=True, exist_ok=True)
-        if not (work / "split").is_dir():
-            clip = short_clip(name, work, seconds=a.seconds)
-            capture_clip(clip, work / "cap", res=a.res, head_vertices=3000, overlay=False, refine=True, quiet=True)
-            P.split_capture(work / "cap", work / "split", test=a.test, quiet=True)
+        work = clip_work(name, a)
         te = Capture(work / "split" / "test")
         ident = Capture(work / "split" / "train").meta()["ict_identity"]
         video = work / "headset.mp4"

@@ -279,7 +279,9 @@ def headset_masks(frames, *, points=None, max_saturation: float = 0.15, min_valu
     per 96 of the frame, which cuts off strands of hair of its shade) that holds a seed. Plastic
     of any colour (white, grey, black, tinted) is found so. A frame where fewer than
     :data:`HEADSET_MIN_SHARE` of the seeds' pixels are unlike the skin, or whose region covers
-    the mouth, has no headset (the eyes are seen): an empty mask.
+    the mouth, has no headset (the eyes are seen): an empty mask. The region found so is widened
+    by a pixel per 192 of the frame at the end: its rim, blurred into the face by the lens and the
+    codec, has neither's colour.
 
     Without ``points`` (or in a frame without them) a headset of a neutral colour is assumed
     (grey or black plastic): a pixel is the headset's when its colour is unsaturated (chroma over
@@ -310,7 +312,8 @@ def headset_masks(frames, *, points=None, max_saturation: float = 0.15, min_valu
         if pts is not None and t >= len(pts):
             raise GeofaceError(f"headset masks: {len(pts)} frames of points for more frames")
         P = None if pts is None else pts[t]
-        if P is not None and np.isfinite(P[list(HEADSET_SEEDS)]).all():
+        learned = P is not None and bool(np.isfinite(P[list(HEADSET_SEEDS)]).all())
+        if learned:
             big = _headset_by_colour(a, P, tolerance)
         else:
             big = _headset_by_greyness(a, max_saturation, min_value)
@@ -319,7 +322,10 @@ def headset_masks(frames, *, points=None, max_saturation: float = 0.15, min_valu
             continue
         if close_px:
             big = ndimage.binary_closing(big, iterations=close_px, border_value=0) | big
-        out.append(ndimage.binary_fill_holes(big))
+        big = ndimage.binary_fill_holes(big)
+        if learned:  # its rim, blurred into the face by the lens and the codec, is neither's colour
+            big = ndimage.binary_dilation(big, iterations=max(1, min(big.shape) // 192))
+        out.append(big)
     return np.stack(out) if out else np.zeros((0, 0, 0), bool)
 
 
