@@ -7,8 +7,10 @@ real clip's first ``--seconds`` captured at ``--res``, split in half by time, th
 given the box headset at the tracked pose and written as an MP4 (H.264, as a user's video is).
 Its decoded frames are segmented each way, and again with the headset recoloured white (its
 shading kept) and written as an MP4 too. Per clip, colour and way: the IoU with the drawn
-headset's masks (mean, 10th percentile, least over the frames); and on the clip's first half
-(no headset, the eyes seen) the share of frames given a headset. One JSON line per row.
+headset's masks (mean, 10th percentile, least over the frames), the share of the drawn headset
+covered (what a composite must replace) and the share of the mask beyond 3 pixels of it (face
+replaced for nothing), mean and worst frame; and on the clip's first half (no headset, the eyes
+seen) the share of frames given a headset. One JSON line per row.
 
     python bench/bench_headset_masks.py man_closeup.mp4 woman_blue_backdrop.mp4 --work /tmp/hs \\
         --out bench/results/hfm_eval/real_headset_masks.jsonl
@@ -36,6 +38,8 @@ def _through_mp4(frames: np.ndarray, path: Path) -> np.ndarray:
 
 
 def main(argv=None) -> int:
+    from scipy.ndimage import binary_dilation
+
     from geoface.capture import Capture
     from geoface.track import facemesh_points, headset_masks
 
@@ -45,6 +49,7 @@ def main(argv=None) -> int:
         work = clip_work(name, a)
         te, tr = Capture(work / "split" / "test"), Capture(work / "split" / "train")
         truth = te.images("hmd_masks") > 0.5
+        rim = np.stack([binary_dilation(t, iterations=3) for t in truth])  # the headset and 3 pixels round it
         drawn = np.round(te.frames() * 255).astype(np.uint8)
         white = drawn.astype(np.float64)
         white[truth] *= 0.85 / 0.19  # the drawn headset's brightest is 0.19: white plastic, shaded alike
@@ -57,11 +62,16 @@ def main(argv=None) -> int:
             for way, kw in (("fixed grey test (no points)", {}), ("colour learned at the eyes (points)", {"points": pts})):
                 m = headset_masks(got, **kw)
                 iou = (m & truth).sum((1, 2)) / np.maximum((m | truth).sum((1, 2)), 1)
+                cover = (m & truth).sum((1, 2)) / np.maximum(truth.sum((1, 2)), 1)
+                spill = (m & ~rim).sum((1, 2)) / np.maximum(m.sum((1, 2)), 1)
                 empty = headset_masks(seen, **({"points": seen_pts} if kw else {}))
                 rows.append({"bench": "headset_masks", "clip": name, "seconds": a.seconds, "res": a.res,
                              "headset": colour, "way": way, "frames": int(len(got)),
                              "iou_mean": round(float(iou.mean()), 3), "iou_p10": round(float(np.percentile(iou, 10)), 3),
-                             "iou_min": round(float(iou.min()), 3), "frames_without_headset": int(len(seen)),
+                             "iou_min": round(float(iou.min()), 3),
+                             "covered_mean": round(float(cover.mean()), 4), "covered_min": round(float(cover.min()), 4),
+                             "spilled_mean": round(float(spill.mean()), 4), "spilled_max": round(float(spill.max()), 4),
+                             "frames_without_headset": int(len(seen)),
                              "headset_found_without_one": round(float(empty.any((1, 2)).mean()), 3)})
                 print(json.dumps(rows[-1]), flush=True)
     if a.out:

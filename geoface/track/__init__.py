@@ -280,8 +280,8 @@ def headset_masks(frames, *, points=None, max_saturation: float = 0.15, min_valu
     of any colour (white, grey, black, tinted) is found so. A frame where fewer than
     :data:`HEADSET_MIN_SHARE` of the seeds' pixels are unlike the skin, or whose region covers
     the mouth, has no headset (the eyes are seen): an empty mask. The region found so is widened
-    by a pixel per 192 of the frame at the end: its rim, blurred into the face by the lens and the
-    codec, has neither's colour.
+    at the end by a pixel per 96 of the frame, at least 2 (a video's colour is stored at half
+    resolution): its rim, blurred into the face by the lens and the codec, has neither's colour.
 
     Without ``points`` (or in a frame without them) a headset of a neutral colour is assumed
     (grey or black plastic): a pixel is the headset's when its colour is unsaturated (chroma over
@@ -324,7 +324,7 @@ def headset_masks(frames, *, points=None, max_saturation: float = 0.15, min_valu
             big = ndimage.binary_closing(big, iterations=close_px, border_value=0) | big
         big = ndimage.binary_fill_holes(big)
         if learned:  # its rim, blurred into the face by the lens and the codec, is neither's colour
-            big = ndimage.binary_dilation(big, iterations=max(1, min(big.shape) // 192))
+            big = ndimage.binary_dilation(big, iterations=max(2, min(big.shape) // 96))
         out.append(big)
     return np.stack(out) if out else np.zeros((0, 0, 0), bool)
 

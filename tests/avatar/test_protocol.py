@@ -188,13 +188,16 @@ def test_the_headset_is_segmented_by_its_own_colour_after_video_encoding(split, 
     """The test frames with the drawn headset, through an MP4 (H.264 shifts its bluish grey's
     chroma, so that a fixed saturation test loses part of it) and, recoloured, as white plastic:
     with the face mesh's points, ``headset_masks`` learns the colour where the eyes fall and covers
-    the drawn headset in every frame (IoU > 0.85); on the clip's own frames, where the eyes are
-    seen, it finds nothing."""
+    more than 90% of the drawn headset in every frame, less than a tenth of its mask beyond 3
+    pixels of it; on the clip's own frames, where the eyes are seen, it finds nothing."""
+    from scipy.ndimage import binary_dilation
+
     from geoface.track import facemesh_points, headset_masks, read_frames
     from geoface.video import write_video
 
     te = Capture(split.test)
     truth = te.images("hmd_masks") > 0.5
+    rim = np.stack([binary_dilation(t, iterations=3) for t in truth])  # the headset and 3 pixels round it
     drawn = np.round(te.frames() * 255).astype(np.uint8)
     white = drawn.astype(np.float64)
     white[truth] *= 0.85 / 0.19  # the shading kept: the drawn headset's brightest is 0.19
@@ -204,8 +207,9 @@ def test_the_headset_is_segmented_by_its_own_colour_after_video_encoding(split, 
         got = np.stack(read_frames(tmp_path / f"{name}.mp4")[0])
         pts = facemesh_points(list(got), video=True, total=len(got), quiet=True)
         m = headset_masks(got, points=pts)
-        iou = (m & truth).sum((1, 2)) / (m | truth).sum((1, 2))
-        assert iou.min() > 0.85, (name, iou.round(3))
+        covered = (m & truth).sum((1, 2)) / truth.sum((1, 2))
+        beyond = (m & ~rim).sum((1, 2)) / m.sum((1, 2))
+        assert covered.min() > 0.9 and beyond.max() < 0.1, (name, covered.round(3), beyond.round(3))
     r, _ = clip_capture
     seen = np.round(Capture(r.folder).frames() * 255).astype(np.uint8)
     assert not headset_masks(seen, points=facemesh_points(list(seen), video=True, total=len(seen), quiet=True)).any()
