@@ -36,7 +36,7 @@ import numpy as np
 
 from geoface.errors import GeofaceError, MissingDependencyError
 from geoface.track.frames import TRACK_MAX_PIXELS, FrameSource, as_uint8, read_frames  # noqa: F401  (re-exported)
-from geoface.track.headset import HEADSET_SEEDS, headset_masks  # noqa: E402,F401  (re-exported)
+from geoface.track.headset import HEADSET_SEEDS, headset_masks  # noqa: F401  (re-exported)
 
 __all__ = ["Tracking", "track_frames", "track_capture", "track_input", "read_frames", "FrameSource", "ibug68_from_mediapipe", "TRACKER",
            "facemesh_points", "face_confidence", "headset_masks", "HEADSET_SEEDS", "one_euro", "SMOOTHING"]

@@ -111,7 +111,8 @@ def _headset_by_greyness(a, max_saturation, min_value):
 
 
 def _colour_features(a):
-    """(chromaticity (..., 3): each channel's share of the mean minus a third, brightness's log)."""
+    """(chromaticity (..., 3): each channel over the channels' mean, less one; the log of that
+    mean, the brightness)."""
     m = a.mean(-1)
     return (a - m[..., None]) / np.maximum(m, 0.1)[..., None], np.log(m + 0.02)
 
@@ -150,19 +151,19 @@ def _headset_by_colour(a, P, tolerance):
     them are, the upper face is seen."""
     from scipy import ndimage
 
-    seeds = P[list(HEADSET_SEEDS)]
-    seeds = seeds[np.isfinite(seeds).all(1)]
+    seeds = P[list(HEADSET_SEEDS)]  # all finite (the caller's test)
     S = _samples(a, seeds)
+    least = HEADSET_MIN_SHARE * len(S)
     skin = np.stack([0.5 * (P[i] + P[j]) for i, j in SKIN_SAMPLES])
     skin = skin[np.isfinite(skin).all(1)]
     if len(skin):
         S = S[_colour_distance(S, _colour_model(*_colour_features(_samples(a, skin)), floor=SKIN_SPREAD_FLOOR)) >= tolerance]
-    if len(S) < HEADSET_MIN_SHARE * 9 * len(seeds):
+    if len(S) < least:
         return None
     model = _colour_model(*_colour_features(S), cap=True)
     for _ in range(2):  # again from the pixels of that colour (the seeds on hair or eyes left out)
         near = S[_colour_distance(S, model) < tolerance]
-        if len(near) < HEADSET_MIN_SHARE * 9 * len(seeds):
+        if len(near) < least:
             break
         model = _colour_model(*_colour_features(near), cap=True)
     H, W = a.shape[:2]
