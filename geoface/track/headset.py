@@ -27,6 +27,10 @@ HEADSET_SPREAD_CAP = (0.1, 0.5)
 #: has one only where at least this share of them are
 SKIN_SPREAD_FLOOR = (0.06, 0.5)
 HEADSET_MIN_SHARE = 0.5
+#: how far a headset reaches beyond the face mesh's points: a share of their box's width each
+#: side and of its height above (a headset is wider than the face, and the points under it are
+#: drawn together)
+REACH = (0.5, 0.6)
 
 
 def headset_masks(frames, *, points=None, max_saturation: float = 0.15, min_value: float = 0.06, close_px: int = 1,
@@ -40,14 +44,14 @@ def headset_masks(frames, *, points=None, max_saturation: float = 0.15, min_valu
     (colour over brightness) and brightness, a robust centre and spread (within
     :data:`HEADSET_SPREAD_FLOOR` and :data:`HEADSET_SPREAD_CAP`). A pixel is the headset's when its
     colour lies within ``tolerance`` spreads of that, within the face's reach (the points' box,
-    widened by 35% of its width each side and raised by 60% of its height: a headset is wider
-    than the face, and the points under it are drawn together), in a region (opened by a pixel
-    per 96 of the frame, which cuts off strands of hair of its shade) that holds a seed. Plastic
-    of any colour (white, grey, black, tinted) is found so. A frame where fewer than
-    :data:`HEADSET_MIN_SHARE` of the seeds' pixels are unlike the skin, or whose region covers
-    the mouth, has no headset (the eyes are seen): an empty mask. The region found so is widened
-    at the end by a pixel per 96 of the frame, at least 2 (a video's colour is stored at half
-    resolution): its rim, blurred into the face by the lens and the codec, has neither's colour.
+    widened by half its width each side and raised by 60% of its height: :data:`REACH`), in a
+    region (opened by a pixel per 96 of the frame, which cuts off strands of hair of its shade)
+    that holds a seed. Plastic of any colour (white, grey, black, tinted) is found so. A frame
+    where fewer than :data:`HEADSET_MIN_SHARE` of the seeds' pixels are unlike the skin, or whose
+    region covers the mouth, has no headset (the eyes are seen): an empty mask. The region found
+    so is widened at the end by a pixel per 96 of the frame, at least 2 (a video's colour is
+    stored at half resolution): its rim, blurred into the face by the lens and the codec, has
+    neither's colour.
 
     Without ``points`` (or in a frame without them) a headset of a neutral colour is assumed
     (grey or black plastic): a pixel is the headset's when its colour is unsaturated (chroma over
@@ -170,8 +174,8 @@ def _headset_by_colour(a, P, tolerance):
     ok = np.isfinite(P).all(1)
     lo, hi = P[ok].min(0), P[ok].max(0)
     w, h = hi - lo
-    x0, x1 = int(np.floor(lo[0] - 0.35 * w)), int(np.ceil(hi[0] + 0.35 * w))
-    y0, y1 = int(np.floor(lo[1] - 0.6 * h)), int(np.ceil(hi[1]))
+    x0, x1 = int(np.floor(lo[0] - REACH[0] * w)), int(np.ceil(hi[0] + REACH[0] * w))
+    y0, y1 = int(np.floor(lo[1] - REACH[1] * h)), int(np.ceil(hi[1]))
     reach = np.zeros((H, W), bool)
     reach[max(y0, 0):max(min(y1, H), 0), max(x0, 0):max(min(x1, W), 0)] = True
     cand = (_colour_distance(a, model) < tolerance) & reach
