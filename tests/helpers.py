@@ -77,6 +77,16 @@ def short_clip(name: str, out: Path, seconds: float = 1.0) -> Path:
     return dst
 
 
+def white_headset(frames: np.ndarray, headset: np.ndarray) -> np.ndarray:
+    """``frames`` (uint8) with the drawn headset (``geoface.avatar.protocol.HEADSET_RGB``, where
+    ``headset`` holds) recoloured as white plastic (0.85 at its brightest), its shading kept."""
+    from geoface.avatar.protocol import HEADSET_RGB
+
+    out = frames.astype(np.float64)
+    out[headset] *= 0.85 / max(HEADSET_RGB)
+    return np.clip(np.round(out), 0, 255).astype(np.uint8)
+
+
 def geoface(*args, cwd=None) -> tuple[int, str, str]:
     """Run the ``geoface`` command (``--quiet``) in this process, as ``python -m geoface`` runs it:
     its exit code, stdout and stderr. A real process is kept for what only one shows (signals,

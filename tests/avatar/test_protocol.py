@@ -194,15 +194,13 @@ def test_the_headset_is_segmented_by_its_own_colour_after_video_encoding(split, 
 
     from geoface.track import facemesh_points, headset_masks, read_frames
     from geoface.video import write_video
+    from tests.helpers import white_headset
 
     te = Capture(split.test)
     truth = te.images("hmd_masks") > 0.5
     rim = np.stack([binary_dilation(t, iterations=3) for t in truth])  # the headset and 3 pixels round it
     drawn = np.round(te.frames() * 255).astype(np.uint8)
-    white = drawn.astype(np.float64)
-    white[truth] *= 0.85 / 0.19  # the shading kept: the drawn headset's brightest is 0.19
-    white = np.clip(np.round(white), 0, 255).astype(np.uint8)
-    for name, frames in (("grey", drawn), ("white", white)):
+    for name, frames in (("grey", drawn), ("white", white_headset(drawn, truth))):
         write_video(frames, tmp_path / f"{name}.mp4", fps=30)
         got = np.stack(read_frames(tmp_path / f"{name}.mp4")[0])
         pts = facemesh_points(list(got), video=True, total=len(got), quiet=True)
