@@ -1,9 +1,12 @@
-"""Build script: everything is in pyproject.toml except the optional compiled part.
+"""Build script: everything is in pyproject.toml except the optional compiled parts.
 
 ``geoface.param._native.regular_triangulation`` wraps CGAL's exact 2D regular triangulation
 (power diagrams for optimal transport).  It needs CGAL's headers (Debian: ``libcgal-dev``,
 which ``make install`` sets up); without them the build skips it and geoface uses SciPy's
 Qhull, which cannot separate sites closer than about 1e-7 of the square.
+
+``geoface.mesh._native.zbuffer`` is the rasterizer's z-buffer loop in C++ (any C++ compiler;
+without one, or where it fails to build, the same loop runs in NumPy).
 """
 
 import os
@@ -20,7 +23,14 @@ def _have_cgal() -> bool:
     return any(r and os.path.isfile(os.path.join(r, "CGAL", "Regular_triangulation_2.h")) for r in roots)
 
 
-ext = []
+ext = [Extension(
+    "geoface.mesh._native.zbuffer",
+    sources=["geoface/mesh/_native/zbuffer.cpp"],
+    language="c++",
+    # no fused multiply-adds: the same arithmetic, to the last bit, as the NumPy loop it stands for
+    extra_compile_args=["-O2", "-ffp-contract=off"],
+    optional=True,
+)]
 if _have_cgal() and os.environ.get("GEOFACE_NO_CGAL") != "1":
     ext.append(Extension(
         "geoface.param._native.regular_triangulation",

@@ -117,9 +117,9 @@ def smoothstep(x):
 
 def procedural_template(n_vertices: int = 8000, seed: int = 0, identity=None) -> Template:
     """The procedural head as a skinned template (module doc); returns the Template."""
-    from geoface.synth.head import EXPRESSION_NAMES, HeadModel
+    from geoface.synth.head import EXPRESSION_NAMES, head_model
 
-    model = HeadModel(n_vertices=n_vertices, seed=seed, identity=identity)
+    model = head_model(n_vertices, seed, identity)
     h = model.mesh()
     V = h.V
     sc = model._shape.scale

@@ -209,13 +209,13 @@ def make_synthetic_hmd(out, *, frames: int = 150, heldout: float = 0.2, res: int
     """
     from geoface.progress import progress
     from geoface.nn.mesh_render import render_mesh
-    from geoface.synth.head import HeadModel
+    from geoface.synth.head import head_model
 
     if frames < 5 or not 0 < heldout < 1:
         raise AvatarError(f"need frames >= 5 and 0 < heldout < 1; got {frames}, {heldout}")
     out = Path(out)
     rng = np.random.default_rng(seed)
-    model = HeadModel(n_vertices=n_vertices, seed=seed)
+    model = head_model(n_vertices, seed)
     neutral = model.mesh()
     lmk = neutral.landmarks
     y_eye, y_nose = neutral.eye_line_y, float(neutral.V[lmk["nose_tip"], 1])

@@ -3,9 +3,14 @@ each pixel centre sees, where on it (perspective-correct barycentric weights) an
 the library's one camera-space z-buffer: photo projection onto UVs, the torch renderers' visibility,
 and the renders of a scan that the face tracker looks at (:mod:`geoface.track.scan`) all use it.
 Triangles are processed in chunks, each enumerating the pixel centres of its bounding box, so
-memory stays bounded."""
+memory stays bounded; where the compiled z-buffer (``geoface.mesh._native.zbuffer``, built by
+``setup.py``) is there, it runs the same loop, with the same arithmetic, in C++."""
 
 from __future__ import annotations
+
+import ctypes
+import importlib.machinery
+from pathlib import Path
 
 import numpy as np
 
@@ -14,6 +19,28 @@ from ..errors import InvalidMeshError, RenderError
 from .core import check_mesh
 
 __all__ = ["bbox_pixels", "rasterize_mesh"]
+
+_NATIVE: list = []
+
+
+def _native_zbuffer():
+    """The compiled z-buffer loop (``geoface_zbuffer``), or None where it was not built."""
+    if not _NATIVE:
+        fn = None
+        for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+            p = Path(__file__).with_name("_native") / f"zbuffer{suffix}"
+            if p.is_file():
+                try:
+                    lib = ctypes.CDLL(str(p))
+                    if lib.geoface_zbuffer_abi() == 1:
+                        fn = lib.geoface_zbuffer
+                        fn.restype = None
+                        fn.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 9 + [ctypes.c_int64] + [ctypes.c_void_p] * 3
+                except (OSError, AttributeError):
+                    fn = None
+                break
+        _NATIVE.append(fn)
+    return _NATIVE[0]
 
 
 def bbox_pixels(x, y, det, j0, i0, nj, count, chunk: int):
@@ -78,7 +105,7 @@ def bbox_pixels(x, y, det, j0, i0, nj, count, chunk: int):
 SPAN_SLACK = 1e-5
 
 
-def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_000_000):
+def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_000_000, native: bool = True):
     """Nearest triangle per pixel centre.
 
     Parameters
@@ -86,6 +113,7 @@ def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_0
     V : (n, 3) float64 world positions; F : (m, 3) int64 triangles
     camera : Camera
     near : triangles with a vertex at camera depth ``<= near`` are skipped
+    native : the compiled loop where it is built (False: the NumPy loop, which writes the same)
 
     Returns
     -------
@@ -112,11 +140,17 @@ def rasterize_mesh(V, F, camera: Camera, *, near: float = 1e-6, chunk: int = 2_0
     i1 = np.clip(np.floor(yhi), 0, H - 1).astype(np.int64)
     on = ((det != 0) & (np.minimum(np.minimum(zf[:, 0], zf[:, 1]), zf[:, 2]) > near) & (xhi >= 0) & (xlo <= W - 1)
           & (yhi >= 0) & (ylo <= H - 1))
-    nj = np.maximum(j1 - j0 + 1, 1)
-    count = np.where(on, nj * np.maximum(i1 - i0 + 1, 0), 0)
     zbuf = np.full(H * W, np.inf)
     face = np.full(H * W, -1, dtype=np.int64)
     bary = np.zeros((H * W, 3))
+    native = _native_zbuffer() if native else None
+    if native is not None:  # the same loop in C++: triangles in order, the first of equally near ones kept
+        c = [np.ascontiguousarray(a, np.float64) for a in (x, y, zf, det)] + \
+            [np.ascontiguousarray(a, np.int64) for a in (j0, j1, i0, i1)] + [np.ascontiguousarray(on, np.uint8)]
+        native(len(F), *(a.ctypes.data for a in c), W, zbuf.ctypes.data, face.ctypes.data, bary.ctypes.data)
+        return face.reshape(H, W), bary.reshape(H, W, 3), zbuf.reshape(H, W)
+    nj = np.maximum(j1 - j0 + 1, 1)
+    count = np.where(on, nj * np.maximum(i1 - i0 + 1, 0), 0)
     for tt, ii, jj, b0, b1, b2 in bbox_pixels(x, y, det, j0, i0, nj, count, chunk):
         inside = (b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9)
         tt, pix = tt[inside], ii[inside] * W + jj[inside]

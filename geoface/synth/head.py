@@ -44,6 +44,7 @@ ties them together.
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -62,6 +63,7 @@ __all__ = [
     "HeadIdentity",
     "HeadModel",
     "SynthHead",
+    "head_model",
     "procedural_head",
 ]
 
@@ -270,6 +272,28 @@ class HeadModel:
         return out
 
 
+#: the last few models built, per process, by their arguments (:func:`head_model`)
+MODEL_CACHE_SIZE = 4
+_MODELS: OrderedDict = OrderedDict()
+
+
+def head_model(n_vertices: int = 20000, seed: int = 0, identity=None, texture_size: int = 512) -> HeadModel:
+    """The :class:`HeadModel` of these arguments, built once per process while it is among the
+    last :data:`MODEL_CACHE_SIZE` asked for (a head asked for again, as a capture's template and
+    then its frames, is not built twice); a model is not changed by its methods, so the one
+    returned is shared."""
+    key = (_check_int("n_vertices", n_vertices, MIN_VERTICES, MAX_VERTICES), _check_int("seed", seed, 0, 2**63 - 1),
+           None if identity is None else HeadIdentity.from_dict(identity),
+           _check_int("texture_size", texture_size, 16, 4096))
+    model = _MODELS.pop(key, None)
+    if model is None:
+        model = HeadModel(n_vertices=key[0], seed=key[1], identity=key[2], texture_size=key[3])
+    _MODELS[key] = model
+    while len(_MODELS) > MODEL_CACHE_SIZE:
+        _MODELS.popitem(last=False)
+    return model
+
+
 def procedural_head(n_vertices: int = 20000, seed: int = 0, identity=None, expression=None,
                     texture_size: int = 512) -> SynthHead:
     """Generate one procedural head (see :class:`HeadModel` for the parameters).
@@ -280,4 +304,4 @@ def procedural_head(n_vertices: int = 20000, seed: int = 0, identity=None, expre
     >>> len(head.V), head.UV.shape, sorted(head.landmarks)[:2]
     (2000, (2000, 2), ['brow_left', 'brow_right'])
     """
-    return HeadModel(n_vertices=n_vertices, seed=seed, identity=identity, texture_size=texture_size).mesh(expression)
+    return head_model(n_vertices, seed, identity, texture_size).mesh(expression)

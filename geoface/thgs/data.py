@@ -207,7 +207,7 @@ def make_synthetic_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res:
     from geoface.progress import progress
     from geoface.nn.mesh_render import render_mesh
     from geoface.avatar.template import procedural_template
-    from geoface.synth.head import EXPRESSION_NAMES, HeadModel
+    from geoface.synth.head import EXPRESSION_NAMES, head_model
     import torch
 
     from geoface.avatar.kinematics import joint_transforms
@@ -215,7 +215,7 @@ def make_synthetic_talking(out, *, seconds: float = 8.0, fps: float = 25.0, res:
     out = Path(out)
     (out / "frames").mkdir(parents=True, exist_ok=True)
     tpl = procedural_template(n_vertices, seed)
-    model = HeadModel(n_vertices=n_vertices, seed=seed)
+    model = head_model(n_vertices, seed)
     sr = 16000
     x, env, rnd = speech_like(seconds, sr, seed)
     wavfile.write(str(out / "audio.wav"), sr, (x * 32767).astype(np.int16))

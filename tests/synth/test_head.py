@@ -452,3 +452,23 @@ def test_bad_dataclass_values():
         HeadIdentity(skin_tone=-0.5)
     with pytest.raises(InvalidMeshError, match="shape"):
         HeadExpression.from_array([0.0, 1.0])
+
+
+def test_head_model_is_built_once_for_the_same_arguments_and_is_not_changed_by_its_use():
+    from geoface.synth.head import MODEL_CACHE_SIZE, HeadModel, head_model
+
+    a = head_model(1500, seed=7, texture_size=32)
+    smile = a.mesh({"smile": 1.0})
+    smile.V[:] = 0.0  # what a caller does with its head does not reach the model
+    smile.texture[:] = 0
+    assert head_model(1500, seed=7, texture_size=32) is a
+    fresh = HeadModel(1500, seed=7, texture_size=32)
+    for e in (None, {"smile": 1.0}, {"jaw_open": 0.7}):
+        m, f = a.mesh(e), fresh.mesh(e)
+        assert np.array_equal(m.V, f.V) and np.array_equal(m.texture, f.texture) and np.array_equal(m.colors, f.colors)
+    assert head_model(1500, seed=8, texture_size=32) is not a
+    for s in range(MODEL_CACHE_SIZE):
+        head_model(1000, seed=100 + s, texture_size=16)
+    assert head_model(1500, seed=7, texture_size=32) is not a  # the oldest are let go
+    with pytest.raises(InvalidMeshError, match="n_vertices"):
+        head_model(1500.0, seed=7, texture_size=32)

@@ -1,0 +1,1 @@
+"""Compiled helpers of :mod:`geoface.mesh` (optional; built by ``setup.py``)."""
