@@ -75,11 +75,47 @@ def height_to_normal(height: np.ndarray, strength: float) -> np.ndarray:
     return n * 0.5 + 0.5
 
 
+#: the noise grids' blur (cells): a feature is about four cells
+NOISE_BLUR = 4.0
+
+
+def _blurred_where_read(noise, R: int) -> np.ndarray:
+    """``ndimage.gaussian_filter(noise, NOISE_BLUR, mode="wrap")`` where a linear resampling of the
+    grid to ``R``² reads it (the cells either side of each sample, and one more), zeros elsewhere:
+    the same numbers, to the last bit, as the whole filter gives there (SciPy's symmetric
+    correlation, rows then columns: the centre tap, then the taps' pairs from the outermost in),
+    at a fraction of its cost when ``R`` is far below the grid's size."""
+    from scipy.ndimage._filters import _gaussian_kernel1d
+
+    r = int(4.0 * NOISE_BLUR + 0.5)  # gaussian_filter's radius (truncate = 4)
+    w = _gaussian_kernel1d(NOISE_BLUR, 0, r)[::-1]
+
+    def read(G):  # the cells the resampling reads: floor(c) and floor(c) + 1, with a cell's margin
+        c = (np.arange(R) + 0.5) * G / R - 0.5
+        return np.unique(((np.floor(c).astype(np.int64)[:, None] + np.arange(-1, 3)) % G).ravel())
+
+    def correlate(z, idx, axis):
+        n = z.shape[axis]
+        acc = np.take(z, idx, axis=axis) * w[r]
+        for j in range(-r, 0):
+            acc += (np.take(z, (idx + j) % n, axis=axis) + np.take(z, (idx - j) % n, axis=axis)) * w[r + j]
+        return acc
+
+    rows, cols = read(noise.shape[0]), read(noise.shape[1])
+    out = np.zeros_like(noise)
+    out[np.ix_(rows, cols)] = correlate(correlate(noise, rows, 0), cols, 1)
+    return out
+
+
 def _aniso_noise(rng, R: int, scale_u: float, scale_v: float) -> np.ndarray:
     """Smooth noise with features of ``scale_u`` across and ``scale_v`` up the UV square (lines
     along the longer one); zero mean, unit std, the same field at every resolution."""
     Gu, Gv = (max(int(np.ceil(4.0 / s)), 4) for s in (scale_u, scale_v))
-    z = ndimage.gaussian_filter(rng.standard_normal((Gv, Gu)), 4.0, mode="wrap")
+    noise = rng.standard_normal((Gv, Gu))
+    if 16 * R <= min(Gu, Gv):  # a small map of a fine grid: the filter only where the resampling reads
+        z = _blurred_where_read(noise, R)
+    else:
+        z = ndimage.gaussian_filter(noise, NOISE_BLUR, mode="wrap")
     z = ndimage.zoom(z, (R / Gv, R / Gu), order=1, mode="grid-wrap", grid_mode=True)
     z = np.pad(z, ((0, max(R - z.shape[0], 0)), (0, max(R - z.shape[1], 0))), mode="wrap")[:R, :R]
     z = z - z.mean()

@@ -204,3 +204,19 @@ def test_pixel_average_is_what_a_camera_integrates():
     np.testing.assert_allclose(out["uv"][0, 0], s["uv"][:2, :2].mean((0, 1)), atol=1e-6)
     assert out["mask"].tolist() == [[True, True], [True, False]]  # a block with a background sub-pixel is out
     assert (out["maps"][1, 1] == 0).all()
+
+
+@pytest.mark.parametrize("shape,R", [((400, 400), 16), ((250, 1700), 20), ((3334, 3334), 64)])
+def test_the_noise_blurred_where_a_small_map_reads_it_is_the_whole_blur_there(shape, R):
+    """A small map of a fine noise grid blurs only the cells its resampling reads: the same numbers,
+    to the last bit, as the whole grid's blur, and so the same map."""
+    from scipy import ndimage
+
+    from geoface.skin.render import NOISE_BLUR, _blurred_where_read
+
+    noise = np.random.default_rng(3).standard_normal(shape)
+    part, whole = _blurred_where_read(noise, R), ndimage.gaussian_filter(noise, NOISE_BLUR, mode="wrap")
+    read = part != 0
+    assert read.sum() >= (2 * R) ** 2 and np.array_equal(part[read], whole[read])
+    zoom = dict(zoom=(R / shape[0], R / shape[1]), order=1, mode="grid-wrap", grid_mode=True)
+    assert np.array_equal(ndimage.zoom(part, **zoom), ndimage.zoom(whole, **zoom))
