@@ -85,10 +85,10 @@ def _blurred_where_read(noise, R: int) -> np.ndarray:
     the same numbers, to the last bit, as the whole filter gives there (SciPy's symmetric
     correlation, rows then columns: the centre tap, then the taps' pairs from the outermost in),
     at a fraction of its cost when ``R`` is far below the grid's size."""
-    from scipy.ndimage._filters import _gaussian_kernel1d
-
     r = int(4.0 * NOISE_BLUR + 0.5)  # gaussian_filter's radius (truncate = 4)
-    w = _gaussian_kernel1d(NOISE_BLUR, 0, r)[::-1]
+    impulse = np.zeros(2 * r + 1)
+    impulse[r] = 1.0
+    w = ndimage.gaussian_filter1d(impulse, NOISE_BLUR, mode="constant")  # its weights, exactly (symmetric)
 
     def read(G):  # the cells the resampling reads: floor(c) and floor(c) + 1, with a cell's margin
         c = (np.arange(R) + 0.5) * G / R - 0.5
