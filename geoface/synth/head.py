@@ -274,20 +274,24 @@ class HeadModel:
 
 #: the last few models built, per process, by their arguments (:func:`head_model`)
 MODEL_CACHE_SIZE = 4
+#: models with a larger texture than this are built each time, not kept
+MODEL_CACHE_TEXTURE = 1024
 _MODELS: OrderedDict = OrderedDict()
 
 
 def head_model(n_vertices: int = 20000, seed: int = 0, identity=None, texture_size: int = 512) -> HeadModel:
     """The :class:`HeadModel` of these arguments, built once per process while it is among the
     last :data:`MODEL_CACHE_SIZE` asked for (a head asked for again, as a capture's template and
-    then its frames, is not built twice); a model is not changed by its methods, so the one
-    returned is shared."""
+    then its frames, is not built twice; a texture above :data:`MODEL_CACHE_TEXTURE`² is not kept);
+    a model is not changed by its methods, so the one returned is shared."""
     key = (_check_int("n_vertices", n_vertices, MIN_VERTICES, MAX_VERTICES), _check_int("seed", seed, 0, 2**63 - 1),
            None if identity is None else HeadIdentity.from_dict(identity),
            _check_int("texture_size", texture_size, 16, 4096))
     model = _MODELS.pop(key, None)
     if model is None:
         model = HeadModel(n_vertices=key[0], seed=key[1], identity=key[2], texture_size=key[3])
+    if key[3] > MODEL_CACHE_TEXTURE:  # a large texture is not held on to (4096²: 200 MB a model)
+        return model
     _MODELS[key] = model
     while len(_MODELS) > MODEL_CACHE_SIZE:
         _MODELS.popitem(last=False)

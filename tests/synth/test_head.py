@@ -455,7 +455,7 @@ def test_bad_dataclass_values():
 
 
 def test_head_model_is_built_once_for_the_same_arguments_and_is_not_changed_by_its_use():
-    from geoface.synth.head import MODEL_CACHE_SIZE, HeadModel, head_model
+    from geoface.synth.head import MODEL_CACHE_SIZE, MODEL_CACHE_TEXTURE, HeadModel, head_model, _MODELS
 
     a = head_model(1500, seed=7, texture_size=32)
     smile = a.mesh({"smile": 1.0})
@@ -472,3 +472,6 @@ def test_head_model_is_built_once_for_the_same_arguments_and_is_not_changed_by_i
     assert head_model(1500, seed=7, texture_size=32) is not a  # the oldest are let go
     with pytest.raises(InvalidMeshError, match="n_vertices"):
         head_model(1500.0, seed=7, texture_size=32)
+    kept = list(_MODELS)
+    big = head_model(1000, seed=1, texture_size=MODEL_CACHE_TEXTURE + 1)
+    assert list(_MODELS) == kept and head_model(1000, seed=1, texture_size=MODEL_CACHE_TEXTURE + 1) is not big
