@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["render_grey", "lift", "Looker", "camera_at", "principal_frame", "search_views", "turn", "unit", "unrotate",
+__all__ = ["render_grey", "face_cross", "lift", "Looker", "camera_at", "principal_frame", "search_views", "turn", "unit", "unrotate",
            "STYLES", "FOV"]
 
 #: field of view of every render (degrees): a portrait lens
@@ -25,21 +25,30 @@ def unit(v) -> np.ndarray:
     return v / max(float(np.linalg.norm(v)), 1e-300)
 
 
-def _vertex_normals_towards(V, F, toward):
+def face_cross(V, F) -> np.ndarray:
+    """Each face's edge cross product ``(V1 - V0) × (V2 - V0)`` (twice its area along its normal),
+    ``(m, 3)``: what :func:`render_grey` shades with, which a caller rendering one mesh many
+    times computes once."""
+    return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+
+
+def _vertex_normals_towards(V, F, toward, cross=None):
     """Area-weighted vertex normals with every face's normal turned towards ``toward`` (a scan's
-    faces may be oriented either way; shading is two-sided)."""
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    n *= np.where(n @ toward < 0, -1.0, 1.0)[:, None]
+    faces may be oriented either way; shading is two-sided); ``cross``: :func:`face_cross` of
+    ``(V, F)``, when the caller has it."""
+    n = face_cross(V, F) if cross is None else cross
+    n = n * np.where(n @ toward < 0, -1.0, 1.0)[:, None]
     idx = F.T.ravel()
     vn = np.column_stack([np.bincount(idx, np.tile(n[:, c], 3), minlength=len(V)) for c in range(3)])
     return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
 
 
-def render_grey(V, F, camera, *, background: float = 0.0, key=None):
+def render_grey(V, F, camera, *, background: float = 0.0, key=None, cross=None):
     """A grey render of the mesh through ``camera`` (:class:`geoface.camera.Camera`): smooth
     two-sided Lambert shading lit from the camera, as a plaster cast under a flash; with ``key``
     (a direction towards a second light, e.g. above the camera), half the light comes from there.
-    ``background``: the grey level where no surface is (0 black, 1 white). Returns
+    ``background``: the grey level where no surface is (0 black, 1 white); ``cross``: the faces'
+    :func:`face_cross`, when the caller keeps it (the same image, sooner). Returns
     ``(image (H, W, 3) uint8, face (H, W) int64 (-1: background), depth (H, W) camera z, inf on
     the background)``."""
     from geoface.mesh.raster import rasterize_mesh
@@ -52,7 +61,7 @@ def render_grey(V, F, camera, *, background: float = 0.0, key=None):
     img = np.full(face.shape, background, np.float64)
     if hit.any():
         view = unit(C - V.mean(0))
-        vn = _vertex_normals_towards(V, F, view)
+        vn = _vertex_normals_towards(V, F, view, cross)
         f = face[hit]
         n = np.einsum("pk,pkd->pd", bary[hit], vn[F[f]])
         P = np.einsum("pk,pkd->pd", bary[hit], V[F[f]])
@@ -167,6 +176,7 @@ class Looker:
         self.V, self.F, self.renders = V, F, 0
         self._full = (V, F)
         self._hold = None
+        self._cross = None  # (V, F, face_cross(V, F)) of the mesh looked at
 
     def __enter__(self):
         from geoface.track import load_mediapipe, quiet_native_stderr
@@ -219,7 +229,9 @@ class Looker:
         self.renders += 1
         st = STYLES[0] if style is None else style
         key = None if not st[2] else unit(camera.R.T @ np.array([0.0, -1.0, -1.0]))  # above the camera
-        return render_grey(self.V, self.F, camera, background=st[1], key=key)
+        if self._cross is None or self._cross[0] is not self.V or self._cross[1] is not self.F:
+            self._cross = (self.V, self.F, face_cross(np.asarray(self.V, np.float64), np.asarray(self.F, np.int64)))
+        return render_grey(self.V, self.F, camera, background=st[1], key=key, cross=self._cross[2])
 
     def _run(self, graph, img):
         return graph.process(np.ascontiguousarray(img))

@@ -61,6 +61,26 @@ def test_a_grey_render_is_lit_from_the_camera():
     assert img[face >= 0].min() > 200  # 0.12 + 0.83 cos(small angle)
 
 
+def test_the_lookers_renders_are_the_plain_renders():
+    """The looker keeps its mesh's face normals between renders: every style, before and after it
+    turns to a decimated copy, draws what :func:`render_grey` draws, pixel for pixel."""
+    from geoface.synth.ict import ict_head, load_ict_model
+    from geoface.track.look import STYLES, Looker, any_up, camera_at, principal_frame, search_views, unit
+
+    head = ict_head(load_ict_model(), seed=2)
+    V, F = head.V.astype(np.float64), head.F.astype(np.int64)
+    c, r, E = principal_frame(V, F)
+    look = Looker(V, F)
+    for step in range(2):
+        for st, g in zip(STYLES, search_views()[::4]):
+            cam = camera_at(c, E @ g, E @ any_up(g), r, 96)
+            key = None if not st[2] else unit(cam.R.T @ np.array([0.0, -1.0, -1.0]))
+            mine, plain = look.render(cam, st), render_grey(look.V, look.F, cam, background=st[1], key=key)
+            assert all(np.array_equal(a, b) for a, b in zip(mine, plain)) and (mine[1] >= 0).mean() > 0.05
+        look.coarse(4000)
+    assert len(look.F) <= 4000 and look.renders == 2 * len(list(zip(STYLES, search_views()[::4])))
+
+
 def test_the_frame_of_the_template_is_its_own_axes_and_turns_with_it():
     T = template_landmarks()
     r, u, f = face_frame(T)
