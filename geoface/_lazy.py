@@ -1,4 +1,4 @@
-"""Lazy imports of optional heavy stacks with an install hint."""
+"""Lazy imports of optional heavy stacks with an install hint, and the optional compiled helpers."""
 
 from __future__ import annotations
 
@@ -62,3 +62,22 @@ def lazy_exports(package: str, names: dict[str, str]):
     __getattr__.homes = {n: (m if "." in m else f"{package}.{m}") for n, m in names.items()}
 
     return __getattr__, __dir__, sorted(names)
+
+
+def native_library(folder, stem: str, abi: str):
+    """The compiled helper ``stem`` that ``setup.py`` builds into ``folder`` (a plain C ABI, loaded
+    with ctypes), or None where it is not built, does not load, or its ``abi`` function does not
+    return 1 (an extension built for another version of the code)."""
+    import ctypes
+    import importlib.machinery
+    from pathlib import Path
+
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        p = Path(folder) / f"{stem}{suffix}"
+        if p.is_file():
+            try:
+                lib = ctypes.CDLL(str(p))
+                return lib if getattr(lib, abi)() == 1 else None
+            except (OSError, AttributeError):
+                return None
+    return None

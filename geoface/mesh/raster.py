@@ -9,38 +9,28 @@ memory stays bounded; where the compiled z-buffer (``geoface.mesh._native.zbuffe
 from __future__ import annotations
 
 import ctypes
-import importlib.machinery
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from .._lazy import native_library
 from ..camera import Camera
 from ..errors import InvalidMeshError, RenderError
 from .core import check_mesh
 
 __all__ = ["bbox_pixels", "rasterize_mesh"]
 
-_NATIVE: list = []
-
-
+@lru_cache(maxsize=1)
 def _native_zbuffer():
     """The compiled z-buffer loop (``geoface_zbuffer``), or None where it was not built."""
-    if not _NATIVE:
-        fn = None
-        for suffix in importlib.machinery.EXTENSION_SUFFIXES:
-            p = Path(__file__).with_name("_native") / f"zbuffer{suffix}"
-            if p.is_file():
-                try:
-                    lib = ctypes.CDLL(str(p))
-                    if lib.geoface_zbuffer_abi() == 1:
-                        fn = lib.geoface_zbuffer
-                        fn.restype = None
-                        fn.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 9 + [ctypes.c_int64] + [ctypes.c_void_p] * 3
-                except (OSError, AttributeError):
-                    fn = None
-                break
-        _NATIVE.append(fn)
-    return _NATIVE[0]
+    lib = native_library(Path(__file__).with_name("_native"), "zbuffer", "geoface_zbuffer_abi")
+    if lib is None:
+        return None
+    fn = lib.geoface_zbuffer
+    fn.restype = None
+    fn.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 9 + [ctypes.c_int64] + [ctypes.c_void_p] * 3
+    return fn
 
 
 def bbox_pixels(x, y, det, j0, i0, nj, count, chunk: int):

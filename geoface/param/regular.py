@@ -23,12 +23,12 @@ The triangulation comes from a small compiled extension against CGAL's headers
 from __future__ import annotations
 
 import ctypes
-import importlib.machinery
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from .._lazy import native_library
 from ..errors import GeofaceError, ParameterizationError
 
 __all__ = ["available", "require", "regular_triangulation", "spatial_order", "flip_to_regular", "power_cells", "power_sides", "power_centres", "INSTALL_HINT"]
@@ -39,39 +39,30 @@ INSTALL_HINT = ("install CGAL's headers (Debian/Ubuntu: apt-get install libcgal-
 
 @lru_cache(maxsize=1)
 def _lib():
-    folder = Path(__file__).with_name("_native")
-    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
-        p = folder / f"regular_triangulation{suffix}"
-        if p.is_file():
-            try:
-                lib = ctypes.CDLL(str(p))
-                if lib.geoface_rt2_abi() != 1:
-                    return None
-            except OSError:
-                return None
-            lib.geoface_rt2.restype = ctypes.c_int64
-            lib.geoface_rt2.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64,
-                                        ctypes.c_void_p, ctypes.c_void_p]
-            if hasattr(lib, "geoface_rt2_ordered"):  # absent from extensions built before it
-                lib.geoface_spatial_order.restype = ctypes.c_int64
-                lib.geoface_spatial_order.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p]
-                lib.geoface_rt2_ordered.restype = ctypes.c_int64
-                lib.geoface_rt2_ordered.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 3 + [ctypes.c_int64] + [ctypes.c_void_p] * 2
-            if hasattr(lib, "geoface_rt2_flip"):  # absent from extensions built before it
-                lib.geoface_rt2_flip.restype = ctypes.c_int64
-                lib.geoface_rt2_flip.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 2 + [ctypes.c_int64] + \
-                    [ctypes.c_void_p] * 2 + [ctypes.c_int64]
-            if hasattr(lib, "geoface_power_cells"):  # absent from extensions built before it
-                lib.geoface_power_cells.restype = ctypes.c_int64
-                lib.geoface_power_cells.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64] + [ctypes.c_void_p] * 7
-            if hasattr(lib, "geoface_power_sides"):
-                lib.geoface_power_sides.restype = None
-                lib.geoface_power_sides.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64] + [ctypes.c_void_p] * 3
-            if hasattr(lib, "geoface_power_centres"):
-                lib.geoface_power_centres.restype = ctypes.c_int64
-                lib.geoface_power_centres.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 4
-            return lib
-    return None
+    lib = native_library(Path(__file__).with_name("_native"), "regular_triangulation", "geoface_rt2_abi")
+    if lib is not None:
+        lib.geoface_rt2.restype = ctypes.c_int64
+        lib.geoface_rt2.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64,
+                                    ctypes.c_void_p, ctypes.c_void_p]
+        if hasattr(lib, "geoface_rt2_ordered"):  # absent from extensions built before it
+            lib.geoface_spatial_order.restype = ctypes.c_int64
+            lib.geoface_spatial_order.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p]
+            lib.geoface_rt2_ordered.restype = ctypes.c_int64
+            lib.geoface_rt2_ordered.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 3 + [ctypes.c_int64] + [ctypes.c_void_p] * 2
+        if hasattr(lib, "geoface_rt2_flip"):  # absent from extensions built before it
+            lib.geoface_rt2_flip.restype = ctypes.c_int64
+            lib.geoface_rt2_flip.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 2 + [ctypes.c_int64] + \
+                [ctypes.c_void_p] * 2 + [ctypes.c_int64]
+        if hasattr(lib, "geoface_power_cells"):  # absent from extensions built before it
+            lib.geoface_power_cells.restype = ctypes.c_int64
+            lib.geoface_power_cells.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64] + [ctypes.c_void_p] * 7
+        if hasattr(lib, "geoface_power_sides"):
+            lib.geoface_power_sides.restype = None
+            lib.geoface_power_sides.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64] + [ctypes.c_void_p] * 3
+        if hasattr(lib, "geoface_power_centres"):
+            lib.geoface_power_centres.restype = ctypes.c_int64
+            lib.geoface_power_centres.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 4
+    return lib
 
 
 def available() -> bool:
