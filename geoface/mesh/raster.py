@@ -21,6 +21,7 @@ from .core import check_mesh
 
 __all__ = ["bbox_pixels", "rasterize_mesh"]
 
+
 @lru_cache(maxsize=1)
 def _native_zbuffer():
     """The compiled z-buffer loop (``geoface_zbuffer``), or None where it was not built."""
